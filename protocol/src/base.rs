@@ -1,0 +1,155 @@
+//! The base mesh: the coarse conforming tet mesh the hierarchy refines, with the scalar at its vertices.
+
+use crate::hierarchy::{Bary, Forest, Lattice, MAX_LEVELS};
+use crate::vertex::VertexKeys;
+use serde::{Deserialize, Serialize};
+
+/// Base mesh as stored and sent: positions, tets (vertex order is part of the contract), the scalar at
+/// the base vertices, and which base tets lie entirely outside the input domain.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaseMesh {
+    pub levels: u8,
+    pub positions: Vec<[f64; 3]>,
+    pub tets: Vec<[u32; 4]>,
+    pub values: Vec<f32>,
+    pub empty: Vec<bool>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum BaseError {
+    #[error("base mesh has no tets")]
+    NoTets,
+    #[error("base mesh: {levels} levels exceeds the maximum {MAX_LEVELS}")]
+    TooManyLevels { levels: u8 },
+    #[error("base mesh: tet {tet} names vertex {vertex} but there are {count} vertices")]
+    VertexOutOfRange {
+        tet: usize,
+        vertex: u32,
+        count: usize,
+    },
+    #[error("base mesh: {values} values for {count} vertices")]
+    ValueCount { values: usize, count: usize },
+    #[error("base mesh: {flags} empty flags for {count} tets")]
+    EmptyCount { flags: usize, count: usize },
+    #[error("base mesh: non-finite position or value")]
+    NonFinite,
+    #[error("base mesh: tet {tet} repeats a vertex")]
+    DegenerateTet { tet: usize },
+}
+
+impl BaseMesh {
+    /// Structural checks a receiver applies before building anything from the mesh.
+    pub fn validate(&self) -> Result<(), BaseError> {
+        if self.tets.is_empty() {
+            return Err(BaseError::NoTets);
+        }
+        if self.levels > MAX_LEVELS {
+            return Err(BaseError::TooManyLevels {
+                levels: self.levels,
+            });
+        }
+        let count = self.positions.len();
+        for (i, t) in self.tets.iter().enumerate() {
+            for &v in t {
+                if v as usize >= count {
+                    return Err(BaseError::VertexOutOfRange {
+                        tet: i,
+                        vertex: v,
+                        count,
+                    });
+                }
+            }
+            for a in 0..4 {
+                for b in a + 1..4 {
+                    if t[a] == t[b] {
+                        return Err(BaseError::DegenerateTet { tet: i });
+                    }
+                }
+            }
+        }
+        if self.values.len() != count {
+            return Err(BaseError::ValueCount {
+                values: self.values.len(),
+                count,
+            });
+        }
+        if self.empty.len() != self.tets.len() {
+            return Err(BaseError::EmptyCount {
+                flags: self.empty.len(),
+                count: self.tets.len(),
+            });
+        }
+        if self.positions.iter().flatten().any(|x| !x.is_finite())
+            || self.values.iter().any(|x| !x.is_finite())
+        {
+            return Err(BaseError::NonFinite);
+        }
+        Ok(())
+    }
+
+    pub fn forest(&self) -> Forest {
+        Forest::new(self.tets.len() as u64, self.levels)
+    }
+
+    pub fn lattice(&self) -> Lattice {
+        Lattice {
+            levels: self.levels,
+        }
+    }
+
+    /// The global vertex numbering of this mesh's hierarchy.
+    pub fn vertex_keys(&self) -> VertexKeys {
+        VertexKeys::new(self.positions.len() as u32, &self.tets, self.lattice())
+    }
+
+    /// Position of lattice point `w` of base tet `tet`.
+    #[inline]
+    pub fn position(&self, tet: u32, w: &Bary) -> [f64; 3] {
+        lattice_position(
+            &self.positions,
+            &self.tets[tet as usize],
+            self.lattice().m(),
+            w,
+        )
+    }
+
+    /// Axis-aligned bounds `(min, max)` of the base vertices.
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in &self.positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        (lo, hi)
+    }
+}
+
+/// Position of lattice point `w` (weights summing to `m`) of the tet with corners `tet`.
+#[inline]
+pub fn lattice_position(positions: &[[f64; 3]], tet: &[u32; 4], m: u32, w: &Bary) -> [f64; 3] {
+    let mut p = [0.0f64; 3];
+    let inv = 1.0 / m as f64;
+    for i in 0..4 {
+        if w[i] != 0 {
+            let x = positions[tet[i] as usize];
+            let s = w[i] as f64 * inv;
+            p[0] += s * x[0];
+            p[1] += s * x[1];
+            p[2] += s * x[2];
+        }
+    }
+    p
+}
+
+/// Signed volume of a tet (positive for the right-handed orientation).
+pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 {
+    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    let w = [d[0] - a[0], d[1] - a[1], d[2] - a[2]];
+    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+        + u[2] * (v[0] * w[1] - v[1] * w[0]))
+        / 6.0
+}

@@ -1,0 +1,404 @@
+//! The semi-regular hierarchy: tet ids, levels, Bey child order and local edge order.
+//!
+//! A semi-regular mesh is a coarse conforming base mesh of `n` tets refined `L` times by Bey's regular
+//! refinement. Every tet of every level has an id; the hierarchy is *implicit*: ids, children, parents,
+//! levels and vertex positions are computed, never stored per tet.
+//!
+//! - Level-0 (base) tets have ids `0..n`.
+//! - The children of tet `t` (any level) are `n + 8t + i`, `i = 0..8` (a complete 8-ary forest).
+//! - Level `k` occupies the id range `[n(8^k − 1)/7, n(8^{k+1} − 1)/7)`.
+//!
+//! Vertices of a tet are kept as *lattice coordinates*: integer barycentric weights with respect to the
+//! tet's base tet, scaled so that they sum to `m = 2^L` (see [`Lattice`]). Midpoints are then exact integer
+//! averages, and a vertex's global key ([`crate::vertex`]) follows from its weights alone.
+
+use serde::{Deserialize, Serialize};
+
+/// Tet id in the complete 8-ary forest numbering.
+pub type TetId = u64;
+
+/// Local edge order of a tet: `(0,1) (0,2) (0,3) (1,2) (1,3) (2,3)`.
+pub const EDGES: [(usize, usize); 6] = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
+
+/// Local face order: face `i` is the face opposite vertex `i`, listed by its other three vertices.
+pub const FACES: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
+
+/// Index into the 10 points of a Bey split: `0..4` are the tet's vertices, `4..10` the midpoints of
+/// [`EDGES`] in order (`x01 x02 x03 x12 x13 x23`).
+const X01: usize = 4;
+const X02: usize = 5;
+const X03: usize = 6;
+const X12: usize = 7;
+const X13: usize = 8;
+const X23: usize = 9;
+
+/// Bey's regular refinement of `T = [x0,x1,x2,x3]`, children in the contract's order (design.md):
+/// `T0=[x0,x01,x02,x03] T1=[x01,x1,x12,x13] T2=[x02,x12,x2,x23] T3=[x03,x13,x23,x3]`
+/// `T4=[x01,x02,x03,x13] T5=[x01,x02,x12,x13] T6=[x02,x03,x13,x23] T7=[x02,x12,x13,x23]`.
+/// Entries index the 10 split points (see the constants above). The vertex order is part of the
+/// contract: it keeps all descendants in at most three similarity classes.
+pub const BEY_CHILDREN: [[usize; 4]; 8] = [
+    [0, X01, X02, X03],
+    [X01, 1, X12, X13],
+    [X02, X12, 2, X23],
+    [X03, X13, X23, 3],
+    [X01, X02, X03, X13],
+    [X01, X02, X12, X13],
+    [X02, X03, X13, X23],
+    [X02, X12, X13, X23],
+];
+
+/// Id arithmetic of a forest with `n_base` roots and `levels` levels of refinement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Forest {
+    pub n_base: u64,
+    pub levels: u8,
+}
+
+/// The largest number of levels the id and lattice arithmetic supports (`8^k` fits in u64 for every
+/// level with room for `n_base` up to 2^20; lattice weights fit in u32).
+pub const MAX_LEVELS: u8 = 16;
+
+impl Forest {
+    pub fn new(n_base: u64, levels: u8) -> Self {
+        assert!(levels <= MAX_LEVELS, "levels {levels} > {MAX_LEVELS}");
+        Forest { n_base, levels }
+    }
+
+    /// First id of level `k` (`k` may be `levels + 1`, giving the total count).
+    pub fn level_start(&self, k: u8) -> u64 {
+        self.n_base * ((1u64 << (3 * k as u32)) - 1) / 7
+    }
+
+    /// Number of tets at level `k`.
+    pub fn level_len(&self, k: u8) -> u64 {
+        self.n_base << (3 * k as u32)
+    }
+
+    /// Tets in all levels `0..=L`.
+    pub fn total_tets(&self) -> u64 {
+        self.level_start(self.levels + 1)
+    }
+
+    /// Leaves of the uniform finest level.
+    pub fn leaves(&self) -> u64 {
+        self.level_len(self.levels)
+    }
+
+    /// Detail nodes: tets that have children (levels `0..L`).
+    pub fn nodes(&self) -> u64 {
+        self.level_start(self.levels)
+    }
+
+    /// Whether `id` names a tet of this forest.
+    pub fn contains(&self, id: TetId) -> bool {
+        id < self.total_tets()
+    }
+
+    /// Level of a tet id (ids beyond the forest still get the level of their range).
+    pub fn level(&self, id: TetId) -> u8 {
+        let mut k = 0u8;
+        while k < 21 && id >= self.level_start(k + 1) {
+            k += 1;
+        }
+        k
+    }
+
+    /// Parent of `id`, `None` for a base tet.
+    pub fn parent(&self, id: TetId) -> Option<TetId> {
+        (id >= self.n_base).then(|| (id - self.n_base) / 8)
+    }
+
+    /// Position `i` of `id` among its parent's children, `None` for a base tet.
+    pub fn child_index(&self, id: TetId) -> Option<usize> {
+        (id >= self.n_base).then(|| ((id - self.n_base) % 8) as usize)
+    }
+
+    /// Id of child `i` of `id`.
+    pub fn child(&self, id: TetId, i: usize) -> TetId {
+        debug_assert!(i < 8);
+        self.n_base + 8 * id + i as u64
+    }
+
+    /// The base tet `id` descends from and the child indices from it down to `id`, root first.
+    pub fn path(&self, id: TetId) -> (u32, Vec<u8>) {
+        let k = self.level(id);
+        let local = id - self.level_start(k);
+        let base = (local >> (3 * k as u32)) as u32;
+        let digits = (0..k)
+            .map(|j| ((local >> (3 * (k - 1 - j) as u32)) & 7) as u8)
+            .collect();
+        (base, digits)
+    }
+}
+
+/// Barycentric lattice weights of a point with respect to a base tet, summing to `m = 2^L`.
+pub type Bary = [u32; 4];
+
+/// Lattice of a forest's finest level: `m = 2^levels` steps along every base edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Lattice {
+    pub levels: u8,
+}
+
+impl Lattice {
+    pub fn m(&self) -> u32 {
+        1u32 << self.levels
+    }
+
+    /// Weights of the 4 vertices of a base tet.
+    pub fn base_corners(&self) -> [Bary; 4] {
+        let m = self.m();
+        [[m, 0, 0, 0], [0, m, 0, 0], [0, 0, m, 0], [0, 0, 0, m]]
+    }
+
+    /// Level at which a lattice point first appears (0 for base vertices).
+    pub fn vertex_level(&self, w: &Bary) -> u8 {
+        let tz = w
+            .iter()
+            .map(|&x| if x == 0 { 32 } else { x.trailing_zeros() })
+            .min()
+            .unwrap();
+        self.levels - tz.min(self.levels as u32) as u8
+    }
+}
+
+/// A tet of the hierarchy: its base tet and the lattice weights of its 4 vertices, in contract order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LatticeTet {
+    pub base: u32,
+    pub v: [Bary; 4],
+}
+
+/// Exact midpoint of two lattice points of a level `< L`.
+#[inline]
+pub fn midpoint(a: &Bary, b: &Bary) -> Bary {
+    [
+        (a[0] + b[0]) / 2,
+        (a[1] + b[1]) / 2,
+        (a[2] + b[2]) / 2,
+        (a[3] + b[3]) / 2,
+    ]
+}
+
+impl LatticeTet {
+    pub fn base_tet(lattice: Lattice, base: u32) -> Self {
+        LatticeTet {
+            base,
+            v: lattice.base_corners(),
+        }
+    }
+
+    /// The tet with id `id` of `forest` (O(level)).
+    pub fn from_id(forest: &Forest, id: TetId) -> Self {
+        let (base, digits) = forest.path(id);
+        let mut t = LatticeTet::base_tet(
+            Lattice {
+                levels: forest.levels,
+            },
+            base,
+        );
+        for d in digits {
+            t = t.child(d as usize);
+        }
+        t
+    }
+
+    /// Midpoint of local edge `e` (see [`EDGES`]).
+    #[inline]
+    pub fn edge_midpoint(&self, e: usize) -> Bary {
+        let (a, b) = EDGES[e];
+        midpoint(&self.v[a], &self.v[b])
+    }
+
+    /// The 10 points of the Bey split: 4 vertices then the 6 edge midpoints.
+    #[inline]
+    pub fn split_points(&self) -> [Bary; 10] {
+        let mut p = [[0u32; 4]; 10];
+        p[..4].copy_from_slice(&self.v);
+        for e in 0..6 {
+            p[4 + e] = self.edge_midpoint(e);
+        }
+        p
+    }
+
+    /// Child `i` in Bey order.
+    #[inline]
+    pub fn child(&self, i: usize) -> Self {
+        let p = self.split_points();
+        let c = BEY_CHILDREN[i];
+        LatticeTet {
+            base: self.base,
+            v: [p[c[0]], p[c[1]], p[c[2]], p[c[3]]],
+        }
+    }
+
+    /// All 8 children in Bey order.
+    pub fn children(&self) -> [Self; 8] {
+        let p = self.split_points();
+        std::array::from_fn(|i| {
+            let c = BEY_CHILDREN[i];
+            LatticeTet {
+                base: self.base,
+                v: [p[c[0]], p[c[1]], p[c[2]], p[c[3]]],
+            }
+        })
+    }
+}
+
+/// Walks the tets of one level in increasing id order, in amortized O(1) per tet (it keeps the path
+/// from the base tet and recomputes only the levels whose child index changed).
+#[derive(Debug, Clone)]
+pub struct LevelWalker {
+    forest: Forest,
+    level: u8,
+    next: TetId,
+    end: TetId,
+    /// `stack[j]` is the ancestor at level `j` of the current tet; `digits[j]` its child index.
+    stack: Vec<LatticeTet>,
+    digits: Vec<u8>,
+}
+
+impl LevelWalker {
+    /// Ids `range` of level `level` (clamped to the level's range).
+    pub fn new(forest: Forest, level: u8, range: std::ops::Range<TetId>) -> Self {
+        let lo = forest.level_start(level);
+        let hi = forest.level_start(level + 1);
+        let start = range.start.clamp(lo, hi);
+        let end = range.end.clamp(start, hi);
+        LevelWalker {
+            forest,
+            level,
+            next: start,
+            end,
+            stack: Vec::new(),
+            digits: Vec::new(),
+        }
+    }
+
+    /// The whole level.
+    pub fn level(forest: Forest, level: u8) -> Self {
+        Self::new(
+            forest,
+            level,
+            forest.level_start(level)..forest.level_start(level + 1),
+        )
+    }
+}
+
+impl Iterator for LevelWalker {
+    type Item = (TetId, LatticeTet);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.next >= self.end {
+            return None;
+        }
+        let id = self.next;
+        self.next += 1;
+        let (base, digits) = self.forest.path(id);
+        let lattice = Lattice {
+            levels: self.forest.levels,
+        };
+        // first level whose ancestor differs from the cached path
+        let same_base = self.stack.first().is_some_and(|t| t.base == base);
+        let mut keep = if same_base { 1 } else { 0 };
+        if same_base {
+            while keep <= digits.len()
+                && keep <= self.digits.len()
+                && self.digits[keep - 1] == digits[keep - 1]
+            {
+                keep += 1;
+            }
+        }
+        self.stack.truncate(keep);
+        self.digits.truncate(keep.saturating_sub(1));
+        if self.stack.is_empty() {
+            self.stack.push(LatticeTet::base_tet(lattice, base));
+        }
+        for j in self.stack.len() - 1..digits.len() {
+            let c = self.stack[j].child(digits[j] as usize);
+            self.stack.push(c);
+            self.digits.push(digits[j]);
+        }
+        debug_assert_eq!(self.stack.len(), self.level as usize + 1);
+        Some((id, *self.stack.last().unwrap()))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let n = (self.end - self.next) as usize;
+        (n, Some(n))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn thesis_table_counts() {
+        let f = Forest::new(5, 5);
+        assert_eq!(f.total_tets(), 187_245);
+        assert_eq!(f.leaves(), 163_840);
+        assert_eq!(f.nodes(), 23_405);
+        let f6 = Forest::new(5, 6);
+        assert_eq!(f6.total_tets(), 1_497_965);
+        assert_eq!(f6.leaves(), 1_310_720);
+        assert_eq!(f6.nodes(), 187_245);
+        assert_eq!(Forest::new(6, 5).total_tets(), 224_694);
+    }
+
+    #[test]
+    fn level_ranges() {
+        let f = Forest::new(5, 4);
+        for k in 0..=4u8 {
+            assert_eq!(f.level(f.level_start(k)), k);
+            assert_eq!(f.level(f.level_start(k + 1) - 1), k);
+        }
+    }
+
+    #[test]
+    fn walker_matches_from_id() {
+        let f = Forest::new(5, 4);
+        for k in 0..=4u8 {
+            for (id, t) in LevelWalker::level(f, k) {
+                assert_eq!(t, LatticeTet::from_id(&f, id));
+            }
+        }
+        let mid = f.level_start(3) + 77;
+        let w: Vec<_> = LevelWalker::new(f, 3, mid..mid + 100).collect();
+        assert_eq!(w.len(), 100);
+        assert_eq!(w[0].1, LatticeTet::from_id(&f, mid));
+        assert_eq!(w[99].1, LatticeTet::from_id(&f, mid + 99));
+    }
+
+    proptest! {
+        #[test]
+        fn parent_child_bijective(n in 1u64..50, levels in 1u8..8, pick in any::<u64>(), i in 0usize..8) {
+            let f = Forest::new(n, levels);
+            let t = pick % f.nodes();
+            let c = f.child(t, i);
+            prop_assert!(f.contains(c));
+            prop_assert_eq!(f.parent(c), Some(t));
+            prop_assert_eq!(f.child_index(c), Some(i));
+            prop_assert_eq!(f.level(c), f.level(t) + 1);
+            // path of the child extends the parent's path by i
+            let (b0, mut p0) = f.path(t);
+            let (b1, p1) = f.path(c);
+            p0.push(i as u8);
+            prop_assert_eq!(b0, b1);
+            prop_assert_eq!(p0, p1);
+        }
+
+        #[test]
+        fn every_id_has_a_unique_path(n in 1u64..20, levels in 1u8..5, pick in any::<u64>()) {
+            let f = Forest::new(n, levels);
+            let id = pick % f.total_tets();
+            let (b, digits) = f.path(id);
+            // rebuild the id from the path
+            let mut r = b as u64;
+            for d in digits { r = f.child(r, d as usize); }
+            prop_assert_eq!(r, id);
+        }
+    }
+}

@@ -1,0 +1,18 @@
+//! # tetwave-protocol
+//!
+//! The contract both the server and the client compile: ids and child order of the semi-regular
+//! hierarchy ([`hierarchy`]), global vertex keys ([`vertex`]), the lifting steps ([`wavelet`]), detail
+//! nodes ([`node`]), the base mesh ([`base`]) and whole-hierarchy synthesis ([`synthesis`]).
+//! This crate does no I/O.
+
+pub mod base;
+pub mod hierarchy;
+pub mod node;
+pub mod synthesis;
+pub mod vertex;
+pub mod wavelet;
+
+pub use base::BaseMesh;
+pub use hierarchy::{Forest, LatticeTet, TetId};
+pub use node::DetailNode;
+pub use vertex::VertexKeys;

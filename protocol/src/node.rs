@@ -1,0 +1,64 @@
+//! Detail nodes: what the server stores and streams per tet that has children.
+
+use crate::hierarchy::TetId;
+use serde::{Deserialize, Serialize};
+
+/// The coefficients one tet owns, with the metadata the client's selection uses.
+///
+/// Bit `e` of `owned` says the tet owns the coefficient of its local edge `e`'s midpoint; `coeffs`
+/// holds those coefficients in increasing `e`. Each new vertex has exactly one owner: the lowest id of
+/// its level's tets that contain the vertex's edge.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DetailNode {
+    pub id: TetId,
+    /// Owned-edge mask (6 bits, [`crate::hierarchy::EDGES`] order).
+    pub owned: u8,
+    /// Bit `i`: child `i` lies entirely outside the input domain (empty, never refined, not drawn).
+    pub empty_children: u8,
+    /// Max |detail| over every vertex created by refining this tet and its descendants.
+    pub subtree_max_abs: f32,
+    pub coeffs: Vec<f32>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum NodeError {
+    #[error("node {id}: owned mask {mask:#04x} has bits beyond the 6 edges")]
+    BadMask { id: TetId, mask: u8 },
+    #[error("node {id}: {got} coefficients for an owned mask of {want}")]
+    CountMismatch { id: TetId, got: usize, want: usize },
+    #[error("node {id}: non-finite coefficient or metadata")]
+    NonFinite { id: TetId },
+}
+
+impl DetailNode {
+    /// Structural checks a receiver applies before using a node.
+    pub fn validate(&self) -> Result<(), NodeError> {
+        if self.owned & !0x3f != 0 {
+            return Err(NodeError::BadMask {
+                id: self.id,
+                mask: self.owned,
+            });
+        }
+        let want = self.owned.count_ones() as usize;
+        if self.coeffs.len() != want {
+            return Err(NodeError::CountMismatch {
+                id: self.id,
+                got: self.coeffs.len(),
+                want,
+            });
+        }
+        if !self.subtree_max_abs.is_finite() || self.coeffs.iter().any(|c| !c.is_finite()) {
+            return Err(NodeError::NonFinite { id: self.id });
+        }
+        Ok(())
+    }
+
+    /// The coefficient of local edge `e`, if this node owns it.
+    pub fn coeff(&self, e: usize) -> Option<f32> {
+        if self.owned & (1 << e) == 0 {
+            return None;
+        }
+        let idx = (self.owned & ((1u8 << e) - 1)).count_ones() as usize;
+        self.coeffs.get(idx).copied()
+    }
+}
