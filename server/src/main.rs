@@ -1,1 +1,186 @@
-fn main() {}
+//! `tetwave-server`: prepare stores from volumes, verify them (and, as later stages land, serve them).
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use tetwave_server::prepare::{prepare, verify, PrepareOptions};
+use tetwave_server::resample::BaseSpec;
+
+#[derive(Parser)]
+#[command(
+    name = "tetwave-server",
+    version,
+    about = "tetwave server: resample volumes onto a semi-regular tet mesh, wavelet-analyse them and store the coefficients"
+)]
+struct Cli {
+    /// Log filter (tracing EnvFilter syntax), e.g. `info` or `tetwave_server=debug`.
+    #[arg(long, global = true, default_value = "warn", env = "TETWAVE_LOG")]
+    log: String,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Resample a volume onto a semi-regular tet mesh, run the wavelet analysis and write a store.
+    Prepare {
+        /// `synthetic:harmonic` (the embedded default), `synthetic:linear`, a raw grid (.raw or with
+        /// --dims), or an unstructured tet mesh (.vtu, .vtk, .msh).
+        input: String,
+        /// Store directory to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Levels of Bey refinement.
+        #[arg(long, default_value_t = 5)]
+        levels: u8,
+        /// Base mesh: `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet mesh file.
+        #[arg(long, default_value = "box5")]
+        base: BaseSpec,
+        /// Quantize details uniformly to this many bits (8..=24); lossless f32 when absent.
+        #[arg(long)]
+        bits: Option<u8>,
+        /// Raw grid dimensions `X,Y,Z` (x fastest).
+        #[arg(long, value_parser = parse_dims)]
+        dims: Option<[usize; 3]>,
+        /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
+        #[arg(long, default_value = "u8")]
+        dtype: String,
+        /// Raw grid spacing `sx,sy,sz`.
+        #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
+        spacing: [f64; 3],
+        /// Point scalar to use from a mesh file (default: the first).
+        #[arg(long)]
+        scalar: Option<String>,
+        /// Replace NaN/Inf input values by this value instead of refusing the input.
+        #[arg(long)]
+        nan_as: Option<f64>,
+        /// Print one JSON object instead of the summary.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Re-run synthesis from a store and compare with its samples; fails beyond the manifest's bound.
+    Verify {
+        store: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers, got {s:?}"));
+    }
+    let mut out = Vec::with_capacity(3);
+    for p in parts {
+        out.push(
+            p.trim()
+                .parse::<T>()
+                .map_err(|_| format!("not a number: {p:?}"))?,
+        );
+    }
+    out.try_into()
+        .map_err(|_| "expected three numbers".to_string())
+}
+
+fn parse_dims(s: &str) -> Result<[usize; 3], String> {
+    parse_triple(s)
+}
+
+fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
+    parse_triple(s)
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_new(&cli.log).unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match run(cli.cmd) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
+    let interactive = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    match cmd {
+        Cmd::Prepare {
+            input,
+            out,
+            levels,
+            base,
+            bits,
+            dims,
+            dtype,
+            spacing,
+            scalar,
+            nan_as,
+            json,
+        } => {
+            let o = PrepareOptions {
+                input,
+                out,
+                levels,
+                base,
+                bits,
+                dims,
+                dtype,
+                spacing,
+                scalar,
+                nan_as,
+                progress: interactive && !json,
+            };
+            let s = prepare(&o)?;
+            if json {
+                println!("{}", serde_json::to_string(&s)?);
+            } else {
+                println!(
+                    "dataset      {} ({} base, {} levels) -> {}",
+                    s.dataset, s.base, s.levels, s.store
+                );
+                println!(
+                    "tets         {} in all levels, {} leaves, {} detail nodes",
+                    s.tets_total, s.leaves, s.nodes
+                );
+                println!(
+                    "vertices     {} ({} outside the input's domain)",
+                    s.vertices, s.outside_vertices
+                );
+                println!(
+                    "coefficients {} ({}), {} bytes streamable",
+                    s.coefficients, s.encoding, s.bytes
+                );
+                println!(
+                    "max error    {:e} (bound {:e}), values in [{}, {}]",
+                    s.max_abs_error, s.max_error_bound, s.value_range[0], s.value_range[1]
+                );
+                if let Some(r) = &s.import {
+                    println!(
+                        "import       scalar {:?}: {} tets kept, {} re-oriented, {} zero-volume dropped, {} other cells ignored",
+                        r.scalar, r.tets_kept, r.tets_reoriented, r.tets_dropped_degenerate, r.cells_ignored
+                    );
+                }
+                println!("time         {:.3} s", s.seconds);
+            }
+        }
+        Cmd::Verify { store, json } => {
+            let r = verify(&store)?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                println!(
+                    "ok: {} vertices from {} nodes, max abs error {:e} (bound {:e}), {} bit-exact, {:.3} s",
+                    r.vertices, r.nodes, r.max_abs_error, r.max_error_bound, r.exact_vertices, r.seconds
+                );
+            }
+        }
+    }
+    Ok(())
+}

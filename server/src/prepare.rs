@@ -1,0 +1,296 @@
+//! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
+
+use crate::analysis::{analyze_hierarchy, AnalysisError};
+use crate::resample::mesh_io::{self, ImportError};
+use crate::resample::raw::{RawError, RawGrid, RawType};
+use crate::resample::synthetic::Synthetic;
+use crate::resample::unstructured::{self, CleanError, CleanReport, Locator};
+use crate::resample::{resample, BaseSpec, ResampleError, Source};
+use crate::store::{self, Store, StoreError, StoreMeta};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use tetwave_protocol::synthesis::apply_node;
+use tetwave_protocol::LatticeTet;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PrepareError {
+    #[error("unknown input {0:?}: give synthetic:harmonic|linear, a raw grid (.raw, or any file with --dims), or a .vtu/.vtk/.msh mesh")]
+    UnknownInput(String),
+    #[error("unknown synthetic field {0:?} (known: harmonic, linear)")]
+    UnknownSynthetic(String),
+    #[error("unknown --dtype {0:?} (u8, u16, f32)")]
+    UnknownDtype(String),
+    #[error("{path}: {count} NaN/Inf samples (first at index {first}); pass --nan-as VALUE to replace them")]
+    NonFiniteRaw {
+        path: PathBuf,
+        count: usize,
+        first: usize,
+    },
+    #[error(transparent)]
+    Raw(#[from] RawError),
+    #[error(transparent)]
+    Import(#[from] ImportError),
+    #[error("{path}: {source}")]
+    Clean { path: PathBuf, source: CleanError },
+    #[error(transparent)]
+    Resample(#[from] ResampleError),
+    #[error(transparent)]
+    Analysis(#[from] AnalysisError),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("{what}: max abs error {error:e} exceeds the manifest's bound {bound:e}")]
+    VerifyFailed {
+        what: String,
+        error: f64,
+        bound: f64,
+    },
+    #[error("synthesis failed: {0}")]
+    Synthesis(String),
+}
+
+/// Options of `tetwave-server prepare`.
+#[derive(Debug, Clone)]
+pub struct PrepareOptions {
+    pub input: String,
+    pub out: PathBuf,
+    pub levels: u8,
+    pub base: BaseSpec,
+    pub bits: Option<u8>,
+    pub dims: Option<[usize; 3]>,
+    pub dtype: String,
+    pub spacing: [f64; 3],
+    pub scalar: Option<String>,
+    pub nan_as: Option<f64>,
+    pub progress: bool,
+}
+
+impl PrepareOptions {
+    pub fn new(input: &str, out: &Path) -> Self {
+        PrepareOptions {
+            input: input.to_string(),
+            out: out.to_path_buf(),
+            levels: 5,
+            base: BaseSpec::Box5,
+            bits: None,
+            dims: None,
+            dtype: "u8".into(),
+            spacing: [1.0; 3],
+            scalar: None,
+            nan_as: None,
+            progress: false,
+        }
+    }
+}
+
+/// The summary `prepare --json` prints.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub dataset: String,
+    pub store: String,
+    pub base: String,
+    pub base_tets: u64,
+    pub levels: u8,
+    pub tets_total: u64,
+    pub leaves: u64,
+    pub nodes: u64,
+    pub vertices: u64,
+    pub coefficients: u64,
+    /// Bytes of what is streamed: base mesh, node records, coefficients and index.
+    pub bytes: u64,
+    /// Bytes of the verification reference (`reference.f32`, not streamed).
+    pub reference_bytes: u64,
+    pub encoding: String,
+    pub max_abs_error: f64,
+    pub max_error_bound: f64,
+    pub value_range: [f32; 2],
+    pub outside_vertices: u64,
+    pub empty_base_tets: u64,
+    pub seconds: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub import: Option<CleanReport>,
+}
+
+fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport>), PrepareError> {
+    if let Some(name) = o.input.strip_prefix("synthetic:") {
+        let s = Synthetic::parse(name)
+            .ok_or_else(|| PrepareError::UnknownSynthetic(name.to_string()))?;
+        return Ok((Source::Synthetic(s), s.name().to_string(), None));
+    }
+    let path = PathBuf::from(&o.input);
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| o.input.clone());
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if o.dims.is_some() || ext == "raw" {
+        let dims = o.dims.ok_or(RawError::MissingDims)?;
+        let dtype =
+            RawType::parse(&o.dtype).ok_or_else(|| PrepareError::UnknownDtype(o.dtype.clone()))?;
+        let mut grid = RawGrid::read(&path, dims, dtype, o.spacing)?;
+        if let Some(first) = grid.first_non_finite() {
+            match o.nan_as {
+                Some(v) => {
+                    let n = grid.replace_non_finite(v as f32);
+                    tracing::warn!(replaced = n, value = v, "replaced NaN/Inf samples");
+                }
+                None => {
+                    let count = grid.replace_non_finite(0.0);
+                    return Err(PrepareError::NonFiniteRaw { path, count, first });
+                }
+            }
+        }
+        return Ok((Source::Raw(grid), stem, None));
+    }
+    if mesh_io::format_of(&path).is_some() || path.exists() {
+        let mesh = mesh_io::read_tet_mesh(&path)?;
+        let (clean, report) =
+            unstructured::clean(mesh, o.scalar.as_deref(), o.nan_as).map_err(|source| {
+                PrepareError::Clean {
+                    path: path.clone(),
+                    source,
+                }
+            })?;
+        if report.tets_reoriented > 0 || report.tets_dropped_degenerate > 0 {
+            tracing::warn!(
+                reoriented = report.tets_reoriented,
+                dropped = report.tets_dropped_degenerate,
+                "fixed inverted tets and dropped zero-volume tets"
+            );
+        }
+        let bounds = unstructured::bbox(&clean.points);
+        let loc = Locator::new(&clean);
+        return Ok((Source::Mesh(Box::new(loc), bounds), stem, Some(report)));
+    }
+    Err(PrepareError::UnknownInput(o.input.clone()))
+}
+
+/// Resamples, analyses and writes a store.
+pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
+    let t0 = Instant::now();
+    let (source, dataset, import) = load_source(o)?;
+    tracing::info!(input = %o.input, levels = o.levels, "resampling");
+    let r = resample(&source, &o.base, o.levels)?;
+    drop(source);
+    let outside = r.outside;
+    tracing::info!(vertices = r.samples.len(), outside, "analysing");
+    let a = analyze_hierarchy(r, o.bits, o.progress)?;
+    let base_name = match &o.base {
+        BaseSpec::Box5 => "box5".to_string(),
+        BaseSpec::Box6 => "box6".to_string(),
+        BaseSpec::File(p) => p.display().to_string(),
+    };
+    let meta = StoreMeta {
+        dataset: dataset.clone(),
+        source: o.input.clone(),
+        base: base_name.clone(),
+        outside_vertices: outside,
+    };
+    let m = store::write(&o.out, &a, meta)?;
+    let bytes = m
+        .files
+        .iter()
+        .filter(|(k, _)| k.as_str() != "reference.f32")
+        .map(|(_, f)| f.bytes)
+        .sum();
+    Ok(Summary {
+        dataset,
+        store: o.out.display().to_string(),
+        base: base_name,
+        base_tets: m.base_tets,
+        levels: m.levels,
+        tets_total: m.counts.tets_total,
+        leaves: m.counts.leaves,
+        nodes: m.counts.nodes,
+        vertices: m.counts.vertices,
+        coefficients: m.counts.coefficients,
+        bytes,
+        reference_bytes: m.files.get("reference.f32").map(|f| f.bytes).unwrap_or(0),
+        encoding: match m.encoding {
+            store::Encoding::F32 => "f32".into(),
+            store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),
+        },
+        max_abs_error: m.max_abs_error,
+        max_error_bound: m.max_error_bound,
+        value_range: m.value_range,
+        outside_vertices: outside,
+        empty_base_tets: m.counts.empty_base_tets,
+        seconds: t0.elapsed().as_secs_f64(),
+        import,
+    })
+}
+
+/// What `verify` measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct VerifyReport {
+    pub store: String,
+    pub vertices: u64,
+    pub nodes: u64,
+    pub max_abs_error: f64,
+    pub max_error_bound: f64,
+    pub exact_vertices: u64,
+    pub seconds: f64,
+}
+
+/// Re-runs synthesis from the store's base mesh and nodes and compares every vertex with the stored
+/// samples. Fails if a checksum is wrong, a node is malformed, or the error exceeds the manifest's bound.
+pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
+    let t0 = Instant::now();
+    let store = Store::open(dir)?;
+    store.check_sums()?;
+    let keys = store.base.vertex_keys();
+    let forest = store.forest();
+    let n = keys.vertex_count() as usize;
+    let mut values = vec![f32::NAN; n];
+    let mut set = vec![false; n];
+    for (v, &x) in store.base.values.iter().enumerate() {
+        values[v] = x;
+        set[v] = true;
+    }
+    let nodes = forest.nodes();
+    let chunk = 1u64 << 16;
+    let mut s = 0;
+    while s < nodes {
+        let batch = store.read_nodes(s, (s + chunk).min(nodes))?;
+        for node in &batch {
+            let tet = LatticeTet::from_id(&forest, node.id);
+            apply_node(&keys, &tet, node, &mut values, &mut set)
+                .map_err(|e| PrepareError::Synthesis(e.to_string()))?;
+        }
+        s += chunk;
+    }
+    if let Some(k) = set.iter().position(|&x| !x) {
+        return Err(PrepareError::Synthesis(format!(
+            "vertex {k} is owned by no node"
+        )));
+    }
+    let reference = store.read_reference()?;
+    let mut max_err = 0f64;
+    let mut exact = 0u64;
+    for (a, b) in values.iter().zip(&reference) {
+        if a == b {
+            exact += 1;
+        }
+        max_err = max_err.max((*a as f64 - *b as f64).abs());
+    }
+    let bound = store.manifest.max_error_bound;
+    if max_err > bound || max_err.is_nan() {
+        return Err(PrepareError::VerifyFailed {
+            what: dir.display().to_string(),
+            error: max_err,
+            bound,
+        });
+    }
+    Ok(VerifyReport {
+        store: dir.display().to_string(),
+        vertices: n as u64,
+        nodes,
+        max_abs_error: max_err,
+        max_error_bound: bound,
+        exact_vertices: exact,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}

@@ -1,0 +1,204 @@
+//! Resampling: builds the semi-regular mesh (a base mesh refined `L` times by Bey) over a volume and
+//! samples the scalar at every vertex of the finest level.
+//!
+//! Inputs: an analytic field ([`synthetic`]), a raw grid ([`raw`], trilinear) or an unstructured tet
+//! mesh ([`mesh_io`] readers, [`unstructured`] location and barycentric interpolation).
+//!
+//! **Outside rule.** A vertex where the input has no data (outside a non-convex mesh) is marked outside
+//! (`NaN` in [`Resampled::samples`]). Analysis gives it a zero detail, i.e. the linear prediction from
+//! its coarser neighbours (base vertices outside take the mean of the inside samples), so it carries no
+//! information of its own; a tet whose every finest-level vertex is outside is *empty*: flagged in its
+//! parent's node (or the base mesh), never refined by the client and never drawn.
+
+pub mod base;
+pub mod mesh_io;
+pub mod raw;
+pub mod synthetic;
+pub mod unstructured;
+
+use rayon::prelude::*;
+use std::path::PathBuf;
+use tetwave_protocol::hierarchy::MAX_LEVELS;
+use tetwave_protocol::vertex::VertexKeys;
+use tetwave_protocol::BaseMesh;
+
+/// Where the scalar comes from.
+pub enum Source {
+    Synthetic(synthetic::Synthetic),
+    Raw(raw::RawGrid),
+    Mesh(Box<unstructured::Locator>, ([f64; 3], [f64; 3])),
+}
+
+impl Source {
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        match self {
+            Source::Synthetic(s) => s.bounds(),
+            Source::Raw(g) => g.bounds(),
+            Source::Mesh(_, b) => *b,
+        }
+    }
+
+    /// The scalar at `p`, `None` where the input has no data.
+    pub fn sample(&self, p: [f64; 3]) -> Option<f64> {
+        match self {
+            Source::Synthetic(s) => Some(s.eval(p)),
+            Source::Raw(g) => Some(g.sample(p)),
+            Source::Mesh(l, _) => l.sample(p),
+        }
+    }
+}
+
+/// The coarse mesh the hierarchy refines.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BaseSpec {
+    /// The bounding box split into 5 tets (thesis; default).
+    Box5,
+    /// The bounding box split into 6 Kuhn tets.
+    Box6,
+    /// A coarse conforming tet mesh file (.vtu/.vtk/.msh).
+    File(PathBuf),
+}
+
+impl std::str::FromStr for BaseSpec {
+    type Err = std::convert::Infallible;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(match s {
+            "box5" => BaseSpec::Box5,
+            "box6" => BaseSpec::Box6,
+            other => BaseSpec::File(PathBuf::from(other)),
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ResampleError {
+    #[error("--levels {0} is beyond the supported {MAX_LEVELS}")]
+    TooManyLevels(u8),
+    #[error("the input's bounding box is degenerate: {lo:?} .. {hi:?}")]
+    DegenerateBounds { lo: [f64; 3], hi: [f64; 3] },
+    #[error("base mesh: {0}")]
+    BaseFile(#[from] mesh_io::ImportError),
+    #[error("base mesh: {0}")]
+    BaseInvalid(String),
+    #[error("no vertex of the semi-regular mesh falls inside the input's domain")]
+    NothingInside,
+    #[error("sampled value {value} at {pos:?} does not fit in f32")]
+    OutOfRange { value: f64, pos: [f64; 3] },
+    #[error("the finest level has {0} vertices; that is more than this build can index")]
+    TooLarge(u64),
+}
+
+/// The semi-regular mesh's samples.
+pub struct Resampled {
+    /// Base mesh; `values` holds the samples at its vertices (outside ones filled by analysis) and
+    /// `empty` is filled by analysis.
+    pub base: BaseMesh,
+    pub keys: VertexKeys,
+    /// One sample per vertex key; `NaN` marks a vertex outside the input's domain.
+    pub samples: Vec<f32>,
+    pub outside: u64,
+}
+
+/// Builds the base mesh.
+pub fn base_mesh(
+    spec: &BaseSpec,
+    bounds: ([f64; 3], [f64; 3]),
+) -> Result<(Vec<[f64; 3]>, Vec<[u32; 4]>), ResampleError> {
+    let (lo, hi) = bounds;
+    if !matches!(spec, BaseSpec::File(_))
+        && (0..3).any(|a| hi[a] <= lo[a] || !(hi[a] - lo[a]).is_finite())
+    {
+        return Err(ResampleError::DegenerateBounds { lo, hi });
+    }
+    match spec {
+        BaseSpec::Box5 => Ok(base::box5(lo, hi)),
+        BaseSpec::Box6 => Ok(base::box6(lo, hi)),
+        BaseSpec::File(path) => {
+            let mesh = mesh_io::read_tet_mesh(path)?;
+            if mesh.tets.is_empty() {
+                return Err(ResampleError::BaseInvalid(format!(
+                    "{}: no tetrahedra",
+                    path.display()
+                )));
+            }
+            let points = mesh.points;
+            let mut tets = mesh.tets;
+            for t in &tets {
+                let p = |k: usize| points[t[k] as usize];
+                if tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs() == 0.0 {
+                    return Err(ResampleError::BaseInvalid(format!(
+                        "{}: a base tet has zero volume",
+                        path.display()
+                    )));
+                }
+            }
+            let flipped = base::orient_positive(&points, &mut tets);
+            if flipped > 0 {
+                tracing::warn!(flipped, "base mesh: re-oriented inverted tets");
+            }
+            Ok((points, tets))
+        }
+    }
+}
+
+/// Samples `source` at every vertex of the base mesh refined `levels` times.
+pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resampled, ResampleError> {
+    if levels > MAX_LEVELS {
+        return Err(ResampleError::TooManyLevels(levels));
+    }
+    let (positions, tets) = base_mesh(spec, source.bounds())?;
+    let mut base = BaseMesh {
+        levels,
+        positions,
+        tets,
+        values: Vec::new(),
+        empty: Vec::new(),
+    };
+    let keys = base.vertex_keys();
+    let n = keys.vertex_count();
+    if n > (usize::MAX / 8) as u64 || n > u32::MAX as u64 * 4 {
+        return Err(ResampleError::TooLarge(n));
+    }
+    let mut samples = vec![f32::NAN; n as usize];
+    // split the sample array into the entities' contiguous key ranges and fill them in parallel
+    let entities = keys.entities();
+    let mut chunks: Vec<(tetwave_protocol::vertex::Entity, u64, &mut [f32])> =
+        Vec::with_capacity(entities.len());
+    let mut rest: &mut [f32] = &mut samples;
+    let mut at = 0u64;
+    for (e, r) in &entities {
+        let skip = (r.start - at) as usize;
+        let (_, tail) = rest.split_at_mut(skip);
+        let (mine, tail) = tail.split_at_mut((r.end - r.start) as usize);
+        chunks.push((*e, r.start, mine));
+        rest = tail;
+        at = r.end;
+    }
+    let failure = std::sync::Mutex::new(None);
+    chunks.into_par_iter().for_each(|(entity, start, out)| {
+        keys.for_each_in(entity, |key, tet, w| {
+            let p = base.position(tet, &w);
+            if let Some(v) = source.sample(p) {
+                let f = v as f32;
+                if !f.is_finite() {
+                    *failure.lock().unwrap() = Some(ResampleError::OutOfRange { value: v, pos: p });
+                }
+                out[(key - start) as usize] = f;
+            }
+        });
+    });
+    if let Some(e) = failure.into_inner().unwrap() {
+        return Err(e);
+    }
+    let outside = samples.iter().filter(|x| x.is_nan()).count() as u64;
+    if outside == n {
+        return Err(ResampleError::NothingInside);
+    }
+    base.values = samples[..base.positions.len()].to_vec();
+    Ok(Resampled {
+        base,
+        keys,
+        samples,
+        outside,
+    })
+}
