@@ -1,0 +1,226 @@
+//! Analysis ↔ synthesis round trips, ownership, resampling accuracy and the outside rule.
+
+use proptest::prelude::*;
+use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::{BaseMesh, DetailNode, LatticeTet};
+use tetwave_server::analysis::{analyze_hierarchy, Analysis};
+use tetwave_server::resample::mesh_io::{ScalarArray, TetMesh};
+use tetwave_server::resample::unstructured::{clean, Locator};
+use tetwave_server::resample::{base, resample, BaseSpec, Resampled, Source};
+
+fn resampled_with(levels: u8, box6: bool, field: impl Fn(u64) -> f32) -> Resampled {
+    let (positions, tets) = if box6 { base::box6([0.0; 3], [1.0; 3]) } else { base::box5([0.0; 3], [1.0; 3]) };
+    let mut b = BaseMesh { levels, positions, tets, values: vec![], empty: vec![] };
+    let keys = b.vertex_keys();
+    let samples: Vec<f32> = (0..keys.vertex_count()).map(field).collect();
+    b.values = samples[..b.positions.len()].to_vec();
+    Resampled { base: b, keys, samples, outside: 0 }
+}
+
+fn nodes_of(a: &Analysis) -> Vec<DetailNode> {
+    let mut at = 0;
+    (0..a.owned.len())
+        .map(|i| {
+            let n = a.owned[i].count_ones() as usize;
+            let node = DetailNode {
+                id: i as u64,
+                owned: a.owned[i],
+                empty_children: a.empty_children[i],
+                subtree_max_abs: a.subtree_max_abs[i],
+                coeffs: a.coeffs[at..at + n].to_vec(),
+            };
+            at += n;
+            node
+        })
+        .collect()
+}
+
+fn hash(seed: u64, k: u64) -> f64 {
+    // splitmix64 → [0, 1)
+    let mut z = seed.wrapping_add(k.wrapping_mul(0x9E3779B97F4A7C15));
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// synthesis ∘ analysis = identity, bit for bit, for fields whose values stay within a factor 2
+    /// (the f32 lifting step is then exact by Sterbenz' lemma), at any level 0–6.
+    #[test]
+    fn round_trip_bit_exact(levels in 0u8..=6, seed in any::<u64>(), box6 in any::<bool>()) {
+        let r = resampled_with(levels, box6, |k| (1.0 + hash(seed, k)) as f32);
+        let reference = r.samples.clone();
+        let a = analyze_hierarchy(r, None, false).unwrap();
+        let keys = a.base.vertex_keys();
+        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        prop_assert_eq!(values, reference);
+        prop_assert_eq!(a.max_abs_error, 0.0);
+    }
+
+    /// For arbitrary fields (signs, zeros, several orders of magnitude) the round trip stays within
+    /// 1e-6 × the value range.
+    #[test]
+    fn round_trip_any_field(levels in 0u8..=5, seed in any::<u64>(), scale in 1e-3f64..1e6) {
+        let r = resampled_with(levels, false, |k| ((hash(seed, k) - 0.5) * scale) as f32);
+        let reference = r.samples.clone();
+        let a = analyze_hierarchy(r, None, false).unwrap();
+        let keys = a.base.vertex_keys();
+        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        let range = (a.value_range.1 - a.value_range.0) as f64;
+        let err = values.iter().zip(&reference).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max);
+        prop_assert!(err <= 1e-6 * range, "err {} range {}", err, range);
+        prop_assert!(err <= a.error_bound);
+    }
+
+    /// Quantized: every vertex within the manifest bound (q/2), whatever the level.
+    #[test]
+    fn quantized_error_within_bound(levels in 1u8..=5, seed in any::<u64>(), bits in 8u8..=16) {
+        let r = resampled_with(levels, false, |k| (hash(seed, k) * 100.0) as f32);
+        let reference = r.samples.clone();
+        let a = analyze_hierarchy(r, Some(bits), false).unwrap();
+        let keys = a.base.vertex_keys();
+        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        let err = values.iter().zip(&reference).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max);
+        prop_assert!(err <= a.error_bound, "err {} bound {}", err, a.error_bound);
+        prop_assert!((err - a.max_abs_error).abs() < 1e-12);
+    }
+}
+
+/// Every new vertex has exactly one owning tet; it is the lowest-id tet of its level containing the
+/// vertex's edge.
+#[test]
+fn every_new_vertex_has_exactly_one_owner() {
+    let levels = 4;
+    let r = resampled_with(levels, false, |k| k as f32);
+    let a = analyze_hierarchy(r, None, false).unwrap();
+    let keys = a.base.vertex_keys();
+    let forest = a.base.forest();
+    let mut owner = vec![None; keys.vertex_count() as usize];
+    let mut lowest = vec![u64::MAX; keys.vertex_count() as usize];
+    for id in 0..forest.nodes() {
+        let t = LatticeTet::from_id(&forest, id);
+        for e in 0..6 {
+            let k = keys.key(t.base, &t.edge_midpoint(e)) as usize;
+            lowest[k] = lowest[k].min(id);
+            if a.owned[id as usize] & (1 << e) != 0 {
+                assert!(owner[k].is_none(), "vertex {k} owned twice");
+                owner[k] = Some(id);
+            }
+        }
+    }
+    let nv = a.base.positions.len();
+    for k in 0..owner.len() {
+        if k < nv {
+            assert!(owner[k].is_none());
+        } else {
+            assert_eq!(owner[k], Some(lowest[k]), "vertex {k}");
+        }
+    }
+    assert_eq!(a.coeffs.len(), owner.len() - nv);
+}
+
+/// A Kuhn-cube tet mesh of `n³` cells over `[0,1]³` with jittered interior points (unstructured), the
+/// cells kept where `keep(i, j, k)`.
+fn kuhn_mesh(n: usize, jitter: f64, keep: impl Fn(usize, usize, usize) -> bool, f: impl Fn([f64; 3]) -> f64) -> TetMesh {
+    let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
+    let mut points = Vec::new();
+    for k in 0..=n {
+        for j in 0..=n {
+            for i in 0..=n {
+                let interior = |x: usize| x > 0 && x < n;
+                let jit = |s: u64| if interior(i) && interior(j) && interior(k) { (hash(s, idx(i, j, k) as u64) - 0.5) * jitter / n as f64 } else { 0.0 };
+                points.push([i as f64 / n as f64 + jit(1), j as f64 / n as f64 + jit(2), k as f64 / n as f64 + jit(3)]);
+            }
+        }
+    }
+    let mut tets = Vec::new();
+    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                if !keep(i, j, k) {
+                    continue;
+                }
+                for p in perms {
+                    let mut c = [i, j, k];
+                    let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
+                    for (s, &a) in p.iter().enumerate() {
+                        c[a] += 1;
+                        t[s + 1] = idx(c[0], c[1], c[2]);
+                    }
+                    tets.push(t);
+                }
+            }
+        }
+    }
+    let values = points.iter().map(|&p| f(p)).collect();
+    TetMesh { points, tets, point_data: vec![ScalarArray { name: "f".into(), values }], cells_ignored: 0 }
+}
+
+/// An unstructured mesh carrying a linear field is reproduced to 1e-5 relative at every vertex.
+#[test]
+fn unstructured_linear_field_is_reproduced() {
+    let lin = |p: [f64; 3]| 1.0 + p[0] + 2.0 * p[1] + 3.0 * p[2];
+    let mesh = kuhn_mesh(6, 0.3, |_, _, _| true, lin);
+    let (m, report) = clean(mesh, None, None).unwrap();
+    assert_eq!(report.tets_kept, 6 * 216);
+    let source = Source::Mesh(Box::new(Locator::new(&m)), ([0.0; 3], [1.0; 3]));
+    for spec in [BaseSpec::Box5, BaseSpec::Box6] {
+        let r = resample(&source, &spec, 4).unwrap();
+        assert_eq!(r.outside, 0);
+        for (e, range) in r.keys.entities() {
+            r.keys.for_each_in(e, |k, t, w| {
+                let want = lin(r.base.position(t, &w));
+                let got = r.samples[k as usize] as f64;
+                assert!((got - want).abs() <= 1e-5 * want.abs(), "{got} vs {want}");
+            });
+            let _ = range;
+        }
+    }
+}
+
+/// A non-convex (L-shaped) input: vertices in the missing quadrant are outside; tets entirely there
+/// are flagged empty; no tet touching the domain is.
+#[test]
+fn non_convex_input_leaves_outside_tets_empty() {
+    let n = 4;
+    // L shape: drop the cells with x > 0.5 and y > 0.5
+    let mesh = kuhn_mesh(n, 0.0, |i, j, _| !(i >= n / 2 && j >= n / 2), |p| p[0] + p[1] + p[2]);
+    let (m, _) = clean(mesh, None, None).unwrap();
+    let source = Source::Mesh(Box::new(Locator::new(&m)), ([0.0; 3], [1.0; 3]));
+    let levels = 4;
+    let r = resample(&source, &BaseSpec::Box6, levels).unwrap();
+    assert!(r.outside > 0);
+    let outside: Vec<bool> = r.samples.iter().map(|x| x.is_nan()).collect();
+    let a = analyze_hierarchy(r, None, false).unwrap();
+    let keys = a.base.vertex_keys();
+    let forest = a.base.forest();
+    let (mut empty_leaves, mut leaves_fully_out) = (0, 0);
+    for id in forest.level_start(levels)..forest.total_tets() {
+        let t = LatticeTet::from_id(&forest, id);
+        let parent = forest.parent(id).unwrap() as usize;
+        let flagged = a.empty_children[parent] & (1 << forest.child_index(id).unwrap()) != 0;
+        let all_out = t.v.iter().all(|w| outside[keys.key(t.base, w) as usize]);
+        let pos = t.v.map(|w| a.base.position(t.base, &w));
+        let centroid = [0, 1, 2].map(|ax| pos.iter().map(|p| p[ax]).sum::<f64>() / 4.0);
+        if all_out {
+            leaves_fully_out += 1;
+        }
+        assert_eq!(flagged, all_out, "leaf {id} at {centroid:?}");
+        if flagged {
+            empty_leaves += 1;
+            // an empty leaf lies in the missing quadrant
+            assert!(centroid[0] > 0.5 && centroid[1] > 0.5, "{centroid:?}");
+        }
+    }
+    assert!(empty_leaves > 0 && empty_leaves == leaves_fully_out);
+    // outside vertices carry a zero detail: their synthesized value is the linear prediction, and the
+    // subtree max |detail| of empty subtrees is 0
+    for id in 0..forest.nodes() as usize {
+        if a.empty_children[id] == 0xff {
+            assert_eq!(a.subtree_max_abs[id], 0.0, "node {id}");
+        }
+    }
+}
