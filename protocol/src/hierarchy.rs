@@ -48,6 +48,36 @@ pub const BEY_CHILDREN: [[usize; 4]; 8] = [
     [X02, X12, X13, X23],
 ];
 
+/// The edges of a Bey split: the 25 distinct edges of the 8 children, as pairs of split points
+/// (`0..4` vertices, `4..10` midpoints), and for each child its 6 local edges ([`EDGES`] order) as
+/// indices into that list. A walk over parents computes the 25 child-edge midpoints once instead of
+/// 48 times.
+#[derive(Debug, Clone)]
+pub struct BeySplitEdges {
+    pub edges: Vec<(usize, usize)>,
+    pub child_edges: [[usize; 6]; 8],
+}
+
+/// The (lazily built) [`BeySplitEdges`].
+pub fn bey_split_edges() -> &'static BeySplitEdges {
+    static CELL: std::sync::OnceLock<BeySplitEdges> = std::sync::OnceLock::new();
+    CELL.get_or_init(|| {
+        let mut edges: Vec<(usize, usize)> = Vec::new();
+        let mut child_edges = [[0usize; 6]; 8];
+        for (i, c) in BEY_CHILDREN.iter().enumerate() {
+            for (e, &(a, b)) in EDGES.iter().enumerate() {
+                let pair = (c[a].min(c[b]), c[a].max(c[b]));
+                let idx = edges.iter().position(|&x| x == pair).unwrap_or_else(|| {
+                    edges.push(pair);
+                    edges.len() - 1
+                });
+                child_edges[i][e] = idx;
+            }
+        }
+        BeySplitEdges { edges, child_edges }
+    })
+}
+
 /// Id arithmetic of a forest with `n_base` roots and `levels` levels of refinement.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Forest {
@@ -222,14 +252,28 @@ impl LatticeTet {
         p
     }
 
+    /// Split point `p` (0..4 a vertex, 4..10 the midpoint of edge `p − 4`).
+    #[inline]
+    fn split_point(&self, p: usize) -> Bary {
+        if p < 4 {
+            self.v[p]
+        } else {
+            self.edge_midpoint(p - 4)
+        }
+    }
+
     /// Child `i` in Bey order.
     #[inline]
     pub fn child(&self, i: usize) -> Self {
-        let p = self.split_points();
         let c = BEY_CHILDREN[i];
         LatticeTet {
             base: self.base,
-            v: [p[c[0]], p[c[1]], p[c[2]], p[c[3]]],
+            v: [
+                self.split_point(c[0]),
+                self.split_point(c[1]),
+                self.split_point(c[2]),
+                self.split_point(c[3]),
+            ],
         }
     }
 
@@ -295,33 +339,43 @@ impl Iterator for LevelWalker {
         }
         let id = self.next;
         self.next += 1;
-        let (base, digits) = self.forest.path(id);
-        let lattice = Lattice {
-            levels: self.forest.levels,
-        };
-        // first level whose ancestor differs from the cached path
-        let same_base = self.stack.first().is_some_and(|t| t.base == base);
-        let mut keep = if same_base { 1 } else { 0 };
-        if same_base {
-            while keep <= digits.len()
-                && keep <= self.digits.len()
-                && self.digits[keep - 1] == digits[keep - 1]
-            {
-                keep += 1;
+        let k = self.level as usize;
+        if self.stack.len() != k + 1 {
+            // first call: build the path from the id
+            let (base, digits) = self.forest.path(id);
+            let lattice = Lattice {
+                levels: self.forest.levels,
+            };
+            self.stack.clear();
+            self.stack.push(LatticeTet::base_tet(lattice, base));
+            for (j, &d) in digits.iter().enumerate() {
+                let c = self.stack[j].child(d as usize);
+                self.stack.push(c);
+            }
+            self.digits = digits;
+        } else {
+            // odometer: the deepest digit below 7 increments, the ones after it restart at 0
+            let mut j = k;
+            while j > 0 && self.digits[j - 1] == 7 {
+                j -= 1;
+            }
+            if j == 0 {
+                let lattice = Lattice {
+                    levels: self.forest.levels,
+                };
+                let base = self.stack[0].base + 1;
+                self.stack[0] = LatticeTet::base_tet(lattice, base);
+            } else {
+                self.digits[j - 1] += 1;
+                self.stack[j] = self.stack[j - 1].child(self.digits[j - 1] as usize);
+            }
+            for i in j..k {
+                self.digits[i] = 0;
+                self.stack[i + 1] = self.stack[i].child(0);
             }
         }
-        self.stack.truncate(keep);
-        self.digits.truncate(keep.saturating_sub(1));
-        if self.stack.is_empty() {
-            self.stack.push(LatticeTet::base_tet(lattice, base));
-        }
-        for j in self.stack.len() - 1..digits.len() {
-            let c = self.stack[j].child(digits[j] as usize);
-            self.stack.push(c);
-            self.digits.push(digits[j]);
-        }
-        debug_assert_eq!(self.stack.len(), self.level as usize + 1);
-        Some((id, *self.stack.last().unwrap()))
+        debug_assert_eq!(self.stack.len(), k + 1);
+        Some((id, self.stack[k]))
     }
 
     fn size_hint(&self) -> (usize, Option<usize>) {
@@ -354,6 +408,20 @@ mod tests {
         for k in 0..=4u8 {
             assert_eq!(f.level(f.level_start(k)), k);
             assert_eq!(f.level(f.level_start(k + 1) - 1), k);
+        }
+    }
+
+    #[test]
+    fn bey_split_has_25_edges() {
+        let b = bey_split_edges();
+        assert_eq!(b.edges.len(), 25);
+        let t = LatticeTet::base_tet(Lattice { levels: 2 }, 0);
+        let p = t.split_points();
+        for (i, c) in t.children().iter().enumerate() {
+            for e in 0..6 {
+                let (x, y) = b.edges[b.child_edges[i][e]];
+                assert_eq!(c.edge_midpoint(e), midpoint(&p[x], &p[y]));
+            }
         }
     }
 

@@ -23,11 +23,17 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// lengths (scaled by the longest), rounded.
 fn shape_class(p: &[[f64; 3]; 4]) -> Vec<i64> {
     let mut best: Option<Vec<i64>> = None;
-    let longest = (0..4).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| dist(p[i], p[j])).fold(0.0, f64::max);
+    let longest = (0..4)
+        .flat_map(|i| (0..4).map(move |j| (i, j)))
+        .map(|(i, j)| dist(p[i], p[j]))
+        .fold(0.0, f64::max);
     let perms = permutations4();
     for q in perms {
         let e = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)];
-        let v: Vec<i64> = e.iter().map(|&(a, b)| (dist(p[q[a]], p[q[b]]) / longest * 1e6).round() as i64).collect();
+        let v: Vec<i64> = e
+            .iter()
+            .map(|&(a, b)| (dist(p[q[a]], p[q[b]]) / longest * 1e6).round() as i64)
+            .collect();
         if best.as_ref().is_none_or(|b| v < *b) {
             best = Some(v);
         }
@@ -66,7 +72,10 @@ fn bary(p: &[[f64; 3]; 4], x: [f64; 3]) -> [f64; 4] {
 fn corners_strategy() -> impl Strategy<Value = [[f64; 3]; 4]> {
     prop::array::uniform4(prop::array::uniform3(-10.0f64..10.0)).prop_filter("well shaped", |c| {
         let v = signed_volume(c[0], c[1], c[2], c[3]).abs();
-        let l = (0..4).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| dist(c[i], c[j])).fold(0.0, f64::max);
+        let l = (0..4)
+            .flat_map(|i| (0..4).map(move |j| (i, j)))
+            .map(|(i, j)| dist(c[i], c[j]))
+            .fold(0.0, f64::max);
         v > 1e-2 * l.powi(3)
     })
 }
@@ -109,7 +118,12 @@ proptest! {
 #[test]
 fn at_most_three_similarity_classes_over_six_levels() {
     // a generic, irregular tet
-    let c = [[0.0, 0.0, 0.0], [3.0, 0.2, 0.1], [0.7, 2.1, 0.3], [0.4, 0.9, 2.6]];
+    let c = [
+        [0.0, 0.0, 0.0],
+        [3.0, 0.2, 0.1],
+        [0.7, 2.1, 0.3],
+        [0.4, 0.9, 2.6],
+    ];
     let levels = 6u8;
     let lat = Lattice { levels };
     let m = lat.m();
@@ -124,16 +138,30 @@ fn at_most_three_similarity_classes_over_six_levels() {
             let p = pos(&c, t, m);
             level_classes.insert(shape_class(&p));
             // aspect ratio: longest edge^3 / volume
-            let l = (0..4).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| dist(p[i], p[j])).fold(0.0, f64::max);
+            let l = (0..4)
+                .flat_map(|i| (0..4).map(move |j| (i, j)))
+                .map(|(i, j)| dist(p[i], p[j]))
+                .fold(0.0, f64::max);
             worst = worst.max(l.powi(3) / vol(&p).abs());
         }
-        assert!(level_classes.len() <= 3, "{} classes at one level", level_classes.len());
+        assert!(
+            level_classes.len() <= 3,
+            "{} classes at one level",
+            level_classes.len()
+        );
         classes.extend(level_classes);
         worst_ratio_per_level.push(worst);
     }
-    assert!(classes.len() <= 3, "{} similarity classes over {levels} levels", classes.len());
+    assert!(
+        classes.len() <= 3,
+        "{} similarity classes over {levels} levels",
+        classes.len()
+    );
     // the worst aspect ratio is the same at every level from the first on
     for w in &worst_ratio_per_level {
-        assert!((w - worst_ratio_per_level[0]).abs() < 1e-6 * w, "{worst_ratio_per_level:?}");
+        assert!(
+            (w - worst_ratio_per_level[0]).abs() < 1e-6 * w,
+            "{worst_ratio_per_level:?}"
+        );
     }
 }

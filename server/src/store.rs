@@ -194,7 +194,7 @@ pub fn write(dir: &Path, a: &Analysis, meta: StoreMeta) -> Result<Manifest, Stor
     let mut w = SumWriter::create(&path)?;
     let mut before = 0u64;
     for (i, m) in a.owned.iter().enumerate() {
-        if i as u64 % BLOCK == 0 {
+        if (i as u64).is_multiple_of(BLOCK) {
             w.put(&before.to_le_bytes()).map_err(io_err(&path))?;
         }
         before += m.count_ones() as u64;

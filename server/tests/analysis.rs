@@ -4,17 +4,32 @@ use proptest::prelude::*;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, LatticeTet};
 use tetwave_server::analysis::{analyze_hierarchy, Analysis};
-use tetwave_server::resample::mesh_io::{ScalarArray, TetMesh};
+use tetwave_server::resample::synthetic::kuhn_cube_mesh;
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{base, resample, BaseSpec, Resampled, Source};
 
 fn resampled_with(levels: u8, box6: bool, field: impl Fn(u64) -> f32) -> Resampled {
-    let (positions, tets) = if box6 { base::box6([0.0; 3], [1.0; 3]) } else { base::box5([0.0; 3], [1.0; 3]) };
-    let mut b = BaseMesh { levels, positions, tets, values: vec![], empty: vec![] };
+    let (positions, tets) = if box6 {
+        base::box6([0.0; 3], [1.0; 3])
+    } else {
+        base::box5([0.0; 3], [1.0; 3])
+    };
+    let mut b = BaseMesh {
+        levels,
+        positions,
+        tets,
+        values: vec![],
+        empty: vec![],
+    };
     let keys = b.vertex_keys();
     let samples: Vec<f32> = (0..keys.vertex_count()).map(field).collect();
     b.values = samples[..b.positions.len()].to_vec();
-    Resampled { base: b, keys, samples, outside: 0 }
+    Resampled {
+        base: b,
+        keys,
+        samples,
+        outside: 0,
+    }
 }
 
 fn nodes_of(a: &Analysis) -> Vec<DetailNode> {
@@ -121,49 +136,11 @@ fn every_new_vertex_has_exactly_one_owner() {
     assert_eq!(a.coeffs.len(), owner.len() - nv);
 }
 
-/// A Kuhn-cube tet mesh of `n³` cells over `[0,1]³` with jittered interior points (unstructured), the
-/// cells kept where `keep(i, j, k)`.
-fn kuhn_mesh(n: usize, jitter: f64, keep: impl Fn(usize, usize, usize) -> bool, f: impl Fn([f64; 3]) -> f64) -> TetMesh {
-    let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
-    let mut points = Vec::new();
-    for k in 0..=n {
-        for j in 0..=n {
-            for i in 0..=n {
-                let interior = |x: usize| x > 0 && x < n;
-                let jit = |s: u64| if interior(i) && interior(j) && interior(k) { (hash(s, idx(i, j, k) as u64) - 0.5) * jitter / n as f64 } else { 0.0 };
-                points.push([i as f64 / n as f64 + jit(1), j as f64 / n as f64 + jit(2), k as f64 / n as f64 + jit(3)]);
-            }
-        }
-    }
-    let mut tets = Vec::new();
-    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                if !keep(i, j, k) {
-                    continue;
-                }
-                for p in perms {
-                    let mut c = [i, j, k];
-                    let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
-                    for (s, &a) in p.iter().enumerate() {
-                        c[a] += 1;
-                        t[s + 1] = idx(c[0], c[1], c[2]);
-                    }
-                    tets.push(t);
-                }
-            }
-        }
-    }
-    let values = points.iter().map(|&p| f(p)).collect();
-    TetMesh { points, tets, point_data: vec![ScalarArray { name: "f".into(), values }], cells_ignored: 0 }
-}
-
 /// An unstructured mesh carrying a linear field is reproduced to 1e-5 relative at every vertex.
 #[test]
 fn unstructured_linear_field_is_reproduced() {
     let lin = |p: [f64; 3]| 1.0 + p[0] + 2.0 * p[1] + 3.0 * p[2];
-    let mesh = kuhn_mesh(6, 0.3, |_, _, _| true, lin);
+    let mesh = kuhn_cube_mesh(6, 0.3, |_, _, _| true, lin);
     let (m, report) = clean(mesh, None, None).unwrap();
     assert_eq!(report.tets_kept, 6 * 216);
     let source = Source::Mesh(Box::new(Locator::new(&m)), ([0.0; 3], [1.0; 3]));
@@ -187,7 +164,12 @@ fn unstructured_linear_field_is_reproduced() {
 fn non_convex_input_leaves_outside_tets_empty() {
     let n = 4;
     // L shape: drop the cells with x > 0.5 and y > 0.5
-    let mesh = kuhn_mesh(n, 0.0, |i, j, _| !(i >= n / 2 && j >= n / 2), |p| p[0] + p[1] + p[2]);
+    let mesh = kuhn_cube_mesh(
+        n,
+        0.0,
+        |i, j, _| !(i >= n / 2 && j >= n / 2),
+        |p| p[0] + p[1] + p[2],
+    );
     let (m, _) = clean(mesh, None, None).unwrap();
     let source = Source::Mesh(Box::new(Locator::new(&m)), ([0.0; 3], [1.0; 3]));
     let levels = 4;

@@ -2,6 +2,9 @@
 
 use tetwave_protocol::base::signed_volume;
 
+/// Vertex positions and tets (4 vertex indices each).
+pub type PointsAndTets = (Vec<[f64; 3]>, Vec<[u32; 4]>);
+
 /// Corner `i` of the box `[lo, hi]`: bit 0 → x, bit 1 → y, bit 2 → z.
 fn corner(lo: [f64; 3], hi: [f64; 3], i: usize) -> [f64; 3] {
     [
@@ -26,7 +29,7 @@ pub fn orient_positive(positions: &[[f64; 3]], tets: &mut [[u32; 4]]) -> usize {
 
 /// The box split into 5 tets: four corner tets cut off at corners 000, 110, 101, 011 and the central
 /// tet on corners 100, 010, 001, 111 (thesis §6).
-pub fn box5(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f64; 3]>, Vec<[u32; 4]>) {
+pub fn box5(lo: [f64; 3], hi: [f64; 3]) -> PointsAndTets {
     let positions: Vec<[f64; 3]> = (0..8).map(|i| corner(lo, hi, i)).collect();
     let mut tets = vec![
         [0, 1, 2, 4],
@@ -41,7 +44,7 @@ pub fn box5(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f64; 3]>, Vec<[u32; 4]>) {
 
 /// The box split into 6 Kuhn tets around the diagonal 000 → 111. Refined `L` times, its vertices are
 /// exactly the `(2^L + 1)^3` grid points.
-pub fn box6(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f64; 3]>, Vec<[u32; 4]>) {
+pub fn box6(lo: [f64; 3], hi: [f64; 3]) -> PointsAndTets {
     let positions: Vec<[f64; 3]> = (0..8).map(|i| corner(lo, hi, i)).collect();
     let axes = [1u32, 2, 4];
     let perms = [

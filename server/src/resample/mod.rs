@@ -103,7 +103,7 @@ pub struct Resampled {
 pub fn base_mesh(
     spec: &BaseSpec,
     bounds: ([f64; 3], [f64; 3]),
-) -> Result<(Vec<[f64; 3]>, Vec<[u32; 4]>), ResampleError> {
+) -> Result<base::PointsAndTets, ResampleError> {
     let (lo, hi) = bounds;
     if !matches!(spec, BaseSpec::File(_))
         && (0..3).any(|a| hi[a] <= lo[a] || !(hi[a] - lo[a]).is_finite())

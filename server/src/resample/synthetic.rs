@@ -60,3 +60,80 @@ impl Synthetic {
         }
     }
 }
+
+/// splitmix64 of `(seed, k)` mapped to `[0, 1)`: a reproducible jitter.
+fn unit_hash(seed: u64, k: u64) -> f64 {
+    let mut z = seed.wrapping_add(k.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// An unstructured test mesh: `[0,1]^3` cut into `n^3` cubes of 6 Kuhn tets each (positively
+/// oriented), interior points moved by up to `jitter/2` of a cell, cells kept where `keep(i, j, k)`,
+/// with the point scalar `f` named `"f"`. Unused points are kept (they are in no tet).
+pub fn kuhn_cube_mesh(
+    n: usize,
+    jitter: f64,
+    keep: impl Fn(usize, usize, usize) -> bool,
+    f: impl Fn([f64; 3]) -> f64,
+) -> super::mesh_io::TetMesh {
+    let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
+    let mut points = Vec::with_capacity((n + 1).pow(3));
+    for k in 0..=n {
+        for j in 0..=n {
+            for i in 0..=n {
+                let interior = [i, j, k].iter().all(|&x| x > 0 && x < n);
+                let jit = |s: u64| {
+                    if interior {
+                        (unit_hash(s, idx(i, j, k) as u64) - 0.5) * jitter / n as f64
+                    } else {
+                        0.0
+                    }
+                };
+                points.push([
+                    i as f64 / n as f64 + jit(1),
+                    j as f64 / n as f64 + jit(2),
+                    k as f64 / n as f64 + jit(3),
+                ]);
+            }
+        }
+    }
+    let mut tets = Vec::with_capacity(6 * n * n * n);
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                if !keep(i, j, k) {
+                    continue;
+                }
+                for p in perms {
+                    let mut c = [i, j, k];
+                    let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
+                    for (s, &a) in p.iter().enumerate() {
+                        c[a] += 1;
+                        t[s + 1] = idx(c[0], c[1], c[2]);
+                    }
+                    tets.push(t);
+                }
+            }
+        }
+    }
+    let values = points.iter().map(|&p| f(p)).collect();
+    super::mesh_io::TetMesh {
+        points,
+        tets,
+        point_data: vec![super::mesh_io::ScalarArray {
+            name: "f".into(),
+            values,
+        }],
+        cells_ignored: 0,
+    }
+}
