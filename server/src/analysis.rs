@@ -216,10 +216,11 @@ pub fn analyze_hierarchy(
             .fold((0f64, 0u64), |(s, c), &x| (s + x as f64, c + 1));
         (s / c.max(1) as f64) as f32
     };
-    let to_atomic =
-        |v: &[f32]| -> Vec<AtomicU32> { v.iter().map(|x| AtomicU32::new(x.to_bits())).collect() };
-    let reference = to_atomic(&samples);
-    drop(samples);
+    // in place (same layout): no second copy of the samples
+    let reference: Vec<AtomicU32> = samples
+        .into_iter()
+        .map(|x| AtomicU32::new(x.to_bits()))
+        .collect();
     for v in 0..nv {
         if load(&reference, v).is_nan() {
             store(&reference, v, inside_mean);
@@ -309,6 +310,7 @@ pub fn analyze_hierarchy(
                         empties.push(empty);
                     }
                 });
+                cs.shrink_to_fit();
                 (masks, cs, err, own_max, empties)
             })
             .collect();

@@ -1,0 +1,96 @@
+//! The store: random access by node id range agrees with a sequential read and with the analysis,
+//! quantized codes round-trip, and `verify` fails when the error exceeds the manifest's bound.
+
+use proptest::prelude::*;
+use tetwave_server::prepare::{prepare, verify, PrepareError, PrepareOptions};
+use tetwave_server::store::{Store, StoreError, BLOCK};
+
+fn make_store(dir: &std::path::Path, levels: u8, bits: Option<u8>) -> Store {
+    let mut o = PrepareOptions::new("synthetic:harmonic", dir);
+    o.levels = levels;
+    o.bits = bits;
+    prepare(&o).unwrap();
+    Store::open(dir).unwrap()
+}
+
+#[test]
+fn ranges_agree_with_a_full_read() {
+    let d = tempfile::tempdir().unwrap();
+    let store = make_store(d.path(), 5, None);
+    let n = store.manifest.counts.nodes;
+    assert!(n > 2 * BLOCK);
+    let all = store.read_nodes(0, n).unwrap();
+    assert_eq!(all.len() as u64, n);
+    assert_eq!(
+        all.iter().map(|x| x.coeffs.len() as u64).sum::<u64>(),
+        store.manifest.counts.coefficients
+    );
+    for (i, node) in all.iter().enumerate() {
+        assert_eq!(node.id, i as u64);
+    }
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig::with_cases(200));
+    runner
+        .run(&(0..n, 0..n), |(a, b)| {
+            let (a, b) = (a.min(b), a.max(b));
+            let part = store.read_nodes(a, b).unwrap();
+            prop_assert_eq!(&part[..], &all[a as usize..b as usize]);
+            Ok(())
+        })
+        .unwrap();
+    assert!(matches!(
+        store.read_nodes(5, n + 1),
+        Err(StoreError::RangeOutOfBounds { .. })
+    ));
+    assert!(matches!(
+        store.read_nodes(7, 3),
+        Err(StoreError::RangeOutOfBounds { .. })
+    ));
+    assert!(store.read_nodes(9, 9).unwrap().is_empty());
+}
+
+#[test]
+fn quantized_widths_round_trip() {
+    for bits in [8u8, 12, 16, 20, 24] {
+        let d = tempfile::tempdir().unwrap();
+        let store = make_store(d.path(), 3, Some(bits));
+        let width = (bits as u64).div_ceil(8);
+        assert_eq!(
+            store.manifest.files["coeffs.bin"].bytes,
+            store.manifest.counts.coefficients * width
+        );
+        let r = verify(d.path()).unwrap();
+        assert!(r.max_abs_error <= r.max_error_bound, "bits {bits}");
+        // more bits, smaller bound
+        assert!(
+            r.max_error_bound < 1.0 / (1u64 << (bits - 8)) as f64,
+            "bits {bits}: {}",
+            r.max_error_bound
+        );
+    }
+}
+
+#[test]
+fn verify_fails_beyond_the_bound() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 3, Some(8));
+    let mpath = d.path().join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["max_error_bound"] = serde_json::json!(1e-12);
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    match verify(d.path()) {
+        Err(PrepareError::VerifyFailed { error, bound, .. }) => assert!(error > bound),
+        other => panic!("expected a failure, got {other:?}"),
+    }
+}
+
+#[test]
+fn truncated_store_files_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 3, None);
+    let p = d.path().join("nodes.bin");
+    let b = std::fs::read(&p).unwrap();
+    std::fs::write(&p, &b[..b.len() - 6]).unwrap();
+    let e = Store::open(d.path()).err().expect("refused");
+    assert!(e.to_string().contains("nodes.bin"), "{e}");
+}
