@@ -1,7 +1,12 @@
 //! # tetwave-client
 //!
-//! The client side of tetwave. Stages land one module at a time (detail buffer, adaptive mesh,
-//! selection, renderer, stream); for now [`store_info`] checks a store's base mesh and counts against
-//! the protocol contract, from the client's side.
+//! The client side of tetwave, one module per stage: [`camera`], [`transfer`] functions,
+//! [`render_mesh`] (the leaf mesh renderers draw), the CPU [`reference`] integrator (ground truth for
+//! image error), [`image_metrics`], and [`store_info`] (checks a store against the protocol contract).
 
+pub mod camera;
+pub mod image_metrics;
+pub mod reference;
+pub mod render_mesh;
 pub mod store_info;
+pub mod transfer;

@@ -1,0 +1,187 @@
+//! The leaf mesh as the renderers see it: positions, tets and one scalar per vertex.
+
+use glam::DVec3;
+use tetwave_protocol::base::signed_volume;
+use tetwave_protocol::hierarchy::LevelWalker;
+use tetwave_protocol::BaseMesh;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderMesh {
+    pub positions: Vec<[f64; 3]>,
+    pub tets: Vec<[u32; 4]>,
+    pub values: Vec<f32>,
+    /// Scalar range mapped to the transfer function's `[0, 1]`.
+    pub value_range: (f32, f32),
+}
+
+impl RenderMesh {
+    pub fn new(positions: Vec<[f64; 3]>, tets: Vec<[u32; 4]>, values: Vec<f32>) -> Self {
+        let (lo, hi) = values
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+                (l.min(v), h.max(v))
+            });
+        let value_range = if lo.is_finite() { (lo, hi) } else { (0.0, 1.0) };
+        RenderMesh {
+            positions,
+            tets,
+            values,
+            value_range,
+        }
+    }
+
+    /// The uniform level-`level` leaf mesh of a hierarchy whose finest-level vertex values (indexed by
+    /// vertex key, as `synthesize_all` returns them) are `values`; empty tets are left out.
+    pub fn uniform_level(base: &BaseMesh, values: &[f32], level: u8) -> Self {
+        let keys = base.vertex_keys();
+        let forest = base.forest();
+        let level = level.min(forest.levels);
+        let mut remap = std::collections::HashMap::new();
+        let mut positions = Vec::new();
+        let mut vals = Vec::new();
+        let mut tets = Vec::new();
+        for (id, t) in LevelWalker::level(forest, level) {
+            if level == 0 && base.empty.get(id as usize).copied().unwrap_or(false) {
+                continue;
+            }
+            let mut tet = [0u32; 4];
+            for (i, w) in t.v.iter().enumerate() {
+                let k = keys.key(t.base, w);
+                tet[i] = *remap.entry(k).or_insert_with(|| {
+                    positions.push(base.position(t.base, w));
+                    vals.push(values[k as usize]);
+                    (positions.len() - 1) as u32
+                });
+            }
+            tets.push(tet);
+        }
+        let mut m = RenderMesh::new(positions, tets, vals);
+        m.value_range = {
+            let (lo, hi) = values
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+                    (l.min(v), h.max(v))
+                });
+            (lo, hi)
+        };
+        m
+    }
+
+    /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each, with the scalar `f` at the points.
+    pub fn kuhn_cube(n: usize, size: f64, f: impl Fn([f64; 3]) -> f64) -> Self {
+        let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
+        let mut positions = Vec::with_capacity((n + 1).pow(3));
+        for k in 0..=n {
+            for j in 0..=n {
+                for i in 0..=n {
+                    positions.push([i as f64, j as f64, k as f64].map(|c| c / n as f64 * size));
+                }
+            }
+        }
+        let perms = [
+            [0, 1, 2],
+            [0, 2, 1],
+            [1, 0, 2],
+            [1, 2, 0],
+            [2, 0, 1],
+            [2, 1, 0],
+        ];
+        let mut tets = Vec::with_capacity(6 * n * n * n);
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    for p in perms {
+                        let mut c = [i, j, k];
+                        let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
+                        for (s, &a) in p.iter().enumerate() {
+                            c[a] += 1;
+                            t[s + 1] = idx(c[0], c[1], c[2]);
+                        }
+                        tets.push(t);
+                    }
+                }
+            }
+        }
+        let values = positions.iter().map(|&p| f(p) as f32).collect();
+        let mut m = RenderMesh::new(positions, tets, values);
+        m.orient_positive();
+        m
+    }
+
+    /// Swaps the last two vertices of negatively oriented tets.
+    pub fn orient_positive(&mut self) {
+        for t in &mut self.tets {
+            let p = |k: usize| self.positions[t[k] as usize];
+            if signed_volume(p(0), p(1), p(2), p(3)) < 0.0 {
+                t.swap(2, 3);
+            }
+        }
+    }
+
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for p in &self.positions {
+            let v = DVec3::from_array(*p);
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        (lo, hi)
+    }
+
+    pub fn center(&self) -> DVec3 {
+        let (lo, hi) = self.bounds();
+        (lo + hi) * 0.5
+    }
+
+    /// Bounding-box diagonal: the length unit of transfer-function extinction.
+    pub fn diagonal(&self) -> f64 {
+        let (lo, hi) = self.bounds();
+        (hi - lo).length().max(1e-300)
+    }
+
+    /// Normalized scalar of a raw value.
+    #[inline]
+    pub fn normalize(&self, v: f64) -> f64 {
+        let (lo, hi) = (self.value_range.0 as f64, self.value_range.1 as f64);
+        if hi > lo {
+            (v - lo) / (hi - lo)
+        } else {
+            0.5
+        }
+    }
+
+    /// Per tet, for ray casting: outward face planes `(n, d)` with `n·x = d` on face `i` (opposite
+    /// vertex `i`) and the linear normalized scalar `s(x) = g·x + c`, all relative to `origin`. A
+    /// degenerate tet (zero volume) gets zero planes and gradient: it contributes no length.
+    pub fn tet_geometry(&self, t: usize, origin: DVec3) -> ([(DVec3, f64); 4], DVec3, f64) {
+        let tet = self.tets[t];
+        let x: [DVec3; 4] = tet.map(|v| DVec3::from_array(self.positions[v as usize]) - origin);
+        let s: [f64; 4] = tet.map(|v| self.normalize(self.values[v as usize] as f64));
+        let e1 = x[1] - x[0];
+        let e2 = x[2] - x[0];
+        let e3 = x[3] - x[0];
+        let det = e1.dot(e2.cross(e3));
+        let scale = e1.length().max(e2.length()).max(e3.length());
+        if !(det.abs() > 1e-14 * scale.powi(3)) || !det.is_finite() {
+            return ([(DVec3::ZERO, 0.0); 4], DVec3::ZERO, s[0]);
+        }
+        // gradient: solve [e1 e2 e3]^T g = (s1-s0, s2-s0, s3-s0)
+        let inv = 1.0 / det;
+        let r1 = e2.cross(e3) * inv;
+        let r2 = e3.cross(e1) * inv;
+        let r3 = e1.cross(e2) * inv;
+        let g = r1 * (s[1] - s[0]) + r2 * (s[2] - s[0]) + r3 * (s[3] - s[0]);
+        let c = s[0] - g.dot(x[0]);
+        let faces = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
+        let planes = std::array::from_fn(|i| {
+            let [a, b, cc] = faces[i];
+            let mut n = (x[b] - x[a]).cross(x[cc] - x[a]).normalize_or_zero();
+            if n.dot(x[i] - x[a]) > 0.0 {
+                n = -n;
+            }
+            (n, n.dot(x[a]))
+        });
+        (planes, g, c)
+    }
+}
