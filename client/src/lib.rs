@@ -7,6 +7,7 @@
 pub mod camera;
 pub mod image_metrics;
 pub mod reference;
+pub mod render;
 pub mod render_mesh;
 pub mod store_info;
 pub mod transfer;

@@ -163,7 +163,7 @@ impl RenderMesh {
         let e3 = x[3] - x[0];
         let det = e1.dot(e2.cross(e3));
         let scale = e1.length().max(e2.length()).max(e3.length());
-        if !(det.abs() > 1e-14 * scale.powi(3)) || !det.is_finite() {
+        if det.abs() <= 1e-14 * scale.powi(3) || !det.is_finite() {
             return ([(DVec3::ZERO, 0.0); 4], DVec3::ZERO, s[0]);
         }
         // gradient: solve [e1 e2 e3]^T g = (s1-s0, s2-s0, s3-s0)

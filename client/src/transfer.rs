@@ -113,7 +113,7 @@ impl TransferFunction {
             )));
         }
         for w in self.points.windows(2) {
-            if !(w[0].s <= w[1].s) {
+            if w[0].s.partial_cmp(&w[1].s) == Some(std::cmp::Ordering::Greater) || w[0].s.is_nan() {
                 return Err(TfError::Invalid("points must be sorted by s".into()));
             }
         }

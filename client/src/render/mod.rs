@@ -1,0 +1,75 @@
+//! GPU rendering (wgpu). [`GpuContext`] is the shared set-up (instance, adapter, device, queue);
+//! [`pt::PtRenderer`] draws leaf tets by projected tetrahedra (WGSL in `shaders/pt.wgsl`).
+//! The adaptive mesh never touches wgpu: renderers take a [`crate::render_mesh::RenderMesh`].
+
+pub mod pt;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("no GPU adapter found (wgpu saw none for Vulkan or GL; on Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver); the CPU reference renderer (--reference) still works")]
+    NoAdapter,
+    #[error("GPU device request failed: {0}")]
+    Device(String),
+    #[error("GPU readback failed: {0}")]
+    Readback(String),
+    #[error("the mesh needs {needed} bytes in one GPU buffer; this adapter allows {limit}")]
+    TooLarge { needed: u64, limit: u64 },
+}
+
+/// Instance, adapter, device and queue, created once and shared.
+pub struct GpuContext {
+    pub adapter: wgpu::Adapter,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    /// Whether 32-bit float render targets can be blended (used for accumulation precision).
+    pub float32_blend: bool,
+}
+
+impl GpuContext {
+    /// Picks a Vulkan adapter when there is one (wgpu lists llvmpipe for both Vulkan and GL), else GL.
+    pub fn new() -> Result<Self, RenderError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        if std::env::var_os("WGPU_BACKEND").is_none() {
+            desc.backends = wgpu::Backends::VULKAN | wgpu::Backends::GL;
+        }
+        let instance = wgpu::Instance::new(desc);
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let pick = |b: wgpu::Backend| adapters.iter().position(|a| a.get_info().backend == b);
+        let idx = pick(wgpu::Backend::Vulkan)
+            .or_else(|| pick(wgpu::Backend::Gl))
+            .or(if adapters.is_empty() { None } else { Some(0) });
+        let adapter = adapters
+            .into_iter()
+            .nth(idx.ok_or(RenderError::NoAdapter)?)
+            .ok_or(RenderError::NoAdapter)?;
+        let float32_blend = adapter
+            .features()
+            .contains(wgpu::Features::FLOAT32_BLENDABLE);
+        let mut required_features = wgpu::Features::empty();
+        if float32_blend {
+            required_features |= wgpu::Features::FLOAT32_BLENDABLE;
+        }
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("tetwave"),
+            required_features,
+            required_limits: adapter.limits(),
+            experimental_features: wgpu::ExperimentalFeatures::default(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| RenderError::Device(e.to_string()))?;
+        tracing::info!(adapter = %adapter.get_info().name, backend = ?adapter.get_info().backend, "GPU adapter");
+        Ok(GpuContext {
+            adapter,
+            device,
+            queue,
+            float32_blend,
+        })
+    }
+
+    /// `name (backend)` of the adapter.
+    pub fn describe(&self) -> String {
+        let i = self.adapter.get_info();
+        format!("{} ({:?})", i.name, i.backend)
+    }
+}
