@@ -5,7 +5,9 @@
 //! image error), [`image_metrics`], and [`store_info`] (checks a store against the protocol contract).
 
 pub mod camera;
+pub mod detail_buffer;
 pub mod image_metrics;
+pub mod mesh;
 pub mod reference;
 pub mod render;
 pub mod render_mesh;

@@ -1,0 +1,311 @@
+//! The client's detail buffer: every detail node received so far, in whatever order it came.
+//!
+//! Nodes may arrive in any order, repeated (duplicates are ignored and counted) and with gaps. A node is
+//! validated ([`DetailNode::validate`], id inside the forest, owned vertices not already owned by
+//! another node) and then stored twice over:
+//!
+//! - its coefficients **by vertex key**: owned local edge `e` of tet `t` gives the key of
+//!   `t`'s edge midpoint `e` ([`VertexKeys::key`]), so the adaptive mesh asks "coefficient of vertex
+//!   `k`" without knowing which (possibly neighbouring) tet owns it;
+//! - its **metadata** by tet id (`subtree_max_abs`, `empty_children`, owned mask), for selection.
+//!
+//! A node whose parent has not arrived yet is *pending*: it is kept, and becomes *usable*
+//! ([`DetailBuffer::is_usable`]) once all its ancestors are present.
+
+use rustc_hash::FxHashMap;
+use tetwave_protocol::hierarchy::EDGES;
+use tetwave_protocol::node::NodeError;
+use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId, VertexKeys};
+
+/// Per-node metadata kept after the coefficients have been moved to the by-key table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeMeta {
+    pub subtree_max_abs: f32,
+    pub empty_children: u8,
+    pub owned: u8,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum BufferError {
+    #[error("node {id} is beyond the hierarchy's {nodes} nodes")]
+    OutOfRange { id: TetId, nodes: u64 },
+    #[error(transparent)]
+    Invalid(#[from] NodeError),
+    #[error("node {id} claims vertex {key}, which another node already owns")]
+    OwnedTwice { id: TetId, key: u64 },
+}
+
+/// What one [`DetailBuffer::insert`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Inserted {
+    /// A node not seen before.
+    New,
+    /// The id was already held; the node was ignored.
+    Duplicate,
+}
+
+/// What arrived since the mesh last looked: vertex keys that got a coefficient and node ids that got
+/// metadata. [`DetailBuffer::insert`] appends to it; `AdaptiveMesh::apply_arrivals` consumes it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Arrivals {
+    pub keys: Vec<u64>,
+    pub nodes: Vec<TetId>,
+}
+
+impl Arrivals {
+    pub fn clear(&mut self) {
+        self.keys.clear();
+        self.nodes.clear();
+    }
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty() && self.nodes.is_empty()
+    }
+}
+
+/// All detail nodes received so far (see the module docs).
+#[derive(Debug, Clone)]
+pub struct DetailBuffer {
+    forest: Forest,
+    keys: VertexKeys,
+    coeffs: FxHashMap<u64, f32>,
+    meta: FxHashMap<TetId, NodeMeta>,
+    duplicates: u64,
+    pending: u64,
+}
+
+impl DetailBuffer {
+    pub fn new(forest: Forest, keys: VertexKeys) -> Self {
+        DetailBuffer {
+            forest,
+            keys,
+            coeffs: FxHashMap::default(),
+            meta: FxHashMap::default(),
+            duplicates: 0,
+            pending: 0,
+        }
+    }
+
+    pub fn forest(&self) -> Forest {
+        self.forest
+    }
+
+    pub fn vertex_keys(&self) -> &VertexKeys {
+        &self.keys
+    }
+
+    /// Validates and stores `node`; appends the vertex keys that newly got a coefficient and the node's
+    /// id to `arrivals` (nothing is appended for a duplicate or an error). On error nothing is stored.
+    pub fn insert(
+        &mut self,
+        node: &DetailNode,
+        arrivals: &mut Arrivals,
+    ) -> Result<Inserted, BufferError> {
+        let nodes = self.forest.nodes();
+        if node.id >= nodes {
+            return Err(BufferError::OutOfRange { id: node.id, nodes });
+        }
+        node.validate()?;
+        if self.meta.contains_key(&node.id) {
+            self.duplicates += 1;
+            return Ok(Inserted::Duplicate);
+        }
+        // keys first, so that a bad node changes nothing
+        let mut owned = [(0u64, 0f32); 6];
+        let mut n = 0;
+        if node.owned != 0 {
+            let tet = LatticeTet::from_id(&self.forest, node.id);
+            for e in 0..EDGES.len() {
+                if let Some(d) = node.coeff(e) {
+                    let key = self.keys.key(tet.base, &tet.edge_midpoint(e));
+                    if self.coeffs.contains_key(&key) || owned[..n].iter().any(|p| p.0 == key) {
+                        return Err(BufferError::OwnedTwice { id: node.id, key });
+                    }
+                    owned[n] = (key, d);
+                    n += 1;
+                }
+            }
+        }
+        for &(key, d) in &owned[..n] {
+            self.coeffs.insert(key, d);
+            arrivals.keys.push(key);
+        }
+        arrivals.nodes.push(node.id);
+        self.meta.insert(
+            node.id,
+            NodeMeta {
+                subtree_max_abs: node.subtree_max_abs,
+                empty_children: node.empty_children,
+                owned: node.owned,
+            },
+        );
+        // pending bookkeeping: this node waits for its parent; its children stop waiting for it
+        if let Some(p) = self.forest.parent(node.id) {
+            if !self.meta.contains_key(&p) {
+                self.pending += 1;
+            }
+        }
+        for i in 0..8 {
+            let c = self.forest.child(node.id, i);
+            if self.meta.contains_key(&c) {
+                self.pending -= 1;
+            }
+        }
+        Ok(Inserted::New)
+    }
+
+    /// Whether node `t` has arrived.
+    #[inline]
+    pub fn is_present(&self, t: TetId) -> bool {
+        self.meta.contains_key(&t)
+    }
+
+    /// Whether `t` and all its ancestors have arrived.
+    pub fn is_usable(&self, t: TetId) -> bool {
+        let mut cur = Some(t);
+        while let Some(c) = cur {
+            if !self.meta.contains_key(&c) {
+                return false;
+            }
+            cur = self.forest.parent(c);
+        }
+        true
+    }
+
+    /// Metadata of node `t`, if it arrived.
+    #[inline]
+    pub fn meta(&self, t: TetId) -> Option<NodeMeta> {
+        self.meta.get(&t).copied()
+    }
+
+    /// Max |detail| of `t`'s subtree, if `t` arrived.
+    #[inline]
+    pub fn subtree_max(&self, t: TetId) -> Option<f32> {
+        self.meta.get(&t).map(|m| m.subtree_max_abs)
+    }
+
+    /// Whether child `i` of `t` is known to be empty (false while `t` has not arrived).
+    #[inline]
+    pub fn child_empty(&self, t: TetId, i: usize) -> bool {
+        self.meta
+            .get(&t)
+            .is_some_and(|m| m.empty_children & (1 << i) != 0)
+    }
+
+    /// Coefficient of vertex `key`, if its owner node arrived.
+    #[inline]
+    pub fn coeff(&self, key: u64) -> Option<f32> {
+        self.coeffs.get(&key).copied()
+    }
+
+    /// Nodes held (pending ones included).
+    pub fn nodes_held(&self) -> u64 {
+        self.meta.len() as u64
+    }
+
+    /// Nodes held whose parent has not arrived.
+    pub fn nodes_pending(&self) -> u64 {
+        self.pending
+    }
+
+    /// Coefficients held.
+    pub fn coeffs_held(&self) -> u64 {
+        self.coeffs.len() as u64
+    }
+
+    /// Duplicate nodes ignored so far.
+    pub fn duplicates(&self) -> u64 {
+        self.duplicates
+    }
+
+    /// Bytes held by the two tables (capacity × entry size, plus hashbrown's control byte per slot).
+    pub fn bytes_held(&self) -> usize {
+        self.coeffs.capacity() * (std::mem::size_of::<(u64, f32)>() + 1)
+            + self.meta.capacity() * (std::mem::size_of::<(TetId, NodeMeta)>() + 1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tetwave_protocol::hierarchy::Lattice;
+
+    fn setup() -> DetailBuffer {
+        let tets = vec![[0, 1, 2, 3]];
+        let keys = VertexKeys::new(4, &tets, Lattice { levels: 2 });
+        DetailBuffer::new(Forest::new(1, 2), keys)
+    }
+
+    fn node(id: TetId, owned: u8) -> DetailNode {
+        DetailNode {
+            id,
+            owned,
+            empty_children: 0,
+            subtree_max_abs: 1.0,
+            coeffs: (0..owned.count_ones()).map(|i| i as f32 + 0.5).collect(),
+        }
+    }
+
+    #[test]
+    fn pending_duplicates_usable() {
+        let mut b = setup();
+        let mut arr = Arrivals::default();
+        // child 1 + 8*0 = 1 .. 8 are level 1; node 3's parent is 0
+        assert_eq!(b.insert(&node(3, 0b001000), &mut arr), Ok(Inserted::New));
+        assert_eq!(b.nodes_pending(), 1);
+        assert!(!b.is_usable(3));
+        assert_eq!(arr.keys.len(), 1);
+        assert_eq!(
+            b.insert(&node(3, 0b001000), &mut arr),
+            Ok(Inserted::Duplicate)
+        );
+        assert_eq!(b.duplicates(), 1);
+        assert_eq!(arr.keys.len(), 1);
+        assert_eq!(b.insert(&node(0, 0b111111), &mut arr), Ok(Inserted::New));
+        assert_eq!(b.nodes_pending(), 0);
+        assert!(b.is_usable(3));
+        assert!(!b.is_usable(4));
+        assert_eq!(arr.keys.len(), 7);
+        assert_eq!(b.coeffs_held(), 7);
+        assert_eq!(b.nodes_held(), 2);
+        assert!(b.bytes_held() > 0);
+        for &k in &arr.keys {
+            assert!(b.coeff(k).is_some());
+        }
+    }
+
+    #[test]
+    fn rejects_bad_nodes_without_side_effects() {
+        let mut b = setup();
+        let mut arr = Arrivals::default();
+        assert!(matches!(
+            b.insert(&node(9, 0), &mut arr),
+            Err(BufferError::OutOfRange { .. })
+        ));
+        let mut bad = node(0, 0b11);
+        bad.coeffs.pop();
+        assert!(matches!(
+            b.insert(&bad, &mut arr),
+            Err(BufferError::Invalid(_))
+        ));
+        b.insert(&node(0, 0b111111), &mut arr).unwrap();
+        // child 0 of tet 0 (id 1) shares edge midpoints' parents with none of the base edges'
+        // midpoints, but a second node claiming a base-edge midpoint is an error
+        let before = (b.coeffs_held(), arr.keys.len());
+        // tet 1 = child 0: [x0, x01, x02, x03]; its edge (0,1) midpoint is new (level 2), so fine;
+        // claim it twice via two nodes: 1 owns edge 0, then 1 is duplicate → ignored.
+        b.insert(&node(1, 0b000001), &mut arr).unwrap();
+        assert_eq!(b.coeffs_held(), before.0 + 1);
+        // node 5 = child 4 = [x01,x02,x03,x13]: edge (0,1) is x01-x02, whose midpoint is new too;
+        // node 2 = child 1 = [x01, x1, x12, x13]; its edge (0,1) = x01-x1; distinct from node 1's.
+        // Node 8 = child 7 = [x02,x12,x13,x23]; claim an edge shared with child 5 = [x01,x02,x12,x13]
+        // (edge x02-x12 is edge (0,1) of child 7 and edge (1,2) of child 5).
+        b.insert(&node(8, 0b000001), &mut arr).unwrap();
+        let n = b.coeffs_held();
+        assert!(matches!(
+            b.insert(&node(6, 0b001000), &mut arr),
+            Err(BufferError::OwnedTwice { .. })
+        ));
+        assert_eq!(b.coeffs_held(), n);
+        assert!(!b.is_present(6));
+    }
+}

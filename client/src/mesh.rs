@@ -1,0 +1,1422 @@
+//! The adaptive mesh: red/green refinement over the semi-regular hierarchy, always conforming.
+//!
+//! # State
+//! The state is the set `R` of red-refined hierarchy tets, closed under parent. Hierarchy *leaves* are
+//! the base tets not in `R` and the children of tets in `R` that are not in `R`. Each leaf is drawn
+//! either as itself or, when some of its edges carry a present midpoint, as its *green closure*.
+//!
+//! Storage is arrays + u32 indices + free lists, no pointer graph:
+//! - **nodes**: one [`Node`] per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
+//!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
+//!   through a free list of blocks. A node (32 bytes) keeps its id, its 4 vertex slots (hierarchy
+//!   vertex order), its first child slot, flags, and for a leaf its green pattern (the marked-edge
+//!   mask; the midpoints are looked up by edge when the greens are listed).
+//! - **vertices**: slot arrays (key, position, value, edge endpoints, reference count, level, number of
+//!   dependants). Base vertices are slots `0..nv` (slot = key) and never go away. A non-base vertex, the
+//!   midpoint of an edge of a level-`k` tet, is present iff some refined level-`k` tet contains that
+//!   edge; its reference count is the number of such refined tets. Two hash maps find vertices: by
+//!   key (for arriving coefficients) and by the edge whose midpoint it is (sorted endpoint keys; the
+//!   closure's lookups need no lattice arithmetic).
+//!
+//! # Values
+//! A midpoint's value is `synthesize(d, predict(f(u), f(v)))` with `d` its coefficient from the
+//! [`DetailBuffer`], or 0 (linear prediction, the thesis' fallback) while it has not arrived. When
+//! coefficients arrive ([`AdaptiveMesh::apply_arrivals`]) the present vertices that own them are
+//! recomputed in place; if any of those has dependants (present vertices predicted from it), the
+//! present vertices are re-synthesized level by level from the lowest changed level up, each one whose
+//! edge endpoint changed being recomputed (one pass over the present vertices per batch).
+//!
+//! # Closure
+//! A leaf `T` of level `k` is *forced* (must be red-refined) if its marked edges (edges whose midpoint
+//! is present) do not form one of the green patterns (0 edges; 1; 2 on a face; 2 opposite; 3 of one
+//! face) or if any of the 24 level-`k+2` lattice points on its boundary is present (1-irregularity:
+//! otherwise a vertex would hang on its faces). Those 24 points are the midpoints of the half edges of
+//! marked edges (12) and of the segments joining two marked midpoints of one face (12), so the test
+//! is a handful of edge-map lookups. The closure is a worklist: every vertex that appears or
+//! disappears puts the leaves whose closure contains it (point location down the tree with integer
+//! barycentric coordinates) on the list; forced leaves are red-refined (domino). The number of
+//! closure refinements per operation is bounded by the number of hierarchy nodes (an error, never an
+//! endless loop). The closure may red-refine an *empty* tet (one outside the input domain) when its
+//! neighbours need it; explicit [`AdaptiveMesh::refine`] of an empty tet is refused, and empty leaves
+//! are not listed by [`AdaptiveMesh::drawable_leaf_tets`].
+//!
+//! # Green splits
+//! Built so that the split of every face depends only on that face: a face with 3 marked edges is cut
+//! into Bey's 4 triangles (the pattern "3 edges of one face" cones them to the opposite vertex);
+//! otherwise the tet is bisected at its marked edge whose midpoint has the smallest key, and each half
+//! recursively at its remaining marked edge. On a face with two marked edges this draws the segment
+//! from the smaller-key midpoint to the opposite corner and joins the two midpoints. All pieces are
+//! made by replacing vertices of the (positively oriented) tet by points of the same edges, which keeps
+//! the orientation.
+
+use crate::detail_buffer::{Arrivals, DetailBuffer};
+use rustc_hash::FxHashMap;
+use std::sync::OnceLock;
+use tetwave_protocol::base::signed_volume;
+use tetwave_protocol::hierarchy::{Bary, Lattice, BEY_CHILDREN, EDGES, FACES};
+use tetwave_protocol::wavelet::{predict, synthesize};
+use tetwave_protocol::{BaseMesh, Forest, LatticeTet, TetId, VertexKeys};
+
+const NONE: u32 = u32::MAX;
+const ALIVE: u8 = 1;
+const EMPTY: u8 = 2;
+const FLIP: u8 = 4;
+
+/// Edges of the face opposite vertex `d` (the edges not touching `d`), as a mask over [`EDGES`].
+const FACE_MASK: [u8; 4] = face_masks();
+/// Edges touching vertex `v`, as a mask over [`EDGES`].
+const VERTEX_MASK: [u8; 4] = vertex_masks();
+
+const fn face_masks() -> [u8; 4] {
+    let mut out = [0u8; 4];
+    let mut d = 0;
+    while d < 4 {
+        let mut e = 0;
+        while e < 6 {
+            if EDGES[e].0 != d && EDGES[e].1 != d {
+                out[d] |= 1 << e;
+            }
+            e += 1;
+        }
+        d += 1;
+    }
+    out
+}
+
+const fn vertex_masks() -> [u8; 4] {
+    let mut out = [0u8; 4];
+    let mut e = 0;
+    while e < 6 {
+        out[EDGES[e].0] |= 1 << e;
+        out[EDGES[e].1] |= 1 << e;
+        e += 1;
+    }
+    out
+}
+
+#[inline]
+fn edge_index(a: usize, b: usize) -> usize {
+    let (a, b) = if a < b { (a, b) } else { (b, a) };
+    match (a, b) {
+        (0, 1) => 0,
+        (0, 2) => 1,
+        (0, 3) => 2,
+        (1, 2) => 3,
+        (1, 3) => 4,
+        _ => 5,
+    }
+}
+
+/// Whether a marked-edge mask has a green closure.
+#[inline]
+pub fn green_pattern_ok(mask: u8) -> bool {
+    match mask.count_ones() {
+        0..=2 => true,
+        3 => FACE_MASK.contains(&mask),
+        _ => false,
+    }
+}
+
+/// Per Bey child: the integer matrix taking barycentric coordinates w.r.t. the parent to those w.r.t.
+/// the child (both scaled to the same sum), and whether the child is mirrored w.r.t. the parent.
+struct ChildMaps {
+    to_child: [[[i64; 4]; 4]; 8],
+    flip: [bool; 8],
+}
+
+fn child_maps() -> &'static ChildMaps {
+    static CELL: OnceLock<ChildMaps> = OnceLock::new();
+    CELL.get_or_init(|| {
+        let mut to_child = [[[0i64; 4]; 4]; 8];
+        let mut flip = [false; 8];
+        for (i, c) in BEY_CHILDREN.iter().enumerate() {
+            // column j: parent barycentrics of child vertex j
+            let mut m = [[0f64; 4]; 4];
+            for (j, &p) in c.iter().enumerate() {
+                if p < 4 {
+                    m[p][j] = 1.0;
+                } else {
+                    let (a, b) = EDGES[p - 4];
+                    m[a][j] = 0.5;
+                    m[b][j] = 0.5;
+                }
+            }
+            flip[i] = det4(&m) < 0.0;
+            let inv = invert4(&m);
+            for r in 0..4 {
+                for s in 0..4 {
+                    let x = inv[r][s];
+                    assert!((x - x.round()).abs() < 1e-9, "Bey child map not integral");
+                    to_child[i][r][s] = x.round() as i64;
+                }
+            }
+        }
+        ChildMaps { to_child, flip }
+    })
+}
+
+#[allow(clippy::needless_range_loop)] // small dense linear algebra reads best indexed
+fn det4(m: &[[f64; 4]; 4]) -> f64 {
+    let mut a = *m;
+    let mut det = 1.0;
+    for c in 0..4 {
+        let p = (c..4)
+            .max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))
+            .unwrap();
+        if a[p][c] == 0.0 {
+            return 0.0;
+        }
+        if p != c {
+            a.swap(p, c);
+            det = -det;
+        }
+        det *= a[c][c];
+        for r in c + 1..4 {
+            let f = a[r][c] / a[c][c];
+            for k in c..4 {
+                a[r][k] -= f * a[c][k];
+            }
+        }
+    }
+    det
+}
+
+#[allow(clippy::needless_range_loop)]
+fn invert4(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
+    let mut a = *m;
+    let mut inv = [[0f64; 4]; 4];
+    for (i, row) in inv.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for c in 0..4 {
+        let p = (c..4)
+            .max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))
+            .unwrap();
+        a.swap(p, c);
+        inv.swap(p, c);
+        let d = a[c][c];
+        for k in 0..4 {
+            a[c][k] /= d;
+            inv[c][k] /= d;
+        }
+        for r in 0..4 {
+            if r != c {
+                let f = a[r][c];
+                for k in 0..4 {
+                    a[r][k] -= f * a[c][k];
+                    inv[r][k] -= f * inv[c][k];
+                }
+            }
+        }
+    }
+    inv
+}
+
+#[inline]
+fn edge_key(a: u64, b: u64) -> u128 {
+    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
+    ((lo as u128) << 64) | hi as u128
+}
+
+/// The green closure of a tet `v` (in an orientation-consistent vertex order) with marked-edge mask
+/// `mask`: calls `out` with each piece, all in the orientation of `v`. `mid[e]` is the midpoint of
+/// local edge `e` (read only for marked edges), `mkey[e]` its vertex key.
+pub fn green_split<P: Copy>(
+    v: [P; 4],
+    mask: u8,
+    mid: &[P; 6],
+    mkey: &[u64; 6],
+    out: &mut impl FnMut([P; 4]),
+) {
+    if mask == 0 {
+        out(v);
+        return;
+    }
+    if mask.count_ones() == 3 {
+        let d = FACE_MASK
+            .iter()
+            .position(|&m| m == mask)
+            .expect("3 marked edges not on one face: not a green pattern");
+        let [a, b, c] = FACES[d];
+        let (mab, mac, mbc) = (
+            mid[edge_index(a, b)],
+            mid[edge_index(a, c)],
+            mid[edge_index(b, c)],
+        );
+        let mut t = v;
+        t[b] = mab;
+        t[c] = mac;
+        out(t);
+        let mut t = v;
+        t[a] = mab;
+        t[c] = mbc;
+        out(t);
+        let mut t = v;
+        t[a] = mac;
+        t[b] = mbc;
+        out(t);
+        let mut t = v;
+        t[a] = mbc;
+        t[b] = mac;
+        t[c] = mab;
+        out(t);
+        return;
+    }
+    debug_assert!(mask.count_ones() <= 2);
+    let mut e = 6;
+    for i in 0..6 {
+        if mask & (1 << i) != 0 && (e == 6 || mkey[i] < mkey[e]) {
+            e = i;
+        }
+    }
+    let (a, b) = EDGES[e];
+    let rest = mask & !(1 << e);
+    let mut t = v;
+    t[a] = mid[e];
+    green_split(t, rest & !VERTEX_MASK[a], mid, mkey, out);
+    let mut t = v;
+    t[b] = mid[e];
+    green_split(t, rest & !VERTEX_MASK[b], mid, mkey, out);
+}
+
+/// One node of the red tree (see the module docs): 32 bytes.
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    id: TetId,
+    v: [u32; 4],
+    children: u32,
+    /// Marked edges of a leaf (its green pattern); 0 for refined nodes.
+    mask: u8,
+    flags: u8,
+}
+
+impl Node {
+    const DEAD: Node = Node {
+        id: 0,
+        v: [NONE; 4],
+        children: NONE,
+        mask: 0,
+        flags: 0,
+    };
+    #[inline]
+    fn is_leaf(&self) -> bool {
+        self.children == NONE
+    }
+    #[inline]
+    fn alive(&self) -> bool {
+        self.flags & ALIVE != 0
+    }
+}
+
+/// A tet of the leaf mesh: 4 vertex slots, positively oriented.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LeafTet {
+    pub v: [u32; 4],
+    /// The hierarchy tet it belongs to (itself, or the red tet whose green closure it is part of).
+    pub hier: TetId,
+    pub green: bool,
+    /// Lies outside the input domain (never drawn).
+    pub empty: bool,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MeshError {
+    #[error("tet {0} is not in the mesh (an ancestor is a leaf)")]
+    NotInMesh(TetId),
+    #[error("tet {0} is already refined")]
+    NotLeaf(TetId),
+    #[error("tet {0} is at the finest level")]
+    Finest(TetId),
+    #[error("tet {0} is empty (outside the domain) and is not refined on request")]
+    Empty(TetId),
+    #[error("tet {0} is not refined")]
+    NotRefined(TetId),
+    #[error("tet {0}: some children are refined")]
+    ChildrenRefined(TetId),
+    #[error("coarsening tet {0} refused: the closure would refine it again")]
+    Forced(TetId),
+    #[error("green closure did not settle within {0} refinements")]
+    ClosureBound(usize),
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ConformityError {
+    #[error("node {id}: vertex {local} has slot {slot} with key {have:?}, lattice key {want}")]
+    VertexMismatch {
+        id: TetId,
+        local: usize,
+        slot: u32,
+        have: Option<u64>,
+        want: u64,
+    },
+    #[error("leaf {id}: green pattern {mask:#04x} stored, {want:#04x} computed")]
+    StaleGreen { id: TetId, mask: u8, want: u8 },
+    #[error("leaf {id} is forced (pattern {mask:#04x}) but not refined")]
+    NotClosed { id: TetId, mask: u8 },
+    #[error("leaf {id}: piece of volume {volume} ≤ 0")]
+    NonPositive { id: TetId, volume: f64 },
+    #[error("face {face:?} used {count} times (boundary: {boundary})")]
+    Face {
+        face: [u64; 3],
+        count: u32,
+        boundary: bool,
+    },
+    #[error("vertex {key} (slot {slot}) is present but no leaf uses it")]
+    Unused { key: u64, slot: u32 },
+    #[error("vertex {key}: reference count {have}, {want} refined tets create it")]
+    RefCount { key: u64, have: u32, want: u32 },
+    #[error("leaf volumes sum to {sum}, the domain's volume is {domain}")]
+    Volume { sum: f64, domain: f64 },
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Red/green adaptive mesh (see the module docs).
+#[derive(Debug, Clone)]
+pub struct AdaptiveMesh {
+    forest: Forest,
+    keys: VertexKeys,
+    base_positions: Vec<[f64; 3]>,
+    base_tets: Vec<[u32; 4]>,
+    /// Per base vertex: the base tets that use it.
+    vertex_tets: Vec<Vec<u32>>,
+    /// Per base tet and local face: lies on the domain boundary.
+    boundary: Vec<[bool; 4]>,
+    domain_volume: f64,
+
+    nodes: Vec<Node>,
+    free_blocks: Vec<u32>,
+    n_leaves: usize,
+
+    vkey: Vec<u64>,
+    vpos: Vec<[f32; 3]>,
+    vval: Vec<f32>,
+    vends: Vec<[u32; 2]>,
+    vref: Vec<u32>,
+    vlevel: Vec<u8>,
+    vdeps: Vec<u32>,
+    free_vertices: Vec<u32>,
+    n_vertices: usize,
+    by_key: FxHashMap<u64, u32>,
+    by_edge: FxHashMap<u128, u32>,
+
+    work: Vec<(u32, TetId)>,
+}
+
+impl AdaptiveMesh {
+    /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`].
+    pub fn new(base: &BaseMesh) -> Self {
+        let forest = base.forest();
+        let keys = base.vertex_keys();
+        let nv = base.positions.len();
+        let mut vertex_tets = vec![Vec::new(); nv];
+        let mut face_count: FxHashMap<[u32; 3], u32> = FxHashMap::default();
+        for (t, tv) in base.tets.iter().enumerate() {
+            for &g in tv {
+                vertex_tets[g as usize].push(t as u32);
+            }
+            for f in &FACES {
+                let mut k = [tv[f[0]], tv[f[1]], tv[f[2]]];
+                k.sort_unstable();
+                *face_count.entry(k).or_insert(0) += 1;
+            }
+        }
+        let boundary = base
+            .tets
+            .iter()
+            .map(|tv| {
+                std::array::from_fn(|d| {
+                    let f = FACES[d];
+                    let mut k = [tv[f[0]], tv[f[1]], tv[f[2]]];
+                    k.sort_unstable();
+                    face_count[&k] == 1
+                })
+            })
+            .collect();
+        let mut nodes = Vec::with_capacity(base.tets.len());
+        let mut domain_volume = 0.0;
+        for (t, tv) in base.tets.iter().enumerate() {
+            let p = tv.map(|g| base.positions[g as usize]);
+            let vol = signed_volume(p[0], p[1], p[2], p[3]);
+            domain_volume += vol.abs();
+            let mut flags = ALIVE;
+            if vol < 0.0 {
+                flags |= FLIP;
+            }
+            if base.empty[t] {
+                flags |= EMPTY;
+            }
+            nodes.push(Node {
+                id: t as TetId,
+                v: *tv,
+                children: NONE,
+                mask: 0,
+                flags,
+            });
+        }
+        let mut m = AdaptiveMesh {
+            forest,
+            keys,
+            base_positions: base.positions.clone(),
+            base_tets: base.tets.clone(),
+            vertex_tets,
+            boundary,
+            domain_volume,
+            nodes,
+            free_blocks: Vec::new(),
+            n_leaves: base.tets.len(),
+            vkey: Vec::new(),
+            vpos: Vec::new(),
+            vval: Vec::new(),
+            vends: Vec::new(),
+            vref: Vec::new(),
+            vlevel: Vec::new(),
+            vdeps: Vec::new(),
+            free_vertices: Vec::new(),
+            n_vertices: 0,
+            by_key: FxHashMap::default(),
+            by_edge: FxHashMap::default(),
+            work: Vec::new(),
+        };
+        for g in 0..nv {
+            let p = base.positions[g];
+            m.vkey.push(g as u64);
+            m.vpos.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+            m.vval.push(base.values[g]);
+            m.vends.push([NONE; 2]);
+            m.vref.push(u32::MAX);
+            m.vlevel.push(0);
+            m.vdeps.push(0);
+        }
+        m.n_vertices = nv;
+        m
+    }
+
+    pub fn forest(&self) -> Forest {
+        self.forest
+    }
+
+    pub fn vertex_keys(&self) -> &VertexKeys {
+        &self.keys
+    }
+
+    /// Sum of the base tets' volumes.
+    pub fn domain_volume(&self) -> f64 {
+        self.domain_volume
+    }
+
+    // ---------------------------------------------------------------- lookups
+
+    /// The lattice tet of `id`, without allocating.
+    pub fn lattice_of(&self, id: TetId) -> LatticeTet {
+        let k = self.forest.level(id);
+        let local = id - self.forest.level_start(k);
+        let base = (local >> (3 * k as u32)) as u32;
+        let mut t = LatticeTet::base_tet(
+            Lattice {
+                levels: self.forest.levels,
+            },
+            base,
+        );
+        for j in 0..k {
+            let d = (local >> (3 * (k - 1 - j) as u32)) & 7;
+            t = t.child(d as usize);
+        }
+        t
+    }
+
+    /// Node slot of hierarchy tet `id`, if it is in the red tree (refined or leaf).
+    fn find(&self, id: TetId) -> Option<u32> {
+        if id >= self.forest.total_tets() {
+            return None;
+        }
+        let k = self.forest.level(id);
+        let local = id - self.forest.level_start(k);
+        let mut slot = (local >> (3 * k as u32)) as u32;
+        for j in 0..k {
+            let n = &self.nodes[slot as usize];
+            if n.is_leaf() {
+                return None;
+            }
+            slot = n.children + ((local >> (3 * (k - 1 - j) as u32)) & 7) as u32;
+        }
+        Some(slot)
+    }
+
+    /// Whether hierarchy tet `id` is a leaf of the red tree.
+    pub fn is_leaf(&self, id: TetId) -> bool {
+        self.find(id)
+            .is_some_and(|s| self.nodes[s as usize].is_leaf())
+    }
+
+    /// Whether hierarchy tet `id` is red-refined.
+    pub fn is_refined(&self, id: TetId) -> bool {
+        self.find(id)
+            .is_some_and(|s| !self.nodes[s as usize].is_leaf())
+    }
+
+    /// Whether hierarchy tet `id` is known to be empty (outside the input domain).
+    pub fn is_empty_tet(&self, id: TetId) -> bool {
+        self.find(id)
+            .is_some_and(|s| self.nodes[s as usize].flags & EMPTY != 0)
+    }
+
+    /// Ids of the hierarchy leaves.
+    pub fn leaf_ids(&self) -> Vec<TetId> {
+        self.nodes
+            .iter()
+            .filter(|n| n.alive() && n.is_leaf())
+            .map(|n| n.id)
+            .collect()
+    }
+
+    /// Ids of the red-refined tets.
+    pub fn refined_ids(&self) -> Vec<TetId> {
+        self.nodes
+            .iter()
+            .filter(|n| n.alive() && !n.is_leaf())
+            .map(|n| n.id)
+            .collect()
+    }
+
+    /// Ids of the refined tets whose 8 children are all leaves (candidates for [`Self::coarsen`]).
+    pub fn coarsenable_ids(&self) -> Vec<TetId> {
+        self.nodes
+            .iter()
+            .filter(|n| {
+                n.alive()
+                    && !n.is_leaf()
+                    && (0..8).all(|i| self.nodes[(n.children + i) as usize].is_leaf())
+            })
+            .map(|n| n.id)
+            .collect()
+    }
+
+    /// Number of hierarchy leaves.
+    pub fn leaf_count(&self) -> usize {
+        self.n_leaves
+    }
+
+    /// Number of present vertices.
+    pub fn vertex_count(&self) -> usize {
+        self.n_vertices
+    }
+
+    /// Length of the vertex slot arrays (present and free slots).
+    pub fn vertex_slot_len(&self) -> usize {
+        self.vkey.len()
+    }
+
+    /// Slots of the present vertices.
+    pub fn vertex_slots(&self) -> impl Iterator<Item = u32> + '_ {
+        (0..self.vkey.len() as u32).filter(|&s| self.vref[s as usize] != 0)
+    }
+
+    /// Slot of the present vertex with key `key`.
+    pub fn slot_of_key(&self, key: u64) -> Option<u32> {
+        if key < self.keys.base_vertex_count() {
+            return Some(key as u32);
+        }
+        self.by_key.get(&key).copied()
+    }
+
+    pub fn vertex_key(&self, slot: u32) -> u64 {
+        self.vkey[slot as usize]
+    }
+    pub fn vertex_value(&self, slot: u32) -> f32 {
+        self.vval[slot as usize]
+    }
+    pub fn vertex_position(&self, slot: u32) -> [f32; 3] {
+        self.vpos[slot as usize]
+    }
+    /// The edge endpoints a midpoint vertex is predicted from; `None` for base vertices.
+    pub fn vertex_ends(&self, slot: u32) -> Option<[u32; 2]> {
+        let e = self.vends[slot as usize];
+        (e[0] != NONE).then_some(e)
+    }
+    /// Level at which a vertex appears (0 for base vertices).
+    pub fn vertex_level(&self, slot: u32) -> u8 {
+        self.vlevel[slot as usize]
+    }
+    /// Position array by slot (free slots hold stale data).
+    pub fn positions(&self) -> &[[f32; 3]] {
+        &self.vpos
+    }
+    /// Value array by slot (free slots hold stale data).
+    pub fn values(&self) -> &[f32] {
+        &self.vval
+    }
+
+    /// Bytes held by the node, vertex and map storage (capacities).
+    pub fn bytes_held(&self) -> usize {
+        use std::mem::size_of;
+        self.nodes.capacity() * size_of::<Node>()
+            + self.free_blocks.capacity() * 4
+            + self.vkey.capacity() * 8
+            + self.vpos.capacity() * 12
+            + self.vval.capacity() * 4
+            + self.vends.capacity() * 8
+            + self.vref.capacity() * 4
+            + self.vlevel.capacity()
+            + self.vdeps.capacity() * 4
+            + self.free_vertices.capacity() * 4
+            + self.by_key.capacity() * (size_of::<(u64, u32)>() + 1)
+            + self.by_edge.capacity() * (size_of::<(u128, u32)>() + 1)
+            + self.work.capacity() * size_of::<(u32, TetId)>()
+    }
+
+    // ---------------------------------------------------------------- leaf mesh
+
+    /// Calls `f` with every tet of the leaf mesh (red leaves and green pieces), positively oriented.
+    pub fn for_each_leaf_tet(&self, mut f: impl FnMut(LeafTet)) {
+        for n in &self.nodes {
+            if !n.alive() || !n.is_leaf() {
+                continue;
+            }
+            let empty = n.flags & EMPTY != 0;
+            let flip = n.flags & FLIP != 0;
+            let mut emit = |v: [u32; 4]| {
+                let v = if flip { [v[0], v[1], v[3], v[2]] } else { v };
+                f(LeafTet {
+                    v,
+                    hier: n.id,
+                    green: n.mask != 0,
+                    empty,
+                })
+            };
+            if n.mask == 0 {
+                emit(n.v);
+            } else {
+                let (mid, mkey) = self.green_mids(n);
+                green_split(n.v, n.mask, &mid, &mkey, &mut emit);
+            }
+        }
+    }
+
+    /// All tets of the leaf mesh, empty ones included.
+    pub fn leaf_tets(&self) -> Vec<LeafTet> {
+        let mut out = Vec::with_capacity(self.n_leaves * 2);
+        self.for_each_leaf_tet(|t| out.push(t));
+        out
+    }
+
+    /// The tets of the leaf mesh that lie inside the input domain.
+    pub fn drawable_leaf_tets(&self) -> Vec<LeafTet> {
+        let mut out = Vec::with_capacity(self.n_leaves * 2);
+        self.for_each_leaf_tet(|t| {
+            if !t.empty {
+                out.push(t)
+            }
+        });
+        out
+    }
+
+    /// Midpoint slots and keys of the marked edges of leaf `n` (looked up by edge: greens are few).
+    fn green_mids(&self, n: &Node) -> ([u32; 6], [u64; 6]) {
+        let mut mid = [NONE; 6];
+        let mut mkey = [u64::MAX; 6];
+        for (e, &(a, b)) in EDGES.iter().enumerate() {
+            if n.mask & (1 << e) != 0 {
+                let m = self
+                    .edge_mid(self.vkey[n.v[a] as usize], self.vkey[n.v[b] as usize])
+                    .expect("marked edge without midpoint");
+                mid[e] = m;
+                mkey[e] = self.vkey[m as usize];
+            }
+        }
+        (mid, mkey)
+    }
+
+    // ---------------------------------------------------------------- closure
+
+    #[inline]
+    fn edge_mid(&self, ka: u64, kb: u64) -> Option<u32> {
+        self.by_edge.get(&edge_key(ka, kb)).copied()
+    }
+
+    /// Green pattern of a tet with vertices `v` and midpoints `mid` (`NONE` = absent): returns the
+    /// mask and whether the tet is forced (bad pattern or a level-k+2 point on its boundary).
+    fn classify_with(&self, v: &[u32; 4], mid: &[u32; 6]) -> (u8, bool) {
+        let k = v.map(|s| self.vkey[s as usize]);
+        let mut mask = 0u8;
+        let mut mk = [0u64; 6];
+        for e in 0..6 {
+            if mid[e] != NONE {
+                mask |= 1 << e;
+                mk[e] = self.vkey[mid[e] as usize];
+            }
+        }
+        if !green_pattern_ok(mask) {
+            return (mask, true);
+        }
+        for e in 0..6 {
+            if mask & (1 << e) != 0 {
+                let (a, b) = EDGES[e];
+                if self.edge_mid(k[a], mk[e]).is_some() || self.edge_mid(mk[e], k[b]).is_some() {
+                    return (mask, true);
+                }
+            }
+        }
+        for fm in FACE_MASK {
+            let m = mask & fm;
+            if m.count_ones() >= 2 {
+                let es: [usize; 3] = {
+                    let mut es = [6; 3];
+                    let mut j = 0;
+                    for e in 0..6 {
+                        if m & (1 << e) != 0 {
+                            es[j] = e;
+                            j += 1;
+                        }
+                    }
+                    es
+                };
+                for x in 0..3 {
+                    for y in x + 1..3 {
+                        if es[y] < 6 && self.edge_mid(mk[es[x]], mk[es[y]]).is_some() {
+                            return (mask, true);
+                        }
+                    }
+                }
+            }
+        }
+        (mask, false)
+    }
+
+    fn present_mids(&self, v: &[u32; 4]) -> [u32; 6] {
+        let k = v.map(|s| self.vkey[s as usize]);
+        std::array::from_fn(|e| {
+            let (a, b) = EDGES[e];
+            self.edge_mid(k[a], k[b]).unwrap_or(NONE)
+        })
+    }
+
+    /// Pushes every leaf whose closure contains lattice point `w` of base tet `b` onto the worklist.
+    fn locate(&mut self, b: u32, w: &Bary) {
+        let mut work = std::mem::take(&mut self.work);
+        let tv = self.base_tets[b as usize];
+        let first = (0..4).find(|&i| w[i] != 0).expect("zero weights");
+        for &c in &self.vertex_tets[tv[first] as usize] {
+            let cv = self.base_tets[c as usize];
+            let mut lam = [0i64; 4];
+            let mut ok = true;
+            for i in 0..4 {
+                if w[i] != 0 {
+                    match cv.iter().position(|&g| g == tv[i]) {
+                        Some(j) => lam[j] = w[i] as i64,
+                        None => {
+                            ok = false;
+                            break;
+                        }
+                    }
+                }
+            }
+            if ok {
+                self.descend(c, lam, &mut work);
+            }
+        }
+        self.work = work;
+    }
+
+    fn descend(&self, slot: u32, lam: [i64; 4], out: &mut Vec<(u32, TetId)>) {
+        let n = &self.nodes[slot as usize];
+        if n.is_leaf() {
+            out.push((slot, n.id));
+            return;
+        }
+        let maps = child_maps();
+        for i in 0..8 {
+            let a = &maps.to_child[i];
+            let mu: [i64; 4] = std::array::from_fn(|r| {
+                a[r][0] * lam[0] + a[r][1] * lam[1] + a[r][2] * lam[2] + a[r][3] * lam[3]
+            });
+            if mu.iter().all(|&x| x >= 0) {
+                self.descend(n.children + i as u32, mu, out);
+            }
+        }
+    }
+
+    /// Settles the worklist: red-refines forced leaves, records the green pattern of the others.
+    fn close(&mut self, buf: &DetailBuffer) -> Result<(), MeshError> {
+        let bound = self.forest.nodes() as usize + 8;
+        let mut refines = 0usize;
+        while let Some((slot, id)) = self.work.pop() {
+            let n = self.nodes[slot as usize];
+            if !n.alive() || n.id != id || !n.is_leaf() {
+                continue;
+            }
+            let mid = self.present_mids(&n.v);
+            let (mask, forced) = self.classify_with(&n.v, &mid);
+            if forced {
+                refines += 1;
+                if refines > bound {
+                    self.work.clear();
+                    return Err(MeshError::ClosureBound(bound));
+                }
+                let lt = self.lattice_of(id);
+                self.refine_slot(slot, &lt, buf)?;
+            } else {
+                self.nodes[slot as usize].mask = mask;
+            }
+        }
+        Ok(())
+    }
+
+    // ---------------------------------------------------------------- vertices
+
+    fn new_vertex(&mut self, key: u64, pos: [f32; 3], level: u8, ends: [u32; 2], val: f32) -> u32 {
+        let s = match self.free_vertices.pop() {
+            Some(s) => {
+                let i = s as usize;
+                self.vkey[i] = key;
+                self.vpos[i] = pos;
+                self.vval[i] = val;
+                self.vends[i] = ends;
+                self.vref[i] = 1;
+                self.vlevel[i] = level;
+                self.vdeps[i] = 0;
+                s
+            }
+            None => {
+                self.vkey.push(key);
+                self.vpos.push(pos);
+                self.vval.push(val);
+                self.vends.push(ends);
+                self.vref.push(1);
+                self.vlevel.push(level);
+                self.vdeps.push(0);
+                (self.vkey.len() - 1) as u32
+            }
+        };
+        self.vdeps[ends[0] as usize] += 1;
+        self.vdeps[ends[1] as usize] += 1;
+        self.n_vertices += 1;
+        s
+    }
+
+    fn lattice_position(&self, b: u32, w: &Bary) -> [f64; 3] {
+        tetwave_protocol::base::lattice_position(
+            &self.base_positions,
+            &self.base_tets[b as usize],
+            self.keys.lattice().m(),
+            w,
+        )
+    }
+
+    #[inline]
+    fn synth_value(&self, buf: &DetailBuffer, key: u64, ends: [u32; 2]) -> f32 {
+        let d = buf.coeff(key).unwrap_or(0.0);
+        synthesize(
+            d,
+            predict(self.vval[ends[0] as usize], self.vval[ends[1] as usize]),
+        )
+    }
+
+    // ---------------------------------------------------------------- refine / coarsen
+
+    fn alloc_block(&mut self) -> u32 {
+        match self.free_blocks.pop() {
+            Some(b) => b,
+            None => {
+                let b = self.nodes.len() as u32;
+                self.nodes.extend_from_slice(&[Node::DEAD; 8]);
+                b
+            }
+        }
+    }
+
+    /// Red-splits leaf `slot` (lattice tet `lt`): creates or references its 6 midpoints and its 8
+    /// children, and queues the children and the leaves around new vertices.
+    fn refine_slot(
+        &mut self,
+        slot: u32,
+        lt: &LatticeTet,
+        buf: &DetailBuffer,
+    ) -> Result<(), MeshError> {
+        let n = self.nodes[slot as usize];
+        debug_assert!(n.is_leaf());
+        let level = self.forest.level(n.id);
+        if level >= self.forest.levels {
+            return Err(MeshError::Finest(n.id));
+        }
+        let mut pts = [0u32; 10];
+        pts[..4].copy_from_slice(&n.v);
+        let mut created = [false; 6];
+        for (e, &(a, b)) in EDGES.iter().enumerate() {
+            let (sa, sb) = (n.v[a], n.v[b]);
+            let ek = edge_key(self.vkey[sa as usize], self.vkey[sb as usize]);
+            let s = match self.by_edge.get(&ek) {
+                Some(&s) => {
+                    self.vref[s as usize] += 1;
+                    s
+                }
+                None => {
+                    let w = lt.edge_midpoint(e);
+                    let key = self.keys.key(lt.base, &w);
+                    let p = self.lattice_position(lt.base, &w);
+                    let val = self.synth_value(buf, key, [sa, sb]);
+                    let s = self.new_vertex(
+                        key,
+                        [p[0] as f32, p[1] as f32, p[2] as f32],
+                        level + 1,
+                        [sa, sb],
+                        val,
+                    );
+                    self.by_edge.insert(ek, s);
+                    self.by_key.insert(key, s);
+                    created[e] = true;
+                    s
+                }
+            };
+            pts[4 + e] = s;
+        }
+        let block = self.alloc_block();
+        let maps = child_maps();
+        for (i, c) in BEY_CHILDREN.iter().enumerate() {
+            let mut flags = ALIVE | (n.flags & (EMPTY | FLIP));
+            if maps.flip[i] {
+                flags ^= FLIP;
+            }
+            if buf.child_empty(n.id, i) {
+                flags |= EMPTY;
+            }
+            let id = self.forest.child(n.id, i);
+            self.nodes[(block + i as u32) as usize] = Node {
+                id,
+                v: c.map(|p| pts[p]),
+                children: NONE,
+                mask: 0,
+                flags,
+            };
+            self.work.push((block + i as u32, id));
+        }
+        let node = &mut self.nodes[slot as usize];
+        node.children = block;
+        node.mask = 0;
+        self.n_leaves += 7;
+        for (e, &c) in created.iter().enumerate() {
+            if c {
+                self.locate(lt.base, &lt.edge_midpoint(e));
+            }
+        }
+        Ok(())
+    }
+
+    /// Red-refines leaf `t` and restores conformity (green closure, domino refinements). Missing
+    /// coefficients are predicted (d = 0) and corrected by [`Self::apply_arrivals`] later.
+    pub fn refine(&mut self, t: TetId, buf: &DetailBuffer) -> Result<(), MeshError> {
+        let slot = self.find(t).ok_or(MeshError::NotInMesh(t))?;
+        let n = self.nodes[slot as usize];
+        if !n.is_leaf() {
+            return Err(MeshError::NotLeaf(t));
+        }
+        if n.flags & EMPTY != 0 {
+            return Err(MeshError::Empty(t));
+        }
+        if self.forest.level(t) >= self.forest.levels {
+            return Err(MeshError::Finest(t));
+        }
+        let lt = self.lattice_of(t);
+        self.refine_slot(slot, &lt, buf)?;
+        self.close(buf)
+    }
+
+    /// Undoes the red split of `t` (whose 8 children must be leaves) and restores the green closure
+    /// around it. Refused ([`MeshError::Forced`]) when the closure would refine `t` again at once.
+    pub fn coarsen(&mut self, t: TetId, buf: &DetailBuffer) -> Result<(), MeshError> {
+        let slot = self.find(t).ok_or(MeshError::NotInMesh(t))?;
+        let n = self.nodes[slot as usize];
+        if n.is_leaf() {
+            return Err(MeshError::NotRefined(t));
+        }
+        if (0..8).any(|i| !self.nodes[(n.children + i) as usize].is_leaf()) {
+            return Err(MeshError::ChildrenRefined(t));
+        }
+        let all = self.present_mids(&n.v);
+        debug_assert!(all.iter().all(|&m| m != NONE));
+        // midpoints that stay: created by another refined tet too
+        let after: [u32; 6] = std::array::from_fn(|e| {
+            if self.vref[all[e] as usize] > 1 {
+                all[e]
+            } else {
+                NONE
+            }
+        });
+        if self.classify_with(&n.v, &after).1 {
+            return Err(MeshError::Forced(t));
+        }
+        self.unrefine(slot);
+        self.close(buf)
+    }
+
+    /// Coarsens every tet of `ts` whose children are all leaves at that point (in the given order;
+    /// others are skipped), without the per-tet refusal of [`Self::coarsen`], then restores the
+    /// closure, which may refine some of them again. This is how a region refined uniformly is
+    /// coarsened: no single tet of it can be coarsened alone, since its neighbours keep its edges
+    /// split. Returns how many of `ts` are leaves afterwards.
+    pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
+        for &t in ts {
+            if let Some(slot) = self.find(t) {
+                let n = self.nodes[slot as usize];
+                if !n.is_leaf() && (0..8).all(|i| self.nodes[(n.children + i) as usize].is_leaf()) {
+                    self.unrefine(slot);
+                }
+            }
+        }
+        self.close(buf)?;
+        Ok(ts.iter().filter(|&&t| self.is_leaf(t)).count())
+    }
+
+    /// Removes the 8 (leaf) children of `slot` and releases its midpoints; queues `slot` and the
+    /// leaves around every vertex that went away.
+    fn unrefine(&mut self, slot: u32) {
+        let n = self.nodes[slot as usize];
+        let t = n.id;
+        let all = self.present_mids(&n.v);
+        let lt = self.lattice_of(t);
+        for i in 0..8 {
+            self.nodes[(n.children + i) as usize] = Node::DEAD;
+        }
+        self.free_blocks.push(n.children);
+        self.nodes[slot as usize].children = NONE;
+        self.n_leaves -= 7;
+        let mut removed = [false; 6];
+        for e in 0..6 {
+            let s = all[e] as usize;
+            self.vref[s] -= 1;
+            if self.vref[s] == 0 {
+                let ends = self.vends[s];
+                debug_assert_eq!(self.vdeps[s], 0);
+                self.by_edge.remove(&edge_key(
+                    self.vkey[ends[0] as usize],
+                    self.vkey[ends[1] as usize],
+                ));
+                self.by_key.remove(&self.vkey[s]);
+                self.vdeps[ends[0] as usize] -= 1;
+                self.vdeps[ends[1] as usize] -= 1;
+                self.free_vertices.push(s as u32);
+                self.n_vertices -= 1;
+                removed[e] = true;
+            }
+        }
+        self.work.push((slot, t));
+        for (e, &r) in removed.iter().enumerate() {
+            if r {
+                self.locate(lt.base, &lt.edge_midpoint(e));
+            }
+        }
+    }
+
+    // ---------------------------------------------------------------- arrivals
+
+    /// Applies coefficients and node metadata that arrived in `buf` (as recorded in `arrivals`):
+    /// present vertices owning a new coefficient are recomputed in place, then every present vertex
+    /// predicted from a changed one (level by level); children of arrived nodes get their `empty`
+    /// flags. Returns the number of vertex values recomputed.
+    pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
+        let mut dirty: Vec<u32> = Vec::new();
+        for &key in &arrivals.keys {
+            if let Some(&s) = self.by_key.get(&key) {
+                let v = self.synth_value(buf, key, self.vends[s as usize]);
+                self.vval[s as usize] = v;
+                dirty.push(s);
+            }
+        }
+        let mut count = dirty.len();
+        if dirty.iter().any(|&s| self.vdeps[s as usize] > 0) {
+            let lo = dirty
+                .iter()
+                .map(|&s| self.vlevel[s as usize])
+                .min()
+                .unwrap_or(0);
+            let mut mark = vec![false; self.vkey.len()];
+            for &s in &dirty {
+                mark[s as usize] = true;
+            }
+            let mut by_level: Vec<Vec<u32>> = vec![Vec::new(); self.forest.levels as usize + 1];
+            for s in 0..self.vkey.len() {
+                if self.vref[s] != 0 && self.vlevel[s] > lo {
+                    by_level[self.vlevel[s] as usize].push(s as u32);
+                }
+            }
+            for lv in by_level {
+                for s in lv {
+                    let ends = self.vends[s as usize];
+                    if mark[ends[0] as usize] || mark[ends[1] as usize] {
+                        self.vval[s as usize] = self.synth_value(buf, self.vkey[s as usize], ends);
+                        if !mark[s as usize] {
+                            mark[s as usize] = true;
+                            count += 1;
+                        }
+                    }
+                }
+            }
+        }
+        for &id in &arrivals.nodes {
+            if let Some(slot) = self.find(id) {
+                if !self.nodes[slot as usize].is_leaf() {
+                    self.refresh_empty(slot, buf);
+                }
+            }
+        }
+        count
+    }
+
+    fn refresh_empty(&mut self, slot: u32, buf: &DetailBuffer) {
+        let n = self.nodes[slot as usize];
+        if n.is_leaf() {
+            return;
+        }
+        for i in 0..8u32 {
+            let c = (n.children + i) as usize;
+            let empty = n.flags & EMPTY != 0 || buf.child_empty(n.id, i as usize);
+            let old = self.nodes[c].flags & EMPTY != 0;
+            if empty != old {
+                self.nodes[c].flags ^= EMPTY;
+                self.refresh_empty(c as u32, buf);
+            }
+        }
+    }
+
+    // ---------------------------------------------------------------- checks
+
+    /// Checks every invariant of the leaf mesh (see [`ConformityError`]): node vertices agree with the
+    /// lattice, the closure is settled and stored green patterns are current, every piece has
+    /// positive volume, every face is shared by exactly two pieces or lies on the domain boundary,
+    /// every present vertex is used by a piece, reference counts match the refined tets, and the
+    /// volumes sum to the domain's (relative 1e-9).
+    pub fn check_conformity(&self) -> Result<(), ConformityError> {
+        let mut faces: FxHashMap<[u64; 3], (u32, bool)> = FxHashMap::default();
+        let mut used = vec![false; self.vkey.len()];
+        let mut want_ref = vec![0u32; self.vkey.len()];
+        let mut total = 0.0f64;
+        let lattice = Lattice {
+            levels: self.forest.levels,
+        };
+        let mut stack: Vec<(u32, LatticeTet)> = (0..self.base_tets.len() as u32)
+            .map(|b| (b, LatticeTet::base_tet(lattice, b)))
+            .collect();
+        let mut alive_nodes = 0usize;
+        while let Some((slot, lt)) = stack.pop() {
+            let n = self.nodes[slot as usize];
+            if !n.alive() {
+                return Err(ConformityError::Other(format!(
+                    "dead node in tree: slot {slot}"
+                )));
+            }
+            alive_nodes += 1;
+            for i in 0..4 {
+                let want = self.keys.key(lt.base, &lt.v[i]);
+                let s = n.v[i];
+                let have = (s != NONE && self.vref[s as usize] != 0).then(|| self.vkey[s as usize]);
+                if have != Some(want) {
+                    return Err(ConformityError::VertexMismatch {
+                        id: n.id,
+                        local: i,
+                        slot: s,
+                        have,
+                        want,
+                    });
+                }
+            }
+            if !n.is_leaf() {
+                let mids = self.present_mids(&n.v);
+                for &m in &mids {
+                    if m == NONE {
+                        return Err(ConformityError::Other(format!(
+                            "refined tet {} misses a midpoint",
+                            n.id
+                        )));
+                    }
+                    want_ref[m as usize] += 1;
+                }
+                for (i, c) in lt.children().into_iter().enumerate() {
+                    let cs = n.children + i as u32;
+                    let cn = &self.nodes[cs as usize];
+                    if cn.id != self.forest.child(n.id, i) {
+                        return Err(ConformityError::Other(format!(
+                            "child {i} of {} has id {}",
+                            n.id, cn.id
+                        )));
+                    }
+                    stack.push((cs, c));
+                }
+                continue;
+            }
+            let mid = self.present_mids(&n.v);
+            let (mask, forced) = self.classify_with(&n.v, &mid);
+            if forced {
+                return Err(ConformityError::NotClosed { id: n.id, mask });
+            }
+            if mask != n.mask {
+                return Err(ConformityError::StaleGreen {
+                    id: n.id,
+                    mask: n.mask,
+                    want: mask,
+                });
+            }
+            // pieces over (slot, lattice point)
+            let v: [(u32, Bary); 4] = std::array::from_fn(|i| (n.v[i], lt.v[i]));
+            let midp: [(u32, Bary); 6] = std::array::from_fn(|e| (mid[e], lt.edge_midpoint(e)));
+            let mkey: [u64; 6] = std::array::from_fn(|e| {
+                if mid[e] != NONE {
+                    self.vkey[mid[e] as usize]
+                } else {
+                    u64::MAX
+                }
+            });
+            let flip = n.flags & FLIP != 0;
+            let mut err = None;
+            green_split(v, mask, &midp, &mkey, &mut |p: [(u32, Bary); 4]| {
+                if err.is_some() {
+                    return;
+                }
+                let p = if flip { [p[0], p[1], p[3], p[2]] } else { p };
+                let x = p.map(|q| self.lattice_position(lt.base, &q.1));
+                let vol = signed_volume(x[0], x[1], x[2], x[3]);
+                if vol <= 0.0 {
+                    err = Some(ConformityError::NonPositive {
+                        id: n.id,
+                        volume: vol,
+                    });
+                    return;
+                }
+                total += vol;
+                for q in &p {
+                    used[q.0 as usize] = true;
+                }
+                for f in &FACES {
+                    let mut k = [
+                        self.vkey[p[f[0]].0 as usize],
+                        self.vkey[p[f[1]].0 as usize],
+                        self.vkey[p[f[2]].0 as usize],
+                    ];
+                    k.sort_unstable();
+                    let on_boundary = (0..4).any(|z| {
+                        self.boundary[lt.base as usize][z] && f.iter().all(|&j| p[j].1[z] == 0)
+                    });
+                    let entry = faces.entry(k).or_insert((0, on_boundary));
+                    entry.0 += 1;
+                    entry.1 |= on_boundary;
+                }
+            });
+            if let Some(e) = err {
+                return Err(e);
+            }
+        }
+        let alive_total = self.nodes.iter().filter(|n| n.alive()).count();
+        if alive_total != alive_nodes {
+            return Err(ConformityError::Other(format!(
+                "{alive_total} live nodes, {alive_nodes} reachable"
+            )));
+        }
+        for (face, &(count, boundary)) in &faces {
+            let ok = if boundary { count == 1 } else { count == 2 };
+            if !ok {
+                return Err(ConformityError::Face {
+                    face: *face,
+                    count,
+                    boundary,
+                });
+            }
+        }
+        let nv = self.keys.base_vertex_count() as usize;
+        let mut present = 0usize;
+        for s in 0..self.vkey.len() {
+            if self.vref[s] == 0 {
+                continue;
+            }
+            present += 1;
+            if !used[s] {
+                return Err(ConformityError::Unused {
+                    key: self.vkey[s],
+                    slot: s as u32,
+                });
+            }
+            if s >= nv && self.vref[s] != want_ref[s] {
+                return Err(ConformityError::RefCount {
+                    key: self.vkey[s],
+                    have: self.vref[s],
+                    want: want_ref[s],
+                });
+            }
+        }
+        if present != self.n_vertices || self.by_key.len() + nv != present {
+            return Err(ConformityError::Other(format!(
+                "{present} present vertices, counter {}, key map {}",
+                self.n_vertices,
+                self.by_key.len()
+            )));
+        }
+        if (total - self.domain_volume).abs() > 1e-9 * self.domain_volume {
+            return Err(ConformityError::Volume {
+                sum: total,
+                domain: self.domain_volume,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn child_maps_invert_bey() {
+        let maps = child_maps();
+        let lat = Lattice { levels: 3 };
+        let t = LatticeTet::base_tet(lat, 0);
+        for (i, c) in t.children().iter().enumerate() {
+            // the child's own vertices map to its unit corners (scaled by m)
+            for j in 0..4 {
+                let lam = c.v[j].map(|x| x as i64);
+                let a = &maps.to_child[i];
+                let mu: [i64; 4] = std::array::from_fn(|r| (0..4).map(|s| a[r][s] * lam[s]).sum());
+                let mut want = [0i64; 4];
+                want[j] = 8;
+                assert_eq!(mu, want, "child {i} vertex {j}");
+            }
+        }
+        // corner children keep the orientation
+        assert!(!maps.flip[0] && !maps.flip[1] && !maps.flip[2] && !maps.flip[3]);
+    }
+
+    #[test]
+    fn node_is_32_bytes() {
+        assert_eq!(std::mem::size_of::<Node>(), 32);
+    }
+
+    #[test]
+    fn green_patterns() {
+        assert!(green_pattern_ok(0));
+        for e in 0..6 {
+            assert!(green_pattern_ok(1 << e));
+        }
+        let mut n3 = 0;
+        for m in 0u8..64 {
+            if m.count_ones() == 3 && green_pattern_ok(m) {
+                n3 += 1;
+            }
+        }
+        assert_eq!(n3, 4);
+        assert!(!green_pattern_ok(0b111111));
+    }
+
+    #[test]
+    fn green_split_piece_counts() {
+        let v = [0u32, 1, 2, 3];
+        let mid = [4u32, 5, 6, 7, 8, 9];
+        let mkey = [14u64, 15, 16, 17, 18, 19];
+        let count = |mask: u8| {
+            let mut n = 0;
+            green_split(v, mask, &mid, &mkey, &mut |_| n += 1);
+            n
+        };
+        assert_eq!(count(0), 1);
+        assert_eq!(count(1), 2);
+        assert_eq!(count(0b000011), 3); // (0,1),(0,2) share face 3
+        assert_eq!(count(0b100001), 4); // (0,1),(2,3) opposite
+        assert_eq!(count(FACE_MASK[0]), 4);
+    }
+}

@@ -1,0 +1,713 @@
+//! Adaptive mesh + detail buffer against whole-hierarchy synthesis: conformity after every operation,
+//! exact values, order independence, prediction fallback and in-place correction.
+
+use proptest::prelude::*;
+use std::time::Instant;
+use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
+use tetwave_client::mesh::{AdaptiveMesh, MeshError};
+use tetwave_protocol::base::signed_volume;
+use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
+use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::wavelet::{analyze, predict, synthesize};
+use tetwave_protocol::{BaseMesh, DetailNode, TetId, VertexKeys};
+
+// ------------------------------------------------------------------ fixtures
+
+fn corner(i: u32) -> [f64; 3] {
+    [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64]
+}
+
+/// Positions + tets with every tet made positive (last two vertices swapped where needed).
+fn oriented(positions: Vec<[f64; 3]>, tets: Vec<[u32; 4]>, levels: u8) -> BaseMesh {
+    let tets: Vec<[u32; 4]> = tets
+        .into_iter()
+        .map(|t| {
+            let p = t.map(|g| positions[g as usize]);
+            if signed_volume(p[0], p[1], p[2], p[3]) < 0.0 {
+                [t[0], t[1], t[3], t[2]]
+            } else {
+                t
+            }
+        })
+        .collect();
+    let n = tets.len();
+    let nv = positions.len();
+    BaseMesh {
+        levels,
+        positions,
+        tets,
+        values: vec![0.0; nv],
+        empty: vec![false; n],
+    }
+}
+
+/// The unit box in 5 tets.
+fn box5(levels: u8) -> BaseMesh {
+    oriented(
+        (0..8).map(corner).collect(),
+        vec![
+            [0, 1, 2, 4],
+            [3, 2, 1, 7],
+            [5, 4, 7, 1],
+            [6, 7, 4, 2],
+            [1, 2, 4, 7],
+        ],
+        levels,
+    )
+}
+
+/// The unit box in 6 Kuhn tets around the diagonal 0–7 (vertex orders deliberately mixed).
+fn kuhn6(levels: u8) -> BaseMesh {
+    oriented(
+        (0..8).map(corner).collect(),
+        vec![
+            [0, 1, 3, 7],
+            [7, 0, 1, 5],
+            [0, 4, 5, 7],
+            [6, 7, 0, 4],
+            [0, 2, 6, 7],
+            [3, 7, 2, 0],
+        ],
+        levels,
+    )
+}
+
+/// One tet, with a skewed shape.
+fn single(levels: u8) -> BaseMesh {
+    oriented(
+        vec![
+            [0.0, 0.0, 0.0],
+            [2.0, 0.1, 0.0],
+            [0.3, 1.5, 0.2],
+            [0.1, 0.4, 1.7],
+        ],
+        vec![[0, 1, 2, 3]],
+        levels,
+    )
+}
+
+fn field(p: [f64; 3]) -> f32 {
+    let (x, y, z) = (p[0], p[1], p[2]);
+    // offset keeps values in [1.5, 5]: predictions within a factor 2 of the value, details exact
+    (3.0 + (3.0 * x).sin() * (2.0 * y).cos() + z * z * x + 0.3 * (5.0 * z * y).sin()) as f32
+}
+
+/// Samples `field` at every vertex key, sets the base values, and computes every detail node
+/// (ownership: lowest id of the level whose tet contains the edge). `empty_bits` picks pseudo-random
+/// `empty_children` bits when nonzero.
+struct Data {
+    base: BaseMesh,
+    keys: VertexKeys,
+    nodes: Vec<DetailNode>,
+    reference: Vec<f32>,
+}
+
+fn make_data(mut base: BaseMesh, empty_seed: u64) -> Data {
+    let keys = base.vertex_keys();
+    let n = keys.vertex_count() as usize;
+    let mut f = vec![f32::NAN; n];
+    for (e, _) in keys.entities() {
+        keys.for_each_in(e, |k, t, w| f[k as usize] = field(base.position(t, &w)));
+    }
+    let nv = base.positions.len();
+    base.values = f[..nv].to_vec();
+    let forest = base.forest();
+    let mut claimed = vec![false; n];
+    let mut nodes = Vec::with_capacity(forest.nodes() as usize);
+    let mut rng = empty_seed;
+    for k in 0..forest.levels {
+        for (id, t) in LevelWalker::level(forest, k) {
+            let mut owned = 0u8;
+            let mut coeffs = Vec::new();
+            for (e, &(a, b)) in EDGES.iter().enumerate() {
+                let m = keys.key(t.base, &t.edge_midpoint(e)) as usize;
+                if !claimed[m] {
+                    claimed[m] = true;
+                    owned |= 1 << e;
+                    let u = keys.key(t.base, &t.v[a]) as usize;
+                    let v = keys.key(t.base, &t.v[b]) as usize;
+                    coeffs.push(analyze(f[m], predict(f[u], f[v])));
+                }
+            }
+            let mut empty_children = 0u8;
+            if empty_seed != 0 {
+                rng = splitmix(rng);
+                if matches!(rng % 5, 0) {
+                    empty_children = (rng >> 8) as u8 & (rng >> 16) as u8;
+                }
+            }
+            nodes.push(DetailNode {
+                id,
+                owned,
+                empty_children,
+                subtree_max_abs: coeffs.iter().fold(0.0f32, |m, c| m.max(c.abs())),
+                coeffs,
+            });
+        }
+    }
+    let reference = synthesize_all(&base, &keys, nodes.iter().cloned()).unwrap();
+    Data {
+        base,
+        keys,
+        nodes,
+        reference,
+    }
+}
+
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = x;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+fn shuffle<T>(v: &mut [T], mut seed: u64) {
+    for i in (1..v.len()).rev() {
+        seed = splitmix(seed);
+        v.swap(i, (seed % (i as u64 + 1)) as usize);
+    }
+}
+
+/// The value the mesh must hold for `slot` given what the buffer has: synthesis with d = 0 for
+/// missing coefficients. Also says whether every coefficient it depends on has arrived.
+fn expected(mesh: &AdaptiveMesh, buf: &DetailBuffer, base: &BaseMesh, slot: u32) -> (f32, bool) {
+    match mesh.vertex_ends(slot) {
+        None => (base.values[mesh.vertex_key(slot) as usize], true),
+        Some([u, v]) => {
+            let (fu, au) = expected(mesh, buf, base, u);
+            let (fv, av) = expected(mesh, buf, base, v);
+            let d = buf.coeff(mesh.vertex_key(slot));
+            (
+                synthesize(d.unwrap_or(0.0), predict(fu, fv)),
+                au && av && d.is_some(),
+            )
+        }
+    }
+}
+
+fn check_values(mesh: &AdaptiveMesh, buf: &DetailBuffer, data: &Data) {
+    for s in mesh.vertex_slots() {
+        let (want, complete) = expected(mesh, buf, &data.base, s);
+        let have = mesh.vertex_value(s);
+        assert_eq!(have.to_bits(), want.to_bits(), "slot {s}");
+        if complete {
+            assert_eq!(
+                have.to_bits(),
+                data.reference[mesh.vertex_key(s) as usize].to_bits(),
+                "slot {s} key {}",
+                mesh.vertex_key(s)
+            );
+        }
+    }
+}
+
+/// Refines every leaf whose node is usable until nothing changes.
+fn refine_all_usable(mesh: &mut AdaptiveMesh, buf: &DetailBuffer) -> usize {
+    let levels = mesh.forest().levels;
+    let mut total = 0;
+    loop {
+        let mut changed = 0;
+        for id in mesh.leaf_ids() {
+            if mesh.forest().level(id) < levels && buf.is_usable(id) && mesh.is_leaf(id) {
+                mesh.refine(id, buf).unwrap();
+                changed += 1;
+            }
+        }
+        total += changed;
+        if changed == 0 {
+            return total;
+        }
+    }
+}
+
+fn assert_uniform_finest(mesh: &AdaptiveMesh, data: &Data) {
+    let forest = data.base.forest();
+    let leaves = forest.leaves() as usize;
+    assert_eq!(mesh.leaf_count(), leaves);
+    let tets = mesh.leaf_tets();
+    assert_eq!(tets.len(), leaves);
+    assert!(tets.iter().all(|t| !t.green));
+    assert_eq!(mesh.vertex_count() as u64, data.keys.vertex_count());
+    for s in mesh.vertex_slots() {
+        assert_eq!(
+            mesh.vertex_value(s).to_bits(),
+            data.reference[mesh.vertex_key(s) as usize].to_bits()
+        );
+    }
+}
+
+// ------------------------------------------------------------------ tests
+
+#[test]
+fn helper_round_trips_samples() {
+    for base in [box5(3), kuhn6(2), single(3)] {
+        let data = make_data(base, 0);
+        let mut f = vec![0f32; data.reference.len()];
+        for (e, _) in data.keys.entities() {
+            data.keys.for_each_in(e, |k, t, w| {
+                f[k as usize] = field(data.base.position(t, &w))
+            });
+        }
+        assert_eq!(f, data.reference);
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Order {
+    Level,
+    Random,
+    ReversedWithinLevel,
+    Duplicated,
+}
+
+fn deliver_and_refine(data: &Data, order: Order) -> (AdaptiveMesh, DetailBuffer) {
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut list: Vec<&DetailNode> = data.nodes.iter().collect();
+    match order {
+        Order::Level => {}
+        Order::Random => shuffle(&mut list, 0xfeed),
+        Order::ReversedWithinLevel => {
+            list.sort_by_key(|n| (forest.level(n.id), std::cmp::Reverse(n.id)));
+        }
+        Order::Duplicated => {
+            let mut d = Vec::with_capacity(list.len() * 2);
+            for (i, n) in list.iter().enumerate() {
+                d.push(*n);
+                d.push(list[i / 2]);
+            }
+            list = d;
+        }
+    }
+    let mut arr = Arrivals::default();
+    let chunk = if order == Order::Random {
+        list.len() / 7 + 1
+    } else {
+        list.len()
+    };
+    let mut dups = 0;
+    for part in list.chunks(chunk) {
+        for n in part {
+            if buf.insert(n, &mut arr).unwrap() == Inserted::Duplicate {
+                dups += 1;
+            }
+        }
+        mesh.apply_arrivals(&buf, &arr);
+        arr.clear();
+        // interleave refinement with delivery for the random order
+        refine_all_usable(&mut mesh, &buf);
+    }
+    assert_eq!(buf.duplicates(), dups);
+    assert_eq!(buf.nodes_held(), forest.nodes());
+    assert_eq!(buf.nodes_pending(), 0);
+    (mesh, buf)
+}
+
+#[test]
+fn order_independence_level3() {
+    for base in [box5(3), kuhn6(3), single(3)] {
+        let data = make_data(base, 0);
+        for order in [
+            Order::Level,
+            Order::Random,
+            Order::ReversedWithinLevel,
+            Order::Duplicated,
+        ] {
+            let (mesh, _) = deliver_and_refine(&data, order);
+            mesh.check_conformity().unwrap();
+            assert_uniform_finest(&mesh, &data);
+        }
+    }
+}
+
+/// The thesis-size case: box5 at level 5 → 163,840 leaves, every value exact.
+#[test]
+fn order_independence_box5_level5() {
+    let t0 = Instant::now();
+    let data = make_data(box5(5), 0);
+    let t_data = t0.elapsed();
+    assert_eq!(data.nodes.len(), 23_405);
+    for order in [
+        Order::Level,
+        Order::Random,
+        Order::ReversedWithinLevel,
+        Order::Duplicated,
+    ] {
+        let t = Instant::now();
+        let (mesh, _) = deliver_and_refine(&data, order);
+        let t_refine = t.elapsed();
+        let t = Instant::now();
+        mesh.check_conformity().unwrap();
+        let t_check = t.elapsed();
+        assert_eq!(mesh.leaf_count(), 163_840);
+        assert_uniform_finest(&mesh, &data);
+        eprintln!(
+            "level 5: data {t_data:?}, deliver+refine {t_refine:?}, conformity check {t_check:?}, {} bytes",
+            mesh.bytes_held()
+        );
+        if order == Order::Level {
+            // tear down to the base and build up again, timing the leaf tets created + removed
+            let (mut mesh, buf) = (
+                mesh,
+                DetailBuffer::new(data.base.forest(), data.keys.clone()),
+            );
+            let mut full = DetailBuffer::new(data.base.forest(), data.keys.clone());
+            let mut arr = Arrivals::default();
+            for n in &data.nodes {
+                full.insert(n, &mut arr).unwrap();
+            }
+            let t = Instant::now();
+            let mut moved = 0usize;
+            for _ in 0..5 {
+                let before = mesh.leaf_count();
+                let c = mesh.coarsenable_ids();
+                assert_eq!(mesh.coarsen_batch(&c, &buf).unwrap(), c.len());
+                moved += before + mesh.leaf_count();
+            }
+            assert_eq!(mesh.leaf_count(), 5);
+            let t_down = t.elapsed();
+            let t = Instant::now();
+            refine_all_usable(&mut mesh, &full);
+            let t_up = t.elapsed();
+            moved += 163_840 * 8 / 7;
+            assert_eq!(mesh.leaf_count(), 163_840);
+            eprintln!(
+                "level 5 coarsen to base {t_down:?}, refine back {t_up:?}: {:.2} M leaf tets created+removed/s",
+                moved as f64 / (t_down + t_up).as_secs_f64() / 1e6
+            );
+        }
+    }
+}
+
+#[test]
+fn fallback_prediction_then_correction() {
+    let data = make_data(box5(3), 0);
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut arr = Arrivals::default();
+    // refine base tet 0 with no node at all: its midpoints are linear predictions
+    mesh.refine(0, &buf).unwrap();
+    mesh.check_conformity().unwrap();
+    let lt = mesh.lattice_of(0);
+    let mids: Vec<u32> = (0..6)
+        .map(|e| {
+            mesh.slot_of_key(data.keys.key(lt.base, &lt.edge_midpoint(e)))
+                .unwrap()
+        })
+        .collect();
+    for &s in &mids {
+        let [u, v] = mesh.vertex_ends(s).unwrap();
+        assert_eq!(
+            mesh.vertex_value(s),
+            predict(mesh.vertex_value(u), mesh.vertex_value(v))
+        );
+    }
+    check_values(&mesh, &buf, &data);
+    // a node owning nothing present changes nothing
+    let before: Vec<(u32, u32)> = mesh
+        .vertex_slots()
+        .map(|s| (s, mesh.vertex_value(s).to_bits()))
+        .collect();
+    buf.insert(&data.nodes[3], &mut arr).unwrap();
+    assert_eq!(mesh.apply_arrivals(&buf, &arr), 0);
+    arr.clear();
+    // node 0 owns all 6 midpoints of tet 0: exactly those change, to the reference values
+    buf.insert(&data.nodes[0], &mut arr).unwrap();
+    assert_eq!(arr.keys.len(), 6);
+    assert_eq!(mesh.apply_arrivals(&buf, &arr), 6);
+    arr.clear();
+    let mut n_changed = 0;
+    for (s, bits) in before {
+        let now = mesh.vertex_value(s);
+        if mids.contains(&s) {
+            assert_eq!(
+                now.to_bits(),
+                data.reference[mesh.vertex_key(s) as usize].to_bits()
+            );
+            n_changed += (now.to_bits() != bits) as usize;
+        } else {
+            assert_eq!(now.to_bits(), bits);
+        }
+    }
+    assert!(
+        n_changed >= 4,
+        "the field is not linear: most midpoints move"
+    );
+    mesh.check_conformity().unwrap();
+
+    // dependants: refine a child of tet 1 before tet 1's node arrives; the child's midpoints are
+    // predicted from tet 1's predicted midpoints, and are corrected with them
+    mesh.refine(1, &buf).unwrap();
+    let c = forest.child(1, 4);
+    if !mesh.is_leaf(c) {
+        mesh.coarsen(c, &buf).ok();
+    }
+    if mesh.is_leaf(c) {
+        mesh.refine(c, &buf).unwrap();
+    }
+    mesh.check_conformity().unwrap();
+    check_values(&mesh, &buf, &data);
+    let before: Vec<(u32, u32)> = mesh
+        .vertex_slots()
+        .map(|s| (s, mesh.vertex_value(s).to_bits()))
+        .collect();
+    buf.insert(&data.nodes[1], &mut arr).unwrap();
+    let owned: Vec<u32> = arr
+        .keys
+        .iter()
+        .filter_map(|&k| mesh.slot_of_key(k))
+        .collect();
+    assert!(!owned.is_empty());
+    let changed = mesh.apply_arrivals(&buf, &arr);
+    arr.clear();
+    assert!(changed > owned.len(), "finer vertices depend on node 1's");
+    check_values(&mesh, &buf, &data);
+    // whatever changed is either owned by node 1 or (transitively) predicted from one of those
+    let mut n_changed = 0;
+    for (s, bits) in before {
+        if mesh.vertex_value(s).to_bits() != bits {
+            n_changed += 1;
+            assert!(owned.contains(&s) || mesh.vertex_level(s) >= 2);
+        }
+    }
+    assert!(n_changed <= changed);
+    // everything delivered: all present values are the reference
+    for n in &data.nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    mesh.apply_arrivals(&buf, &arr);
+    for s in mesh.vertex_slots() {
+        assert_eq!(
+            mesh.vertex_value(s).to_bits(),
+            data.reference[mesh.vertex_key(s) as usize].to_bits()
+        );
+    }
+}
+
+#[test]
+fn coarsen_everything_back() {
+    let data = make_data(box5(3), 0);
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut arr = Arrivals::default();
+    for n in &data.nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    let mut mesh = AdaptiveMesh::new(&data.base);
+    refine_all_usable(&mut mesh, &buf);
+    assert_eq!(mesh.leaf_count(), 5 * 512);
+    // in a uniform mesh an interior tet cannot be coarsened alone: its neighbours keep its edges
+    // split (a corner tet can: its boundary edges belong to it only)
+    let (mut ok, mut refused) = (0, 0);
+    for id in mesh.coarsenable_ids() {
+        match mesh.coarsen(id, &buf) {
+            Ok(()) => ok += 1,
+            Err(MeshError::Forced(t)) => {
+                assert_eq!(t, id);
+                refused += 1
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+    mesh.check_conformity().unwrap();
+    assert!(refused > ok && ok > 0, "{ok} coarsened, {refused} refused");
+    refine_all_usable(&mut mesh, &buf);
+    assert_eq!(mesh.leaf_count(), 5 * 512);
+    // a whole level at a time works, down to the base
+    for level in (0..3u8).rev() {
+        let c = mesh.coarsenable_ids();
+        assert!(c.iter().all(|&t| forest.level(t) == level));
+        assert_eq!(mesh.coarsen_batch(&c, &buf).unwrap(), c.len());
+        mesh.check_conformity().unwrap();
+        assert_eq!(mesh.leaf_count(), 5 << (3 * level));
+        check_values(&mesh, &buf, &data);
+    }
+    assert_eq!(mesh.leaf_count(), 5);
+    assert_eq!(mesh.vertex_count(), 8);
+    assert_eq!(mesh.leaf_tets().len(), 5);
+}
+
+#[test]
+fn empty_tets_are_not_drawn_or_refined() {
+    let mut base = box5(2);
+    base.empty[2] = true;
+    let data = make_data(base, 0);
+    let forest = data.base.forest();
+    let buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base);
+    assert_eq!(mesh.refine(2, &buf), Err(MeshError::Empty(2)));
+    mesh.refine(4, &buf).unwrap();
+    mesh.check_conformity().unwrap();
+    let all = mesh.leaf_tets();
+    let drawable = mesh.drawable_leaf_tets();
+    assert!(drawable.len() < all.len());
+    assert!(drawable.iter().all(|t| t.hier != 2 && !t.empty));
+    assert_eq!(
+        all.iter().filter(|t| t.hier == 2).count(),
+        all.len() - drawable.len()
+    );
+}
+
+// ------------------------------------------------------------------ property test
+
+#[derive(Debug, Clone, Copy)]
+enum Op {
+    Deliver(u8),
+    Refine(u32),
+    Coarsen(u32),
+    CoarsenBatch(u32),
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        2 => (1u8..40).prop_map(Op::Deliver),
+        5 => any::<u32>().prop_map(Op::Refine),
+        2 => any::<u32>().prop_map(Op::Coarsen),
+        1 => any::<u32>().prop_map(Op::CoarsenBatch),
+    ]
+}
+
+/// What a sequence exercised (to check that the random sequences are not vacuous).
+#[derive(Debug, Default)]
+struct Stats {
+    green_pieces: usize,
+    closure_refines: usize,
+    coarsened: usize,
+    refused: usize,
+    corrected: usize,
+}
+
+fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> Stats {
+    let mut stats = Stats::default();
+    let base = match kind {
+        0 => box5(levels),
+        1 => kuhn6(levels),
+        _ => single(levels),
+    };
+    let data = make_data(base, if empties { seed | 1 } else { 0 });
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut order: Vec<usize> = (0..data.nodes.len()).collect();
+    // some duplicates, then a random arrival order
+    for i in 0..data.nodes.len() / 4 {
+        order.push(i * 3 % data.nodes.len());
+    }
+    shuffle(&mut order, seed);
+    let mut next = 0;
+    let mut arr = Arrivals::default();
+    mesh.check_conformity().unwrap();
+    for &o in ops {
+        match o {
+            Op::Deliver(n) => {
+                for _ in 0..n {
+                    if next < order.len() {
+                        buf.insert(&data.nodes[order[next]], &mut arr).unwrap();
+                        next += 1;
+                    }
+                }
+                stats.corrected += mesh.apply_arrivals(&buf, &arr);
+                arr.clear();
+            }
+            Op::Refine(pick) => {
+                let cands: Vec<TetId> = mesh
+                    .leaf_ids()
+                    .into_iter()
+                    .filter(|&t| forest.level(t) < levels && !mesh.is_empty_tet(t))
+                    .collect();
+                if !cands.is_empty() {
+                    let t = cands[pick as usize % cands.len()];
+                    let leaves = mesh.leaf_count();
+                    mesh.refine(t, &buf).unwrap();
+                    assert!(mesh.is_refined(t));
+                    stats.closure_refines += (mesh.leaf_count() - leaves - 7) / 7;
+                }
+            }
+            Op::Coarsen(pick) => {
+                let cands = mesh.coarsenable_ids();
+                if !cands.is_empty() {
+                    let t = cands[pick as usize % cands.len()];
+                    let leaves = mesh.leaf_count();
+                    let verts = mesh.vertex_count();
+                    match mesh.coarsen(t, &buf) {
+                        Ok(()) => {
+                            assert!(mesh.is_leaf(t));
+                            stats.coarsened += 1;
+                        }
+                        Err(MeshError::Forced(_)) => {
+                            stats.refused += 1;
+                            assert_eq!(mesh.leaf_count(), leaves);
+                            assert_eq!(mesh.vertex_count(), verts);
+                        }
+                        Err(e) => panic!("{e}"),
+                    }
+                }
+            }
+            Op::CoarsenBatch(bits) => {
+                // a pseudo-random subset of the coarsenable tets
+                let cands: Vec<TetId> = mesh
+                    .coarsenable_ids()
+                    .into_iter()
+                    .enumerate()
+                    .filter(|(i, _)| bits.rotate_left(*i as u32) & 3 != 0)
+                    .map(|(_, t)| t)
+                    .collect();
+                let leaves = mesh.leaf_count();
+                let done = mesh.coarsen_batch(&cands, &buf).unwrap();
+                assert!(done <= cands.len());
+                assert!(mesh.leaf_count() <= leaves);
+            }
+        }
+        if let Err(e) = mesh.check_conformity() {
+            panic!("after {o:?}: {e}");
+        }
+        check_values(&mesh, &buf, &data);
+        let all = mesh.leaf_tets();
+        let drawable = mesh.drawable_leaf_tets();
+        assert_eq!(all.iter().filter(|t| !t.empty).count(), drawable.len());
+        stats.green_pieces += all.iter().filter(|t| t.green).count();
+    }
+    stats
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        failure_persistence: None,
+        ..ProptestConfig::with_cases(1000)
+    })]
+
+    #[test]
+    fn random_sequences_stay_conforming(
+        kind in 0u8..3,
+        levels in 1u8..=3,
+        seed in any::<u64>(),
+        empties in proptest::bool::weighted(0.2),
+        ops in proptest::collection::vec(op(), 1..=20),
+    ) {
+        run_sequence(kind, levels, seed, empties, &ops);
+    }
+}
+
+/// A deeper, longer deterministic sequence at level 4 (still quick).
+#[test]
+fn long_sequence_level4() {
+    let mut rng = 7u64;
+    let ops: Vec<Op> = (0..300)
+        .map(|_| {
+            rng = splitmix(rng);
+            match rng % 9 {
+                0 | 1 => Op::Deliver((rng >> 8) as u8 % 200),
+                2..=6 => Op::Refine((rng >> 16) as u32),
+                7 => Op::CoarsenBatch((rng >> 16) as u32),
+                _ => Op::Coarsen((rng >> 16) as u32),
+            }
+        })
+        .collect();
+    let s = run_sequence(0, 4, 99, false, &ops);
+    eprintln!("{s:?}");
+    assert!(s.green_pieces > 0 && s.closure_refines > 0 && s.coarsened > 0 && s.refused > 0);
+    assert!(s.corrected > 0);
+}
