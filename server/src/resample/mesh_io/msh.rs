@@ -1,0 +1,683 @@
+//! gmsh `.msh` reader: formats 2.2 and 4.1, ascii and binary (either byte order).
+//!
+//! Written here rather than with `mshio` (see the parent module): `mshio` 0.4 has no 2.2, no
+//! `$NodeData`, no parametric nodes, and loses the node numbering of contiguous-but-permuted tags.
+//!
+//! - Element type 4 (4-node tet) is kept; every other element is counted in `cells_ignored`. In
+//!   binary files the reader must know an element type's node count to read past it: types 1-31,
+//!   92 and 93 are known, another type is an error.
+//! - Node tags may be any positive numbers in any order: points are numbered in file order and
+//!   element and `$NodeData` tags are mapped through the tags; a tag that no node has is an error.
+//! - `$NodeData` blocks with 1 component that give a value to every node become point arrays named
+//!   by their first string tag (a later block with the same name, e.g. another time step, gets
+//!   `#2`, `#3`... appended); multi-component and partial blocks are skipped.
+//! - Other sections (`$Entities`, `$PhysicalNames`, `$ElementData`, ...) are skipped by looking
+//!   for their `$End` line. gmsh 4.0 and 3.x are refused.
+
+use std::collections::HashMap;
+
+use super::{capacity, show, Bad, Endian, Lex, Res, ScalarArray, TetMesh};
+
+const TET4: i64 = 4;
+
+/// Nodes of a gmsh element type (needed to read past elements in binary files).
+fn nodes_per_element(t: i64) -> Option<usize> {
+    Some(match t {
+        1 => 2,
+        2 => 3,
+        3 | 4 => 4,
+        5 => 8,
+        6 => 6,
+        7 => 5,
+        8 => 3,
+        9 => 6,
+        10 => 9,
+        11 => 10,
+        12 => 27,
+        13 => 18,
+        14 => 14,
+        15 => 1,
+        16 => 8,
+        17 => 20,
+        18 => 15,
+        19 => 13,
+        20 => 9,
+        21 => 10,
+        22 => 12,
+        23 | 24 => 15,
+        25 => 21,
+        26 => 4,
+        27 => 5,
+        28 => 6,
+        29 => 20,
+        30 => 35,
+        31 => 56,
+        92 => 64,
+        93 => 125,
+        _ => return None,
+    })
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Version {
+    V2,
+    V41,
+}
+
+struct Msh<'a> {
+    lx: Lex<'a>,
+    binary: bool,
+    endian: Endian,
+    size_t: usize,
+    section: String,
+}
+
+#[derive(Default)]
+struct Raw {
+    coords: Vec<[f64; 3]>,
+    tags: Vec<u64>,
+    /// Element tag and node tags of each tet.
+    tets: Vec<(u64, [u64; 4])>,
+    ignored: usize,
+    data: Vec<(String, Vec<(u64, f64)>)>,
+}
+
+fn parse_num<T: std::str::FromStr>(tok: &[u8]) -> Option<T> {
+    std::str::from_utf8(tok).ok()?.parse().ok()
+}
+
+impl<'a> Msh<'a> {
+    fn bad(&self, reason: impl Into<String>) -> Bad {
+        Bad::new(self.section.clone(), reason)
+    }
+
+    fn truncated(&self, what: &str) -> Bad {
+        self.bad(format!("file is truncated: it ends while reading {what}"))
+    }
+
+    fn ascii<T: std::str::FromStr>(&mut self, what: &str) -> Res<T> {
+        let tok = self.lx.token().ok_or_else(|| self.truncated(what))?;
+        parse_num(tok).ok_or_else(|| self.bad(format!("expected {what}, found \"{}\"", show(tok))))
+    }
+
+    fn bytes<const N: usize>(&mut self, what: &str) -> Res<[u8; N]> {
+        let run = self.lx.take(N).ok_or_else(|| self.truncated(what))?;
+        let mut a = [0u8; N];
+        a.copy_from_slice(run);
+        Ok(a)
+    }
+
+    fn int(&mut self, what: &str) -> Res<i64> {
+        if !self.binary {
+            return self.ascii(what);
+        }
+        let b = self.bytes::<4>(what)?;
+        Ok(i64::from(match self.endian {
+            Endian::Little => i32::from_le_bytes(b),
+            Endian::Big => i32::from_be_bytes(b),
+        }))
+    }
+
+    fn real(&mut self, what: &str) -> Res<f64> {
+        if !self.binary {
+            return self.ascii(what);
+        }
+        let b = self.bytes::<8>(what)?;
+        Ok(match self.endian {
+            Endian::Little => f64::from_le_bytes(b),
+            Endian::Big => f64::from_be_bytes(b),
+        })
+    }
+
+    /// A `size_t` (4.1 binary) or an ascii count.
+    fn size_t(&mut self, what: &str) -> Res<u64> {
+        if !self.binary {
+            return self.ascii(what);
+        }
+        Ok(match (self.size_t, self.endian) {
+            (4, Endian::Little) => u64::from(u32::from_le_bytes(self.bytes::<4>(what)?)),
+            (4, Endian::Big) => u64::from(u32::from_be_bytes(self.bytes::<4>(what)?)),
+            (_, Endian::Little) => u64::from_le_bytes(self.bytes::<8>(what)?),
+            (_, Endian::Big) => u64::from_be_bytes(self.bytes::<8>(what)?),
+        })
+    }
+
+    fn count(&mut self, what: &str) -> Res<usize> {
+        let v = self.size_t(what)?;
+        usize::try_from(v).map_err(|_| self.bad(format!("{what} {v} is too large")))
+    }
+
+    /// A node or element tag: positive.
+    fn tag(&mut self, wide: bool, what: &str) -> Res<u64> {
+        let v = if wide {
+            self.size_t(what)?
+        } else {
+            self.int(what)?.max(0).unsigned_abs()
+        };
+        if v == 0 {
+            return Err(self.bad(format!("{what} must be positive")));
+        }
+        Ok(v)
+    }
+
+    /// In binary files, checks that `n` records of `record` bytes fit in what is left.
+    fn need(&self, n: usize, record: usize, what: &str) -> Res<()> {
+        if !self.binary {
+            return Ok(());
+        }
+        let bytes = n.saturating_mul(record);
+        if bytes > self.lx.remaining() {
+            return Err(self.bad(format!(
+                "file is truncated: {n} {what} need {bytes} bytes but only {} remain",
+                self.lx.remaining()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The next line with something on it (ascii element records).
+    fn record_line(&mut self, what: &str) -> Res<Vec<i64>> {
+        loop {
+            let line = self.lx.line().ok_or_else(|| self.truncated(what))?;
+            if self.lx.remaining() == 0 {
+                // A whole section ends with its $End line: this one was cut.
+                return Err(self.truncated(what));
+            }
+            let toks: Vec<&[u8]> = line
+                .split(u8::is_ascii_whitespace)
+                .filter(|t| !t.is_empty())
+                .collect();
+            if toks.is_empty() {
+                continue;
+            }
+            return toks
+                .iter()
+                .map(|t| {
+                    parse_num(t).ok_or_else(|| {
+                        self.bad(format!(
+                            "expected integers in {what}, found \"{}\"",
+                            show(t)
+                        ))
+                    })
+                })
+                .collect();
+        }
+    }
+}
+
+pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
+    let mut m = Msh {
+        lx: Lex::new(bytes),
+        binary: false,
+        endian: Endian::Little,
+        size_t: 8,
+        section: "$MeshFormat".into(),
+    };
+    if m.lx.token() != Some(&b"$MeshFormat"[..]) {
+        return Err(m.bad("not a gmsh file: it does not start with $MeshFormat"));
+    }
+    let version_tok =
+        m.lx.token()
+            .ok_or_else(|| m.truncated("the format version"))?;
+    let version = match version_tok {
+        b"2" | b"2.0" | b"2.1" | b"2.2" => Version::V2,
+        b"4.1" => Version::V41,
+        v => {
+            return Err(m.bad(format!(
+                "gmsh format version {} is not supported (2.2 and 4.1 are; save with Mesh.MshFileVersion = 4.1)",
+                show(v)
+            )))
+        }
+    };
+    let file_type: u32 = m.ascii("the file type (0 or 1)")?;
+    m.binary = match file_type {
+        0 => false,
+        1 => true,
+        t => return Err(m.bad(format!("file type {t} is neither 0 (ascii) nor 1 (binary)"))),
+    };
+    let data_size: usize = m.ascii("the data size")?;
+    match (version, data_size) {
+        (Version::V2, 8) => {}
+        (Version::V41, 4 | 8) => m.size_t = data_size,
+        (_, d) => return Err(m.bad(format!("data size {d} is not supported"))),
+    }
+    let _ = m.lx.line();
+    if m.binary {
+        let one = m.bytes::<4>("the binary endianness marker")?;
+        m.endian = if i32::from_le_bytes(one) == 1 {
+            Endian::Little
+        } else if i32::from_be_bytes(one) == 1 {
+            Endian::Big
+        } else {
+            return Err(m.bad("the binary endianness marker is not 1"));
+        };
+    }
+    expect_end(&mut m, "MeshFormat")?;
+
+    let mut raw = Raw::default();
+    let (mut has_nodes, mut has_elements) = (false, false);
+    while let Some(tok) = m.lx.token() {
+        let Some(name) = tok.strip_prefix(b"$") else {
+            return Err(Bad::new(
+                "file",
+                format!("expected a section such as $Nodes, found \"{}\"", show(tok)),
+            ));
+        };
+        let name = String::from_utf8_lossy(name).into_owned();
+        m.section = format!("${name}");
+        let _ = m.lx.line();
+        match (name.as_str(), version) {
+            ("Nodes", Version::V2) => nodes_v2(&mut m, &mut raw)?,
+            ("Nodes", Version::V41) => nodes_v41(&mut m, &mut raw)?,
+            ("Elements", Version::V2) => elements_v2(&mut m, &mut raw)?,
+            ("Elements", Version::V41) => elements_v41(&mut m, &mut raw)?,
+            ("NodeData", _) => node_data(&mut m, &mut raw)?,
+            _ => {
+                if !m.lx.skip_past(format!("$End{name}").as_bytes()) {
+                    return Err(m.truncated(&format!("the section (no $End{name})")));
+                }
+                continue;
+            }
+        }
+        expect_end(&mut m, &name)?;
+        has_nodes |= name == "Nodes";
+        has_elements |= name == "Elements";
+    }
+    if !has_nodes || !has_elements {
+        let missing = if has_nodes { "$Elements" } else { "$Nodes" };
+        return Err(Bad::new(
+            missing,
+            format!("the file has no {missing} section (truncated?)"),
+        ));
+    }
+    resolve(raw)
+}
+
+fn expect_end(m: &mut Msh<'_>, name: &str) -> Res<()> {
+    let end = format!("$End{name}");
+    match m.lx.token() {
+        Some(t) if t == end.as_bytes() => Ok(()),
+        Some(t) => Err(m.bad(format!(
+            "expected {end}, found \"{}\" (the counts disagree with the data)",
+            show(t)
+        ))),
+        None => Err(m.truncated(&end)),
+    }
+}
+
+fn nodes_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let n: usize = m.ascii("the number of nodes")?;
+    let _ = m.lx.line();
+    m.need(n, 28, "nodes")?;
+    let cap = capacity(n, 8, m.lx.remaining());
+    raw.coords.reserve(cap);
+    raw.tags.reserve(cap);
+    for _ in 0..n {
+        let tag = m.tag(false, "a node tag")?;
+        let x = m.real("a node coordinate")?;
+        let y = m.real("a node coordinate")?;
+        let z = m.real("a node coordinate")?;
+        raw.tags.push(tag);
+        raw.coords.push([x, y, z]);
+    }
+    Ok(())
+}
+
+fn push_element(m: &Msh<'_>, raw: &mut Raw, tag: u64, ty: i64, nodes: &[i64]) -> Res<()> {
+    if ty != TET4 {
+        raw.ignored += 1;
+        return Ok(());
+    }
+    let [a, b, c, d] = nodes else {
+        return Err(m.bad(format!(
+            "element {tag} is a 4-node tet with {} nodes",
+            nodes.len()
+        )));
+    };
+    let mut q = [0u64; 4];
+    for (t, &v) in q.iter_mut().zip([a, b, c, d]) {
+        *t = u64::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
+            m.bad(format!(
+                "element {tag} refers to node {v}, which $Nodes does not define"
+            ))
+        })?;
+    }
+    raw.tets.push((tag, q));
+    Ok(())
+}
+
+fn elements_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let n: usize = m.ascii("the number of elements")?;
+    let _ = m.lx.line();
+    if !m.binary {
+        for _ in 0..n {
+            let rec = m.record_line("an element")?;
+            let (Some(&num), Some(&ty), Some(&ntags)) = (rec.first(), rec.get(1), rec.get(2))
+            else {
+                return Err(m.bad("an element line has fewer than 3 numbers"));
+            };
+            let nodes = usize::try_from(ntags)
+                .ok()
+                .and_then(|k| k.checked_add(3))
+                .and_then(|start| rec.get(start..))
+                .ok_or_else(|| {
+                    m.bad(format!(
+                        "element {num} has {ntags} tags but its line is shorter"
+                    ))
+                })?;
+            push_element(m, raw, num.unsigned_abs(), ty, nodes)?;
+        }
+        return Ok(());
+    }
+    let mut done = 0usize;
+    while done < n {
+        let ty = m.int("an element type")?;
+        let follow = m.int("an element count")?;
+        let ntags = m.int("a tag count")?;
+        let nn = nodes_per_element(ty).ok_or_else(|| {
+            m.bad(format!(
+                "unknown element type {ty}: cannot read past it in a binary file"
+            ))
+        })?;
+        let (Ok(follow), Ok(ntags)) = (usize::try_from(follow), usize::try_from(ntags)) else {
+            return Err(m.bad(format!(
+                "negative count in an element block header ({follow}, {ntags})"
+            )));
+        };
+        if follow > n - done {
+            return Err(m.bad(format!(
+                "an element block of {follow} overruns the {n} elements"
+            )));
+        }
+        if ntags > 1 << 16 {
+            return Err(m.bad(format!("{ntags} tags per element")));
+        }
+        let words = 1 + ntags + nn;
+        m.need(follow, words * 4, "elements")?;
+        let mut rec = Vec::with_capacity(words);
+        for _ in 0..follow {
+            rec.clear();
+            for _ in 0..words {
+                rec.push(m.int("an element")?);
+            }
+            let num = rec.first().copied().unwrap_or(0).unsigned_abs();
+            push_element(m, raw, num, ty, rec.get(words - nn..).unwrap_or_default())?;
+        }
+        done += follow;
+    }
+    Ok(())
+}
+
+fn nodes_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let blocks = m.count("the number of node blocks")?;
+    let n = m.count("the number of nodes")?;
+    let _min = m.size_t("the minimum node tag")?;
+    let _max = m.size_t("the maximum node tag")?;
+    let mut total = 0usize;
+    for _ in 0..blocks {
+        let dim = m.int("an entity dimension")?;
+        let _entity = m.int("an entity tag")?;
+        let parametric = m.int("the parametric flag")?;
+        let k = m.count("the number of nodes in a block")?;
+        if k > n - total {
+            return Err(m.bad(format!(
+                "node blocks hold more than the {n} nodes announced"
+            )));
+        }
+        let extra = match parametric {
+            0 => 0,
+            1 => usize::try_from(dim.clamp(0, 3)).unwrap_or(0),
+            p => return Err(m.bad(format!("parametric flag {p} is neither 0 nor 1"))),
+        };
+        m.need(k, m.size_t + 8 * (3 + extra), "nodes")?;
+        let cap = capacity(k, 4, m.lx.remaining());
+        raw.tags.reserve(cap);
+        raw.coords.reserve(cap);
+        for _ in 0..k {
+            raw.tags.push(m.tag(true, "a node tag")?);
+        }
+        for _ in 0..k {
+            let x = m.real("a node coordinate")?;
+            let y = m.real("a node coordinate")?;
+            let z = m.real("a node coordinate")?;
+            for _ in 0..extra {
+                m.real("a parametric coordinate")?;
+            }
+            raw.coords.push([x, y, z]);
+        }
+        total += k;
+    }
+    if total != n {
+        return Err(m.bad(format!(
+            "the header announces {n} nodes but the blocks hold {total}"
+        )));
+    }
+    Ok(())
+}
+
+fn elements_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let blocks = m.count("the number of element blocks")?;
+    let n = m.count("the number of elements")?;
+    let _min = m.size_t("the minimum element tag")?;
+    let _max = m.size_t("the maximum element tag")?;
+    let mut total = 0usize;
+    for _ in 0..blocks {
+        let _dim = m.int("an entity dimension")?;
+        let _entity = m.int("an entity tag")?;
+        let ty = m.int("an element type")?;
+        let k = m.count("the number of elements in a block")?;
+        if k > n - total {
+            return Err(m.bad(format!(
+                "element blocks hold more than the {n} elements announced"
+            )));
+        }
+        if m.binary {
+            let nn = nodes_per_element(ty).ok_or_else(|| {
+                m.bad(format!(
+                    "unknown element type {ty}: cannot read past it in a binary file"
+                ))
+            })?;
+            m.need(k, (1 + nn) * m.size_t, "elements")?;
+            let mut rec = Vec::with_capacity(1 + nn);
+            for _ in 0..k {
+                rec.clear();
+                for _ in 0..=nn {
+                    let v = m.size_t("an element")?;
+                    rec.push(i64::try_from(v).unwrap_or(-1));
+                }
+                let tag = rec.first().copied().unwrap_or(0).unsigned_abs();
+                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default())?;
+            }
+        } else {
+            let _ = m.lx.line();
+            for _ in 0..k {
+                let rec = m.record_line("an element")?;
+                let tag = rec.first().copied().unwrap_or(0).unsigned_abs();
+                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default())?;
+            }
+        }
+        total += k;
+    }
+    if total != n {
+        return Err(m.bad(format!(
+            "the header announces {n} elements but the blocks hold {total}"
+        )));
+    }
+    Ok(())
+}
+
+/// `$NodeData` (same layout in 2.2 and 4.1): string, real and integer tags in ascii, then
+/// `tag value...` records (binary: a 4-byte int and doubles).
+fn node_data(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let saved = m.binary;
+    m.binary = false;
+    let nstr: usize = m.ascii("the number of string tags")?;
+    let _ = m.lx.line();
+    let mut strings = Vec::new();
+    for _ in 0..nstr {
+        let line = m.lx.line().ok_or_else(|| m.truncated("a string tag"))?;
+        let s = String::from_utf8_lossy(line)
+            .trim()
+            .trim_matches('"')
+            .to_string();
+        strings.push(s);
+    }
+    let nreal: usize = m.ascii("the number of real tags")?;
+    for _ in 0..nreal {
+        m.ascii::<f64>("a real tag")?;
+    }
+    let nint: usize = m.ascii("the number of integer tags")?;
+    let mut ints = Vec::new();
+    for _ in 0..nint {
+        ints.push(m.ascii::<i64>("an integer tag")?);
+    }
+    let _ = m.lx.line();
+    m.binary = saved;
+
+    let name = strings.first().cloned().unwrap_or_default();
+    m.section = format!("$NodeData \"{name}\"");
+    let (Some(&ncomp), Some(&count)) = (ints.get(1), ints.get(2)) else {
+        return Err(m.bad("fewer than 3 integer tags (time step, components, count)"));
+    };
+    let (Ok(ncomp), Ok(count)) = (usize::try_from(ncomp), usize::try_from(count)) else {
+        return Err(m.bad(format!(
+            "negative component count {ncomp} or value count {count}"
+        )));
+    };
+    if ncomp == 0 || ncomp > 1 << 16 {
+        return Err(m.bad(format!("{ncomp} components per node")));
+    }
+    m.need(count, 4 + 8 * ncomp, "node values")?;
+    let keep = ncomp == 1;
+    let mut entries = Vec::with_capacity(if keep {
+        capacity(count, 4, m.lx.remaining())
+    } else {
+        0
+    });
+    for _ in 0..count {
+        let tag = m.tag(false, "a node tag")?;
+        let v = m.real("a node value")?;
+        for _ in 1..ncomp {
+            m.real("a node value")?;
+        }
+        if keep {
+            entries.push((tag, v));
+        }
+    }
+    if keep {
+        raw.data.push((name, entries));
+    }
+    Ok(())
+}
+
+/// Node tag → point index.
+enum TagIndex {
+    Dense(Vec<u32>),
+    Sparse(HashMap<u64, u32>),
+}
+
+impl TagIndex {
+    fn new(tags: &[u64]) -> Res<TagIndex> {
+        let section = "$Nodes";
+        if u32::try_from(tags.len()).is_err() {
+            return Err(Bad::new(
+                section,
+                format!("{} nodes do not fit 32-bit indices", tags.len()),
+            ));
+        }
+        let max = tags.iter().copied().max().unwrap_or(0);
+        let dense_limit = (tags.len() as u64).saturating_mul(4).saturating_add(1024);
+        let dup = |t: u64| Bad::new(section, format!("node tag {t} appears twice"));
+        if max <= dense_limit {
+            let mut map = vec![u32::MAX; max as usize + 1];
+            for (i, &t) in tags.iter().enumerate() {
+                let slot = map
+                    .get_mut(t as usize)
+                    .ok_or_else(|| Bad::new(section, "bad node tag"))?;
+                if *slot != u32::MAX {
+                    return Err(dup(t));
+                }
+                *slot = i as u32;
+            }
+            Ok(TagIndex::Dense(map))
+        } else {
+            let mut map = HashMap::with_capacity(tags.len());
+            for (i, &t) in tags.iter().enumerate() {
+                if map.insert(t, i as u32).is_some() {
+                    return Err(dup(t));
+                }
+            }
+            Ok(TagIndex::Sparse(map))
+        }
+    }
+
+    fn get(&self, tag: u64) -> Option<u32> {
+        match self {
+            TagIndex::Dense(v) => usize::try_from(tag)
+                .ok()
+                .and_then(|t| v.get(t))
+                .copied()
+                .filter(|&i| i != u32::MAX),
+            TagIndex::Sparse(m) => m.get(&tag).copied(),
+        }
+    }
+}
+
+fn resolve(raw: Raw) -> Res<TetMesh> {
+    let index = TagIndex::new(&raw.tags)?;
+    let n = raw.coords.len();
+    let mut tets = Vec::with_capacity(raw.tets.len());
+    for (etag, q) in &raw.tets {
+        let mut tet = [0u32; 4];
+        for (t, &node) in tet.iter_mut().zip(q) {
+            *t = index.get(node).ok_or_else(|| {
+                Bad::new(
+                    "$Elements",
+                    format!("element {etag} refers to node {node}, which $Nodes does not define"),
+                )
+            })?;
+        }
+        tets.push(tet);
+    }
+    let mut point_data: Vec<ScalarArray> = Vec::new();
+    for (name, entries) in raw.data {
+        let mut values = vec![f64::NAN; n];
+        let mut set = vec![false; n];
+        let mut filled = 0usize;
+        for (tag, v) in entries {
+            let i = index.get(tag).ok_or_else(|| {
+                Bad::new(
+                    format!("$NodeData \"{name}\""),
+                    format!("a value for node {tag}, which $Nodes does not define"),
+                )
+            })? as usize;
+            if let (Some(slot), Some(s)) = (values.get_mut(i), set.get_mut(i)) {
+                *slot = v;
+                if !*s {
+                    *s = true;
+                    filled += 1;
+                }
+            }
+        }
+        if filled < n {
+            tracing::warn!("$NodeData \"{name}\" gives values to {filled} of {n} nodes: skipped");
+            continue;
+        }
+        let mut unique = name.clone();
+        let mut k = 1;
+        while point_data.iter().any(|a| a.name == unique) {
+            k += 1;
+            unique = format!("{name}#{k}");
+        }
+        point_data.push(ScalarArray {
+            name: unique,
+            values,
+        });
+    }
+    Ok(TetMesh {
+        points: raw.coords,
+        tets,
+        point_data,
+        cells_ignored: raw.ignored,
+    })
+}

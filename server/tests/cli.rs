@@ -1,0 +1,558 @@
+//! `tetwave-server prepare` / `verify` end to end: the thesis' counts, the error bounds, and one test
+//! per kind of bad input (clear one-line error, non-zero exit, never a panic).
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tetwave-server"))
+}
+
+struct Run {
+    ok: bool,
+    stdout: String,
+    stderr: String,
+}
+
+fn run(args: &[&str]) -> Run {
+    let out = bin().args(args).output().expect("runs");
+    let r = Run {
+        ok: out.status.success(),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    };
+    assert!(!r.stderr.contains("panicked"), "panic: {}", r.stderr);
+    r
+}
+
+fn prepare_json(args: &[&str]) -> Value {
+    let r = run(args);
+    assert!(r.ok, "prepare failed: {}", r.stderr);
+    serde_json::from_str(r.stdout.trim()).expect("one JSON object")
+}
+
+/// Fails with exactly one `error:` line on stderr that contains every `needle`.
+fn expect_error(args: &[&str], needles: &[&str]) {
+    let r = run(args);
+    assert!(!r.ok, "should fail: {args:?}\n{}", r.stdout);
+    let lines: Vec<&str> = r
+        .stderr
+        .lines()
+        .filter(|l| l.starts_with("error:"))
+        .collect();
+    assert_eq!(lines.len(), 1, "one error line expected: {}", r.stderr);
+    assert_eq!(lines[0].lines().count(), 1);
+    for n in needles {
+        assert!(lines[0].contains(n), "{:?} lacks {n:?}", lines[0]);
+    }
+}
+
+fn tmp() -> tempfile::TempDir {
+    tempfile::tempdir().unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn harmonic_level5_matches_thesis_table_and_verifies() {
+    let d = tmp();
+    let store = d.path().join("h5");
+    let j = prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "5",
+        "--out",
+        s(&store),
+        "--json",
+    ]);
+    assert_eq!(j["base_tets"], 5);
+    assert_eq!(j["levels"], 5);
+    assert_eq!(j["tets_total"], 187_245);
+    assert_eq!(j["leaves"], 163_840);
+    assert_eq!(j["nodes"], 23_405);
+    assert_eq!(j["vertices"], 30_481);
+    assert_eq!(j["coefficients"], 30_473);
+    for k in ["bytes", "max_abs_error", "seconds"] {
+        assert!(j[k].is_number(), "{k}");
+    }
+    let range = j["value_range"][1].as_f64().unwrap() - j["value_range"][0].as_f64().unwrap();
+    assert!(j["max_abs_error"].as_f64().unwrap() <= 1e-6 * range);
+    let r = run(&["verify", s(&store), "--json"]);
+    assert!(r.ok, "{}", r.stderr);
+    let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
+    assert!(v["max_abs_error"].as_f64().unwrap() <= 1e-6 * range);
+}
+
+#[test]
+fn quantized_12_bits_within_manifest_bound() {
+    let d = tmp();
+    let store = d.path().join("q");
+    let j = prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "5",
+        "--bits",
+        "12",
+        "--out",
+        s(&store),
+        "--json",
+    ]);
+    let err = j["max_abs_error"].as_f64().unwrap();
+    let bound = j["max_error_bound"].as_f64().unwrap();
+    assert!(err > 0.0 && err <= bound, "err {err} bound {bound}");
+    let r = run(&["verify", s(&store), "--json"]);
+    assert!(r.ok, "{}", r.stderr);
+    let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
+    assert!(v["max_abs_error"].as_f64().unwrap() <= bound);
+    // 12-bit codes take 2 bytes: the coefficient file is half the lossless one
+    let m: Value =
+        serde_json::from_str(&std::fs::read_to_string(store.join("manifest.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["files"]["coeffs.bin"]["bytes"], 2 * 30_473);
+}
+
+#[test]
+fn level6_and_box6_counts() {
+    let d = tmp();
+    let j = prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "6",
+        "--out",
+        s(&d.path().join("h6")),
+        "--json",
+    ]);
+    assert_eq!(j["tets_total"], 1_497_965);
+    assert_eq!(j["leaves"], 1_310_720);
+    assert_eq!(j["nodes"], 187_245);
+    assert_eq!(j["vertices"], 230_945);
+    let j = prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "5",
+        "--base",
+        "box6",
+        "--out",
+        s(&d.path().join("b6")),
+        "--json",
+    ]);
+    assert_eq!(j["tets_total"], 224_694);
+    assert_eq!(j["vertices"], 35_937);
+}
+
+#[test]
+fn verify_fails_on_a_corrupted_store() {
+    let d = tmp();
+    let store = d.path().join("c");
+    prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "3",
+        "--out",
+        s(&store),
+        "--json",
+    ]);
+    let p = store.join("coeffs.bin");
+    let mut b = std::fs::read(&p).unwrap();
+    b[10] ^= 0x55;
+    std::fs::write(&p, b).unwrap();
+    expect_error(&["verify", s(&store)], &["coeffs.bin", "checksum"]);
+}
+
+// ---- bad input ----
+
+fn write_raw(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// A legacy-VTK ascii unstructured grid written by hand (not by the reader's code).
+fn write_vtk(
+    dir: &Path,
+    name: &str,
+    points: &[[f64; 3]],
+    cells: &[(u8, Vec<u32>)],
+    scalars: &[(&str, Vec<f64>)],
+) -> PathBuf {
+    let mut t =
+        String::from("# vtk DataFile Version 3.0\ntest\nASCII\nDATASET UNSTRUCTURED_GRID\n");
+    t += &format!("POINTS {} double\n", points.len());
+    for p in points {
+        t += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    let size: usize = cells.iter().map(|c| c.1.len() + 1).sum();
+    t += &format!("CELLS {} {}\n", cells.len(), size);
+    for (_, c) in cells {
+        t += &format!(
+            "{} {}\n",
+            c.len(),
+            c.iter()
+                .map(|x| x.to_string())
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
+    t += &format!("CELL_TYPES {}\n", cells.len());
+    for (k, _) in cells {
+        t += &format!("{k}\n");
+    }
+    if !scalars.is_empty() {
+        t += &format!("POINT_DATA {}\n", points.len());
+        for (n, v) in scalars {
+            t += &format!("SCALARS {n} double 1\nLOOKUP_TABLE default\n");
+            for x in v {
+                t += &format!("{x}\n");
+            }
+        }
+    }
+    let p = dir.join(name);
+    std::fs::write(&p, t).unwrap();
+    p
+}
+
+fn cube_points() -> Vec<[f64; 3]> {
+    (0..8)
+        .map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64])
+        .collect()
+}
+
+fn cube_tets() -> Vec<(u8, Vec<u32>)> {
+    // 6 Kuhn tets, positively oriented
+    vec![
+        (10, vec![0, 1, 3, 7]),
+        (10, vec![0, 1, 7, 5]),
+        (10, vec![0, 2, 7, 3]),
+        (10, vec![0, 2, 6, 7]),
+        (10, vec![0, 4, 5, 7]),
+        (10, vec![0, 4, 7, 6]),
+    ]
+}
+
+fn lin(p: &[f64; 3]) -> f64 {
+    p[0] + 2.0 * p[1] + 3.0 * p[2]
+}
+
+#[test]
+fn missing_file() {
+    let d = tmp();
+    let missing = d.path().join("nope.vtu");
+    expect_error(
+        &["prepare", s(&missing), "--out", s(&d.path().join("o"))],
+        &["nope.vtu"],
+    );
+}
+
+#[test]
+fn garbage_vtu() {
+    let d = tmp();
+    let p = write_raw(
+        d.path(),
+        "garbage.vtu",
+        b"\x00\x01this is not xml at all\xff\xfe",
+    );
+    expect_error(
+        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
+        &["garbage.vtu"],
+    );
+}
+
+#[test]
+fn truncated_msh() {
+    let d = tmp();
+    let p = write_raw(
+        d.path(),
+        "cut.msh",
+        b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n8\n1 0 0 0\n2 1 0 0\n3 0 1",
+    );
+    expect_error(
+        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
+        &["cut.msh"],
+    );
+}
+
+#[test]
+fn truncated_vtu() {
+    let d = tmp();
+    let p = write_raw(
+        d.path(),
+        "cut.vtu",
+        b"<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\"><UnstructuredGrid><Piece NumberOfPoints=\"8\" NumberOfCells=\"6\"><Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0",
+    );
+    expect_error(
+        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
+        &["cut.vtu"],
+    );
+}
+
+#[test]
+fn raw_size_disagrees_with_dims() {
+    let d = tmp();
+    let p = write_raw(d.path(), "v.raw", &vec![7u8; 1000]);
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--dims",
+            "10,10,11",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["v.raw", "does not match", "1100"],
+    );
+}
+
+#[test]
+fn truncated_raw() {
+    let d = tmp();
+    let p = write_raw(d.path(), "t.raw", &vec![7u8; 2 * 999]);
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--dims",
+            "10,10,10",
+            "--dtype",
+            "u16",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["t.raw", "1998 bytes"],
+    );
+}
+
+#[test]
+fn raw_ok_and_u16() {
+    let d = tmp();
+    let dims = 9usize;
+    let mut b = Vec::new();
+    for k in 0..dims {
+        for j in 0..dims {
+            for i in 0..dims {
+                b.extend_from_slice(&((i + 2 * j + 3 * k) as u16 * 10).to_le_bytes());
+            }
+        }
+    }
+    let p = write_raw(d.path(), "lin.raw", &b);
+    let j = prepare_json(&[
+        "prepare",
+        s(&p),
+        "--dims",
+        "9,9,9",
+        "--dtype",
+        "u16",
+        "--levels",
+        "3",
+        "--base",
+        "box6",
+        "--out",
+        s(&d.path().join("o")),
+        "--json",
+    ]);
+    // trilinear interpolation of a linear field is exact: values span 0..=10*(8+16+24)
+    assert_eq!(j["value_range"][0].as_f64().unwrap(), 0.0);
+    assert_eq!(j["value_range"][1].as_f64().unwrap(), 480.0);
+    assert_eq!(j["max_abs_error"].as_f64().unwrap(), 0.0);
+}
+
+#[test]
+fn nan_in_raw_is_refused_or_replaced() {
+    let d = tmp();
+    let mut b = Vec::new();
+    for i in 0..27 {
+        let v: f32 = if i == 13 { f32::NAN } else { i as f32 };
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    let p = write_raw(d.path(), "nan.raw", &b);
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--dims",
+            "3,3,3",
+            "--dtype",
+            "f32",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["NaN", "--nan-as"],
+    );
+    let j = prepare_json(&[
+        "prepare",
+        s(&p),
+        "--dims",
+        "3,3,3",
+        "--dtype",
+        "f32",
+        "--nan-as",
+        "0",
+        "--levels",
+        "2",
+        "--out",
+        s(&d.path().join("o2")),
+        "--json",
+    ]);
+    assert!(j["max_abs_error"].as_f64().unwrap() <= j["max_error_bound"].as_f64().unwrap());
+}
+
+#[test]
+fn nan_in_mesh_scalar_is_refused_or_replaced() {
+    let d = tmp();
+    let pts = cube_points();
+    let mut v: Vec<f64> = pts.iter().map(lin).collect();
+    v[3] = f64::NAN;
+    let p = write_vtk(d.path(), "nan.vtk", &pts, &cube_tets(), &[("f", v)]);
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--levels",
+            "2",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["nan.vtk", "NaN", "--nan-as"],
+    );
+    let j = prepare_json(&[
+        "prepare",
+        s(&p),
+        "--levels",
+        "2",
+        "--nan-as",
+        "1.5",
+        "--out",
+        s(&d.path().join("o2")),
+        "--json",
+    ]);
+    assert_eq!(j["import"]["non_finite_replaced"], 1);
+}
+
+#[test]
+fn mesh_without_tets() {
+    let d = tmp();
+    let pts = cube_points();
+    let tris = vec![(5u8, vec![0, 1, 2]), (5u8, vec![1, 2, 3])];
+    let p = write_vtk(
+        d.path(),
+        "tris.vtk",
+        &pts,
+        &tris,
+        &[("f", pts.iter().map(lin).collect())],
+    );
+    expect_error(
+        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
+        &["tris.vtk", "no tetrahedra"],
+    );
+}
+
+#[test]
+fn unknown_scalar_name_lists_available() {
+    let d = tmp();
+    let pts = cube_points();
+    let p = write_vtk(
+        d.path(),
+        "two.vtk",
+        &pts,
+        &cube_tets(),
+        &[
+            ("temperature", pts.iter().map(lin).collect()),
+            ("pressure", vec![1.0; 8]),
+        ],
+    );
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--scalar",
+            "density",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["density", "temperature", "pressure"],
+    );
+    let j = prepare_json(&[
+        "prepare",
+        s(&p),
+        "--scalar",
+        "pressure",
+        "--levels",
+        "2",
+        "--out",
+        s(&d.path().join("o2")),
+        "--json",
+    ]);
+    assert_eq!(j["import"]["scalar"], "pressure");
+    assert_eq!(j["value_range"][0].as_f64().unwrap(), 1.0);
+}
+
+#[test]
+fn zero_volume_and_inverted_tets_are_fixed_and_counted() {
+    let d = tmp();
+    let mut pts = cube_points();
+    pts.push([0.5, 0.5, 0.0]); // 8: on the bottom face, for a flat tet
+    let mut cells = cube_tets();
+    // invert two tets
+    cells[1].1.swap(2, 3);
+    cells[4].1.swap(0, 1);
+    // a zero-volume tet: four coplanar points of the bottom face
+    cells.push((10, vec![0, 1, 2, 8]));
+    let v: Vec<f64> = pts.iter().map(lin).collect();
+    let p = write_vtk(d.path(), "bad.vtk", &pts, &cells, &[("f", v)]);
+    let j = prepare_json(&[
+        "prepare",
+        s(&p),
+        "--levels",
+        "3",
+        "--out",
+        s(&d.path().join("o")),
+        "--json",
+    ]);
+    assert_eq!(j["import"]["tets_read"], 7);
+    assert_eq!(j["import"]["tets_kept"], 6);
+    assert_eq!(j["import"]["tets_reoriented"], 2);
+    assert_eq!(j["import"]["tets_dropped_degenerate"], 1);
+    // the fixed mesh covers the cube: nothing outside, the linear field exact
+    assert_eq!(j["outside_vertices"], 0);
+    assert_eq!(j["value_range"][0].as_f64().unwrap(), 0.0);
+    assert_eq!(j["value_range"][1].as_f64().unwrap(), 6.0);
+}
+
+#[test]
+fn bad_options_are_refused() {
+    let d = tmp();
+    expect_error(
+        &["prepare", "synthetic:nope", "--out", s(&d.path().join("o"))],
+        &["nope"],
+    );
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--bits",
+            "30",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["--bits"],
+    );
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--levels",
+            "40",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["levels"],
+    );
+    expect_error(&["verify", s(&d.path().join("absent"))], &["manifest.json"]);
+}
