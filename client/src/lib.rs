@@ -12,4 +12,5 @@ pub mod reference;
 pub mod render;
 pub mod render_mesh;
 pub mod store_info;
+pub mod store_reader;
 pub mod transfer;

@@ -1,19 +1,14 @@
-//! Reads a store's manifest and base mesh and recomputes, from the protocol alone, the counts the
-//! server wrote: a client-side check that both sides agree on the contract.
+//! Recomputes, from the protocol alone, the counts a store's manifest declares: a client-side check
+//! that both sides agree on the contract.
 
+use crate::store_reader::{LocalStore, StoreReadError};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
-use tetwave_protocol::BaseMesh;
+use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
 pub enum InfoError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {reason}")]
-    Bad { path: PathBuf, reason: String },
+    #[error(transparent)]
+    Read(#[from] StoreReadError),
     #[error("{what}: manifest says {manifest}, the protocol computes {computed}")]
     Disagree {
         what: &'static str,
@@ -35,35 +30,13 @@ pub struct StoreInfo {
     pub empty_base_tets: u64,
 }
 
-/// Loads `dir/manifest.json` and `dir/base.bin` and checks the manifest's counts.
+/// Opens the store in `dir` and checks the manifest's counts against the protocol's.
 pub fn store_info(dir: &Path) -> Result<StoreInfo, InfoError> {
-    let mpath = dir.join("manifest.json");
-    let text = std::fs::read_to_string(&mpath).map_err(|source| InfoError::Io {
-        path: mpath.clone(),
-        source,
-    })?;
-    let m: serde_json::Value = serde_json::from_str(&text).map_err(|e| InfoError::Bad {
-        path: mpath.clone(),
-        reason: e.to_string(),
-    })?;
-    let bpath = dir.join("base.bin");
-    let bytes = std::fs::read(&bpath).map_err(|source| InfoError::Io {
-        path: bpath.clone(),
-        source,
-    })?;
-    let cfg = bincode::config::standard().with_limit::<{ 1 << 30 }>();
-    let (base, _): (BaseMesh, usize) =
-        bincode::serde::decode_from_slice(&bytes, cfg).map_err(|e| InfoError::Bad {
-            path: bpath.clone(),
-            reason: e.to_string(),
-        })?;
-    base.validate().map_err(|e| InfoError::Bad {
-        path: bpath.clone(),
-        reason: e.to_string(),
-    })?;
+    let store = LocalStore::open(dir)?;
+    let base = store.base();
     let f = base.forest();
     let info = StoreInfo {
-        dataset: m["dataset"].as_str().unwrap_or("").to_string(),
+        dataset: store.manifest().dataset.clone(),
         base_tets: f.n_base,
         levels: f.levels,
         tets_total: f.total_tets(),
@@ -72,17 +45,13 @@ pub fn store_info(dir: &Path) -> Result<StoreInfo, InfoError> {
         vertices: base.vertex_keys().vertex_count(),
         empty_base_tets: base.empty.iter().filter(|&&e| e).count() as u64,
     };
-    let counts = &m["counts"];
-    for (what, computed) in [
-        ("tets_total", info.tets_total),
-        ("leaves", info.leaves),
-        ("nodes", info.nodes),
-        ("vertices", info.vertices),
+    let c = &store.manifest().counts;
+    for (what, manifest, computed) in [
+        ("tets_total", c.tets_total, info.tets_total),
+        ("leaves", c.leaves, info.leaves),
+        ("nodes", c.nodes, info.nodes),
+        ("vertices", c.vertices, info.vertices),
     ] {
-        let manifest = counts[what].as_u64().ok_or_else(|| InfoError::Bad {
-            path: mpath.clone(),
-            reason: format!("counts.{what} missing"),
-        })?;
         if manifest != computed {
             return Err(InfoError::Disagree {
                 what,

@@ -8,6 +8,7 @@
 pub mod base;
 pub mod hierarchy;
 pub mod node;
+pub mod store_format;
 pub mod synthesis;
 pub mod vertex;
 pub mod wavelet;

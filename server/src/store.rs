@@ -15,72 +15,14 @@
 //! range's own records and coefficients: never the whole file.
 
 use crate::analysis::Analysis;
-use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use tetwave_protocol::wavelet::Quantizer;
+pub use tetwave_protocol::store_format::{
+    encode_node_record, Counts, Encoding, FileSum, FormatError, Manifest, StoreFiles, StoreHead,
+    BLOCK, STORE_FORMAT, STORE_VERSION,
+};
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
-
-/// Nodes per index block.
-pub const BLOCK: u64 = 4096;
-const NODE_RECORD: u64 = 6;
-pub const STORE_FORMAT: &str = "tetwave-store";
-pub const STORE_VERSION: u32 = 1;
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Counts {
-    pub tets_total: u64,
-    pub leaves: u64,
-    pub nodes: u64,
-    pub vertices: u64,
-    pub coefficients: u64,
-    pub outside_vertices: u64,
-    pub empty_base_tets: u64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum Encoding {
-    F32,
-    Quantized { bits: u8, step: f32 },
-}
-
-impl Encoding {
-    pub fn width(&self) -> usize {
-        match self {
-            Encoding::F32 => 4,
-            Encoding::Quantized { bits, .. } => (*bits as usize).div_ceil(8),
-        }
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FileSum {
-    pub bytes: u64,
-    pub crc32: u32,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Manifest {
-    pub format: String,
-    pub version: u32,
-    pub dataset: String,
-    pub source: String,
-    pub bounds: [[f64; 3]; 2],
-    pub base: String,
-    pub base_tets: u64,
-    pub base_vertices: u64,
-    pub levels: u8,
-    pub value_range: [f32; 2],
-    pub counts: Counts,
-    pub encoding: Encoding,
-    /// Max |synthesis − sample| the store promises (verify fails beyond it).
-    pub max_error_bound: f64,
-    /// Max |synthesis − sample| measured when the store was written.
-    pub max_abs_error: f64,
-    pub files: std::collections::BTreeMap<String, FileSum>,
-}
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -93,8 +35,17 @@ pub enum StoreError {
     BadManifest { path: PathBuf, reason: String },
     #[error("{path}: {reason}")]
     Corrupt { path: PathBuf, reason: String },
-    #[error("node range {from}..{to} is outside 0..{nodes}")]
-    RangeOutOfBounds { from: u64, to: u64, nodes: u64 },
+    #[error("{path}: {source}")]
+    Format { path: PathBuf, source: FormatError },
+}
+
+impl From<FormatError> for StoreError {
+    fn from(source: FormatError) -> Self {
+        StoreError::Format {
+            path: PathBuf::from("store"),
+            source,
+        }
+    }
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
@@ -170,23 +121,24 @@ pub fn write(dir: &Path, a: &Analysis, meta: StoreMeta) -> Result<Manifest, Stor
     let path = dir.join("nodes.bin");
     let mut w = SumWriter::create(&path)?;
     for i in 0..a.owned.len() {
-        let mut rec = [0u8; 6];
-        rec[0] = a.owned[i];
-        rec[1] = a.empty_children[i];
-        rec[2..6].copy_from_slice(&a.subtree_max_abs[i].to_le_bytes());
-        w.put(&rec).map_err(io_err(&path))?;
+        w.put(&encode_node_record(
+            a.owned[i],
+            a.empty_children[i],
+            a.subtree_max_abs[i],
+        ))
+        .map_err(io_err(&path))?;
     }
     files.insert("nodes.bin".into(), w.finish().map_err(io_err(&path))?);
 
     let path = dir.join("coeffs.bin");
     let mut w = SumWriter::create(&path)?;
-    let width = encoding.width();
-    for &d in &a.coeffs {
-        match &a.quantizer {
-            None => w.put(&d.to_le_bytes()),
-            Some(q) => w.put(&q.encode(d).to_le_bytes()[..width]),
+    let mut buf = Vec::with_capacity(1 << 16);
+    for chunk in a.coeffs.chunks(1 << 14) {
+        buf.clear();
+        for &d in chunk {
+            encoding.encode(d, &mut buf);
         }
-        .map_err(io_err(&path))?;
+        w.put(&buf).map_err(io_err(&path))?;
     }
     files.insert("coeffs.bin".into(), w.finish().map_err(io_err(&path))?);
 
@@ -240,13 +192,27 @@ pub fn write(dir: &Path, a: &Analysis, meta: StoreMeta) -> Result<Manifest, Stor
     Ok(manifest)
 }
 
+/// A store directory as a [`StoreFiles`] source.
+pub struct DirFiles(pub PathBuf);
+
+impl StoreFiles for DirFiles {
+    type Error = StoreError;
+    fn read_at(&self, file: &str, offset: u64, buf: &mut [u8]) -> Result<(), StoreError> {
+        let path = self.0.join(file);
+        let mut f = File::open(&path).map_err(io_err(&path))?;
+        f.seek(SeekFrom::Start(offset)).map_err(io_err(&path))?;
+        f.read_exact(buf).map_err(io_err(&path))
+    }
+}
+
 /// An open store: manifest, base mesh and block index in memory, node records and coefficients read
 /// on demand.
 pub struct Store {
     pub dir: PathBuf,
     pub manifest: Manifest,
     pub base: BaseMesh,
-    index: Vec<u64>,
+    head: StoreHead,
+    files: DirFiles,
 }
 
 impl Store {
@@ -260,15 +226,6 @@ impl Store {
                 path: mpath.clone(),
                 reason: e.to_string(),
             })?;
-        if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
-            return Err(StoreError::BadManifest {
-                path: mpath,
-                reason: format!(
-                    "format {} v{}, expected {STORE_FORMAT} v{STORE_VERSION}",
-                    manifest.format, manifest.version
-                ),
-            });
-        }
         for (name, sum) in &manifest.files {
             let p = dir.join(name);
             let len = std::fs::metadata(&p).map_err(io_err(&p))?.len();
@@ -280,41 +237,21 @@ impl Store {
             }
         }
         let bpath = dir.join("base.bin");
-        let bytes = std::fs::read(&bpath).map_err(io_err(&bpath))?;
-        let cfg = bincode::config::standard().with_limit::<{ 1 << 30 }>();
-        let (base, _): (BaseMesh, usize) =
-            bincode::serde::decode_from_slice(&bytes, cfg).map_err(|e| StoreError::Corrupt {
-                path: bpath.clone(),
-                reason: e.to_string(),
-            })?;
-        base.validate().map_err(|e| StoreError::Corrupt {
-            path: bpath.clone(),
-            reason: e.to_string(),
-        })?;
-        let forest = base.forest();
-        if base.levels != manifest.levels || forest.nodes() != manifest.counts.nodes {
-            return Err(StoreError::Corrupt {
-                path: bpath,
-                reason: "base mesh disagrees with the manifest".into(),
-            });
-        }
+        let base_bytes = std::fs::read(&bpath).map_err(io_err(&bpath))?;
         let ipath = dir.join("coeff_index.bin");
-        let ib = std::fs::read(&ipath).map_err(io_err(&ipath))?;
-        let index: Vec<u64> = ib
-            .chunks_exact(8)
-            .map(|c| u64::from_le_bytes(c.try_into().unwrap()))
-            .collect();
-        if index.len() as u64 != forest.nodes().div_ceil(BLOCK) {
-            return Err(StoreError::Corrupt {
-                path: ipath,
-                reason: "index size disagrees with the node count".into(),
-            });
-        }
+        let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
+        let head = StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(|source| {
+            StoreError::Format {
+                path: dir.to_path_buf(),
+                source,
+            }
+        })?;
         Ok(Store {
             dir: dir.to_path_buf(),
-            manifest,
-            base,
-            index,
+            manifest: head.manifest.clone(),
+            base: head.base.clone(),
+            head,
+            files: DirFiles(dir.to_path_buf()),
         })
     }
 
@@ -347,88 +284,16 @@ impl Store {
         Ok(())
     }
 
-    fn quantizer(&self) -> Option<Quantizer> {
-        match self.manifest.encoding {
-            Encoding::F32 => None,
-            Encoding::Quantized { bits, step } => Some(Quantizer { bits, step }),
-        }
-    }
-
     /// Nodes `from..to` (random access: reads only what the range needs).
     pub fn read_nodes(&self, from: TetId, to: TetId) -> Result<Vec<DetailNode>, StoreError> {
-        let nodes = self.manifest.counts.nodes;
-        if from > to || to > nodes {
-            return Err(StoreError::RangeOutOfBounds { from, to, nodes });
-        }
-        if from == to {
-            return Ok(Vec::new());
-        }
-        let block = from / BLOCK;
-        let block_start = block * BLOCK;
-        let npath = self.dir.join("nodes.bin");
-        let mut nf = File::open(&npath).map_err(io_err(&npath))?;
-        nf.seek(SeekFrom::Start(block_start * NODE_RECORD))
-            .map_err(io_err(&npath))?;
-        let mut recs = vec![0u8; ((to - block_start) * NODE_RECORD) as usize];
-        nf.read_exact(&mut recs).map_err(io_err(&npath))?;
-        let mut coeff_at = self.index[block as usize];
-        for r in recs.chunks_exact(6).take((from - block_start) as usize) {
-            coeff_at += r[0].count_ones() as u64;
-        }
-        let recs = &recs[((from - block_start) * NODE_RECORD) as usize..];
-        let count: u64 = recs.chunks_exact(6).map(|r| r[0].count_ones() as u64).sum();
-        let width = self.manifest.encoding.width() as u64;
-        let cpath = self.dir.join("coeffs.bin");
-        let mut cf = File::open(&cpath).map_err(io_err(&cpath))?;
-        cf.seek(SeekFrom::Start(coeff_at * width))
-            .map_err(io_err(&cpath))?;
-        let mut cb = vec![0u8; (count * width) as usize];
-        cf.read_exact(&mut cb).map_err(io_err(&cpath))?;
-        let q = self.quantizer();
-        let decode = |c: &[u8]| -> f32 {
-            match &q {
-                None => f32::from_le_bytes([c[0], c[1], c[2], c[3]]),
-                Some(q) => {
-                    let mut b = [0u8; 4];
-                    b[..c.len()].copy_from_slice(c);
-                    // sign-extend from width bytes
-                    let shift = 32 - 8 * c.len() as u32;
-                    let code = (i32::from_le_bytes(b) << shift) >> shift;
-                    q.decode(code)
-                }
-            }
-        };
-        let mut coeffs = cb.chunks_exact(width as usize).map(decode);
-        let mut out = Vec::with_capacity((to - from) as usize);
-        for (j, r) in recs.chunks_exact(6).enumerate() {
-            let owned = r[0];
-            let node = DetailNode {
-                id: from + j as u64,
-                owned,
-                empty_children: r[1],
-                subtree_max_abs: f32::from_le_bytes([r[2], r[3], r[4], r[5]]),
-                coeffs: coeffs.by_ref().take(owned.count_ones() as usize).collect(),
-            };
-            node.validate().map_err(|e| StoreError::Corrupt {
-                path: npath.clone(),
-                reason: e.to_string(),
-            })?;
-            out.push(node);
-        }
-        Ok(out)
-    }
-
-    /// All nodes in id order, read in chunks.
-    pub fn iter_nodes(
-        &self,
-        chunk: u64,
-    ) -> impl Iterator<Item = Result<DetailNode, StoreError>> + '_ {
-        let nodes = self.manifest.counts.nodes;
-        (0..nodes)
-            .step_by(chunk.max(1) as usize)
-            .flat_map(move |s| match self.read_nodes(s, (s + chunk).min(nodes)) {
-                Ok(v) => v.into_iter().map(Ok).collect::<Vec<_>>(),
-                Err(e) => vec![Err(e)],
+        self.head
+            .read_nodes(&self.files, from, to)
+            .map_err(|e| match e {
+                StoreError::Format { source, .. } => StoreError::Format {
+                    path: self.dir.clone(),
+                    source,
+                },
+                other => other,
             })
     }
 

@@ -3,7 +3,7 @@
 
 use proptest::prelude::*;
 use tetwave_server::prepare::{prepare, verify, PrepareError, PrepareOptions};
-use tetwave_server::store::{Store, StoreError, BLOCK};
+use tetwave_server::store::{FormatError, Store, StoreError, BLOCK};
 
 fn make_store(dir: &std::path::Path, levels: u8, bits: Option<u8>) -> Store {
     let mut o = PrepareOptions::new("synthetic:harmonic", dir);
@@ -39,11 +39,17 @@ fn ranges_agree_with_a_full_read() {
         .unwrap();
     assert!(matches!(
         store.read_nodes(5, n + 1),
-        Err(StoreError::RangeOutOfBounds { .. })
+        Err(StoreError::Format {
+            source: FormatError::RangeOutOfBounds { .. },
+            ..
+        })
     ));
     assert!(matches!(
         store.read_nodes(7, 3),
-        Err(StoreError::RangeOutOfBounds { .. })
+        Err(StoreError::Format {
+            source: FormatError::RangeOutOfBounds { .. },
+            ..
+        })
     ));
     assert!(store.read_nodes(9, 9).unwrap().is_empty());
 }
