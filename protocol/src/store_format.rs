@@ -182,7 +182,7 @@ impl StoreHead {
                 "base mesh disagrees with the manifest".into(),
             ));
         }
-        if index_bytes.len() % 8 != 0
+        if !index_bytes.len().is_multiple_of(8)
             || (index_bytes.len() / 8) as u64 != forest.nodes().div_ceil(BLOCK)
         {
             return Err(FormatError::Inconsistent(
