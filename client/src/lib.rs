@@ -10,6 +10,7 @@ pub mod image_metrics;
 pub mod mesh;
 pub mod reference;
 pub mod render;
+pub mod render_cli;
 pub mod render_mesh;
 pub mod store_info;
 pub mod store_reader;

@@ -28,20 +28,28 @@ pub struct GpuContext {
 impl GpuContext {
     /// Picks a Vulkan adapter when there is one (wgpu lists llvmpipe for both Vulkan and GL), else GL.
     pub fn new() -> Result<Self, RenderError> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        if std::env::var_os("WGPU_BACKEND").is_none() {
-            desc.backends = wgpu::Backends::VULKAN | wgpu::Backends::GL;
+        // Vulkan first (wgpu lists llvmpipe for both Vulkan and GL; GL's EGL probing is noisy and
+        // slower), then GL, unless WGPU_BACKEND chooses.
+        let from_env = std::env::var_os("WGPU_BACKEND").is_some();
+        let tries: &[wgpu::Backends] = if from_env {
+            &[wgpu::Backends::all()]
+        } else {
+            &[wgpu::Backends::VULKAN, wgpu::Backends::GL]
+        };
+        let mut found = None;
+        for &backends in tries {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+            if !from_env {
+                desc.backends = backends;
+            }
+            let instance = wgpu::Instance::new(desc);
+            let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+            if let Some(a) = adapters.into_iter().next() {
+                found = Some(a);
+                break;
+            }
         }
-        let instance = wgpu::Instance::new(desc);
-        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
-        let pick = |b: wgpu::Backend| adapters.iter().position(|a| a.get_info().backend == b);
-        let idx = pick(wgpu::Backend::Vulkan)
-            .or_else(|| pick(wgpu::Backend::Gl))
-            .or(if adapters.is_empty() { None } else { Some(0) });
-        let adapter = adapters
-            .into_iter()
-            .nth(idx.ok_or(RenderError::NoAdapter)?)
-            .ok_or(RenderError::NoAdapter)?;
+        let adapter = found.ok_or(RenderError::NoAdapter)?;
         let float32_blend = adapter
             .features()
             .contains(wgpu::Features::FLOAT32_BLENDABLE);
