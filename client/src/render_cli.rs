@@ -4,7 +4,7 @@
 use crate::camera::Camera;
 use crate::image_metrics::{psnr, Rgba8Image};
 use crate::reference::render_reference;
-use crate::render::pt::PtRenderer;
+use crate::render::pt::{PtRenderer, VisibilityOrder};
 use crate::render::{GpuContext, RenderError};
 use crate::render_mesh::RenderMesh;
 use crate::store_reader::{LocalStore, StoreReadError};
@@ -43,6 +43,9 @@ pub struct RenderArgs {
     /// Also render the reference and report the PSNR of the image against it.
     #[arg(long)]
     pub compare: bool,
+    /// Visibility order: centroid (approximate) or mpvo (exact for convex acyclic meshes).
+    #[arg(long, value_enum, default_value_t = VisibilityOrder::Centroid)]
+    pub order: VisibilityOrder,
     /// Output PNG.
     #[arg(short = 'o', long, default_value = "out.png")]
     pub output: PathBuf,

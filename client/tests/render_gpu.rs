@@ -6,7 +6,7 @@ use glam::DVec3;
 use tetwave_client::camera::Camera;
 use tetwave_client::image_metrics::{psnr, Rgba8Image};
 use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::PtRenderer;
+use tetwave_client::render::pt::{PtRenderer, VisibilityOrder};
 use tetwave_client::render::GpuContext;
 use tetwave_client::render_mesh::RenderMesh;
 use tetwave_client::transfer::TransferFunction;
@@ -95,6 +95,44 @@ fn gpu_matches_reference_45db() {
         }
     }
     assert!(failures.is_empty(), "below 45 dB: {failures:?}");
+}
+
+/// MPVO order on a convex mesh: a valid order that matches the reference as well as centroid order.
+#[test]
+fn mpvo_order_matches_reference() {
+    let ctx = ctx();
+    let r = PtRenderer::new(&ctx);
+    let tf = TransferFunction::preset("default").unwrap();
+    let mesh = RenderMesh::kuhn_cube(8, 1.0, harmonic);
+    let data = r.upload_with(&ctx, &mesh, true).unwrap();
+    let c = mesh.center();
+    let d = mesh.diagonal();
+    for cam in [
+        Camera::orbit(c, 2.0 * d, 35.0, 25.0, 40.0, 192, 192),
+        Camera::orbit(
+            c + DVec3::new(0.05, 0.02, 0.01) * d,
+            0.1 * d,
+            35.0,
+            25.0,
+            60.0,
+            192,
+            192,
+        ),
+    ] {
+        let reference = render_reference(&mesh, &cam, &tf);
+        let (m, _) = r
+            .render_ordered(&ctx, &data, &cam, &tf, VisibilityOrder::Mpvo)
+            .unwrap();
+        let (ce, _) = r
+            .render_ordered(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid)
+            .unwrap();
+        let (pm, pc) = (psnr(&m, &reference), psnr(&ce, &reference));
+        eprintln!("mpvo {pm:.2} dB, centroid {pc:.2} dB");
+        assert!(
+            pm >= 45.0 && pm >= pc - 0.5,
+            "mpvo {pm:.2} centroid {pc:.2}"
+        );
+    }
 }
 
 /// No NaN or blank output from degenerate input: slivers (aspect 1e-4), zero-volume tets,

@@ -2,6 +2,7 @@
 //! [`pt::PtRenderer`] draws leaf tets by projected tetrahedra (WGSL in `shaders/pt.wgsl`).
 //! The adaptive mesh never touches wgpu: renderers take a [`crate::render_mesh::RenderMesh`].
 
+pub mod order;
 pub mod pt;
 
 #[derive(Debug, thiserror::Error)]

@@ -9,6 +9,7 @@
 //! the "in front of" relation has a cycle. Errors show as small blending differences on the affected
 //! pixels; the image tests bound them against the exact reference.
 
+use super::order::{centroid_order, face_neighbors, mpvo_order};
 use super::{GpuContext, RenderError};
 use crate::camera::Camera;
 use crate::image_metrics::Rgba8Image;
@@ -18,6 +19,16 @@ use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use rayon::prelude::*;
 use wgpu::util::DeviceExt;
+
+/// How tets are ordered back to front each frame (see [`super::order`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+pub enum VisibilityOrder {
+    /// Sort by eye-to-centroid distance (approximate).
+    #[default]
+    Centroid,
+    /// Williams' MPVO over face adjacency (exact for convex, acyclic meshes).
+    Mpvo,
+}
 
 const SHADER: &str = include_str!("../../../shaders/pt.wgsl");
 
@@ -53,6 +64,8 @@ pub struct PtRenderer {
 
 /// One mesh on the GPU. Valid for the mesh it was built from; positions are relative to `origin`.
 pub struct TetDrawData {
+    /// Face adjacency and CPU copies of the face planes, present when uploaded for MPVO ordering.
+    mpvo: Option<(Vec<[u32; 4]>, Vec<[[f32; 4]; 4]>)>,
     positions: wgpu::Buffer,
     tets: wgpu::Buffer,
     geo: wgpu::Buffer,
@@ -163,8 +176,18 @@ impl PtRenderer {
         }
     }
 
-    /// Uploads a mesh.
+    /// Uploads a mesh (centroid ordering only).
     pub fn upload(&self, ctx: &GpuContext, mesh: &RenderMesh) -> Result<TetDrawData, RenderError> {
+        self.upload_with(ctx, mesh, false)
+    }
+
+    /// Uploads a mesh; with `mpvo`, also keeps its face adjacency for [`VisibilityOrder::Mpvo`].
+    pub fn upload_with(
+        &self,
+        ctx: &GpuContext,
+        mesh: &RenderMesh,
+        mpvo: bool,
+    ) -> Result<TetDrawData, RenderError> {
         let origin = mesh.center();
         let limit = ctx.device.limits().max_storage_buffer_binding_size;
         let needed = mesh.tets.len() as u64 * std::mem::size_of::<TetGeo>() as u64;
@@ -215,7 +238,14 @@ impl PtRenderer {
                     usage: wgpu::BufferUsages::STORAGE,
                 })
         };
+        let mpvo = mpvo.then(|| {
+            (
+                face_neighbors(&mesh.tets),
+                geo.iter().map(|g| g.planes).collect(),
+            )
+        });
         Ok(TetDrawData {
+            mpvo,
             positions: make("positions", bytemuck::cast_slice(&positions)),
             tets: make("tets", bytemuck::cast_slice(&tets)),
             geo: make("geo", bytemuck::cast_slice(&geo)),
@@ -235,23 +265,28 @@ impl PtRenderer {
         cam: &Camera,
         tf: &TransferFunction,
     ) -> Result<(Rgba8Image, FrameTimes), RenderError> {
+        self.render_ordered(ctx, data, cam, tf, VisibilityOrder::Centroid)
+    }
+
+    /// Renders one frame with the given visibility order ([`VisibilityOrder::Mpvo`] needs data
+    /// uploaded with adjacency, else it falls back to centroid order).
+    pub fn render_ordered(
+        &self,
+        ctx: &GpuContext,
+        data: &TetDrawData,
+        cam: &Camera,
+        tf: &TransferFunction,
+        visibility: VisibilityOrder,
+    ) -> Result<(Rgba8Image, FrameTimes), RenderError> {
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
-        // back to front: farthest centroid first
-        let mut keyed: Vec<(u32, u32)> = data
-            .centroids
-            .par_iter()
-            .enumerate()
-            .map(|(i, c)| {
-                let d = (c[0] - eye32[0]).powi(2)
-                    + (c[1] - eye32[1]).powi(2)
-                    + (c[2] - eye32[2]).powi(2);
-                (!d.to_bits(), i as u32)
-            })
-            .collect();
-        keyed.par_sort_unstable_by_key(|k| k.0);
-        let order: Vec<u32> = keyed.into_iter().map(|k| k.1).collect();
+        let order: Vec<u32> = match (&data.mpvo, visibility) {
+            (Some((nb, planes)), VisibilityOrder::Mpvo) => {
+                mpvo_order(planes, nb, &data.centroids, eye32).0
+            }
+            _ => centroid_order(&data.centroids, eye32),
+        };
         let sort_ms = t0.elapsed().as_secs_f64() * 1e3;
 
         let device = &ctx.device;
