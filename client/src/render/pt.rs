@@ -55,6 +55,9 @@ struct TfPointGpu {
     b: [f32; 4],
 }
 
+/// Face adjacency and the tets' outward face planes `(n, d)`, for MPVO ordering.
+type MpvoData = (Vec<[u32; 4]>, Vec<[[f32; 4]; 4]>);
+
 /// Pipeline and layouts: create once per device and format.
 pub struct PtRenderer {
     pipeline: wgpu::RenderPipeline,
@@ -65,7 +68,7 @@ pub struct PtRenderer {
 /// One mesh on the GPU. Valid for the mesh it was built from; positions are relative to `origin`.
 pub struct TetDrawData {
     /// Face adjacency and CPU copies of the face planes, present when uploaded for MPVO ordering.
-    mpvo: Option<(Vec<[u32; 4]>, Vec<[[f32; 4]; 4]>)>,
+    mpvo: Option<MpvoData>,
     positions: wgpu::Buffer,
     tets: wgpu::Buffer,
     geo: wgpu::Buffer,
