@@ -18,6 +18,11 @@ server/tests/mesh_io.rs recomputes these with the same f64 operations, so binary
 variants compare exactly. The "mixed" fixtures add 2 triangles, 3 lines and 1 vertex
 around the tets (6 ignored cells).
 
+write_import_fixtures() adds the files of the import tests (server/tests/import_*.rs):
+gmsh 1.0 and Medit versions of the cube, cell arrays (density = tet index + 1, flow =
+(i, 2i, 0)), quadratic tets, a mesh of 2 hexahedra, a wedge and a pyramid ("volcells"),
+a bare mesh, a surface-only mesh, CRLF and blank lines, and more broken files.
+
 Usage (meshio 5.3 writes numpy-2 scalars as "np.float64(...)" in ascii gmsh data, so
 use numpy < 2):
 
@@ -645,6 +650,148 @@ def write_broken():
         out(f"empty.{ext}").write_bytes(b"")
 
 
+# ---------------------------------------------------------------------------------------
+# Import of real-world files (issue 7): gmsh 1.0, Medit, cell data, higher-order and
+# mixed volume cells, quirks and more broken files.
+
+# Mixed volume cells: hex A = [0,1]^3, hex B = [1,2]x[0,1]^2 (sharing the face x=1), a
+# wedge on A's top face (ridge along y at z=1.5), a pyramid on B's top face (apex at
+# (1.5,0.5,1.5)). Point numbering deliberately not sorted by position.
+VOL_POINTS = [
+    (1, 0, 0), (0, 0, 0), (0, 1, 0), (1, 1, 0),      # 0-3: bottom of A (x=1 side first)
+    (1, 0, 1), (0, 0, 1), (0, 1, 1), (1, 1, 1),      # 4-7: top of A
+    (2, 0, 0), (2, 1, 0), (2, 0, 1), (2, 1, 1),      # 8-11: far side of B
+    (0.5, 0, 1.5), (0.5, 1, 1.5), (1.5, 0.5, 1.5),   # 12-14: wedge ridge, pyramid apex
+]
+# VTK corner order (hex: bottom counter-clockwise seen from above, then top).
+VOL_HEXES = [[1, 0, 3, 2, 5, 4, 7, 6], [0, 8, 9, 3, 4, 10, 11, 7]]
+VOL_WEDGES = [[5, 4, 12, 6, 7, 13]]  # (0,1,2) at y=0, normal -y: away from (3,4,5)
+VOL_PYRAMIDS = [[4, 10, 11, 7, 14]]
+VOL_TRIANGLES = [[1, 0, 8]]
+
+
+def write_import_fixtures():
+    pts = np.array(VOL_POINTS, dtype=np.float64)
+    height = pts[:, 2].copy()
+    # meshio's wedge is gmsh's prism (its (0,1,2) turns towards (3,4,5)); meshio swaps it
+    # into VTK's order when it writes VTK files.
+    cells = [
+        ("hexahedron", np.array(VOL_HEXES)),
+        ("wedge", np.array([[w[0], w[2], w[1], w[3], w[5], w[4]] for w in VOL_WEDGES])),
+        ("pyramid", np.array(VOL_PYRAMIDS)),
+        ("triangle", np.array(VOL_TRIANGLES)),
+    ]
+    density = [np.array([1.0, 2.0]), np.array([3.0]), np.array([4.0]), np.array([9.0])]
+    meshio.vtu.write(
+        out("volcells.vtu"),
+        meshio.Mesh(pts, cells, point_data={"height": height}, cell_data={"density": density}),
+        binary=True,
+    )
+    meshio.vtk.write(
+        out("volcells_51.vtk"),
+        meshio.Mesh(pts, cells, point_data={"height": height}, cell_data={"density": density}),
+        fmt_version="5.1",
+        binary=False,
+    )
+    gmsh_cells = cells
+    m = meshio.Mesh(pts, gmsh_cells, point_data={"height": height},
+                    cell_data={"density": density})
+    m.cell_data["gmsh:physical"] = [np.full(len(c.data), 1) for c in m.cells]
+    m.cell_data["gmsh:geometrical"] = [np.full(len(c.data), 1) for c in m.cells]
+    meshio.gmsh.write(out("volcells_22.msh"), m, fmt_version="2.2", binary=False)
+    meshio.gmsh.write(out("volcells_22_binary.msh"), m, fmt_version="2.2", binary=True)
+
+    # Cell data on the cube: density = tet index + 1, flow = (index, 2*index, 0).
+    n = len(TETS)
+    cube = cube_mesh()
+    cube.cell_data = {
+        "density": [np.arange(1.0, n + 1.0)],
+        "flow": [np.array([[i, 2.0 * i, 0.0] for i in range(n)])],
+    }
+    meshio.vtu.write(out("cube_celldata.vtu"), cube, binary=True)
+    meshio.vtk.write(out("cube_celldata_42.vtk"), cube, fmt_version="4.2", binary=True)
+    cube.cell_data["gmsh:physical"] = [np.full(n, 1)]
+    cube.cell_data["gmsh:geometrical"] = [np.full(n, 1)]
+    meshio.gmsh.write(out("cube_celldata_41.msh"), cube, fmt_version="4.1", binary=False)
+
+    # Quadratic tets: corners as in the cube, one node in the middle of each edge.
+    quad_points = [tuple(p) for p in POINTS]
+    mid = {}
+
+    def midpoint(a, b):
+        key = (min(a, b), max(a, b))
+        if key not in mid:
+            pa, pb = POINTS[a], POINTS[b]
+            quad_points.append(tuple((pa[k] + pb[k]) / 2 for k in range(3)))
+            mid[key] = len(quad_points) - 1
+        return mid[key]
+
+    tet10 = []
+    for a, b, c, d in TETS:
+        # VTK and gmsh order of the edges: 01 12 20 03 13 23 (gmsh: 01 12 20 03 23 13).
+        tet10.append([a, b, c, d, midpoint(a, b), midpoint(b, c), midpoint(c, a),
+                      midpoint(a, d), midpoint(b, d), midpoint(c, d)])
+    qp = np.array(quad_points)
+    temp = qp[:, 0] + 2.0 * qp[:, 1] + 3.0 * qp[:, 2]
+    qm = meshio.Mesh(qp, [("tetra10", np.array(tet10))], point_data={"temperature": temp})
+    meshio.vtu.write(out("quadratic.vtu"), qm, binary=False)
+    meshio.gmsh.write(out("quadratic_22.msh"), qm, fmt_version="2.2", binary=False)
+
+    # Medit (meshio's writer): the cube with element references 1..7.
+    med = meshio.Mesh(
+        np.array(POINTS), [("tetra", np.array(TETS)), ("triangle", np.array(TRIANGLES))],
+        cell_data={"medit:ref": [np.arange(1, n + 1), np.array([20, 21])]},
+    )
+    meshio.medit.write(out("cube.mesh"), med)
+
+    # gmsh 1.0, by hand: a $PhysicalNames-like unknown section, the cube and a triangle.
+    s = "$NOD\n%d\n" % len(POINTS)
+    s += "".join(f"{i + 1} {p[0]!r} {p[1]!r} {p[2]!r}\n" for i, p in enumerate(POINTS))
+    s += "$ENDNOD\n$ELM\n%d\n" % (len(TETS) + 1)
+    s += f"1 2 1 1 3 {TRIANGLES[0][0] + 1} {TRIANGLES[0][1] + 1} {TRIANGLES[0][2] + 1}\n"
+    for e, t in enumerate(TETS):
+        s += f"{e + 2} 4 1 1 4 " + " ".join(str(v + 1) for v in t) + "\n"
+    s += "$ENDELM\n"
+    out("cube_10.msh").write_text(s)
+    # 1.0 with an element that announces 4 nodes and lists 3.
+    out("bad_node_count_10.msh").write_text(s.replace("4 1 1 4 1 2 4 8", "4 1 1 4 1 2 4"))
+
+    # Legacy ascii with CRLF line ends and blank lines between (and inside) sections.
+    text = out("cube_42_ascii.vtk").read_text()
+    text = text.replace("\nCELLS", "\n\n\nCELLS").replace("\nCELL_TYPES", "\n   \nCELL_TYPES")
+    text = text.replace("\nPOINT_DATA", "\n\nPOINT_DATA")
+    out("cube_42_blank_crlf.vtk").write_bytes(text.replace("\n", "\r\n").encode())
+
+    # A bare mesh: no point or cell arrays.
+    meshio.vtk.write(out("bare_42.vtk"),
+                     meshio.Mesh(np.array(POINTS), [("tetra", np.array(TETS))]),
+                     fmt_version="4.2", binary=False)
+
+    # Surface only: the triangles of the cube's bottom.
+    sm = meshio.Mesh(np.array(POINTS), [("triangle", np.array(TRIANGLES))],
+                     point_data={"temperature": np.array(TEMPERATURE)})
+    meshio.gmsh.write(out("surface_only.msh"), sm, fmt_version="2.2", binary=False)
+
+    # Binary data that is not what the header declares.
+    text = out("cube_binary.vtu").read_text()
+    out("wrong_type.vtu").write_text(
+        text.replace('type="Int64" Name="connectivity"', 'type="Int32" Name="connectivity"'))
+    data = out("cube_42_binary.vtk").read_bytes()
+    out("wrong_type.vtk").write_bytes(
+        data.replace(f"POINTS {len(POINTS)} double".encode(),
+                     f"POINTS {len(POINTS)} float".encode()))
+    # A corrupted zlib block (bytes inside the compressed points changed).
+    data = bytearray(out("cube_appended_raw_zlib.vtu").read_bytes())
+    start = data.index(b"x\x9c", data.index(b"<AppendedData"))  # the first zlib stream
+    for k in range(4, 10):
+        data[start + k] ^= 0x5A
+    out("corrupt_zlib.vtu").write_bytes(bytes(data))
+    # A cell array whose header count disagrees with the cells.
+    text = out("cube_celldata_42.vtk").read_bytes()
+    out("bad_cell_data_count.vtk").write_bytes(
+        text.replace(f"CELL_DATA {len(TETS)}".encode(), b"CELL_DATA 5"))
+
+
 def main():
     if int(np.__version__.split(".")[0]) >= 2:
         raise SystemExit("gen-fixtures.py needs numpy < 2 (see the module docstring)")
@@ -657,6 +804,7 @@ def main():
     write_legacy_scalars()
     write_msh_tags()
     write_broken()
+    write_import_fixtures()
     (OUT / "README.md").write_text(
         "Mesh-reader fixtures written by `scripts/gen-fixtures.py` (meshio "
         f"{meshio.__version__}); do not edit by hand, rerun the script.\n"

@@ -48,9 +48,17 @@ enum Cmd {
         /// Raw grid spacing `sx,sy,sz`.
         #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
         spacing: [f64; 3],
-        /// Point scalar to use from a mesh file (default: the first).
+        /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
+        /// magnitude `NAME:mag` (the default for vectors) or a component `NAME:0`. Cell arrays are
+        /// averaged to the points, weighted by volume. Default: the first point scalar.
         #[arg(long)]
         scalar: Option<String>,
+        /// A geometric scalar instead of an array, for a bare mesh: `distance` (to the boundary).
+        #[arg(long)]
+        field: Option<String>,
+        /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
+        #[arg(long)]
+        format: Option<tetwave_server::resample::mesh_io::MeshFormat>,
         /// Replace NaN/Inf input values by this value instead of refusing the input.
         #[arg(long)]
         nan_as: Option<f64>,
@@ -121,6 +129,8 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             dtype,
             spacing,
             scalar,
+            field,
+            format,
             nan_as,
             json,
         } => {
@@ -134,6 +144,8 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 dtype,
                 spacing,
                 scalar,
+                field,
+                format,
                 nan_as,
                 progress: interactive && !json,
             };
@@ -163,9 +175,12 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 );
                 if let Some(r) = &s.import {
                     println!(
-                        "import       scalar {:?}: {} tets kept, {} re-oriented, {} zero-volume dropped, {} other cells ignored",
-                        r.scalar, r.tets_kept, r.tets_reoriented, r.tets_dropped_degenerate, r.cells_ignored
+                        "import       {} cells read; scalar {:?} ({}): {} tets kept, {} re-oriented, {} dropped, {} cells split, {} ignored",
+                        r.cells_read, r.scalar, r.scalar_source, r.tets_kept, r.tets_reoriented, r.tets_dropped, r.cells_split, r.cells_ignored
                     );
+                    for note in &r.notes {
+                        println!("             {note}");
+                    }
                 }
                 println!("time         {:.3} s", s.seconds);
             }

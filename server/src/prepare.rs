@@ -1,10 +1,10 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
 use crate::analysis::{analyze_hierarchy, AnalysisError};
-use crate::resample::mesh_io::{self, ImportError};
+use crate::resample::mesh_io::{self, ImportError, MeshFormat};
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
-use crate::resample::unstructured::{self, CleanError, CleanReport, Locator};
+use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
 use crate::resample::{resample, BaseSpec, ResampleError, Source};
 use crate::store::{self, Store, StoreError, StoreMeta};
 use serde::Serialize;
@@ -60,7 +60,12 @@ pub struct PrepareOptions {
     pub dims: Option<[usize; 3]>,
     pub dtype: String,
     pub spacing: [f64; 3],
+    /// `NAME`, `NAME:mag` or `NAME:K` among the mesh's point and cell arrays.
     pub scalar: Option<String>,
+    /// A geometric scalar instead of an array (`distance`: to the mesh's boundary).
+    pub field: Option<String>,
+    /// The mesh format, whatever the content and the extension say.
+    pub format: Option<MeshFormat>,
     pub nan_as: Option<f64>,
     pub progress: bool,
 }
@@ -77,6 +82,8 @@ impl PrepareOptions {
             dtype: "u8".into(),
             spacing: [1.0; 3],
             scalar: None,
+            field: None,
+            format: None,
             nan_as: None,
             progress: false,
         }
@@ -145,20 +152,24 @@ fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport
         }
         return Ok((Source::Raw(grid), stem, None));
     }
-    if mesh_io::format_of(&path).is_some() || path.exists() {
-        let mesh = mesh_io::read_tet_mesh(&path)?;
+    if o.format.is_some() || mesh_io::format_of(&path).is_some() || path.exists() {
+        let mesh = mesh_io::read_mesh(&path, o.format)?;
+        let options = ImportOptions {
+            scalar: o.scalar.as_deref(),
+            field: o.field.as_deref(),
+            nan_as: o.nan_as,
+        };
         let (clean, report) =
-            unstructured::clean(mesh, o.scalar.as_deref(), o.nan_as).map_err(|source| {
-                PrepareError::Clean {
-                    path: path.clone(),
-                    source,
-                }
+            unstructured::clean_import(mesh, &options).map_err(|source| PrepareError::Clean {
+                path: path.clone(),
+                source,
             })?;
-        if report.tets_reoriented > 0 || report.tets_dropped_degenerate > 0 {
+        if report.tets_reoriented > 0 || report.tets_dropped > 0 {
             tracing::warn!(
                 reoriented = report.tets_reoriented,
-                dropped = report.tets_dropped_degenerate,
-                "fixed inverted tets and dropped zero-volume tets"
+                dropped_degenerate = report.tets_dropped_degenerate,
+                dropped_duplicate = report.tets_dropped_duplicate,
+                "fixed inverted tets and dropped zero-volume and duplicate tets"
             );
         }
         let bounds = unstructured::bbox(&clean.points);

@@ -1,24 +1,27 @@
-//! gmsh `.msh` reader: formats 2.2 and 4.1, ascii and binary (either byte order).
+//! gmsh `.msh` reader: formats 1.0 (ascii), 2.2 and 4.1, ascii and binary (either byte order).
 //!
 //! Written here rather than with `mshio` (see the parent module): `mshio` 0.4 has no 2.2, no
 //! `$NodeData`, no parametric nodes, and loses the node numbering of contiguous-but-permuted tags.
 //!
-//! - Element type 4 (4-node tet) is kept; every other element is counted in `cells_ignored`. In
+//! - Elements go through `gmsh_cell`: tets (4; 11, 29-31 by their corners), hexahedra,
+//!   prisms and pyramids (split, see `split_cell`); the other elements are counted. In
 //!   binary files the reader must know an element type's node count to read past it: types 1-31,
 //!   92 and 93 are known, another type is an error.
 //! - Node tags may be any positive numbers in any order: points are numbered in file order and
 //!   element and `$NodeData` tags are mapped through the tags; a tag that no node has is an error.
-//! - `$NodeData` blocks with 1 component that give a value to every node become point arrays named
-//!   by their first string tag (a later block with the same name, e.g. another time step, gets
-//!   `#2`, `#3`... appended); multi-component and partial blocks are skipped.
-//! - Other sections (`$Entities`, `$PhysicalNames`, `$ElementData`, ...) are skipped by looking
-//!   for their `$End` line. gmsh 4.0 and 3.x are refused.
+//! - `$NodeData` blocks that give a value to every node become point arrays (1 component: point
+//!   scalars; more: point vectors) named by their first string tag (a later block with the same
+//!   name, e.g. another time step, gets `#2`, `#3`... appended); partial blocks are skipped.
+//!   `$ElementData` blocks become cell arrays if every volume element has a value.
+//! - Other sections (`$Entities`, `$PhysicalNames`, ...) are skipped by looking for their `$End`
+//!   line. gmsh 4.0 and 3.x are refused.
 
 use std::collections::HashMap;
 
-use super::{capacity, show, Bad, Endian, Lex, Res, ScalarArray, TetMesh};
-
-const TET4: i64 = 4;
+use super::{
+    capacity, check_nodes, gmsh_cell, show, Bad, Cell, Endian, FieldArray, ImportedMesh, Lex, Res,
+    ScalarArray,
+};
 
 /// Nodes of a gmsh element type (needed to read past elements in binary files).
 fn nodes_per_element(t: i64) -> Option<usize> {
@@ -72,14 +75,24 @@ struct Msh<'a> {
     section: String,
 }
 
+/// `$NodeData` or `$ElementData`: name, components, (tag, first value index) entries, values.
+struct TagData {
+    name: String,
+    components: usize,
+    entries: Vec<u64>,
+    values: Vec<f64>,
+}
+
 #[derive(Default)]
 struct Raw {
     coords: Vec<[f64; 3]>,
     tags: Vec<u64>,
-    /// Element tag and node tags of each tet.
-    tets: Vec<(u64, [u64; 4])>,
-    ignored: usize,
-    data: Vec<(String, Vec<(u64, f64)>)>,
+    /// Every element in file order: its tag, its kind and its node tags (volume cells only) as a
+    /// range of `nodes`.
+    cells: Vec<(u64, Cell, usize, usize)>,
+    nodes: Vec<u64>,
+    node_data: Vec<TagData>,
+    element_data: Vec<TagData>,
 }
 
 fn parse_num<T: std::str::FromStr>(tok: &[u8]) -> Option<T> {
@@ -205,7 +218,7 @@ impl<'a> Msh<'a> {
     }
 }
 
-pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
+pub(super) fn parse_msh(bytes: &[u8]) -> Res<ImportedMesh> {
     let mut m = Msh {
         lx: Lex::new(bytes),
         binary: false,
@@ -213,8 +226,10 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
         size_t: 8,
         section: "$MeshFormat".into(),
     };
-    if m.lx.token() != Some(&b"$MeshFormat"[..]) {
-        return Err(m.bad("not a gmsh file: it does not start with $MeshFormat"));
+    match m.lx.token() {
+        Some(b"$MeshFormat") => {}
+        Some(b"$NOD") | Some(b"$PTS") => return parse_msh1(bytes),
+        _ => return Err(m.bad("not a gmsh file: it does not start with $MeshFormat")),
     }
     let version_tok =
         m.lx.token()
@@ -252,7 +267,7 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
             return Err(m.bad("the binary endianness marker is not 1"));
         };
     }
-    expect_end(&mut m, "MeshFormat")?;
+    expect_end(&mut m, "MeshFormat", "$End")?;
 
     let mut raw = Raw::default();
     let (mut has_nodes, mut has_elements) = (false, false);
@@ -271,7 +286,8 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
             ("Nodes", Version::V41) => nodes_v41(&mut m, &mut raw)?,
             ("Elements", Version::V2) => elements_v2(&mut m, &mut raw)?,
             ("Elements", Version::V41) => elements_v41(&mut m, &mut raw)?,
-            ("NodeData", _) => node_data(&mut m, &mut raw)?,
+            ("NodeData", _) => tag_data(&mut m, &mut raw, false)?,
+            ("ElementData", _) => tag_data(&mut m, &mut raw, true)?,
             _ => {
                 if !m.lx.skip_past(format!("$End{name}").as_bytes()) {
                     return Err(m.truncated(&format!("the section (no $End{name})")));
@@ -279,7 +295,7 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
                 continue;
             }
         }
-        expect_end(&mut m, &name)?;
+        expect_end(&mut m, &name, "$End")?;
         has_nodes |= name == "Nodes";
         has_elements |= name == "Elements";
     }
@@ -293,8 +309,8 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<TetMesh> {
     resolve(raw)
 }
 
-fn expect_end(m: &mut Msh<'_>, name: &str) -> Res<()> {
-    let end = format!("$End{name}");
+fn expect_end(m: &mut Msh<'_>, name: &str, prefix: &str) -> Res<()> {
+    let end = format!("{prefix}{name}");
     match m.lx.token() {
         Some(t) if t == end.as_bytes() => Ok(()),
         Some(t) => Err(m.bad(format!(
@@ -324,25 +340,21 @@ fn nodes_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
 }
 
 fn push_element(m: &Msh<'_>, raw: &mut Raw, tag: u64, ty: i64, nodes: &[i64]) -> Res<()> {
-    if ty != TET4 {
-        raw.ignored += 1;
-        return Ok(());
+    let kind = gmsh_cell(ty);
+    let start = raw.nodes.len();
+    if let Cell::Volume { .. } = kind {
+        check_nodes(kind, nodes.len(), &format!("element {tag} (type {ty})"))
+            .map_err(|e| m.bad(e))?;
+        for &v in nodes {
+            raw.nodes
+                .push(u64::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
+                    m.bad(format!(
+                        "element {tag} refers to node {v}, which $Nodes does not define"
+                    ))
+                })?);
+        }
     }
-    let [a, b, c, d] = nodes else {
-        return Err(m.bad(format!(
-            "element {tag} is a 4-node tet with {} nodes",
-            nodes.len()
-        )));
-    };
-    let mut q = [0u64; 4];
-    for (t, &v) in q.iter_mut().zip([a, b, c, d]) {
-        *t = u64::try_from(v).ok().filter(|&v| v > 0).ok_or_else(|| {
-            m.bad(format!(
-                "element {tag} refers to node {v}, which $Nodes does not define"
-            ))
-        })?;
-    }
-    raw.tets.push((tag, q));
+    raw.cells.push((tag, kind, start, raw.nodes.len() - start));
     Ok(())
 }
 
@@ -506,9 +518,9 @@ fn elements_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
     Ok(())
 }
 
-/// `$NodeData` (same layout in 2.2 and 4.1): string, real and integer tags in ascii, then
-/// `tag value...` records (binary: a 4-byte int and doubles).
-fn node_data(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+/// `$NodeData` and `$ElementData` (same layout in 2.2 and 4.1): string, real and integer tags in
+/// ascii, then `tag value...` records (binary: a 4-byte int and doubles).
+fn tag_data(m: &mut Msh<'_>, raw: &mut Raw, elements: bool) -> Res<()> {
     let saved = m.binary;
     m.binary = false;
     let nstr: usize = m.ascii("the number of string tags")?;
@@ -535,7 +547,12 @@ fn node_data(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
     m.binary = saved;
 
     let name = strings.first().cloned().unwrap_or_default();
-    m.section = format!("$NodeData \"{name}\"");
+    let (kind, what) = if elements {
+        ("$ElementData", "element")
+    } else {
+        ("$NodeData", "node")
+    };
+    m.section = format!("{kind} \"{name}\"");
     let (Some(&ncomp), Some(&count)) = (ints.get(1), ints.get(2)) else {
         return Err(m.bad("fewer than 3 integer tags (time step, components, count)"));
     };
@@ -545,27 +562,28 @@ fn node_data(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
         )));
     };
     if ncomp == 0 || ncomp > 1 << 16 {
-        return Err(m.bad(format!("{ncomp} components per node")));
+        return Err(m.bad(format!("{ncomp} components per {what}")));
     }
-    m.need(count, 4 + 8 * ncomp, "node values")?;
-    let keep = ncomp == 1;
-    let mut entries = Vec::with_capacity(if keep {
-        capacity(count, 4, m.lx.remaining())
-    } else {
-        0
-    });
+    m.need(count, 4 + 8 * ncomp, "values")?;
+    let cap = capacity(count, 4, m.lx.remaining());
+    let mut entries = Vec::with_capacity(cap);
+    let mut values = Vec::with_capacity(cap.saturating_mul(ncomp).min(m.lx.remaining()));
     for _ in 0..count {
-        let tag = m.tag(false, "a node tag")?;
-        let v = m.real("a node value")?;
-        for _ in 1..ncomp {
-            m.real("a node value")?;
-        }
-        if keep {
-            entries.push((tag, v));
+        entries.push(m.tag(false, &format!("an {what} tag"))?);
+        for _ in 0..ncomp {
+            values.push(m.real("a value")?);
         }
     }
-    if keep {
-        raw.data.push((name, entries));
+    let data = TagData {
+        name,
+        components: ncomp,
+        entries,
+        values,
+    };
+    if elements {
+        raw.element_data.push(data);
+    } else {
+        raw.node_data.push(data);
     }
     Ok(())
 }
@@ -623,61 +641,208 @@ impl TagIndex {
     }
 }
 
-fn resolve(raw: Raw) -> Res<TetMesh> {
+fn resolve(raw: Raw) -> Res<ImportedMesh> {
     let index = TagIndex::new(&raw.tags)?;
     let n = raw.coords.len();
-    let mut tets = Vec::with_capacity(raw.tets.len());
-    for (etag, q) in &raw.tets {
-        let mut tet = [0u32; 4];
-        for (t, &node) in tet.iter_mut().zip(q) {
-            *t = index.get(node).ok_or_else(|| {
+    let mut mesh = ImportedMesh::default();
+    let mut nodes = Vec::new();
+    for &(etag, kind, start, len) in &raw.cells {
+        nodes.clear();
+        for &node in raw.nodes.get(start..start + len).unwrap_or_default() {
+            nodes.push(index.get(node).ok_or_else(|| {
                 Bad::new(
                     "$Elements",
                     format!("element {etag} refers to node {node}, which $Nodes does not define"),
                 )
-            })?;
+            })?);
         }
-        tets.push(tet);
+        mesh.push_cell(kind, &nodes);
     }
-    let mut point_data: Vec<ScalarArray> = Vec::new();
-    for (name, entries) in raw.data {
-        let mut values = vec![f64::NAN; n];
-        let mut set = vec![false; n];
-        let mut filled = 0usize;
-        for (tag, v) in entries {
-            let i = index.get(tag).ok_or_else(|| {
-                Bad::new(
-                    format!("$NodeData \"{name}\""),
-                    format!("a value for node {tag}, which $Nodes does not define"),
-                )
-            })? as usize;
-            if let (Some(slot), Some(s)) = (values.get_mut(i), set.get_mut(i)) {
-                *slot = v;
-                if !*s {
-                    *s = true;
-                    filled += 1;
+    mesh.mesh.points = raw.coords;
+    for data in raw.node_data {
+        let Some(a) = spread(data, n, "$NodeData", |t| index.get(t).map(|i| i as usize))? else {
+            continue;
+        };
+        let unique = unique_name(&a.name, |u| {
+            mesh.mesh.point_data.iter().any(|b| b.name == u)
+                || mesh.point_vectors.iter().any(|b| b.name == u)
+        });
+        if a.components == 1 {
+            mesh.mesh.point_data.push(ScalarArray {
+                name: unique,
+                values: a.values,
+            });
+        } else {
+            mesh.point_vectors.push(FieldArray { name: unique, ..a });
+        }
+    }
+    if !raw.element_data.is_empty() {
+        let cells: HashMap<u64, usize> = raw
+            .cells
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c.0, i))
+            .collect();
+        let volume: Vec<bool> = raw
+            .cells
+            .iter()
+            .map(|c| matches!(c.1, Cell::Volume { .. }))
+            .collect();
+        for data in raw.element_data {
+            let section = format!("$ElementData \"{}\"", data.name);
+            let Some(a) = spread(data, raw.cells.len(), "$ElementData", |t| {
+                cells.get(&t).copied()
+            })?
+            else {
+                continue;
+            };
+            // Values are needed on the volume cells only.
+            let missing = volume
+                .iter()
+                .enumerate()
+                .filter(|&(i, &v)| v && a.values.get(i * a.components).is_none_or(|x| x.is_nan()))
+                .count();
+            if missing > 0 {
+                tracing::warn!("{section}: no value for {missing} volume elements: skipped");
+                continue;
+            }
+            let unique = unique_name(&a.name, |u| mesh.cell_data.iter().any(|b| b.name == u));
+            mesh.cell_data.push(FieldArray { name: unique, ..a });
+        }
+    }
+    Ok(mesh)
+}
+
+/// A name not taken yet: `name`, else `name#2`, `name#3`... (another time step of a field).
+fn unique_name(name: &str, taken: impl Fn(&str) -> bool) -> String {
+    let mut unique = name.to_string();
+    let mut k = 1;
+    while taken(&unique) {
+        k += 1;
+        unique = format!("{name}#{k}");
+    }
+    unique
+}
+
+/// Tagged values spread over `n` slots (NaN where none is given). `$NodeData` must give a value
+/// to every node or is skipped (`None`); `$ElementData` is checked by the caller.
+fn spread(
+    data: TagData,
+    n: usize,
+    kind: &str,
+    slot: impl Fn(u64) -> Option<usize>,
+) -> Res<Option<FieldArray>> {
+    let nc = data.components;
+    let section = format!("{kind} \"{}\"", data.name);
+    let mut values = vec![f64::NAN; n.saturating_mul(nc)];
+    let mut set = vec![false; n];
+    let mut filled = 0usize;
+    for (k, &tag) in data.entries.iter().enumerate() {
+        let i = slot(tag).ok_or_else(|| {
+            let what = if kind == "$NodeData" {
+                "node"
+            } else {
+                "element"
+            };
+            Bad::new(
+                &section,
+                format!("a value for {what} {tag}, which the file does not define"),
+            )
+        })?;
+        let src = data.values.get(k * nc..(k + 1) * nc).unwrap_or_default();
+        if let (Some(dst), Some(s)) = (values.get_mut(i * nc..(i + 1) * nc), set.get_mut(i)) {
+            dst.copy_from_slice(src);
+            if !*s {
+                *s = true;
+                filled += 1;
+            }
+        }
+    }
+    if kind == "$NodeData" && filled < n {
+        tracing::warn!("{section} gives values to {filled} of {n} nodes: skipped");
+        return Ok(None);
+    }
+    Ok(Some(FieldArray {
+        name: data.name,
+        components: nc,
+        values,
+    }))
+}
+
+// ------------------------------------------------------------------------------------------------
+// gmsh 1.0: `$NOD` (`n`, then `tag x y z` lines) `$ENDNOD`, `$ELM` (`n`, then `tag type
+// physical elementary nodes node...` lines) `$ENDELM`. ascii only.
+
+fn parse_msh1(bytes: &[u8]) -> Res<ImportedMesh> {
+    let mut m = Msh {
+        lx: Lex::new(bytes),
+        binary: false,
+        endian: Endian::Little,
+        size_t: 8,
+        section: "$NOD".into(),
+    };
+    let mut raw = Raw::default();
+    let (mut has_nodes, mut has_elements) = (false, false);
+    while let Some(tok) = m.lx.token() {
+        let name = String::from_utf8_lossy(tok).into_owned();
+        m.section = name.clone();
+        match name.as_str() {
+            "$NOD" | "$PTS" => {
+                let n: usize = m.ascii("the number of nodes")?;
+                let cap = capacity(n, 8, m.lx.remaining());
+                raw.coords.reserve(cap);
+                raw.tags.reserve(cap);
+                for _ in 0..n {
+                    raw.tags.push(m.tag(false, "a node tag")?);
+                    let x = m.real("a node coordinate")?;
+                    let y = m.real("a node coordinate")?;
+                    let z = m.real("a node coordinate")?;
+                    raw.coords.push([x, y, z]);
+                }
+                expect_end(&mut m, if name == "$NOD" { "NOD" } else { "PTS" }, "$END")?;
+                has_nodes = true;
+            }
+            "$ELM" => {
+                let n: usize = m.ascii("the number of elements")?;
+                let _ = m.lx.line();
+                for _ in 0..n {
+                    let rec = m.record_line("an element")?;
+                    let (Some(&num), Some(&ty), Some(&nn)) = (rec.first(), rec.get(1), rec.get(4))
+                    else {
+                        return Err(m.bad("an element line has fewer than 5 numbers"));
+                    };
+                    let nodes = rec.get(5..).unwrap_or_default();
+                    if usize::try_from(nn).ok() != Some(nodes.len()) {
+                        return Err(m.bad(format!(
+                            "element {num} announces {nn} nodes but its line has {}",
+                            nodes.len()
+                        )));
+                    }
+                    push_element(&m, &mut raw, num.unsigned_abs(), ty, nodes)?;
+                }
+                expect_end(&mut m, "ELM", "$END")?;
+                has_elements = true;
+            }
+            _ => {
+                let Some(rest) = name.strip_prefix('$') else {
+                    return Err(Bad::new(
+                        "file",
+                        format!("expected a section such as $NOD, found \"{}\"", show(tok)),
+                    ));
+                };
+                let end = format!("$END{rest}");
+                if !m.lx.skip_past(end.as_bytes()) {
+                    return Err(m.truncated(&format!("the section (no {end})")));
                 }
             }
         }
-        if filled < n {
-            tracing::warn!("$NodeData \"{name}\" gives values to {filled} of {n} nodes: skipped");
-            continue;
-        }
-        let mut unique = name.clone();
-        let mut k = 1;
-        while point_data.iter().any(|a| a.name == unique) {
-            k += 1;
-            unique = format!("{name}#{k}");
-        }
-        point_data.push(ScalarArray {
-            name: unique,
-            values,
-        });
     }
-    Ok(TetMesh {
-        points: raw.coords,
-        tets,
-        point_data,
-        cells_ignored: raw.ignored,
-    })
+    if !has_nodes || !has_elements {
+        let missing = if has_nodes { "$ELM" } else { "$NOD" };
+        return Err(Bad::new(
+            missing,
+            format!("the file has no {missing} section (truncated?)"),
+        ));
+    }
+    resolve(raw)
 }

@@ -14,14 +14,17 @@
 //!   blocks; each block is inflated to at most the size its header announces and must reach it.
 //! - several `<Piece>`s are concatenated (each piece's connectivity is shifted by the points of the
 //!   pieces before it); a point array is kept only if every piece has it.
-//! - cell type 10 (tetra) is kept, with exactly 4 points; every other cell is counted in
-//!   `cells_ignored`. Point arrays with more than one component, or not numeric, are skipped.
+//! - cells go through `vtk_cell`: tets (10), quadratic tets (24, corner tet), hexahedra,
+//!   voxels, wedges and pyramids (split, see `split_cell`); the node count of a volume
+//!   cell must match its type; other cells are counted. Point arrays with one component are
+//!   point scalars, with more point vectors; cell arrays keep their components; arrays that are
+//!   not numeric are skipped. The offsets must end where the connectivity does.
 //! - LZ4 and LZMA compression are not supported (an error names the compressor).
 //!
 //! Legacy details: versions up to 4.2 (`CELLS n size` with counts) and 5.x (`OFFSETS` and
-//! `CONNECTIVITY`), ascii and binary (big-endian); `POINT_DATA` `SCALARS` and `FIELD` arrays with
-//! one component become point data; `METADATA` blocks, `CELL_DATA` and the other attributes are
-//! read past. `long` is 8 bytes and `vtkIdType` 4, as VTK writes them on 64-bit Linux.
+//! `CONNECTIVITY`), ascii and binary (big-endian); `POINT_DATA` and `CELL_DATA` `SCALARS`,
+//! `VECTORS`, `NORMALS` and `FIELD` arrays are read (point arrays of one component as point
+//! scalars); `METADATA` blocks and the other attributes are read past. `long` is 8 bytes and `vtkIdType` 4, as VTK writes them on 64-bit Linux.
 
 use std::borrow::Cow;
 use std::io::Read;
@@ -29,9 +32,10 @@ use std::io::Read;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::{capacity, find, point_index, show, Bad, Endian, Lex, Res, ScalarArray, TetMesh};
-
-const VTK_TETRA: i64 = 10;
+use super::{
+    capacity, check_nodes, find, point_index, show, vtk_cell, Bad, Cell, Endian, FieldArray,
+    ImportedMesh, Lex, Res, ScalarArray,
+};
 
 // ------------------------------------------------------------------------------------------------
 // Scalars shared by both formats.
@@ -159,6 +163,7 @@ enum Ctx {
     Points,
     Cells,
     PointData,
+    CellData,
     Other,
 }
 
@@ -179,6 +184,7 @@ struct XmlPiece {
     points: Option<XmlArray>,
     cells: Vec<XmlArray>,
     point_data: Vec<XmlArray>,
+    cell_data: Vec<XmlArray>,
 }
 
 #[derive(Debug, Default)]
@@ -214,7 +220,7 @@ struct Appended<'a> {
     data: &'a [u8],
 }
 
-pub(super) fn parse_vtu(bytes: &[u8]) -> Res<TetMesh> {
+pub(super) fn parse_vtu(bytes: &[u8]) -> Res<ImportedMesh> {
     let (xml, appended) = match find(bytes, b"<AppendedData") {
         Some(pos) => (
             bytes.get(..pos).unwrap_or_default(),
@@ -228,33 +234,63 @@ pub(super) fn parse_vtu(bytes: &[u8]) -> Res<TetMesh> {
         return Err(Bad::new("UnstructuredGrid", "no <Piece> element"));
     }
 
-    let mut mesh = TetMesh::default();
-    let mut arrays: Vec<ScalarArray> = Vec::new();
+    let mut mesh = ImportedMesh::default();
+    let mut point_arrays: Vec<FieldArray> = Vec::new();
+    let mut cell_arrays: Vec<FieldArray> = Vec::new();
     for (pi, piece) in doc.pieces.iter().enumerate() {
-        let base = mesh.points.len();
+        let base = mesh.mesh.points.len();
         read_piece_geometry(piece, pi, base, enc, appended.as_ref(), &mut mesh)?;
-        let piece_arrays = read_piece_point_data(piece, pi, enc, appended.as_ref())?;
+        let app = appended.as_ref();
+        let points =
+            read_piece_arrays(&piece.point_data, piece.n_points, pi, "PointData", enc, app)?;
+        let cells = read_piece_arrays(&piece.cell_data, piece.n_cells, pi, "CellData", enc, app)?;
         if pi == 0 {
-            arrays = piece_arrays;
+            point_arrays = points;
+            cell_arrays = cells;
         } else {
-            let mut kept = Vec::with_capacity(arrays.len());
-            for mut a in arrays {
-                match piece_arrays.iter().find(|b| b.name == a.name) {
-                    Some(b) => {
-                        a.values.extend_from_slice(&b.values);
-                        kept.push(a);
-                    }
-                    None => tracing::warn!(
-                        "point array \"{}\" is missing from piece {pi}: skipped",
-                        a.name
-                    ),
-                }
-            }
-            arrays = kept;
+            point_arrays = merge_piece_arrays(point_arrays, &points, pi, "point");
+            cell_arrays = merge_piece_arrays(cell_arrays, &cells, pi, "cell");
         }
     }
-    mesh.point_data = arrays;
+    for a in point_arrays {
+        if a.components == 1 {
+            mesh.mesh.point_data.push(ScalarArray {
+                name: a.name,
+                values: a.values,
+            });
+        } else {
+            mesh.point_vectors.push(a);
+        }
+    }
+    mesh.cell_data = cell_arrays;
     Ok(mesh)
+}
+
+/// Keeps the arrays of the pieces so far that the next piece has too (same components), with
+/// its values appended.
+fn merge_piece_arrays(
+    arrays: Vec<FieldArray>,
+    next: &[FieldArray],
+    pi: usize,
+    kind: &str,
+) -> Vec<FieldArray> {
+    let mut kept = Vec::with_capacity(arrays.len());
+    for mut a in arrays {
+        match next
+            .iter()
+            .find(|b| b.name == a.name && b.components == a.components)
+        {
+            Some(b) => {
+                a.values.extend_from_slice(&b.values);
+                kept.push(a);
+            }
+            None => tracing::warn!(
+                "{kind} array \"{}\" is missing from piece {pi}: skipped",
+                a.name
+            ),
+        }
+    }
+    kept
 }
 
 /// `<AppendedData encoding="...">` then `_` then the data up to `</AppendedData>` (or the end of a
@@ -473,6 +509,7 @@ fn open_element(
                 (Some(b"Points"), true) => Ctx::Points,
                 (Some(b"Cells"), true) => Ctx::Cells,
                 (Some(b"PointData"), true) => Ctx::PointData,
+                (Some(b"CellData"), true) => Ctx::CellData,
                 _ => Ctx::Other,
             };
             let a = attrs(e)?;
@@ -509,6 +546,7 @@ fn close_array(doc: &mut XmlDoc, current: &mut Option<(XmlArray, Ctx)>) -> Res<(
         Ctx::Points => piece.points = Some(array),
         Ctx::Cells => piece.cells.push(array),
         Ctx::PointData => piece.point_data.push(array),
+        Ctx::CellData => piece.cell_data.push(array),
         Ctx::Other => {}
     }
     Ok(())
@@ -855,7 +893,7 @@ fn read_piece_geometry(
     base: usize,
     enc: Encoding,
     app: Option<&Appended<'_>>,
-    mesh: &mut TetMesh,
+    mesh: &mut ImportedMesh,
 ) -> Res<()> {
     let np = piece.n_points;
     let what = format!("Piece {pi} Points");
@@ -875,7 +913,8 @@ fn read_piece_geometry(
                     ),
                 ));
             }
-            mesh.points
+            mesh.mesh
+                .points
                 .extend(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
         }
         None if np == 0 => {}
@@ -935,63 +974,79 @@ fn read_piece_geometry(
             })?;
         let cell = conn.get(start..end).unwrap_or_default();
         start = end;
-        if ty != VTK_TETRA {
-            mesh.cells_ignored += 1;
-            continue;
+        let kind = vtk_cell(ty);
+        let mut nodes = Vec::new();
+        if let Cell::Volume { .. } = kind {
+            check_nodes(kind, cell.len(), &format!("cell {i} (type {ty})"))
+                .map_err(|e| Bad::new(section.clone(), e))?;
+            for &v in cell {
+                nodes.push(point_index(v, base, np).ok_or_else(|| {
+                    Bad::new(
+                        section.clone(),
+                        format!("cell {i} refers to point {v}, but the piece has {np} points"),
+                    )
+                })?);
+            }
         }
-        let [a, b, c, d] = cell else {
-            return Err(Bad::new(
-                section,
-                format!("cell {i} is a tetra with {} points", cell.len()),
-            ));
-        };
-        let mut tet = [0u32; 4];
-        for (t, &v) in tet.iter_mut().zip([a, b, c, d]) {
-            *t = point_index(v, base, np).ok_or_else(|| {
-                Bad::new(
-                    section.clone(),
-                    format!("cell {i} refers to point {v}, but the piece has {np} points"),
-                )
-            })?;
-        }
-        mesh.tets.push(tet);
+        mesh.push_cell(kind, &nodes);
+    }
+    if start != conn.len() {
+        return Err(Bad::new(
+            section,
+            format!(
+                "the offsets end at {start} but the connectivity has {} values (a data type that is not what the header declares?)",
+                conn.len()
+            ),
+        ));
     }
     Ok(())
 }
 
-fn read_piece_point_data(
-    piece: &XmlPiece,
+/// A piece's point or cell arrays (`n` tuples each); arrays that are not numeric are skipped.
+fn read_piece_arrays(
+    arrays: &[XmlArray],
+    n: usize,
     pi: usize,
+    kind: &str,
     enc: Encoding,
     app: Option<&Appended<'_>>,
-) -> Res<Vec<ScalarArray>> {
+) -> Res<Vec<FieldArray>> {
     let mut out = Vec::new();
-    for (k, a) in piece.point_data.iter().enumerate() {
+    for (k, a) in arrays.iter().enumerate() {
         let name = if a.name.is_empty() {
             format!("array{k}")
         } else {
             a.name.clone()
         };
-        let what = format!("Piece {pi} PointData \"{name}\"");
-        if ncomp(a, 1, &what)? != 1 {
-            continue;
+        let what = format!("Piece {pi} {kind} \"{name}\"");
+        let components = ncomp(a, 1, &what)?;
+        if components == 0 {
+            return Err(Bad::new(what, "NumberOfComponents is 0"));
         }
         if Scalar::from_xml(&a.ty).is_none() {
             tracing::warn!("{what}: type \"{}\" is not numeric: skipped", a.ty);
             continue;
         }
         let values = array_f64(a, enc, app, &what)?;
-        if values.len() != piece.n_points {
+        if Some(values.len()) != n.checked_mul(components) {
+            let count = if kind == "PointData" {
+                "NumberOfPoints"
+            } else {
+                "NumberOfCells"
+            };
             return Err(Bad::new(
                 what,
                 format!(
-                    "{} values for NumberOfPoints {}",
+                    "{} values for {count} {n} and {components} components",
                     values.len(),
-                    piece.n_points
                 ),
             ));
         }
-        out.push(ScalarArray { name, values });
+        out.push(FieldArray {
+            name,
+            components,
+            values,
+        });
     }
     Ok(out)
 }
@@ -1182,7 +1237,7 @@ impl<'a> Legacy<'a> {
     }
 }
 
-pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
+pub(super) fn parse_legacy(bytes: &[u8]) -> Res<ImportedMesh> {
     let mut lx = Lex::new(bytes);
     lx.skip_ws();
     let first = lx.line().unwrap_or_default();
@@ -1236,6 +1291,23 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
     let mut attr = Attr::None;
     let mut attr_n = 0usize;
     let mut point_data = Vec::new();
+    let mut point_vectors = Vec::new();
+    let mut cell_data = Vec::new();
+    // Point and cell arrays go to their lists; other attributes are read past.
+    let mut keep = |attr: Attr, name: String, components: usize, values: Vec<f64>| match attr {
+        Attr::Points if components == 1 => point_data.push(ScalarArray { name, values }),
+        Attr::Points => point_vectors.push(FieldArray {
+            name,
+            components,
+            values,
+        }),
+        Attr::Cells => cell_data.push(FieldArray {
+            name,
+            components,
+            values,
+        }),
+        Attr::None => {}
+    };
 
     while let Some(tok) = p.lx.token() {
         let kw = String::from_utf8_lossy(tok).to_ascii_uppercase();
@@ -1301,6 +1373,14 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
             }
             "CELL_DATA" => {
                 attr_n = p.count("CELL_DATA", "the number of cells")?;
+                if let Some((ends, _)) = &cells {
+                    if attr_n != ends.len() {
+                        return Err(Bad::new(
+                            "CELL_DATA",
+                            format!("CELL_DATA {attr_n} but the file has {} cells", ends.len()),
+                        ));
+                    }
+                }
                 attr = Attr::Cells;
             }
             "METADATA" => p.skip_metadata(),
@@ -1319,17 +1399,20 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
                     let ty = p.data_type(&section)?;
                     p.end_header();
                     let n = nc.saturating_mul(nt);
-                    if attr == Attr::Points && nc == 1 && matches!(ty, LegacyType::Num(_)) {
+                    if attr != Attr::None && nc > 0 && matches!(ty, LegacyType::Num(_)) {
                         if nt != attr_n {
+                            let which = if attr == Attr::Points {
+                                "POINT_DATA"
+                            } else {
+                                "CELL_DATA"
+                            };
                             return Err(Bad::new(
                                 section,
-                                format!("{nt} tuples for POINT_DATA {attr_n}"),
+                                format!("{nt} tuples for {which} {attr_n}"),
                             ));
                         }
-                        point_data.push(ScalarArray {
-                            name,
-                            values: p.values_f64(n, ty, &section)?,
-                        });
+                        let values = p.values_f64(n, ty, &section)?;
+                        keep(attr, name, nc, values);
                     } else {
                         p.skip_values(n, ty, &section)?;
                     }
@@ -1370,14 +1453,22 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
                     let _ = p.lx.line();
                 }
                 let n = attr_n.saturating_mul(nc);
-                if attr == Attr::Points && nc == 1 && matches!(ty, LegacyType::Num(_)) {
-                    point_data.push(ScalarArray {
-                        name,
-                        values: p.values_f64(n, ty, &section)?,
-                    });
+                if attr != Attr::None && nc > 0 && matches!(ty, LegacyType::Num(_)) {
+                    let values = p.values_f64(n, ty, &section)?;
+                    keep(attr, name, nc, values);
                 } else {
                     p.skip_values(n, ty, &section)?;
                 }
+                p.skip_metadata_if_any();
+            }
+            "VECTORS" | "NORMALS" if attr != Attr::None => {
+                let name = p.token(&kw, "the array name")?;
+                let name = String::from_utf8_lossy(name).into_owned();
+                let section = format!("{kw} \"{name}\"");
+                let ty = p.data_type(&section)?;
+                p.end_header();
+                let values = p.values_f64(attr_n.saturating_mul(3), ty, &section)?;
+                keep(attr, name, 3, values);
                 p.skip_metadata_if_any();
             }
             "VECTORS" | "NORMALS" | "TENSORS" | "TENSORS6" | "GLOBAL_IDS" | "PEDIGREE_IDS"
@@ -1419,21 +1510,31 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
                 p.skip_values(n, ty, &kw)?;
             }
             _ => {
-                return Err(Bad::new(
-                    "file",
-                    format!("unexpected keyword \"{}\"", show(tok)),
-                ));
+                let hint = if p.binary {
+                    " (binary data longer or shorter than its header declares?)"
+                } else {
+                    ""
+                };
+                let found = if tok.iter().all(u8::is_ascii_graphic) {
+                    format!("keyword \"{}\"", show(tok))
+                } else {
+                    format!(
+                        "{} bytes of binary data where a keyword should be",
+                        tok.len()
+                    )
+                };
+                return Err(Bad::new("file", format!("unexpected {found}{hint}")));
             }
         }
     }
 
     let points = points.ok_or_else(|| Bad::new("POINTS", "the file has no POINTS section"))?;
     let np = points.len() / 3;
-    let mut mesh = TetMesh {
-        points: points.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-        point_data,
-        ..TetMesh::default()
-    };
+    let mut mesh = ImportedMesh::default();
+    mesh.mesh.points = points.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    mesh.mesh.point_data = point_data;
+    mesh.point_vectors = point_vectors;
+    mesh.cell_data = cell_data;
     let (ends, conn) =
         cells.ok_or_else(|| Bad::new("CELLS", "the file has no CELLS section (truncated?)"))?;
     let types = types.ok_or_else(|| {
@@ -1453,29 +1554,25 @@ pub(super) fn parse_legacy(bytes: &[u8]) -> Res<TetMesh> {
         ));
     }
     let mut start = 0;
+    let mut nodes = Vec::new();
     for (i, (&end, &ty)) in ends.iter().zip(&types).enumerate() {
         let cell = conn.get(start..end).unwrap_or_default();
         start = end;
-        if ty != VTK_TETRA {
-            mesh.cells_ignored += 1;
-            continue;
+        let kind = vtk_cell(ty);
+        nodes.clear();
+        if let Cell::Volume { .. } = kind {
+            check_nodes(kind, cell.len(), &format!("cell {i} (type {ty})"))
+                .map_err(|e| Bad::new("CELLS", e))?;
+            for &v in cell {
+                nodes.push(point_index(v, 0, np).ok_or_else(|| {
+                    Bad::new(
+                        "CELLS",
+                        format!("cell {i} refers to point {v}, but the file has {np} points"),
+                    )
+                })?);
+            }
         }
-        let [a, b, c, d] = cell else {
-            return Err(Bad::new(
-                "CELLS",
-                format!("cell {i} is a tetra with {} points", cell.len()),
-            ));
-        };
-        let mut tet = [0u32; 4];
-        for (t, &v) in tet.iter_mut().zip([a, b, c, d]) {
-            *t = point_index(v, 0, np).ok_or_else(|| {
-                Bad::new(
-                    "CELLS",
-                    format!("cell {i} refers to point {v}, but the file has {np} points"),
-                )
-            })?;
-        }
-        mesh.tets.push(tet);
+        mesh.push_cell(kind, &nodes);
     }
     Ok(mesh)
 }
