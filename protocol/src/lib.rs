@@ -12,6 +12,7 @@ pub mod store_format;
 pub mod synthesis;
 pub mod vertex;
 pub mod wavelet;
+pub mod wire;
 
 pub use base::BaseMesh;
 pub use hierarchy::{Forest, LatticeTet, TetId};
