@@ -1,0 +1,112 @@
+//! Our projected tetrahedra on an N³ Kuhn cube (6 tets per cell) with a smooth analytic field: mean
+//! frame time over several frames and PSNR against our CPU reference; writes the mesh, camera and
+//! transfer function for `scripts/bench-vs-vtk`, which renders the same scene with VTK's
+//! `vtkProjectedTetrahedraMapper` in the same run.
+//!
+//! `TETWAVE_BENCH_N` (default 32), `TETWAVE_BENCH_SIZE` (512), `TETWAVE_BENCH_FRAMES` (5),
+//! `TETWAVE_BENCH_OUT` (out/bench-vs-vtk).
+
+use std::io::Write;
+use std::time::Instant;
+use tetwave_client::camera::Camera;
+use tetwave_client::image_metrics::psnr;
+use tetwave_client::reference::render_reference;
+use tetwave_client::render::pt::{PtRenderer, VisibilityOrder};
+use tetwave_client::render::GpuContext;
+use tetwave_client::render_mesh::RenderMesh;
+use tetwave_client::transfer::TransferFunction;
+
+fn env(name: &str, default: usize) -> usize {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// The smooth analytic field of the benchmark, on `[0,1]^3`.
+fn field(p: [f64; 3]) -> f64 {
+    let r2 = (p[0] - 0.5).powi(2) + (p[1] - 0.5).powi(2) + (p[2] - 0.5).powi(2);
+    (-6.0 * r2).exp() * (1.0 + 0.5 * (6.0 * p[0]).sin() * (5.0 * p[1]).cos())
+}
+
+fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(f, "# vtk DataFile Version 3.0\ntetwave bench\nBINARY\nDATASET UNSTRUCTURED_GRID")?;
+    writeln!(f, "POINTS {} double", mesh.positions.len())?;
+    for p in &mesh.positions {
+        for c in p {
+            f.write_all(&c.to_be_bytes())?;
+        }
+    }
+    writeln!(f, "\nCELLS {} {}", mesh.tets.len(), mesh.tets.len() * 5)?;
+    for t in &mesh.tets {
+        f.write_all(&4i32.to_be_bytes())?;
+        for v in t {
+            f.write_all(&(*v as i32).to_be_bytes())?;
+        }
+    }
+    writeln!(f, "\nCELL_TYPES {}", mesh.tets.len())?;
+    for _ in &mesh.tets {
+        f.write_all(&10i32.to_be_bytes())?;
+    }
+    writeln!(f, "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default", mesh.positions.len())?;
+    for v in &mesh.values {
+        f.write_all(&v.to_be_bytes())?;
+    }
+    writeln!(f)?;
+    Ok(())
+}
+
+fn main() {
+    let n = env("TETWAVE_BENCH_N", 32);
+    let size = env("TETWAVE_BENCH_SIZE", 512) as u32;
+    let frames = env("TETWAVE_BENCH_FRAMES", 5);
+    let out = std::path::PathBuf::from(std::env::var("TETWAVE_BENCH_OUT").unwrap_or("out/bench-vs-vtk".into()));
+    std::fs::create_dir_all(&out).expect("output directory");
+    let mesh = RenderMesh::kuhn_cube(n, 1.0, field);
+    let tf = TransferFunction::preset("default").unwrap();
+    let cam = Camera::orbit(mesh.center(), 1.6 * mesh.diagonal(), 35.0, 25.0, 40.0, size, size);
+    let ctx = GpuContext::new().expect("a GPU adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
+    let r = PtRenderer::new(&ctx);
+    let t = Instant::now();
+    let data = r.upload_with(&ctx, &mesh, true).unwrap();
+    let upload_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let reference = render_reference(&mesh, &cam, &tf);
+    let reference_ms = t.elapsed().as_secs_f64() * 1e3;
+    reference.save_png(&out.join("reference.png")).unwrap();
+    for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
+        r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap(); // warm-up
+        let mut times = Vec::new();
+        let mut last = None;
+        for _ in 0..frames {
+            let (img, ft) = r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap();
+            times.push(ft);
+            last = Some(img);
+        }
+        let img = last.unwrap();
+        let name = format!("ours-{}.png", if order == VisibilityOrder::Mpvo { "mpvo" } else { "centroid" });
+        img.save_png(&out.join(&name)).unwrap();
+        let mean = |f: &dyn Fn(&tetwave_client::render::pt::FrameTimes) -> f64| {
+            times.iter().map(f).sum::<f64>() / times.len() as f64
+        };
+        println!(
+            "{{\"bench\":\"pt\",\"order\":{:?},\"n\":{n},\"tets\":{},\"size\":{size},\"frames\":{frames},\"mean_ms\":{:.2},\"sort_ms\":{:.2},\"gpu_ms\":{:.2},\"readback_ms\":{:.2},\"psnr_db\":{:.2},\"tets_per_s\":{:.0},\"upload_ms\":{upload_ms:.1},\"reference_ms\":{reference_ms:.0},\"adapter\":{:?},\"image\":{:?}}}",
+            format!("{order:?}").to_lowercase(),
+            mesh.tets.len(),
+            mean(&|t| t.total_ms),
+            mean(&|t| t.sort_ms),
+            mean(&|t| t.gpu_ms),
+            mean(&|t| t.readback_ms),
+            psnr(&img, &reference).min(99.0),
+            mesh.tets.len() as f64 / (mean(&|t| t.total_ms) / 1e3),
+            ctx.describe(),
+            name
+        );
+    }
+    write_vtk(&mesh, &out.join("mesh.vtk")).unwrap();
+    let (r0, r1) = mesh.value_range;
+    let scene = serde_json::json!({
+        "eye": cam.eye.to_array(), "target": cam.target.to_array(), "up": cam.basis().1.to_array(),
+        "fovy_deg": cam.fovy_deg, "near": cam.near, "size": [size, size], "value_range": [r0, r1],
+        "diagonal": mesh.diagonal(), "tf": tf, "frames": frames,
+    });
+    std::fs::write(out.join("scene.json"), serde_json::to_string_pretty(&scene).unwrap()).unwrap();
+}
