@@ -1,8 +1,7 @@
 // Projected tetrahedra with exit-point integration (tetwave, client/src/render/pt.rs).
 //
-// One instance per leaf tet, in back-to-front order (`order`). Each instance emits the 4 faces of its
-// tet (12 vertices); only faces whose outward normal points away from the eye (exit faces) are kept.
-// The fragment on an exit face knows where the pixel's ray leaves the tet; it finds where the ray
+// Tets are drawn back to front; only each tet's exit faces (outward normal pointing away from the
+// eye) are rasterized. The fragment on an exit face knows where the pixel's ray leaves the tet; it finds where the ray
 // entered from the tet's face planes (clamped to the near plane, so a camera inside the mesh works),
 // evaluates the normalized scalar at both ends from the tet's linear gradient, and integrates
 // emission–absorption along the chord with the transfer function (midpoint sub-steps). Output is
@@ -39,7 +38,6 @@ struct TfPoint {
 @group(0) @binding(1) var<storage, read> positions: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read> geo: array<TetGeo>;
-@group(0) @binding(4) var<storage, read> order: array<u32>;
 @group(0) @binding(5) var<storage, read> tf: array<TfPoint>;
 
 struct VsOut {
@@ -49,39 +47,18 @@ struct VsOut {
     @location(1) @interpolate(flat) tet: u32,
 };
 
+// Indexed draw: vertex `v` is corner `v % 4` of tet `v / 4`; the CPU's index buffer lists each tet's
+// 4 faces (outward winding counter-clockwise) in back-to-front tet order, and the rasterizer culls
+// front faces, so only exit faces reach the fragment stage. Each tet's 4 corners are shaded once and
+// reused by its 4 faces.
 @vertex
-fn vs_main(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
-    let t = order[ii];
-    let tv = tets[t];
-    let f = vi / 3u;
-    let corner = vi % 3u;
-    // face f is opposite local vertex f
-    var fi = vec3<u32>(1u, 2u, 3u);
-    if (f == 1u) { fi = vec3<u32>(0u, 2u, 3u); }
-    if (f == 2u) { fi = vec3<u32>(0u, 1u, 3u); }
-    if (f == 3u) { fi = vec3<u32>(0u, 1u, 2u); }
-    let a = positions[tv[fi.x]].xyz;
-    let b = positions[tv[fi.y]].xyz;
-    let c = positions[tv[fi.z]].xyz;
-    let opp = positions[tv[f]].xyz;
-    var n = cross(b - a, c - a);
-    if (dot(n, opp - a) > 0.0) {
-        n = -n;
-    }
-    // exit face: the eye is on the inner side of its plane
-    let exit_face = dot(n, globals.eye.xyz - a) < 0.0;
-    var p = a;
-    if (corner == 1u) { p = b; }
-    if (corner == 2u) { p = c; }
+fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
+    let t = vi / 4u;
+    let p = positions[tets[t][vi % 4u]].xyz;
     var out: VsOut;
     out.world = p;
     out.tet = t;
-    if (exit_face) {
-        out.clip = globals.view_proj * vec4<f32>(p, 1.0);
-    } else {
-        // beyond the far plane: clipped (all three vertices agree, so the triangle vanishes)
-        out.clip = vec4<f32>(0.0, 0.0, 2.0, 1.0);
-    }
+    out.clip = globals.view_proj * vec4<f32>(p, 1.0);
     return out;
 }
 

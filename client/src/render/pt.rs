@@ -55,6 +55,12 @@ struct TfPointGpu {
     b: [f32; 4],
 }
 
+/// Corner indices of the 4 faces of a positively oriented tet, each wound counter-clockwise seen from
+/// outside (face `i` is opposite corner `i`).
+const FACES_POS: [u32; 12] = [1, 2, 3, 0, 3, 2, 0, 1, 3, 0, 2, 1];
+/// The same for a negatively oriented tet (every face reversed).
+const FACES_NEG: [u32; 12] = [1, 3, 2, 0, 2, 3, 0, 3, 1, 0, 1, 2];
+
 /// Face adjacency and the tets' outward face planes `(n, d)`, for MPVO ordering.
 type MpvoData = (Vec<[u32; 4]>, Vec<[[f32; 4]; 4]>);
 
@@ -69,6 +75,8 @@ pub struct PtRenderer {
 pub struct TetDrawData {
     /// Face adjacency and CPU copies of the face planes, present when uploaded for MPVO ordering.
     mpvo: Option<MpvoData>,
+    /// Per tet: positively oriented (decides the winding of its faces).
+    positive: Vec<bool>,
     positions: wgpu::Buffer,
     tets: wgpu::Buffer,
     geo: wgpu::Buffer,
@@ -127,7 +135,6 @@ impl PtRenderer {
                 storage(1, wgpu::ShaderStages::VERTEX),
                 storage(2, wgpu::ShaderStages::VERTEX),
                 storage(3, wgpu::ShaderStages::FRAGMENT),
-                storage(4, wgpu::ShaderStages::VERTEX),
                 storage(5, wgpu::ShaderStages::FRAGMENT),
             ],
         });
@@ -150,8 +157,10 @@ impl PtRenderer {
                 buffers: &[],
                 compilation_options: Default::default(),
             },
+            // outward faces wind counter-clockwise: culling front faces keeps the exit faces
             primitive: wgpu::PrimitiveState {
-                cull_mode: None,
+                front_face: wgpu::FrontFace::Ccw,
+                cull_mode: Some(wgpu::Face::Front),
                 ..Default::default()
             },
             depth_stencil: None,
@@ -247,8 +256,17 @@ impl PtRenderer {
                 geo.iter().map(|g| g.planes).collect(),
             )
         });
+        let positive = mesh
+            .tets
+            .iter()
+            .map(|t| {
+                let p = |k: usize| mesh.positions[t[k] as usize];
+                tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)) >= 0.0
+            })
+            .collect();
         Ok(TetDrawData {
             mpvo,
+            positive,
             positions: make("positions", bytemuck::cast_slice(&positions)),
             tets: make("tets", bytemuck::cast_slice(&tets)),
             geo: make("geo", bytemuck::cast_slice(&geo)),
@@ -332,14 +350,27 @@ impl PtRenderer {
             contents: bytemuck::bytes_of(&globals),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let obuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("order"),
-            contents: if order.is_empty() {
-                &[0u8; 4]
+        // 4 faces per tet, outward winding counter-clockwise (reversed for negatively oriented tets)
+        let indices: Vec<[u32; 12]> = order
+            .par_iter()
+            .map(|&t| {
+                let b = t * 4;
+                let f = if data.positive[t as usize] {
+                    FACES_POS
+                } else {
+                    FACES_NEG
+                };
+                std::array::from_fn(|k| b + f[k])
+            })
+            .collect();
+        let ibuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("faces"),
+            contents: if indices.is_empty() {
+                &[0u8; 48]
             } else {
-                bytemuck::cast_slice(&order)
+                bytemuck::cast_slice(&indices)
             },
-            usage: wgpu::BufferUsages::STORAGE,
+            usage: wgpu::BufferUsages::INDEX,
         });
         let tfbuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("tf"),
@@ -365,10 +396,6 @@ impl PtRenderer {
                 wgpu::BindGroupEntry {
                     binding: 3,
                     resource: data.geo.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: obuf.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 5,
@@ -425,7 +452,8 @@ impl PtRenderer {
             if data.tet_count > 0 {
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &bind, &[]);
-                pass.draw(0..12, 0..data.tet_count);
+                pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..12 * data.tet_count, 0, 0..1);
             }
         }
         enc.copy_texture_to_buffer(
