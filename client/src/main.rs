@@ -26,6 +26,42 @@ enum Cmd {
     /// Render a store's uniform level to PNG (GPU projected tetrahedra, or the CPU reference), with
     /// its time and optionally its PSNR against the reference.
     Render(tetwave_client::render_cli::RenderArgs),
+    /// Stream from a `tetwave-server serve` and render progressively: PNG frames and one JSON line
+    /// per frame (frame, bytes_received, nodes, tets, refine_ms, render_ms, psnr_db).
+    Stream(tetwave_client::stream::StreamArgs),
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        which: BenchCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// The thesis' progressive experiment (Tables 2–3): nodes arrive per step, the camera turns,
+    /// selective refinement runs; one row (or JSON object) per tolerance.
+    Progressive(tetwave_client::progressive::BenchArgs),
+}
+
+fn bench_progressive(args: &tetwave_client::progressive::BenchArgs) -> ExitCode {
+    use tetwave_client::progressive::{bench, table_row, TABLE_HEADER};
+    if !args.json {
+        println!("{TABLE_HEADER}");
+    }
+    let res = bench(args, |r| {
+        if args.json {
+            println!("{}", serde_json::to_string(r).expect("serializes"));
+        } else {
+            println!("{}", table_row(r));
+        }
+    });
+    match res {
+        Ok(_) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -34,6 +70,32 @@ fn main() -> ExitCode {
         .with_env_filter("warn")
         .init();
     match Cli::parse().cmd {
+        Cmd::Stream(args) => match tetwave_client::stream::run(&args) {
+            Ok(r) => {
+                for f in &r.frames {
+                    println!("{}", serde_json::to_string(f).expect("serializes"));
+                }
+                eprintln!(
+                    "stream: {} frames, {}/{} nodes ({} duplicates), {} bytes, {} reconnects, first frame {:.1} ms -> {}",
+                    r.frames.len(),
+                    r.nodes_received,
+                    r.nodes_total,
+                    r.duplicates,
+                    r.bytes_received,
+                    r.reconnects,
+                    r.first_frame_ms.unwrap_or(f64::NAN),
+                    args.out.display()
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                ExitCode::FAILURE
+            }
+        },
+        Cmd::Bench {
+            which: BenchCmd::Progressive(args),
+        } => bench_progressive(&args),
         Cmd::Render(args) => match tetwave_client::render_cli::run(&args) {
             Ok(r) => {
                 if args.json {

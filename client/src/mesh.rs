@@ -212,10 +212,20 @@ fn invert4(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     inv
 }
 
+/// Makes room for `extra` more items growing by 1/8 (not doubling): the mesh's arrays are its
+/// memory, and doubling would leave up to half of them unused.
 #[inline]
-fn edge_key(a: u64, b: u64) -> u128 {
+fn grow<T>(v: &mut Vec<T>, extra: usize) {
+    if v.len() + extra > v.capacity() {
+        v.reserve_exact((v.capacity() / 8).max(extra).max(64));
+    }
+}
+
+#[inline]
+fn edge_key(a: u64, b: u64) -> u64 {
+    // vertex keys fit in 32 bits (checked in `AdaptiveMesh::new`)
     let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-    ((lo as u128) << 64) | hi as u128
+    (lo << 32) | hi
 }
 
 /// The green closure of a tet `v` (in an orientation-consistent vertex order) with marked-edge mask
@@ -397,10 +407,45 @@ pub struct AdaptiveMesh {
     vdeps: Vec<u32>,
     free_vertices: Vec<u32>,
     n_vertices: usize,
-    by_key: FxHashMap<u64, u32>,
-    by_edge: FxHashMap<u128, u32>,
+    /// Slot by vertex key, dense over the key space (`NONE`: absent); base keys map to themselves.
+    by_key: Vec<u32>,
+    /// Midpoint slot by edge (packed sorted endpoint keys).
+    by_edge: FxHashMap<u64, u32>,
 
     work: Vec<(u32, TetId)>,
+    /// Red splits and merges done so far (closure refinements included).
+    n_splits: u64,
+    n_merges: u64,
+}
+
+/// One node of the red tree as selection sees it ([`AdaptiveMesh::red_node`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RedNode {
+    pub id: TetId,
+    /// Vertex slots, hierarchy vertex order.
+    pub v: [u32; 4],
+    pub leaf: bool,
+    /// Lies outside the input domain.
+    pub empty: bool,
+    /// A refined node whose 8 children are all leaves (a merge candidate); false for leaves.
+    pub children_leaves: bool,
+}
+
+/// Number of leaf-mesh pieces a leaf with green pattern `mask` is drawn as.
+#[inline]
+pub fn green_piece_count(mask: u8) -> usize {
+    match mask.count_ones() {
+        0 => 1,
+        1 => 2,
+        2 => {
+            if mask == 0b100001 || mask == 0b010010 || mask == 0b001100 {
+                4
+            } else {
+                3
+            }
+        }
+        _ => 4,
+    }
 }
 
 impl AdaptiveMesh {
@@ -474,9 +519,11 @@ impl AdaptiveMesh {
             vdeps: Vec::new(),
             free_vertices: Vec::new(),
             n_vertices: 0,
-            by_key: FxHashMap::default(),
+            by_key: Vec::new(),
             by_edge: FxHashMap::default(),
             work: Vec::new(),
+            n_splits: 0,
+            n_merges: 0,
         };
         for g in 0..nv {
             let p = base.positions[g];
@@ -489,6 +536,15 @@ impl AdaptiveMesh {
             m.vdeps.push(0);
         }
         m.n_vertices = nv;
+        let nkeys = m.keys.vertex_count();
+        assert!(
+            nkeys < NONE as u64,
+            "{nkeys} vertex keys: the mesh packs keys in 32 bits"
+        );
+        m.by_key = vec![NONE; nkeys as usize];
+        for g in 0..nv {
+            m.by_key[g] = g as u32;
+        }
         m
     }
 
@@ -503,6 +559,66 @@ impl AdaptiveMesh {
     /// Sum of the base tets' volumes.
     pub fn domain_volume(&self) -> f64 {
         self.domain_volume
+    }
+
+    // ---------------------------------------------------------------- selection view
+
+    /// Length of the node slot array (live and dead slots); see [`Self::red_node`].
+    pub fn node_slot_len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// The live node in slot `slot`, `None` for a dead (free) slot.
+    #[inline]
+    pub fn red_node(&self, slot: usize) -> Option<RedNode> {
+        let n = self.nodes.get(slot)?;
+        if !n.alive() {
+            return None;
+        }
+        Some(self.red_view(n))
+    }
+
+    #[inline]
+    fn red_view(&self, n: &Node) -> RedNode {
+        let leaf = n.is_leaf();
+        RedNode {
+            id: n.id,
+            v: n.v,
+            leaf,
+            empty: n.flags & EMPTY != 0,
+            children_leaves: !leaf
+                && self.nodes[n.children as usize..n.children as usize + 8]
+                    .iter()
+                    .all(|c| c.is_leaf()),
+        }
+    }
+
+    /// The node of hierarchy tet `id`, if it is in the red tree.
+    pub fn red_node_of(&self, id: TetId) -> Option<RedNode> {
+        self.find(id)
+            .map(|s| self.red_view(&self.nodes[s as usize]))
+    }
+
+    /// Red splits and merges done so far, closure refinements included. Each split removes one leaf
+    /// and creates 8; each merge the reverse.
+    pub fn op_counts(&self) -> (u64, u64) {
+        (self.n_splits, self.n_merges)
+    }
+
+    /// Pieces of the leaf mesh (red leaves and green pieces): `(all, drawable)`; the counts
+    /// [`Self::for_each_leaf_tet`] would list, without listing them.
+    pub fn piece_counts(&self) -> (usize, usize) {
+        let (mut all, mut drawable) = (0, 0);
+        for n in &self.nodes {
+            if n.alive() && n.is_leaf() {
+                let k = green_piece_count(n.mask);
+                all += k;
+                if n.flags & EMPTY == 0 {
+                    drawable += k;
+                }
+            }
+        }
+        (all, drawable)
     }
 
     // ---------------------------------------------------------------- lookups
@@ -617,7 +733,10 @@ impl AdaptiveMesh {
         if key < self.keys.base_vertex_count() {
             return Some(key as u32);
         }
-        self.by_key.get(&key).copied()
+        self.by_key
+            .get(key as usize)
+            .copied()
+            .filter(|&s| s != NONE)
     }
 
     pub fn vertex_key(&self, slot: u32) -> u64 {
@@ -660,8 +779,8 @@ impl AdaptiveMesh {
             + self.vlevel.capacity()
             + self.vdeps.capacity() * 4
             + self.free_vertices.capacity() * 4
-            + self.by_key.capacity() * (size_of::<(u64, u32)>() + 1)
-            + self.by_edge.capacity() * (size_of::<(u128, u32)>() + 1)
+            + self.by_key.capacity() * 4
+            + self.by_edge.capacity() * (size_of::<(u64, u32)>() + 1)
             + self.work.capacity() * size_of::<(u32, TetId)>()
     }
 
@@ -737,6 +856,18 @@ impl AdaptiveMesh {
     /// Green pattern of a tet with vertices `v` and midpoints `mid` (`NONE` = absent): returns the
     /// mask and whether the tet is forced (bad pattern or a level-k+2 point on its boundary).
     fn classify_with(&self, v: &[u32; 4], mid: &[u32; 6]) -> (u8, bool) {
+        self.classify_by(v, mid, |a, b| self.edge_mid(a, b).is_some())
+    }
+
+    /// [`Self::classify_with`] with `present(ka, kb)` telling whether the midpoint of the edge
+    /// with endpoint keys `ka`, `kb` is present.
+    #[inline]
+    fn classify_by(
+        &self,
+        v: &[u32; 4],
+        mid: &[u32; 6],
+        present: impl Fn(u64, u64) -> bool,
+    ) -> (u8, bool) {
         let k = v.map(|s| self.vkey[s as usize]);
         let mut mask = 0u8;
         let mut mk = [0u64; 6];
@@ -752,7 +883,7 @@ impl AdaptiveMesh {
         for e in 0..6 {
             if mask & (1 << e) != 0 {
                 let (a, b) = EDGES[e];
-                if self.edge_mid(k[a], mk[e]).is_some() || self.edge_mid(mk[e], k[b]).is_some() {
+                if present(k[a], mk[e]) || present(mk[e], k[b]) {
                     return (mask, true);
                 }
             }
@@ -773,7 +904,7 @@ impl AdaptiveMesh {
                 };
                 for x in 0..3 {
                     for y in x + 1..3 {
-                        if es[y] < 6 && self.edge_mid(mk[es[x]], mk[es[y]]).is_some() {
+                        if es[y] < 6 && present(mk[es[x]], mk[es[y]]) {
                             return (mask, true);
                         }
                     }
@@ -878,6 +1009,13 @@ impl AdaptiveMesh {
                 s
             }
             None => {
+                grow(&mut self.vkey, 1);
+                grow(&mut self.vpos, 1);
+                grow(&mut self.vval, 1);
+                grow(&mut self.vends, 1);
+                grow(&mut self.vref, 1);
+                grow(&mut self.vlevel, 1);
+                grow(&mut self.vdeps, 1);
                 self.vkey.push(key);
                 self.vpos.push(pos);
                 self.vval.push(val);
@@ -919,6 +1057,7 @@ impl AdaptiveMesh {
             Some(b) => b,
             None => {
                 let b = self.nodes.len() as u32;
+                grow(&mut self.nodes, 8);
                 self.nodes.extend_from_slice(&[Node::DEAD; 8]);
                 b
             }
@@ -963,7 +1102,7 @@ impl AdaptiveMesh {
                         val,
                     );
                     self.by_edge.insert(ek, s);
-                    self.by_key.insert(key, s);
+                    self.by_key[key as usize] = s;
                     created[e] = true;
                     s
                 }
@@ -994,6 +1133,7 @@ impl AdaptiveMesh {
         node.children = block;
         node.mask = 0;
         self.n_leaves += 7;
+        self.n_splits += 1;
         for (e, &c) in created.iter().enumerate() {
             if c {
                 self.locate(lt.base, &lt.edge_midpoint(e));
@@ -1054,13 +1194,71 @@ impl AdaptiveMesh {
     /// closure, which may refine some of them again. This is how a region refined uniformly is
     /// coarsened: no single tet of it can be coarsened alone, since its neighbours keep its edges
     /// split. Returns how many of `ts` are leaves afterwards.
+    ///
+    /// The tets the closure would refine again are filtered out first (without touching the mesh):
+    /// every candidate's midpoints are released virtually (reference counts), then candidates that
+    /// would be forced under that are dropped and their midpoints restored, until none is; only the
+    /// rest are unrefined. The result is the same, without the wasted unrefine + refine pairs.
     pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
+        let mut cand: Vec<(u32, [u32; 6])> = Vec::with_capacity(ts.len());
         for &t in ts {
             if let Some(slot) = self.find(t) {
                 let n = self.nodes[slot as usize];
                 if !n.is_leaf() && (0..8).all(|i| self.nodes[(n.children + i) as usize].is_leaf()) {
-                    self.unrefine(slot);
+                    cand.push((slot, self.present_mids(&n.v)));
                 }
+            }
+        }
+        cand.sort_unstable_by_key(|c| c.0);
+        cand.dedup_by_key(|c| c.0);
+        for (_, mids) in &cand {
+            for &m in mids {
+                self.vref[m as usize] -= 1;
+            }
+        }
+        let mut keep = vec![true; cand.len()];
+        loop {
+            let mut dropped = false;
+            for (i, (slot, mids)) in cand.iter().enumerate() {
+                if !keep[i] {
+                    continue;
+                }
+                let v = self.nodes[*slot as usize].v;
+                let after: [u32; 6] = std::array::from_fn(|e| {
+                    if self.vref[mids[e] as usize] > 0 {
+                        mids[e]
+                    } else {
+                        NONE
+                    }
+                });
+                let forced = self
+                    .classify_by(&v, &after, |a, b| {
+                        self.edge_mid(a, b)
+                            .is_some_and(|s| self.vref[s as usize] > 0)
+                    })
+                    .1;
+                if forced {
+                    keep[i] = false;
+                    for &m in mids {
+                        self.vref[m as usize] += 1;
+                    }
+                    dropped = true;
+                }
+            }
+            if !dropped {
+                break;
+            }
+        }
+        for (i, (_, mids)) in cand.iter().enumerate() {
+            if keep[i] {
+                for &m in mids {
+                    self.vref[m as usize] += 1;
+                }
+            }
+        }
+        for (i, &(slot, _)) in cand.iter().enumerate() {
+            if keep[i] {
+                self.unrefine(slot);
             }
         }
         self.close(buf)?;
@@ -1080,6 +1278,7 @@ impl AdaptiveMesh {
         self.free_blocks.push(n.children);
         self.nodes[slot as usize].children = NONE;
         self.n_leaves -= 7;
+        self.n_merges += 1;
         let mut removed = [false; 6];
         for e in 0..6 {
             let s = all[e] as usize;
@@ -1091,7 +1290,7 @@ impl AdaptiveMesh {
                     self.vkey[ends[0] as usize],
                     self.vkey[ends[1] as usize],
                 ));
-                self.by_key.remove(&self.vkey[s]);
+                self.by_key[self.vkey[s] as usize] = NONE;
                 self.vdeps[ends[0] as usize] -= 1;
                 self.vdeps[ends[1] as usize] -= 1;
                 self.free_vertices.push(s as u32);
@@ -1115,8 +1314,9 @@ impl AdaptiveMesh {
     /// flags. Returns the number of vertex values recomputed.
     pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
         let mut dirty: Vec<u32> = Vec::new();
+        let nbase = self.keys.base_vertex_count();
         for &key in &arrivals.keys {
-            if let Some(&s) = self.by_key.get(&key) {
+            if let Some(s) = self.slot_of_key(key).filter(|&s| s as u64 >= nbase) {
                 let v = self.synth_value(buf, key, self.vends[s as usize]);
                 self.vval[s as usize] = v;
                 dirty.push(s);
@@ -1341,11 +1541,11 @@ impl AdaptiveMesh {
                 });
             }
         }
-        if present != self.n_vertices || self.by_key.len() + nv != present {
+        let keyed = self.by_key.iter().filter(|&&s| s != NONE).count();
+        if present != self.n_vertices || keyed != present {
             return Err(ConformityError::Other(format!(
                 "{present} present vertices, counter {}, key map {}",
-                self.n_vertices,
-                self.by_key.len()
+                self.n_vertices, keyed
             )));
         }
         if (total - self.domain_volume).abs() > 1e-9 * self.domain_volume {

@@ -1,0 +1,639 @@
+//! The progressive client loop without a network: detail nodes arrive in batches, the camera moves,
+//! selective refinement runs under a budget. [`run_progressive`] is the thesis' experiment (§6.4,
+//! Tables 2–3: 312 steps of +1000 nodes and a 0.05 rad turn about the vertical axis); `tetwave bench
+//! progressive` prints its rows. [`BackgroundRefiner`] runs the same loop on a thread and hands
+//! finished meshes to a renderer that never waits for it.
+
+use crate::camera::Camera;
+use crate::detail_buffer::{Arrivals, DetailBuffer};
+use crate::mesh::{AdaptiveMesh, LeafTet, MeshError};
+use crate::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
+use glam::DVec3;
+use serde::Serialize;
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+
+/// Order in which the detail nodes arrive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ArrivalOrder {
+    /// By id: coarse levels first (the thesis).
+    Level,
+    /// Shuffled (seeded): parents often arrive after their children.
+    Random,
+    /// Largest subtree max |detail| first.
+    Magnitude,
+}
+
+/// Puts `nodes` in arrival order `order`.
+pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64) {
+    match order {
+        ArrivalOrder::Level => nodes.sort_by_key(|n| n.id),
+        ArrivalOrder::Magnitude => nodes.sort_by(|a, b| {
+            b.subtree_max_abs
+                .total_cmp(&a.subtree_max_abs)
+                .then(a.id.cmp(&b.id))
+        }),
+        ArrivalOrder::Random => {
+            nodes.sort_by_key(|n| n.id);
+            let mut s = seed;
+            for i in (1..nodes.len()).rev() {
+                s = splitmix(s);
+                nodes.swap(i, (s % (i as u64 + 1)) as usize);
+            }
+        }
+    }
+}
+
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = x;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// One run of the experiment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunConfig {
+    pub steps: usize,
+    pub per_step: usize,
+    /// Radians per step about the vertical axis.
+    pub rotate: f64,
+    pub distance: f64,
+    pub elevation_deg: f64,
+    pub fovy_deg: f64,
+    pub width: u32,
+    pub height: u32,
+    /// `None`: the thesis' simple selective refinement (everything that arrived, [`Mode::Complete`]).
+    pub tol: Option<Tolerance>,
+    pub coarsen_ref: CoarsenRef,
+    pub frustum: bool,
+    pub data_aware: Option<f32>,
+    /// Per-step time budget (ms); `None`: each step refines until converged.
+    pub budget_ms: Option<f64>,
+    /// Per-step operation budget; `None`: unlimited.
+    pub budget_ops: Option<usize>,
+    /// After the steps, keep running frames (camera at rest, progressive mode) until converged and
+    /// compare with an unbudgeted convergence from the same state.
+    pub settle: bool,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            steps: 312,
+            per_step: 1000,
+            rotate: 0.05,
+            distance: 30.0,
+            elevation_deg: 0.0,
+            fovy_deg: 45.0,
+            width: 512,
+            height: 512,
+            tol: Some(Tolerance::PercentOfHeight(20.0)),
+            coarsen_ref: CoarsenRef::Parent,
+            frustum: true,
+            data_aware: None,
+            budget_ms: None,
+            budget_ops: None,
+            settle: true,
+        }
+    }
+}
+
+/// Figures of one run (thesis Table 2 columns and ours). Averages are over steps.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    pub tol: String,
+    pub tol_px: Option<f64>,
+    pub steps: usize,
+    /// Leaf-mesh tets (red leaves + green pieces, drawable).
+    pub avg_tets: f64,
+    pub max_tets: usize,
+    pub final_tets: usize,
+    pub avg_leaves: f64,
+    pub avg_vertices: f64,
+    /// Leaf-mesh edges by Euler's formula on a box domain: `E = V + T + V_boundary − 3`.
+    pub avg_edges: f64,
+    /// Mesh + detail buffer bytes (capacities), average, in MB (10^6).
+    pub mb: f64,
+    pub mesh_mb: f64,
+    /// Mesh bytes per hierarchy leaf at the end of the run.
+    pub bytes_per_leaf: f64,
+    /// Selection + refinement per step.
+    pub avg_refine_ms: f64,
+    pub max_refine_ms: f64,
+    /// Buffer inserts + in-place value correction per step.
+    pub avg_arrive_ms: f64,
+    pub max_arrive_ms: f64,
+    /// Red splits and merges (closure ones included) over the run.
+    pub splits: u64,
+    pub merges: u64,
+    /// Tets created + removed per second of refinement time (sweeps included): 9 per split or
+    /// merge.
+    pub tets_per_s: f64,
+    /// The same per second spent inside the mesh's refine / coarsen calls only.
+    pub op_tets_per_s: f64,
+    /// Sweeps over the node array, over the run.
+    pub sweeps: usize,
+    /// Splits the selector asked for, merges it attempted and merges that held (the rest of
+    /// [`Self::splits`] / [`Self::merges`] is the green closure's doing).
+    pub sel_splits: usize,
+    pub sel_merge_attempts: usize,
+    pub sel_merges: usize,
+    /// Uniform finest-level leaves of the hierarchy.
+    pub uniform_leaves: u64,
+    /// Steps whose frame was cut by the budget (work carried over).
+    pub cut_steps: usize,
+    /// Frames needed after the last step to converge (camera at rest), when settling.
+    pub settle_frames: Option<usize>,
+    /// The settled mesh equals an unbudgeted convergence from the same state.
+    pub final_same: Option<bool>,
+    pub order: ArrivalOrder,
+    pub budget_ms: Option<f64>,
+}
+
+/// The orbit camera of step `step`.
+pub fn step_camera(cfg: &RunConfig, center: DVec3, step: usize) -> Camera {
+    Camera::orbit(
+        center,
+        cfg.distance,
+        (step as f64 * cfg.rotate).to_degrees(),
+        cfg.elevation_deg,
+        cfg.fovy_deg,
+        cfg.width,
+        cfg.height,
+    )
+}
+
+/// Leaf-mesh edge count by Euler's formula for a mesh of a ball whose boundary is the bounding box
+/// of the base vertices: `V − E + F − T = 1`, `2F = 4T + F_b`, `F_b = 2V_b − 4`.
+pub fn edges_on_box(mesh: &AdaptiveMesh, tets: usize) -> usize {
+    let nb = mesh.vertex_keys().base_vertex_count() as u32;
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for s in 0..nb {
+        let p = mesh.vertex_position(s);
+        for i in 0..3 {
+            lo[i] = lo[i].min(p[i]);
+            hi[i] = hi[i].max(p[i]);
+        }
+    }
+    let eps: [f32; 3] = std::array::from_fn(|i| (hi[i] - lo[i]) * 1e-6);
+    let vb = mesh
+        .vertex_slots()
+        .filter(|&s| {
+            let p = mesh.vertex_position(s);
+            (0..3).any(|i| (p[i] - lo[i]).abs() <= eps[i] || (p[i] - hi[i]).abs() <= eps[i])
+        })
+        .count();
+    (mesh.vertex_count() + tets + vb).saturating_sub(3)
+}
+
+fn select_params(cfg: &RunConfig, value_range: [f32; 2]) -> SelectParams {
+    let mut p = SelectParams::new(
+        cfg.tol.unwrap_or(Tolerance::PercentOfHeight(100.0)),
+        value_range,
+    );
+    p.coarsen_ref = cfg.coarsen_ref;
+    p.frustum = cfg.frustum;
+    p.data_aware = cfg.data_aware;
+    let b = Budget {
+        max_ops: cfg.budget_ops.unwrap_or(usize::MAX),
+        max_time: cfg
+            .budget_ms
+            .map(|ms| Duration::from_secs_f64(ms.max(0.0) / 1000.0)),
+    };
+    p.interactive = b;
+    p.progressive = b;
+    p
+}
+
+fn sorted_leaves(mesh: &AdaptiveMesh) -> Vec<TetId> {
+    let mut v = mesh.leaf_ids();
+    v.sort_unstable();
+    v
+}
+
+/// Runs the experiment on `base` with `nodes` already in arrival order (see [`RunConfig`]).
+pub fn run_progressive(
+    base: &BaseMesh,
+    nodes: &[DetailNode],
+    value_range: [f32; 2],
+    cfg: &RunConfig,
+    order: ArrivalOrder,
+) -> Result<RunReport, MeshError> {
+    let (lo, hi) = base.bounds();
+    let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
+    let mut mesh = AdaptiveMesh::new(base);
+    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut sel = Selector::new(select_params(cfg, value_range));
+    let mode = if cfg.tol.is_none() {
+        Mode::Complete
+    } else {
+        Mode::Interactive
+    };
+    let budgeted = cfg.budget_ms.is_some() || cfg.budget_ops.is_some();
+    let mut arr = Arrivals::default();
+    let (mut sum_tets, mut sum_leaves, mut sum_v, mut sum_e, mut sum_b, mut sum_mb) =
+        (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let (mut max_tets, mut refine_total, mut refine_max) = (0usize, 0f64, 0f64);
+    let (mut arrive_total, mut arrive_max) = (0f64, 0f64);
+    let mut cut_steps = 0;
+    let (mut sweeps, mut op_s) = (0usize, 0f64);
+    let (mut sel_splits, mut sel_merge_attempts, mut sel_merges) = (0, 0, 0);
+    let mut next = 0usize;
+    let mut last_tets = 0;
+    for step in 0..cfg.steps {
+        let t0 = Instant::now();
+        let end = (next + cfg.per_step).min(nodes.len());
+        arr.clear();
+        for n in &nodes[next..end] {
+            buf.insert(n, &mut arr).expect("store nodes are valid");
+        }
+        next = end;
+        if !arr.is_empty() {
+            mesh.apply_arrivals(&buf, &arr);
+            sel.notify_arrivals();
+        }
+        let arrive = t0.elapsed().as_secs_f64() * 1e3;
+        let cam = step_camera(cfg, center, step);
+        let t1 = Instant::now();
+        let st = if budgeted {
+            sel.frame(&mut mesh, &buf, &cam, mode)?
+        } else {
+            sel.converge(&mut mesh, &buf, &cam, mode)?
+        };
+        let refine = t1.elapsed().as_secs_f64() * 1e3;
+        if !st.converged {
+            cut_steps += 1;
+        }
+        sweeps += st.sweeps;
+        sel_splits += st.splits;
+        sel_merge_attempts += st.merge_attempts;
+        sel_merges += st.merges;
+        op_s += st.op_time.as_secs_f64();
+        arrive_total += arrive;
+        arrive_max = f64::max(arrive_max, arrive);
+        refine_total += refine;
+        refine_max = f64::max(refine_max, refine);
+        let (all, drawable) = mesh.piece_counts();
+        last_tets = drawable;
+        max_tets = max_tets.max(drawable);
+        sum_tets += drawable as f64;
+        sum_leaves += mesh.leaf_count() as f64;
+        sum_v += mesh.vertex_count() as f64;
+        sum_e += edges_on_box(&mesh, all) as f64;
+        sum_b += mesh.bytes_held() as f64;
+        sum_mb += (mesh.bytes_held() + buf.bytes_held()) as f64;
+    }
+    let (splits, merges) = mesh.op_counts();
+    let (mut settle_frames, mut final_same) = (None, None);
+    if cfg.settle {
+        let cam = step_camera(cfg, center, cfg.steps.saturating_sub(1));
+        let rest = if mode == Mode::Complete {
+            Mode::Complete
+        } else {
+            Mode::Progressive
+        };
+        let mut frames = 0;
+        loop {
+            let st = sel.frame(&mut mesh, &buf, &cam, rest)?;
+            frames += 1;
+            if st.converged || frames > 100_000 {
+                break;
+            }
+        }
+        settle_frames = Some(frames);
+        // the reference: unbudgeted convergence from the same state
+        let mut reference = mesh.clone();
+        let mut params = sel.params.clone();
+        params.interactive = Budget::UNLIMITED;
+        params.progressive = Budget::UNLIMITED;
+        let mut unb = Selector::new(params);
+        unb.converge(&mut reference, &buf, &cam, rest)?;
+        final_same = Some(sorted_leaves(&reference) == sorted_leaves(&mesh));
+    }
+    let n = cfg.steps.max(1) as f64;
+    let leaves = mesh.leaf_count().max(1);
+    Ok(RunReport {
+        tol: cfg
+            .tol
+            .map(|t| t.to_string())
+            .unwrap_or_else(|| "simple".into()),
+        tol_px: cfg.tol.map(|t| t.pixels(cfg.height)),
+        steps: cfg.steps,
+        avg_tets: sum_tets / n,
+        max_tets,
+        final_tets: last_tets,
+        avg_leaves: sum_leaves / n,
+        avg_vertices: sum_v / n,
+        avg_edges: sum_e / n,
+        mb: sum_mb / n / 1e6,
+        mesh_mb: sum_b / n / 1e6,
+        bytes_per_leaf: mesh.bytes_held() as f64 / leaves as f64,
+        avg_refine_ms: refine_total / n,
+        max_refine_ms: refine_max,
+        avg_arrive_ms: arrive_total / n,
+        max_arrive_ms: arrive_max,
+        splits,
+        merges,
+        tets_per_s: if refine_total > 0.0 {
+            9.0 * (splits + merges) as f64 / (refine_total / 1e3)
+        } else {
+            0.0
+        },
+        op_tets_per_s: if op_s > 0.0 {
+            9.0 * (splits + merges) as f64 / op_s
+        } else {
+            0.0
+        },
+        sweeps,
+        sel_splits,
+        sel_merge_attempts,
+        sel_merges,
+        uniform_leaves: base.forest().leaves(),
+        cut_steps,
+        settle_frames,
+        final_same,
+        order,
+        budget_ms: cfg.budget_ms,
+    })
+}
+
+// ------------------------------------------------------------------ background refinement
+
+/// A finished leaf mesh, ready to upload: drawable tets and the vertex arrays they index.
+#[derive(Debug, Clone)]
+pub struct MeshSnapshot {
+    pub tets: Vec<LeafTet>,
+    pub positions: Vec<[f32; 3]>,
+    pub values: Vec<f32>,
+    /// Frames the refiner has run when it took this snapshot.
+    pub frame: u64,
+    pub converged: bool,
+}
+
+impl MeshSnapshot {
+    pub fn of(mesh: &AdaptiveMesh, frame: u64, converged: bool) -> Self {
+        MeshSnapshot {
+            tets: mesh.drawable_leaf_tets(),
+            positions: mesh.positions().to_vec(),
+            values: mesh.values().to_vec(),
+            frame,
+            converged,
+        }
+    }
+}
+
+enum Msg {
+    Nodes(Vec<DetailNode>),
+    Camera(Camera, Mode),
+    Stop,
+}
+
+/// Selective refinement on a background thread. The renderer feeds it nodes and cameras and polls
+/// [`Self::latest`], which never blocks: it takes the newest finished mesh, if any.
+pub struct BackgroundRefiner {
+    tx: Sender<Msg>,
+    slot: Arc<Mutex<Option<MeshSnapshot>>>,
+    handle: Option<JoinHandle<Result<(), MeshError>>>,
+}
+
+impl BackgroundRefiner {
+    pub fn spawn(base: BaseMesh, params: SelectParams) -> Self {
+        let (tx, rx) = mpsc::channel::<Msg>();
+        let slot = Arc::new(Mutex::new(None));
+        let out = Arc::clone(&slot);
+        let handle = std::thread::spawn(move || worker(base, params, rx, out));
+        BackgroundRefiner {
+            tx,
+            slot,
+            handle: Some(handle),
+        }
+    }
+
+    pub fn send_nodes(&self, nodes: Vec<DetailNode>) {
+        let _ = self.tx.send(Msg::Nodes(nodes));
+    }
+
+    pub fn set_camera(&self, cam: Camera, mode: Mode) {
+        let _ = self.tx.send(Msg::Camera(cam, mode));
+    }
+
+    /// The newest finished mesh since the last call; `None` if there is none or the refiner is
+    /// handing one over at this instant (never waits).
+    pub fn latest(&self) -> Option<MeshSnapshot> {
+        self.slot.try_lock().ok().and_then(|mut s| s.take())
+    }
+
+    /// Stops the thread and returns its result.
+    pub fn stop(mut self) -> Result<(), MeshError> {
+        let _ = self.tx.send(Msg::Stop);
+        self.handle
+            .take()
+            .map(|h| h.join().expect("refiner thread panicked"))
+            .unwrap_or(Ok(()))
+    }
+}
+
+impl Drop for BackgroundRefiner {
+    fn drop(&mut self) {
+        let _ = self.tx.send(Msg::Stop);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn worker(
+    base: BaseMesh,
+    params: SelectParams,
+    rx: Receiver<Msg>,
+    out: Arc<Mutex<Option<MeshSnapshot>>>,
+) -> Result<(), MeshError> {
+    let mut mesh = AdaptiveMesh::new(&base);
+    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut sel = Selector::new(params);
+    let mut arr = Arrivals::default();
+    let mut cam: Option<(Camera, Mode)> = None;
+    let mut frame = 0u64;
+    let mut published_converged = false;
+    loop {
+        // wait only when there is nothing to do
+        let idle = cam.is_none() || sel.is_converged();
+        let first = if idle {
+            match rx.recv() {
+                Ok(m) => Some(m),
+                Err(_) => return Ok(()),
+            }
+        } else {
+            None
+        };
+        for m in first.into_iter().chain(rx.try_iter()) {
+            match m {
+                Msg::Stop => return Ok(()),
+                Msg::Camera(c, mode) => cam = Some((c, mode)),
+                Msg::Nodes(nodes) => {
+                    arr.clear();
+                    for n in &nodes {
+                        // invalid nodes are dropped, as a network client would
+                        let _ = buf.insert(n, &mut arr);
+                    }
+                    if !arr.is_empty() {
+                        mesh.apply_arrivals(&buf, &arr);
+                        sel.notify_arrivals();
+                        published_converged = false;
+                    }
+                }
+            }
+        }
+        let Some((c, mode)) = cam else {
+            continue;
+        };
+        let st = sel.frame(&mut mesh, &buf, &c, mode)?;
+        frame += 1;
+        if st.splits + st.merges > 0 || (st.converged && !published_converged) {
+            published_converged = st.converged;
+            let snap = MeshSnapshot::of(&mesh, frame, st.converged);
+            *out.lock().expect("snapshot slot") = Some(snap);
+        }
+    }
+}
+
+// ------------------------------------------------------------------ `tetwave bench progressive`
+
+/// Arguments of `tetwave bench progressive`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchArgs {
+    /// Store directory (`tetwave-server prepare … --out DIR`).
+    #[arg(long)]
+    pub store: std::path::PathBuf,
+    #[arg(long, default_value_t = 312)]
+    pub steps: usize,
+    /// Detail nodes arriving per step.
+    #[arg(long, default_value_t = 1000)]
+    pub per_step: usize,
+    /// Radians per step about the vertical axis.
+    #[arg(long, default_value_t = 0.05)]
+    pub rotate: f64,
+    /// Camera distance from the volume's centre (thesis: 30 for Harmonic, 269 for Head256).
+    #[arg(long, default_value_t = 30.0)]
+    pub distance: f64,
+    #[arg(long, default_value_t = 0.0)]
+    pub elevation: f64,
+    #[arg(long, default_value_t = 45.0)]
+    pub fovy: f64,
+    #[arg(long, default_value_t = 512)]
+    pub width: u32,
+    #[arg(long, default_value_t = 512)]
+    pub height: u32,
+    /// Tolerances, comma-separated: `20%` (of the viewport height) or `12px`.
+    #[arg(long, default_value = "20%,15%,12.5%,10%,6.25%", value_delimiter = ',')]
+    pub tol: Vec<String>,
+    /// Also run the thesis' simple selective refinement (everything that arrived).
+    #[arg(long)]
+    pub simple: bool,
+    /// Only the simple run (no tolerances).
+    #[arg(long)]
+    pub simple_only: bool,
+    #[arg(long, value_enum, default_value_t = ArrivalOrder::Level)]
+    pub order: ArrivalOrder,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Per-step time budget (ms); without it every step refines until converged.
+    #[arg(long)]
+    pub budget_ms: Option<f64>,
+    /// Per-step operation budget.
+    #[arg(long)]
+    pub budget_ops: Option<usize>,
+    /// Coarsen by the grandparent's error (gentler) instead of the parent's.
+    #[arg(long)]
+    pub grandparent: bool,
+    /// No frustum culling.
+    #[arg(long)]
+    pub no_frustum: bool,
+    /// Data-aware error: weight by subtree max |detail| / (DELTA · value range), capped at 1.
+    #[arg(long)]
+    pub data_aware: Option<f32>,
+    /// Skip the settle-and-compare phase after the steps.
+    #[arg(long)]
+    pub no_settle: bool,
+    /// One JSON object per run on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `tetwave bench progressive`: one [`RunReport`] per tolerance (and the simple run).
+pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Result<Vec<RunReport>> {
+    let store = crate::store_reader::LocalStore::open(&args.store)?;
+    let m = store.manifest();
+    let mut nodes = store.read_nodes(0, m.counts.nodes)?;
+    order_nodes(&mut nodes, args.order, args.seed);
+    let mut tols: Vec<Option<Tolerance>> = Vec::new();
+    if !args.simple_only {
+        for t in &args.tol {
+            tols.push(Some(Tolerance::parse(t).map_err(anyhow::Error::msg)?));
+        }
+    }
+    if args.simple || args.simple_only {
+        tols.push(None);
+    }
+    let mut out = Vec::new();
+    for tol in tols {
+        let cfg = RunConfig {
+            steps: args.steps,
+            per_step: args.per_step,
+            rotate: args.rotate,
+            distance: args.distance,
+            elevation_deg: args.elevation,
+            fovy_deg: args.fovy,
+            width: args.width,
+            height: args.height,
+            tol,
+            coarsen_ref: if args.grandparent {
+                CoarsenRef::Grandparent
+            } else {
+                CoarsenRef::Parent
+            },
+            frustum: !args.no_frustum,
+            data_aware: args.data_aware,
+            budget_ms: args.budget_ms,
+            budget_ops: args.budget_ops,
+            settle: !args.no_settle,
+        };
+        let r = run_progressive(store.base(), &nodes, m.value_range, &cfg, args.order)?;
+        emit(&r);
+        out.push(r);
+    }
+    Ok(out)
+}
+
+/// Header of the text table [`table_row`] fills.
+pub const TABLE_HEADER: &str = "tol      avg tets  max tets  vertices     edges      MB  B/leaf  refine ms avg/max  arrive ms avg/max  tets/s (ops only)  sweeps  final=unbudgeted";
+
+/// One text row of the table.
+pub fn table_row(r: &RunReport) -> String {
+    format!(
+        "{:<7} {:>9.0} {:>9} {:>9.0} {:>9.0} {:>7.2} {:>7.1} {:>9.3}/{:<8.3} {:>8.3}/{:<8.3} {:>6.2}M ({:>6.2}M) {:>7}  {}",
+        r.tol,
+        r.avg_tets,
+        r.max_tets,
+        r.avg_vertices,
+        r.avg_edges,
+        r.mb,
+        r.bytes_per_leaf,
+        r.avg_refine_ms,
+        r.max_refine_ms,
+        r.avg_arrive_ms,
+        r.max_arrive_ms,
+        r.tets_per_s / 1e6,
+        r.op_tets_per_s / 1e6,
+        r.sweeps,
+        r.final_same
+            .map(|b| format!("{b} (+{} frames)", r.settle_frames.unwrap_or(0)))
+            .unwrap_or_else(|| "-".into()),
+    )
+}

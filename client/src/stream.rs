@@ -1,0 +1,583 @@
+//! The streaming client: connects to `tetwave-server serve`, receives the manifest and base mesh,
+//! renders at once, then applies detail batches as they arrive (any order), refines selectively,
+//! renders a frame per step, sends its view when the camera moves, and after a dropped connection
+//! reconnects and resumes with the ranges it already holds (no node lost, none applied twice).
+//!
+//! The network runs on a tokio task; the frame loop never waits on it longer than its frame period.
+
+use crate::camera::Camera;
+use crate::detail_buffer::{Arrivals, DetailBuffer, Inserted};
+use crate::image_metrics::{psnr, Rgba8Image};
+use crate::mesh::AdaptiveMesh;
+use crate::reference::render_reference;
+use crate::render::pt::PtRenderer;
+use crate::render::{GpuContext, RenderError};
+use crate::render_mesh::RenderMesh;
+use crate::select::{Mode, SelectParams, Selector, Tolerance};
+use crate::transfer::{TfError, TransferFunction};
+use futures_util::{SinkExt, StreamExt};
+use serde::Serialize;
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tetwave_protocol::store_format::Manifest;
+use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::wire::{
+    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
+};
+use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+use tokio::sync::mpsc;
+use tokio_tungstenite::tungstenite::Message;
+
+/// `tetwave stream` options.
+#[derive(Debug, Clone, clap::Args)]
+pub struct StreamArgs {
+    /// Server address: `http://127.0.0.1:7878` or `ws://127.0.0.1:7878` (the stream is `/v1/stream`).
+    pub url: String,
+    /// No window: write PNG frames and JSON lines (the only mode this build has).
+    #[arg(long)]
+    pub headless: bool,
+    /// Frames to render.
+    #[arg(long, default_value_t = 30)]
+    pub frames: u32,
+    /// Output directory for `frame_NNNN.png` and `frames.jsonl`.
+    #[arg(long, default_value = "out/stream")]
+    pub out: PathBuf,
+    /// Camera rotation per frame, degrees (about the vertical axis).
+    #[arg(long, default_value_t = 0.0)]
+    pub orbit: f64,
+    /// Screen-space tolerance (`2`, `2px` or `10%` of the height); `0`: everything that arrived.
+    #[arg(long, default_value = "0")]
+    pub tol: String,
+    /// Compute each frame's PSNR against the full-resolution reference for its camera (after the
+    /// stream completes).
+    #[arg(long)]
+    pub psnr: bool,
+    #[arg(long, default_value = "256x256", value_parser = crate::render_cli::parse_size)]
+    pub size: (u32, u32),
+    #[arg(long, default_value = "default")]
+    pub tf: String,
+    #[arg(long, default_value_t = 35.0)]
+    pub azimuth: f64,
+    #[arg(long, default_value_t = 25.0)]
+    pub elevation: f64,
+    /// Eye distance (default 1.6 × the bounding-box diagonal).
+    #[arg(long)]
+    pub distance: Option<f64>,
+    #[arg(long)]
+    pub token: Option<String>,
+    /// Wait at most this long per frame for new data.
+    #[arg(long, default_value_t = 30)]
+    pub frame_ms: u64,
+    /// Render with the CPU reference instead of the GPU.
+    #[arg(long)]
+    pub cpu: bool,
+    /// Stop as soon as every node has arrived and the mesh has converged (at most `--frames`).
+    #[arg(long)]
+    pub until_complete: bool,
+}
+
+fn buf_forest_nodes(buf: &DetailBuffer) -> u64 {
+    buf.forest().nodes()
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StreamError {
+    #[error("bad url {0:?}: expected http://host:port or ws://host:port")]
+    Url(String),
+    #[error("connection to {url} failed: {reason}")]
+    Connect { url: String, reason: String },
+    #[error("server error {code}: {message}")]
+    Server { code: u16, message: String },
+    #[error("protocol: {0}")]
+    Protocol(String),
+    #[error("no manifest/base mesh received within {0:?}")]
+    NoBase(Duration),
+    #[error(transparent)]
+    Tf(#[from] TfError),
+    #[error(transparent)]
+    Tol(#[from] TolError),
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    #[error("{path}: {reason}")]
+    Output { path: PathBuf, reason: String },
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct TolError(String);
+
+/// One frame's line in `frames.jsonl`.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameRecord {
+    pub frame: u32,
+    pub bytes_received: u64,
+    pub nodes: u64,
+    pub tets: u64,
+    pub refine_ms: f64,
+    pub render_ms: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psnr_db: Option<f64>,
+    pub ms_since_connect: f64,
+}
+
+/// What a session did.
+#[derive(Debug, Clone, Serialize)]
+pub struct StreamReport {
+    pub frames: Vec<FrameRecord>,
+    pub nodes_total: u64,
+    pub nodes_received: u64,
+    pub duplicates: u64,
+    pub bytes_received: u64,
+    pub reconnects: u64,
+    pub complete: bool,
+    /// From connect to the first rendered frame.
+    pub first_frame_ms: Option<f64>,
+}
+
+/// Sorted, merged id ranges of a set.
+pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
+    let mut out: Vec<IdRange> = Vec::new();
+    for &id in ids {
+        match out.last_mut() {
+            Some(r) if r.to == id => r.to += 1,
+            _ => out.push(IdRange {
+                from: id,
+                to: id + 1,
+            }),
+        }
+    }
+    out
+}
+
+fn ws_url(url: &str) -> Result<String, StreamError> {
+    let rest = url
+        .strip_prefix("http://")
+        .or_else(|| url.strip_prefix("ws://"))
+        .ok_or_else(|| StreamError::Url(url.into()))?;
+    let host = rest.split('/').next().unwrap_or("");
+    if host.is_empty() {
+        return Err(StreamError::Url(url.into()));
+    }
+    Ok(format!("ws://{host}/v1/stream"))
+}
+
+/// Test hook: a transport fault injected into the network task.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Faults {
+    /// Drop the connection once, after this many node batches.
+    pub drop_after_batches: Option<u64>,
+    /// Deliver every k-th node batch twice.
+    pub duplicate_every: Option<u64>,
+    /// Lose every k-th node batch (the client re-requests what is missing after `End`).
+    pub lose_every: Option<u64>,
+    /// Deliver node batches in reversed groups of this many.
+    pub reverse_groups: Option<usize>,
+}
+
+struct Net {
+    bytes: Arc<AtomicU64>,
+    reconnects: Arc<AtomicU64>,
+    /// Node ids received over the wire (for resume), whether or not applied yet.
+    received: Arc<Mutex<BTreeSet<TetId>>>,
+}
+
+async fn network(
+    url: String,
+    token: Option<String>,
+    net: Arc<Net>,
+    tx: mpsc::Sender<ServerMsg>,
+    mut out: mpsc::UnboundedReceiver<ClientMsg>,
+    faults: Faults,
+) -> Result<(), StreamError> {
+    let mut attempts = 0u32;
+    let mut dropped = false;
+    let mut batches = 0u64;
+    let mut held_back: Vec<ServerMsg> = Vec::new();
+    loop {
+        let have = ranges_of(&net.received.lock().expect("lock"));
+        let conn = tokio::time::timeout(
+            Duration::from_secs(5),
+            tokio_tungstenite::connect_async(url.as_str()),
+        )
+        .await;
+        let (mut ws, _) = match conn {
+            Ok(Ok(c)) => c,
+            Ok(Err(e)) => {
+                attempts += 1;
+                if attempts > 5 {
+                    return Err(StreamError::Connect {
+                        url,
+                        reason: e.to_string(),
+                    });
+                }
+                tokio::time::sleep(Duration::from_millis(100 * attempts as u64)).await;
+                continue;
+            }
+            Err(_) => {
+                return Err(StreamError::Connect {
+                    url,
+                    reason: "timed out".into(),
+                })
+            }
+        };
+        let hello = ClientMsg::Hello {
+            version: PROTOCOL_VERSION,
+            token: token.clone(),
+            have,
+        };
+        let frame = encode(&hello).map_err(|e| StreamError::Protocol(e.to_string()))?;
+        if ws.send(Message::Binary(frame.into())).await.is_err() {
+            attempts += 1;
+            continue;
+        }
+        loop {
+            tokio::select! {
+                msg = ws.next() => {
+                    let Some(Ok(msg)) = msg else { break };
+                    let Message::Binary(bytes) = msg else { continue };
+                    net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+                    let m = decode_server(&bytes).map_err(|e| StreamError::Protocol(e.to_string()))?;
+                    let mut deliver = vec![m];
+                    if let ServerMsg::Nodes { nodes, .. } = &deliver[0] {
+                        batches += 1;
+                        if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
+                            deliver.clear();
+                        } else {
+                            let mut r = net.received.lock().expect("lock");
+                            r.extend(nodes.iter().map(|n| n.id));
+                            drop(r);
+                            if faults.duplicate_every.is_some_and(|k| batches.is_multiple_of(k)) {
+                                deliver.push(deliver[0].clone());
+                            }
+                            if let Some(g) = faults.reverse_groups {
+                                held_back.append(&mut deliver);
+                                if held_back.len() >= g {
+                                    held_back.reverse();
+                                    deliver.append(&mut held_back);
+                                }
+                            }
+                        }
+                    } else {
+                        // anything else flushes what was held back, in order of arrival
+                        let mut flushed: Vec<ServerMsg> = std::mem::take(&mut held_back);
+                        flushed.append(&mut deliver);
+                        deliver = flushed;
+                    }
+                    for m in deliver {
+                        if tx.send(m).await.is_err() {
+                            return Ok(());
+                        }
+                    }
+                    if !dropped && faults.drop_after_batches.is_some_and(|n| batches >= n) {
+                        dropped = true;
+                        drop(ws);
+                        break;
+                    }
+                }
+                m = out.recv() => {
+                    let Some(m) = m else { return Ok(()) };
+                    let frame = encode(&m).map_err(|e| StreamError::Protocol(e.to_string()))?;
+                    if ws.send(Message::Binary(frame.into())).await.is_err() {
+                        break;
+                    }
+                }
+            }
+        }
+        // dropped: reconnect and resume
+        net.reconnects.fetch_add(1, Ordering::Relaxed);
+        attempts += 1;
+        if attempts > 20 {
+            return Err(StreamError::Connect {
+                url,
+                reason: "too many reconnects".into(),
+            });
+        }
+    }
+}
+
+/// Runs a headless streaming session.
+pub fn run(args: &StreamArgs) -> Result<StreamReport, StreamError> {
+    run_with(args, Faults::default())
+}
+
+/// [`run`] with injected transport faults (tests).
+pub fn run_with(args: &StreamArgs, faults: Faults) -> Result<StreamReport, StreamError> {
+    let tf = TransferFunction::load(&args.tf)?;
+    let tol_spec = args.tol.trim();
+    let tol = if tol_spec == "0" || tol_spec == "0px" {
+        None
+    } else {
+        Some(Tolerance::parse(tol_spec).map_err(TolError)?)
+    };
+    std::fs::create_dir_all(&args.out).map_err(|e| StreamError::Output {
+        path: args.out.clone(),
+        reason: e.to_string(),
+    })?;
+    let url = ws_url(&args.url)?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .map_err(|e| StreamError::Protocol(e.to_string()))?;
+    let net = Arc::new(Net {
+        bytes: Arc::new(AtomicU64::new(0)),
+        reconnects: Arc::new(AtomicU64::new(0)),
+        received: Arc::new(Mutex::new(BTreeSet::new())),
+    });
+    let (tx, mut rx) = mpsc::channel::<ServerMsg>(64);
+    let (out_tx, out_rx) = mpsc::unbounded_channel::<ClientMsg>();
+    let t0 = Instant::now();
+    let mut task = rt.spawn(network(
+        url,
+        args.token.clone(),
+        net.clone(),
+        tx,
+        out_rx,
+        faults,
+    ));
+
+    let gpu = if args.cpu {
+        None
+    } else {
+        let ctx = GpuContext::new()?;
+        let r = PtRenderer::new(&ctx);
+        Some((ctx, r))
+    };
+    let mut manifest: Option<Manifest> = None;
+    let mut state: Option<(DetailBuffer, AdaptiveMesh, Selector, BaseMesh)> = None;
+    let mut received_nodes: Vec<DetailNode> = Vec::new();
+    let mut frames = Vec::new();
+    let mut cams = Vec::new();
+    let mut images = Vec::new();
+    let mut ended = false;
+    let mut want_rounds = 0u32;
+    let mut duplicates = 0u64;
+    let mut arrivals = Arrivals::default();
+    let mut first_frame_ms = None;
+    let mut last_view: Option<ViewParams> = None;
+    let wait_base = Duration::from_secs(10);
+    let mut frame = 0u32;
+    while frame < args.frames {
+        // 1. data: wait up to one frame period for the first message, then take what is ready
+        let deadline = Instant::now() + Duration::from_millis(args.frame_ms);
+        let mut got_any = false;
+        loop {
+            let msg = if !got_any || state.is_none() {
+                let left = if state.is_none() {
+                    wait_base.saturating_sub(t0.elapsed())
+                } else {
+                    deadline.saturating_duration_since(Instant::now())
+                };
+                match rt.block_on(async { tokio::time::timeout(left, rx.recv()).await }) {
+                    Ok(Some(m)) => Some(m),
+                    Ok(None) if state.is_none() => {
+                        // the network task ended before a base mesh came: report why
+                        let why = rt.block_on(&mut task);
+                        return Err(match why {
+                            Ok(Err(e)) => e,
+                            _ => StreamError::NoBase(wait_base),
+                        });
+                    }
+                    Ok(None) => None,
+                    Err(_) => {
+                        if state.is_none() {
+                            return Err(StreamError::NoBase(wait_base));
+                        }
+                        None
+                    }
+                }
+            } else {
+                rx.try_recv().ok()
+            };
+            let Some(msg) = msg else { break };
+            got_any = true;
+            match msg {
+                ServerMsg::Manifest(m) => manifest = Some(*m),
+                ServerMsg::Base(b) => {
+                    let m = manifest
+                        .as_ref()
+                        .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
+                    let buf = DetailBuffer::new(b.forest(), b.vertex_keys());
+                    let mesh = AdaptiveMesh::new(&b);
+                    let params =
+                        SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
+                    state = Some((buf, mesh, Selector::new(params), *b));
+                }
+                ServerMsg::Nodes { seq, nodes } => {
+                    let (buf, mesh, sel, _) = state.as_mut().ok_or_else(|| {
+                        StreamError::Protocol("nodes before the base mesh".into())
+                    })?;
+                    arrivals.clear();
+                    for n in &nodes {
+                        match buf.insert(n, &mut arrivals) {
+                            Ok(Inserted::New) => {
+                                if args.psnr {
+                                    received_nodes.push(n.clone());
+                                }
+                            }
+                            Ok(_) => duplicates += 1,
+                            Err(e) => return Err(StreamError::Protocol(e.to_string())),
+                        }
+                    }
+                    mesh.apply_arrivals(buf, &arrivals);
+                    sel.notify_arrivals();
+                    let _ = out_tx.send(ClientMsg::Ack { seq });
+                }
+                ServerMsg::End { .. } => {
+                    // re-request whatever was lost on the way (bounded rounds)
+                    if let Some((buf, ..)) = &state {
+                        let missing: BTreeSet<TetId> =
+                            (0..buf_forest_nodes(buf)).filter(|&t| !buf.is_present(t)).collect();
+                        if missing.is_empty() {
+                            ended = true;
+                        } else if want_rounds < 8 {
+                            want_rounds += 1;
+                            let _ = out_tx.send(ClientMsg::Want(ranges_of(&missing)));
+                        }
+                    }
+                }
+                ServerMsg::Error { code, message } => {
+                    return Err(StreamError::Server { code, message })
+                }
+            }
+            if Instant::now() >= deadline && state.is_some() {
+                break;
+            }
+        }
+        let Some((buf, mesh, sel, base)) = state.as_mut() else {
+            continue;
+        };
+        let m = manifest.as_ref().expect("manifest precedes base");
+        // 2. camera and view
+        let (lo, hi) = base.bounds();
+        let center = glam::DVec3::from_array([
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (lo[2] + hi[2]),
+        ]);
+        let diag = glam::DVec3::from_array(hi).distance(glam::DVec3::from_array(lo));
+        let cam = Camera::orbit(
+            center,
+            args.distance.unwrap_or(1.6 * diag),
+            args.azimuth + args.orbit * frame as f64,
+            args.elevation,
+            40.0,
+            args.size.0,
+            args.size.1,
+        );
+        let view = ViewParams {
+            eye: cam.eye.to_array(),
+            target: cam.target.to_array(),
+            up: cam.basis().1.to_array(),
+            fovy_deg: cam.fovy_deg,
+            width: cam.width,
+            height: cam.height,
+            tol_px: tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0),
+        };
+        if last_view != Some(view) {
+            let _ = out_tx.send(ClientMsg::View(view));
+            last_view = Some(view);
+        }
+        // 3. refine
+        let tr = Instant::now();
+        let mode = match (tol, args.orbit != 0.0) {
+            (None, _) => Mode::Complete,
+            (Some(_), true) => Mode::Interactive,
+            (Some(_), false) => Mode::Progressive,
+        };
+        sel.frame(mesh, buf, &cam, mode)
+            .map_err(|e| StreamError::Protocol(e.to_string()))?;
+        let refine_ms = tr.elapsed().as_secs_f64() * 1e3;
+        // 4. render
+        let trn = Instant::now();
+        let leaves = mesh.drawable_leaf_tets();
+        let positions: Vec<[f64; 3]> = mesh
+            .positions()
+            .iter()
+            .map(|p| p.map(|x| x as f64))
+            .collect();
+        let mut rm = RenderMesh::new(
+            positions,
+            leaves.iter().map(|t| t.v).collect(),
+            mesh.values().to_vec(),
+        );
+        rm.value_range = (m.value_range[0], m.value_range[1]);
+        let img = match &gpu {
+            Some((ctx, r)) => {
+                let data = r.upload(ctx, &rm)?;
+                r.render(ctx, &data, &cam, &tf)?.0
+            }
+            None => render_reference(&rm, &cam, &tf),
+        };
+        let render_ms = trn.elapsed().as_secs_f64() * 1e3;
+        let path = args.out.join(format!("frame_{frame:04}.png"));
+        img.save_png(&path).map_err(|e| StreamError::Output {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+        if first_frame_ms.is_none() {
+            first_frame_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        frames.push(FrameRecord {
+            frame,
+            bytes_received: net.bytes.load(Ordering::Relaxed),
+            nodes: buf.nodes_held(),
+            tets: leaves.len() as u64,
+            refine_ms,
+            render_ms,
+            psnr_db: None,
+            ms_since_connect: t0.elapsed().as_secs_f64() * 1e3,
+        });
+        if args.psnr {
+            cams.push(cam);
+            images.push(img);
+        }
+        frame += 1;
+        if args.until_complete && ended && sel.is_converged() {
+            break;
+        }
+    }
+    drop(out_tx);
+    let (nodes_total, nodes_received) = match &state {
+        Some((buf, _, _, base)) => (base.forest().nodes(), buf.nodes_held()),
+        None => (0, 0),
+    };
+    let complete = nodes_total > 0 && nodes_received == nodes_total;
+    // 5. accuracy against the full-resolution reference, once everything has arrived
+    if args.psnr {
+        if let (true, Some((_, _, _, base)), Some(m)) = (complete, &state, &manifest) {
+            received_nodes.sort_by_key(|n| n.id);
+            let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
+                .map_err(|e| StreamError::Protocol(e.to_string()))?;
+            let mut full = RenderMesh::uniform_level(base, &values, base.levels);
+            full.value_range = (m.value_range[0], m.value_range[1]);
+            for (rec, (cam, img)) in frames.iter_mut().zip(cams.iter().zip(&images)) {
+                let reference: Rgba8Image = render_reference(&full, cam, &tf);
+                rec.psnr_db = Some(psnr(img, &reference).min(99.0));
+            }
+        }
+    }
+    let lines: String = frames
+        .iter()
+        .map(|f| serde_json::to_string(f).expect("serializes") + "\n")
+        .collect();
+    let jpath = args.out.join("frames.jsonl");
+    std::fs::write(&jpath, lines).map_err(|e| StreamError::Output {
+        path: jpath,
+        reason: e.to_string(),
+    })?;
+    task.abort();
+    Ok(StreamReport {
+        frames,
+        nodes_total,
+        nodes_received,
+        duplicates,
+        bytes_received: net.bytes.load(Ordering::Relaxed),
+        reconnects: net.reconnects.load(Ordering::Relaxed),
+        complete,
+        first_frame_ms,
+    })
+}

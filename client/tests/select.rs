@@ -1,0 +1,396 @@
+//! Selective refinement: frustum culling, data-aware error, budgets (conforming frames, same fixed
+//! point as an unbudgeted run), modes and the background refiner.
+
+use glam::DVec3;
+use std::time::{Duration, Instant};
+use tetwave_client::camera::Camera;
+use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
+use tetwave_client::mesh::AdaptiveMesh;
+use tetwave_client::progressive::BackgroundRefiner;
+use tetwave_client::select::{
+    bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
+};
+use tetwave_protocol::base::signed_volume;
+use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
+use tetwave_protocol::wavelet::{analyze, predict};
+use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+
+/// The box `[0, 30]³` in 5 positive tets.
+pub fn box5(levels: u8) -> BaseMesh {
+    let positions: Vec<[f64; 3]> = (0..8u32)
+        .map(|i| {
+            [
+                30.0 * (i & 1) as f64,
+                30.0 * ((i >> 1) & 1) as f64,
+                30.0 * ((i >> 2) & 1) as f64,
+            ]
+        })
+        .collect();
+    let tets: Vec<[u32; 4]> = [
+        [0, 1, 2, 4],
+        [3, 2, 1, 7],
+        [5, 4, 7, 1],
+        [6, 7, 4, 2],
+        [1, 2, 4, 7],
+    ]
+    .into_iter()
+    .map(|t: [u32; 4]| {
+        let p = t.map(|g| positions[g as usize]);
+        if signed_volume(p[0], p[1], p[2], p[3]) < 0.0 {
+            [t[0], t[1], t[3], t[2]]
+        } else {
+            t
+        }
+    })
+    .collect();
+    BaseMesh {
+        levels,
+        values: vec![0.0; 8],
+        empty: vec![false; 5],
+        positions,
+        tets,
+    }
+}
+
+/// Samples `f` at every vertex and computes every detail node (lowest id of a level owns an edge).
+pub fn make_nodes(mut base: BaseMesh, f: impl Fn([f64; 3]) -> f32) -> (BaseMesh, Vec<DetailNode>) {
+    let keys = base.vertex_keys();
+    let n = keys.vertex_count() as usize;
+    let mut v = vec![0f32; n];
+    for (e, _) in keys.entities() {
+        keys.for_each_in(e, |k, t, w| v[k as usize] = f(base.position(t, &w)));
+    }
+    base.values = v[..base.positions.len()].to_vec();
+    let forest = base.forest();
+    let mut claimed = vec![false; n];
+    let mut nodes: Vec<DetailNode> = Vec::new();
+    for k in 0..forest.levels {
+        for (id, t) in LevelWalker::level(forest, k) {
+            let (mut owned, mut coeffs) = (0u8, Vec::new());
+            for (e, &(a, b)) in EDGES.iter().enumerate() {
+                let m = keys.key(t.base, &t.edge_midpoint(e)) as usize;
+                if !claimed[m] {
+                    claimed[m] = true;
+                    owned |= 1 << e;
+                    let u = keys.key(t.base, &t.v[a]) as usize;
+                    let w = keys.key(t.base, &t.v[b]) as usize;
+                    coeffs.push(analyze(v[m], predict(v[u], v[w])));
+                }
+            }
+            nodes.push(DetailNode {
+                id,
+                owned,
+                empty_children: 0,
+                subtree_max_abs: 0.0,
+                coeffs,
+            });
+        }
+    }
+    // subtree max |d|, finest nodes first
+    let mut smax: Vec<f32> = nodes
+        .iter()
+        .map(|n| n.coeffs.iter().fold(0f32, |m, c| m.max(c.abs())))
+        .collect();
+    for i in (0..nodes.len()).rev() {
+        let id = nodes[i].id;
+        for c in 0..8 {
+            let cid = forest.child(id, c) as usize;
+            if cid < smax.len() {
+                smax[i] = smax[i].max(smax[cid]);
+            }
+        }
+        nodes[i].subtree_max_abs = smax[i];
+    }
+    (base, nodes)
+}
+
+pub fn harmonic(p: [f64; 3]) -> f32 {
+    let s = std::f64::consts::PI / 15.0;
+    ((s * p[0]).sin() * (s * p[1]).cos() * (0.5 * s * p[2]).sin()) as f32
+}
+
+fn loaded(levels: u8, f: impl Fn([f64; 3]) -> f32) -> (AdaptiveMesh, DetailBuffer, BaseMesh) {
+    let (base, nodes) = make_nodes(box5(levels), f);
+    let mut mesh = AdaptiveMesh::new(&base);
+    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut arr = Arrivals::default();
+    for n in &nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    mesh.apply_arrivals(&buf, &arr);
+    (mesh, buf, base)
+}
+
+fn cam(az_deg: f64, dist: f64) -> Camera {
+    Camera::orbit(DVec3::splat(15.0), dist, az_deg, 10.0, 45.0, 256, 256)
+}
+
+fn sorted_leaves(m: &AdaptiveMesh) -> Vec<TetId> {
+    let mut v = m.leaf_ids();
+    v.sort_unstable();
+    v
+}
+
+#[test]
+fn tolerance_parse() {
+    assert_eq!(
+        Tolerance::parse("12.5%").unwrap(),
+        Tolerance::PercentOfHeight(12.5)
+    );
+    assert_eq!(Tolerance::parse("7px").unwrap(), Tolerance::Pixels(7.0));
+    assert_eq!(Tolerance::parse("7").unwrap(), Tolerance::Pixels(7.0));
+    assert!(Tolerance::parse("x%").is_err());
+    assert_eq!(Tolerance::PercentOfHeight(20.0).pixels(512), 102.4);
+}
+
+/// Tets outside the view end coarse: every refined tet whose sphere is outside the frustum is only
+/// there for conformity (coarsening it alone is refused), and culling removes most of the mesh.
+#[test]
+fn frustum_outside_stays_coarse() {
+    let (mut mesh, buf, _) = loaded(4, harmonic);
+    // close to one face, looking at it: most of the box is behind or beside the view
+    let c = Camera::orbit(DVec3::new(15.0, 15.0, 15.0), 20.0, 0.0, 0.0, 30.0, 256, 256);
+    let mut p = SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0]);
+    let mut sel = Selector::new(p.clone());
+    let st = sel
+        .converge(&mut mesh, &buf, &c, Mode::Progressive)
+        .unwrap();
+    assert!(st.converged);
+    mesh.check_conformity().unwrap();
+    let view = View::new(&c, p.tol);
+    let mut outside_refined = 0;
+    for slot in 0..mesh.node_slot_len() {
+        let Some(n) = mesh.red_node(slot) else {
+            continue;
+        };
+        let (ctr, r) = bounding_sphere(&mesh, &n.v);
+        if !view.sphere_visible(ctr, r) && !n.leaf && n.children_leaves {
+            outside_refined += 1;
+            let mut m2 = mesh.clone();
+            assert!(
+                m2.coarsen(n.id, &buf).is_err(),
+                "tet {} is outside the view, mergeable, and still refined",
+                n.id
+            );
+        }
+    }
+    let with = mesh.leaf_count();
+    p.frustum = false;
+    let (mut all, buf2, _) = loaded(4, harmonic);
+    Selector::new(p)
+        .converge(&mut all, &buf2, &c, Mode::Progressive)
+        .unwrap();
+    assert!(
+        with * 2 < all.leaf_count(),
+        "culling: {with} leaves vs {} without",
+        all.leaf_count()
+    );
+    let _ = outside_refined;
+}
+
+/// A field constant in half of the box: with the data-aware error that half stays coarse, the other
+/// is refined as the geometric error asks.
+#[test]
+fn data_aware_keeps_flat_half_coarse() {
+    let f = |p: [f64; 3]| {
+        if p[0] <= 15.0 {
+            0.5
+        } else {
+            0.5 + harmonic(p) * ((p[0] - 15.0) / 15.0) as f32
+        }
+    };
+    let (mut mesh, buf, _) = loaded(4, f);
+    let c = cam(30.0, 60.0);
+    let mut p = SelectParams::new(Tolerance::Pixels(4.0), [-0.5, 1.5]);
+    p.data_aware = Some(0.01);
+    Selector::new(p.clone())
+        .converge(&mut mesh, &buf, &c, Mode::Progressive)
+        .unwrap();
+    mesh.check_conformity().unwrap();
+    let levels = |m: &AdaptiveMesh| {
+        let (mut flat, mut busy) = (0usize, 0usize);
+        for t in m.leaf_tets() {
+            let x =
+                t.v.iter()
+                    .map(|&s| m.vertex_position(s)[0])
+                    .fold(0f32, f32::max);
+            let xmin =
+                t.v.iter()
+                    .map(|&s| m.vertex_position(s)[0])
+                    .fold(99f32, f32::min);
+            if x < 13.0 {
+                flat += 1;
+            } else if xmin > 17.0 {
+                busy += 1;
+            }
+        }
+        (flat, busy)
+    };
+    let (flat, busy) = levels(&mesh);
+    assert!(
+        flat * 10 < busy,
+        "flat half: {flat} tets, busy half: {busy}"
+    );
+    // without the data term both halves refine alike
+    p.data_aware = None;
+    let (mut geo, buf2, _) = loaded(4, f);
+    Selector::new(p)
+        .converge(&mut geo, &buf2, &c, Mode::Progressive)
+        .unwrap();
+    let (gflat, gbusy) = levels(&geo);
+    assert!(gflat * 3 > gbusy, "geometric: {gflat} vs {gbusy}");
+}
+
+/// With an operation budget every frame ends conforming and repeated frames reach the mesh of an
+/// unbudgeted run; also when the camera moves in between, and with the grandparent rule.
+#[test]
+fn budget_frames_conform_and_converge() {
+    for coarsen_ref in [CoarsenRef::Parent, CoarsenRef::Grandparent] {
+        let (mut mesh, buf, _) = loaded(4, harmonic);
+        let mut p = SelectParams::new(Tolerance::PercentOfHeight(5.0), [-1.0, 1.0]);
+        p.coarsen_ref = coarsen_ref;
+        p.interactive = Budget::ops(40);
+        p.progressive = Budget::ops(40);
+        let mut sel = Selector::new(p.clone());
+        let mut frames = 0;
+        for (az, rest) in [(0.0, false), (25.0, false), (90.0, true)] {
+            let c = cam(az, 40.0);
+            loop {
+                let st = sel.frame(&mut mesh, &buf, &c, Mode::Progressive).unwrap();
+                frames += 1;
+                assert!(st.splits + st.merge_attempts <= 40, "{st:?}");
+                mesh.check_conformity().unwrap();
+                if st.converged || (!rest && frames % 7 == 0) {
+                    break;
+                }
+                assert!(frames < 5000);
+            }
+        }
+        let c = cam(90.0, 40.0);
+        let (mut reference, buf2, _) = loaded(4, harmonic);
+        p.progressive = Budget::UNLIMITED;
+        Selector::new(p)
+            .converge(&mut reference, &buf2, &c, Mode::Progressive)
+            .unwrap();
+        assert_eq!(sorted_leaves(&mesh), sorted_leaves(&reference));
+        assert!(frames > 3);
+    }
+}
+
+/// A time budget cuts frames short and the carried work still converges.
+#[test]
+fn time_budget_carries_over() {
+    let (mut mesh, buf, _) = loaded(4, harmonic);
+    let mut p = SelectParams::new(Tolerance::Pixels(3.0), [-1.0, 1.0]);
+    p.progressive = Budget::ms(0.5);
+    let c = cam(10.0, 50.0);
+    let mut sel = Selector::new(p.clone());
+    let mut frames = 0;
+    while !sel
+        .frame(&mut mesh, &buf, &c, Mode::Progressive)
+        .unwrap()
+        .converged
+    {
+        frames += 1;
+        assert!(frames < 100_000);
+    }
+    mesh.check_conformity().unwrap();
+    assert!(frames > 1, "a 0.5 ms budget should take several frames");
+    let (mut reference, buf2, _) = loaded(4, harmonic);
+    Selector::new(p)
+        .converge(&mut reference, &buf2, &c, Mode::Progressive)
+        .unwrap();
+    assert_eq!(sorted_leaves(&mesh), sorted_leaves(&reference));
+    // converged and unchanged: the next frame returns at once, doing nothing
+    let st = sel.frame(&mut mesh, &buf, &c, Mode::Progressive).unwrap();
+    assert!(st.converged && st.scanned == 0);
+}
+
+/// Interactive frames obey the tight budget, progressive ones refine toward the tolerance, complete
+/// mode shows everything that arrived (the uniform finest mesh once all has).
+#[test]
+fn modes() {
+    let (mut mesh, buf, base) = loaded(3, harmonic);
+    let mut p = SelectParams::new(Tolerance::PercentOfHeight(30.0), [-1.0, 1.0]);
+    p.interactive = Budget::ops(5);
+    p.progressive = Budget::ops(200);
+    let mut sel = Selector::new(p.clone());
+    let c = cam(0.0, 45.0);
+    let st = sel.frame(&mut mesh, &buf, &c, Mode::Interactive).unwrap();
+    assert!(st.splits + st.merge_attempts <= 5 && !st.converged);
+    let mut n = 0;
+    while !sel
+        .frame(&mut mesh, &buf, &c, Mode::Progressive)
+        .unwrap()
+        .converged
+    {
+        n += 1;
+        assert!(n < 1000);
+    }
+    let progressive = mesh.leaf_count();
+    assert!(progressive < base.forest().leaves() as usize);
+    while !sel
+        .frame(&mut mesh, &buf, &c, Mode::Complete)
+        .unwrap()
+        .converged
+    {}
+    mesh.check_conformity().unwrap();
+    assert_eq!(mesh.leaf_count(), base.forest().leaves() as usize);
+    // back to the view-dependent mesh
+    while !sel
+        .frame(&mut mesh, &buf, &c, Mode::Progressive)
+        .unwrap()
+        .converged
+    {}
+    assert_eq!(mesh.leaf_count(), progressive);
+
+    // complete mode with half of the nodes: exactly the usable ones are refined
+    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let mut m = AdaptiveMesh::new(&base);
+    let mut b = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut arr = Arrivals::default();
+    for nd in nodes.iter().step_by(2) {
+        b.insert(nd, &mut arr).unwrap();
+    }
+    m.apply_arrivals(&b, &arr);
+    Selector::new(p)
+        .converge(&mut m, &b, &c, Mode::Complete)
+        .unwrap();
+    m.check_conformity().unwrap();
+    for nd in &nodes {
+        if b.is_usable(nd.id) && !m.is_empty_tet(nd.id) {
+            assert!(m.is_refined(nd.id), "usable {} not refined", nd.id);
+        }
+    }
+}
+
+/// The background refiner hands over finished meshes; polling never blocks.
+#[test]
+fn background_refiner() {
+    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let leaves = base.forest().leaves() as usize;
+    let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
+    let r = BackgroundRefiner::spawn(base, p);
+    r.set_camera(cam(0.0, 45.0), Mode::Complete);
+    for chunk in nodes.chunks(50) {
+        r.send_nodes(chunk.to_vec());
+        let t = Instant::now();
+        let _ = r.latest();
+        assert!(t.elapsed() < Duration::from_millis(50));
+    }
+    let start = Instant::now();
+    let s = loop {
+        if let Some(s) = r.latest() {
+            if s.converged && s.tets.len() == leaves {
+                break s;
+            }
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "no final mesh");
+        std::thread::sleep(Duration::from_millis(2));
+    };
+    assert!(s
+        .tets
+        .iter()
+        .all(|t| t.v.iter().all(|&v| (v as usize) < s.positions.len())));
+    r.stop().unwrap();
+}
