@@ -17,7 +17,10 @@ use tetwave_client::render_mesh::RenderMesh;
 use tetwave_client::transfer::TransferFunction;
 
 fn env(name: &str, default: usize) -> usize {
-    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 /// The smooth analytic field of the benchmark, on `[0,1]^3`.
@@ -28,7 +31,10 @@ fn field(p: [f64; 3]) -> f64 {
 
 fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    writeln!(f, "# vtk DataFile Version 3.0\ntetwave bench\nBINARY\nDATASET UNSTRUCTURED_GRID")?;
+    writeln!(
+        f,
+        "# vtk DataFile Version 3.0\ntetwave bench\nBINARY\nDATASET UNSTRUCTURED_GRID"
+    )?;
     writeln!(f, "POINTS {} double", mesh.positions.len())?;
     for p in &mesh.positions {
         for c in p {
@@ -46,7 +52,11 @@ fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
     for _ in &mesh.tets {
         f.write_all(&10i32.to_be_bytes())?;
     }
-    writeln!(f, "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default", mesh.positions.len())?;
+    writeln!(
+        f,
+        "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default",
+        mesh.positions.len()
+    )?;
     for v in &mesh.values {
         f.write_all(&v.to_be_bytes())?;
     }
@@ -58,12 +68,23 @@ fn main() {
     let n = env("TETWAVE_BENCH_N", 32);
     let size = env("TETWAVE_BENCH_SIZE", 512) as u32;
     let frames = env("TETWAVE_BENCH_FRAMES", 5);
-    let out = std::path::PathBuf::from(std::env::var("TETWAVE_BENCH_OUT").unwrap_or("out/bench-vs-vtk".into()));
+    let out = std::path::PathBuf::from(
+        std::env::var("TETWAVE_BENCH_OUT").unwrap_or("out/bench-vs-vtk".into()),
+    );
     std::fs::create_dir_all(&out).expect("output directory");
     let mesh = RenderMesh::kuhn_cube(n, 1.0, field);
     let tf = TransferFunction::preset("default").unwrap();
-    let cam = Camera::orbit(mesh.center(), 1.6 * mesh.diagonal(), 35.0, 25.0, 40.0, size, size);
-    let ctx = GpuContext::new().expect("a GPU adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
+    let cam = Camera::orbit(
+        mesh.center(),
+        1.6 * mesh.diagonal(),
+        35.0,
+        25.0,
+        40.0,
+        size,
+        size,
+    );
+    let ctx =
+        GpuContext::new().expect("a GPU adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let r = PtRenderer::new(&ctx);
     let t = Instant::now();
     let data = r.upload_with(&ctx, &mesh, true).unwrap();
@@ -82,7 +103,14 @@ fn main() {
             last = Some(img);
         }
         let img = last.unwrap();
-        let name = format!("ours-{}.png", if order == VisibilityOrder::Mpvo { "mpvo" } else { "centroid" });
+        let name = format!(
+            "ours-{}.png",
+            if order == VisibilityOrder::Mpvo {
+                "mpvo"
+            } else {
+                "centroid"
+            }
+        );
         img.save_png(&out.join(&name)).unwrap();
         let mean = |f: &dyn Fn(&tetwave_client::render::pt::FrameTimes) -> f64| {
             times.iter().map(f).sum::<f64>() / times.len() as f64
@@ -108,5 +136,9 @@ fn main() {
         "fovy_deg": cam.fovy_deg, "near": cam.near, "size": [size, size], "value_range": [r0, r1],
         "diagonal": mesh.diagonal(), "tf": tf, "frames": frames,
     });
-    std::fs::write(out.join("scene.json"), serde_json::to_string_pretty(&scene).unwrap()).unwrap();
+    std::fs::write(
+        out.join("scene.json"),
+        serde_json::to_string_pretty(&scene).unwrap(),
+    )
+    .unwrap();
 }

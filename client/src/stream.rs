@@ -429,8 +429,9 @@ pub fn run_with(args: &StreamArgs, faults: Faults) -> Result<StreamReport, Strea
                 ServerMsg::End { .. } => {
                     // re-request whatever was lost on the way (bounded rounds)
                     if let Some((buf, ..)) = &state {
-                        let missing: BTreeSet<TetId> =
-                            (0..buf_forest_nodes(buf)).filter(|&t| !buf.is_present(t)).collect();
+                        let missing: BTreeSet<TetId> = (0..buf_forest_nodes(buf))
+                            .filter(|&t| !buf.is_present(t))
+                            .collect();
                         if missing.is_empty() {
                             ended = true;
                         } else if want_rounds < 8 {
