@@ -2,6 +2,7 @@
 //! detail nodes. The server's `verify` and the client's "complete" mode both use it.
 
 use crate::base::BaseMesh;
+use crate::hierarchy::LevelWalker;
 use crate::hierarchy::{TetId, EDGES};
 use crate::node::{DetailNode, NodeError};
 use crate::vertex::VertexKeys;
@@ -42,6 +43,9 @@ pub fn synthesize_all(
     }
     let total = forest.nodes();
     let mut expected: TetId = 0;
+    // nodes come in id order: walk the levels alongside instead of rebuilding each tet from its id
+    let mut level = 0u8;
+    let mut walker = LevelWalker::level(forest, 0);
     for node in nodes {
         if node.id >= total {
             return Err(SynthesisError::OutOfRange {
@@ -57,7 +61,12 @@ pub fn synthesize_all(
         }
         node.validate()?;
         expected += 1;
-        let tet = LatticeTet::from_id(&forest, node.id);
+        while node.id >= forest.level_start(level + 1) {
+            level += 1;
+            walker = LevelWalker::level(forest, level);
+        }
+        let (id, tet) = walker.next().expect("ids within the level");
+        debug_assert_eq!(id, node.id);
         apply_node(keys, &tet, &node, &mut values, &mut set)?;
     }
     if expected != total {
