@@ -79,6 +79,30 @@ pub struct StreamArgs {
     pub until_complete: bool,
 }
 
+impl StreamArgs {
+    /// The CLI defaults, for `url`, writing into `out`.
+    pub fn new(url: &str, out: &std::path::Path) -> Self {
+        StreamArgs {
+            url: url.into(),
+            headless: true,
+            frames: 30,
+            out: out.to_path_buf(),
+            orbit: 0.0,
+            tol: "0".into(),
+            psnr: false,
+            size: (256, 256),
+            tf: "default".into(),
+            azimuth: 35.0,
+            elevation: 25.0,
+            distance: None,
+            token: None,
+            frame_ms: 30,
+            cpu: false,
+            until_complete: false,
+        }
+    }
+}
+
 fn buf_forest_nodes(buf: &DetailBuffer) -> u64 {
     buf.forest().nodes()
 }
@@ -300,11 +324,18 @@ async fn network(
 
 /// Runs a headless streaming session.
 pub fn run(args: &StreamArgs) -> Result<StreamReport, StreamError> {
-    run_with(args, Faults::default())
+    Ok(run_session(args, Faults::default())?.report)
 }
 
-/// [`run`] with injected transport faults (tests).
-pub fn run_with(args: &StreamArgs, faults: Faults) -> Result<StreamReport, StreamError> {
+/// A finished session: the report and the client's final state.
+pub struct Session {
+    pub report: StreamReport,
+    pub base: Option<BaseMesh>,
+    pub mesh: Option<AdaptiveMesh>,
+}
+
+/// [`run`] with injected transport faults, returning the final mesh (tests).
+pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamError> {
     let tf = TransferFunction::load(&args.tf)?;
     let tol_spec = args.tol.trim();
     let tol = if tol_spec == "0" || tol_spec == "0px" {
@@ -571,7 +602,11 @@ pub fn run_with(args: &StreamArgs, faults: Faults) -> Result<StreamReport, Strea
         reason: e.to_string(),
     })?;
     task.abort();
-    Ok(StreamReport {
+    let (base, mesh) = match state {
+        Some((_, mesh, _, base)) => (Some(base), Some(mesh)),
+        None => (None, None),
+    };
+    let report = StreamReport {
         frames,
         nodes_total,
         nodes_received,
@@ -580,5 +615,6 @@ pub fn run_with(args: &StreamArgs, faults: Faults) -> Result<StreamReport, Strea
         reconnects: net.reconnects.load(Ordering::Relaxed),
         complete,
         first_frame_ms,
-    })
+    };
+    Ok(Session { report, base, mesh })
 }
