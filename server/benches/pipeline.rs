@@ -4,8 +4,7 @@
 
 use std::time::Instant;
 use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_protocol::DetailNode;
-use tetwave_server::analysis::{analyze_hierarchy, Analysis};
+use tetwave_server::analysis::analyze_hierarchy;
 use tetwave_server::resample::synthetic::{kuhn_cube_mesh, Synthetic};
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{resample, BaseSpec, Source};
@@ -13,24 +12,6 @@ use tetwave_server::resample::{resample, BaseSpec, Source};
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());
     v[v.len() / 2]
-}
-
-fn nodes_of(a: &Analysis) -> Vec<DetailNode> {
-    let mut at = 0;
-    (0..a.owned.len())
-        .map(|i| {
-            let n = a.owned[i].count_ones() as usize;
-            let node = DetailNode {
-                id: i as u64,
-                owned: a.owned[i],
-                empty_children: a.empty_children[i],
-                subtree_max_abs: a.subtree_max_abs[i],
-                coeffs: a.coeffs[at..at + n].to_vec(),
-            };
-            at += n;
-            node
-        })
-        .collect()
 }
 
 fn main() {
@@ -50,7 +31,7 @@ fn main() {
             let a = analyze_hierarchy(r, None, false).unwrap();
             t_analysis.push(t.elapsed().as_secs_f64());
             let keys = a.base.vertex_keys();
-            let nodes = nodes_of(&a);
+            let nodes = a.nodes();
             let t = Instant::now();
             let v = synthesize_all(&a.base, &keys, nodes).unwrap();
             t_synth.push(t.elapsed().as_secs_f64());

@@ -44,6 +44,27 @@ pub struct Analysis {
     pub error_bound: f64,
 }
 
+impl Analysis {
+    /// The detail nodes in id order, as the store holds them.
+    pub fn nodes(&self) -> Vec<tetwave_protocol::DetailNode> {
+        let mut at = 0;
+        (0..self.owned.len())
+            .map(|i| {
+                let n = self.owned[i].count_ones() as usize;
+                let node = tetwave_protocol::DetailNode {
+                    id: i as u64,
+                    owned: self.owned[i],
+                    empty_children: self.empty_children[i],
+                    subtree_max_abs: self.subtree_max_abs[i],
+                    coeffs: self.coeffs[at..at + n].to_vec(),
+                };
+                at += n;
+                node
+            })
+            .collect()
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum AnalysisError {
     #[error("--bits must be in 8..=24, got {0}")]

@@ -2,8 +2,8 @@
 
 use proptest::prelude::*;
 use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_protocol::{BaseMesh, DetailNode, LatticeTet};
-use tetwave_server::analysis::{analyze_hierarchy, Analysis};
+use tetwave_protocol::{BaseMesh, LatticeTet};
+use tetwave_server::analysis::analyze_hierarchy;
 use tetwave_server::resample::synthetic::kuhn_cube_mesh;
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{base, resample, BaseSpec, Resampled, Source};
@@ -32,24 +32,6 @@ fn resampled_with(levels: u8, box6: bool, field: impl Fn(u64) -> f32) -> Resampl
     }
 }
 
-fn nodes_of(a: &Analysis) -> Vec<DetailNode> {
-    let mut at = 0;
-    (0..a.owned.len())
-        .map(|i| {
-            let n = a.owned[i].count_ones() as usize;
-            let node = DetailNode {
-                id: i as u64,
-                owned: a.owned[i],
-                empty_children: a.empty_children[i],
-                subtree_max_abs: a.subtree_max_abs[i],
-                coeffs: a.coeffs[at..at + n].to_vec(),
-            };
-            at += n;
-            node
-        })
-        .collect()
-}
-
 fn hash(seed: u64, k: u64) -> f64 {
     // splitmix64 → [0, 1)
     let mut z = seed.wrapping_add(k.wrapping_mul(0x9E3779B97F4A7C15));
@@ -69,7 +51,7 @@ proptest! {
         let reference = r.samples.clone();
         let a = analyze_hierarchy(r, None, false).unwrap();
         let keys = a.base.vertex_keys();
-        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         prop_assert_eq!(values, reference);
         prop_assert_eq!(a.max_abs_error, 0.0);
     }
@@ -82,7 +64,7 @@ proptest! {
         let reference = r.samples.clone();
         let a = analyze_hierarchy(r, None, false).unwrap();
         let keys = a.base.vertex_keys();
-        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         let range = (a.value_range.1 - a.value_range.0) as f64;
         let err = values.iter().zip(&reference).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max);
         prop_assert!(err <= 1e-6 * range, "err {} range {}", err, range);
@@ -96,7 +78,7 @@ proptest! {
         let reference = r.samples.clone();
         let a = analyze_hierarchy(r, Some(bits), false).unwrap();
         let keys = a.base.vertex_keys();
-        let values = synthesize_all(&a.base, &keys, nodes_of(&a)).unwrap();
+        let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         let err = values.iter().zip(&reference).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max);
         prop_assert!(err <= a.error_bound, "err {} bound {}", err, a.error_bound);
         prop_assert!((err - a.max_abs_error).abs() < 1e-12);
