@@ -69,38 +69,9 @@ impl RenderMesh {
 
     /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each, with the scalar `f` at the points.
     pub fn kuhn_cube(n: usize, size: f64, f: impl Fn([f64; 3]) -> f64) -> Self {
-        let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
-        let mut positions = Vec::with_capacity((n + 1).pow(3));
-        for k in 0..=n {
-            for j in 0..=n {
-                for i in 0..=n {
-                    positions.push([i as f64, j as f64, k as f64].map(|c| c / n as f64 * size));
-                }
-            }
-        }
-        let perms = [
-            [0, 1, 2],
-            [0, 2, 1],
-            [1, 0, 2],
-            [1, 2, 0],
-            [2, 0, 1],
-            [2, 1, 0],
-        ];
-        let mut tets = Vec::with_capacity(6 * n * n * n);
-        for k in 0..n {
-            for j in 0..n {
-                for i in 0..n {
-                    for p in perms {
-                        let mut c = [i, j, k];
-                        let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
-                        for (s, &a) in p.iter().enumerate() {
-                            c[a] += 1;
-                            t[s + 1] = idx(c[0], c[1], c[2]);
-                        }
-                        tets.push(t);
-                    }
-                }
-            }
+        let (mut positions, tets) = tetwave_protocol::base::kuhn_grid(n, |_, _, _| true);
+        for p in &mut positions {
+            *p = p.map(|c| c * size);
         }
         let values = positions.iter().map(|&p| f(p) as f32).collect();
         let mut m = RenderMesh::new(positions, tets, values);

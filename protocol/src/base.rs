@@ -153,3 +153,54 @@ pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 
         + u[2] * (v[0] * w[1] - v[1] * w[0]))
         / 6.0
 }
+
+/// The unit cube `[0,1]^3` cut into `n^3` cells of 6 Kuhn tets each (around each cell's main
+/// diagonal), keeping the cells where `keep(i, j, k)`: grid points in x-fastest order and tets. Tets
+/// are not all positively oriented (odd permutations are negative). A test and benchmark mesh shared
+/// by the server and the client.
+pub fn kuhn_grid(
+    n: usize,
+    keep: impl Fn(usize, usize, usize) -> bool,
+) -> (Vec<[f64; 3]>, Vec<[u32; 4]>) {
+    let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
+    let mut points = Vec::with_capacity((n + 1).pow(3));
+    for k in 0..=n {
+        for j in 0..=n {
+            for i in 0..=n {
+                points.push([
+                    i as f64 / n as f64,
+                    j as f64 / n as f64,
+                    k as f64 / n as f64,
+                ]);
+            }
+        }
+    }
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    let mut tets = Vec::with_capacity(6 * n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                if !keep(i, j, k) {
+                    continue;
+                }
+                for p in perms {
+                    let mut c = [i, j, k];
+                    let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
+                    for (s, &a) in p.iter().enumerate() {
+                        c[a] += 1;
+                        t[s + 1] = idx(c[0], c[1], c[2]);
+                    }
+                    tets.push(t);
+                }
+            }
+        }
+    }
+    (points, tets)
+}

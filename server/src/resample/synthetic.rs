@@ -78,51 +78,16 @@ pub fn kuhn_cube_mesh(
     keep: impl Fn(usize, usize, usize) -> bool,
     f: impl Fn([f64; 3]) -> f64,
 ) -> super::mesh_io::TetMesh {
-    let idx = |i: usize, j: usize, k: usize| (i + (n + 1) * (j + (n + 1) * k)) as u32;
-    let mut points = Vec::with_capacity((n + 1).pow(3));
-    for k in 0..=n {
-        for j in 0..=n {
-            for i in 0..=n {
-                let interior = [i, j, k].iter().all(|&x| x > 0 && x < n);
-                let jit = |s: u64| {
-                    if interior {
-                        (unit_hash(s, idx(i, j, k) as u64) - 0.5) * jitter / n as f64
-                    } else {
-                        0.0
-                    }
-                };
-                points.push([
-                    i as f64 / n as f64 + jit(1),
-                    j as f64 / n as f64 + jit(2),
-                    k as f64 / n as f64 + jit(3),
-                ]);
-            }
-        }
-    }
-    let mut tets = Vec::with_capacity(6 * n * n * n);
-    let perms = [
-        [0, 1, 2],
-        [0, 2, 1],
-        [1, 0, 2],
-        [1, 2, 0],
-        [2, 0, 1],
-        [2, 1, 0],
-    ];
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                if !keep(i, j, k) {
-                    continue;
-                }
-                for p in perms {
-                    let mut c = [i, j, k];
-                    let mut t = [idx(c[0], c[1], c[2]), 0, 0, 0];
-                    for (s, &a) in p.iter().enumerate() {
-                        c[a] += 1;
-                        t[s + 1] = idx(c[0], c[1], c[2]);
-                    }
-                    tets.push(t);
-                }
+    let (mut points, tets) = tetwave_protocol::base::kuhn_grid(n, keep);
+    for (idx, p) in points.iter_mut().enumerate() {
+        let c = [
+            idx % (n + 1),
+            (idx / (n + 1)) % (n + 1),
+            idx / ((n + 1) * (n + 1)),
+        ];
+        if c.iter().all(|&x| x > 0 && x < n) {
+            for (a, x) in p.iter_mut().enumerate() {
+                *x += (unit_hash(a as u64 + 1, idx as u64) - 0.5) * jitter / n as f64;
             }
         }
     }
