@@ -77,6 +77,9 @@ pub struct StreamArgs {
     /// Stop as soon as every node has arrived and the mesh has converged (at most `--frames`).
     #[arg(long)]
     pub until_complete: bool,
+    /// Refine but do not render (network and mesh measurements only).
+    #[arg(long)]
+    pub no_render: bool,
 }
 
 impl StreamArgs {
@@ -99,6 +102,7 @@ impl StreamArgs {
             frame_ms: 30,
             cpu: false,
             until_complete: false,
+            no_render: false,
         }
     }
 }
@@ -370,7 +374,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         faults,
     ));
 
-    let gpu = if args.cpu {
+    let gpu = if args.cpu || args.no_render {
         None
     } else {
         let ctx = GpuContext::new()?;
@@ -427,6 +431,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             got_any = true;
             match msg {
                 ServerMsg::Manifest(m) => manifest = Some(*m),
+                // a resumed connection sends the base mesh again: keep what is already built
+                ServerMsg::Base(b) if state.as_ref().is_some_and(|st| st.3 == *b) => {}
                 ServerMsg::Base(b) => {
                     let m = manifest
                         .as_ref()
@@ -525,31 +531,37 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         let refine_ms = tr.elapsed().as_secs_f64() * 1e3;
         // 4. render
         let trn = Instant::now();
-        let leaves = mesh.drawable_leaf_tets();
-        let positions: Vec<[f64; 3]> = mesh
-            .positions()
-            .iter()
-            .map(|p| p.map(|x| x as f64))
-            .collect();
-        let mut rm = RenderMesh::new(
-            positions,
-            leaves.iter().map(|t| t.v).collect(),
-            mesh.values().to_vec(),
-        );
-        rm.value_range = (m.value_range[0], m.value_range[1]);
-        let img = match &gpu {
-            Some((ctx, r)) => {
-                let data = r.upload(ctx, &rm)?;
-                r.render(ctx, &data, &cam, &tf)?.0
-            }
-            None => render_reference(&rm, &cam, &tf),
+        let tets = mesh.piece_counts().1;
+        let img = if args.no_render {
+            None
+        } else {
+            let leaves = mesh.drawable_leaf_tets();
+            let positions: Vec<[f64; 3]> = mesh
+                .positions()
+                .iter()
+                .map(|p| p.map(|x| x as f64))
+                .collect();
+            let mut rm = RenderMesh::new(
+                positions,
+                leaves.iter().map(|t| t.v).collect(),
+                mesh.values().to_vec(),
+            );
+            rm.value_range = (m.value_range[0], m.value_range[1]);
+            let img = match &gpu {
+                Some((ctx, r)) => {
+                    let data = r.upload(ctx, &rm)?;
+                    r.render(ctx, &data, &cam, &tf)?.0
+                }
+                None => render_reference(&rm, &cam, &tf),
+            };
+            let path = args.out.join(format!("frame_{frame:04}.png"));
+            img.save_png(&path).map_err(|e| StreamError::Output {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+            Some(img)
         };
         let render_ms = trn.elapsed().as_secs_f64() * 1e3;
-        let path = args.out.join(format!("frame_{frame:04}.png"));
-        img.save_png(&path).map_err(|e| StreamError::Output {
-            path: path.clone(),
-            reason: e.to_string(),
-        })?;
         if first_frame_ms.is_none() {
             first_frame_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
         }
@@ -557,13 +569,13 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             frame,
             bytes_received: net.bytes.load(Ordering::Relaxed),
             nodes: buf.nodes_held(),
-            tets: leaves.len() as u64,
+            tets: tets as u64,
             refine_ms,
             render_ms,
             psnr_db: None,
             ms_since_connect: t0.elapsed().as_secs_f64() * 1e3,
         });
-        if args.psnr {
+        if let (true, Some(img)) = (args.psnr, img) {
             cams.push(cam);
             images.push(img);
         }
