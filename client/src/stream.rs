@@ -80,6 +80,10 @@ pub struct StreamArgs {
     /// Refine but do not render (network and mesh measurements only).
     #[arg(long)]
     pub no_render: bool,
+    /// Apply at most about this many nodes per frame (the thesis' +1000 per step); 0: all that
+    /// arrived. Unread batches wait in the connection, which slows the server (backpressure).
+    #[arg(long, default_value_t = 0)]
+    pub per_frame: usize,
 }
 
 impl StreamArgs {
@@ -103,6 +107,7 @@ impl StreamArgs {
             cpu: false,
             until_complete: false,
             no_render: false,
+            per_frame: 0,
         }
     }
 }
@@ -399,7 +404,11 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         // 1. data: wait up to one frame period for the first message, then take what is ready
         let deadline = Instant::now() + Duration::from_millis(args.frame_ms);
         let mut got_any = false;
+        let mut applied = 0usize;
         loop {
+            if args.per_frame > 0 && applied >= args.per_frame {
+                break;
+            }
             let msg = if !got_any || state.is_none() {
                 let left = if state.is_none() {
                     wait_base.saturating_sub(t0.elapsed())
@@ -459,6 +468,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
                             Err(e) => return Err(StreamError::Protocol(e.to_string())),
                         }
                     }
+                    applied += nodes.len();
                     mesh.apply_arrivals(buf, &arrivals);
                     sel.notify_arrivals();
                     let _ = out_tx.send(ClientMsg::Ack { seq });
