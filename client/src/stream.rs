@@ -221,14 +221,14 @@ async fn network(
     url: String,
     token: Option<String>,
     net: Arc<Net>,
-    tx: mpsc::Sender<ServerMsg>,
+    tx: mpsc::Sender<(ServerMsg, u64)>,
     mut out: mpsc::UnboundedReceiver<ClientMsg>,
     faults: Faults,
 ) -> Result<(), StreamError> {
     let mut attempts = 0u32;
     let mut dropped = false;
     let mut batches = 0u64;
-    let mut held_back: Vec<ServerMsg> = Vec::new();
+    let mut held_back: Vec<(ServerMsg, u64)> = Vec::new();
     loop {
         let have = ranges_of(&net.received.lock().expect("lock"));
         let conn = tokio::time::timeout(
@@ -273,8 +273,8 @@ async fn network(
                     let Message::Binary(bytes) = msg else { continue };
                     net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                     let m = decode_server(&bytes).map_err(|e| StreamError::Protocol(e.to_string()))?;
-                    let mut deliver = vec![m];
-                    if let ServerMsg::Nodes { nodes, .. } = &deliver[0] {
+                    let mut deliver = vec![(m, bytes.len() as u64)];
+                    if let (ServerMsg::Nodes { nodes, .. }, _) = &deliver[0] {
                         batches += 1;
                         if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
                             deliver.clear();
@@ -295,7 +295,7 @@ async fn network(
                         }
                     } else {
                         // anything else flushes what was held back, in order of arrival
-                        let mut flushed: Vec<ServerMsg> = std::mem::take(&mut held_back);
+                        let mut flushed: Vec<(ServerMsg, u64)> = std::mem::take(&mut held_back);
                         flushed.append(&mut deliver);
                         deliver = flushed;
                     }
@@ -362,12 +362,21 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         .enable_all()
         .build()
         .map_err(|e| StreamError::Protocol(e.to_string()))?;
+    // the renderer is set up before connecting: time to first image counts from the connect
+    let gpu = if args.cpu || args.no_render {
+        None
+    } else {
+        let ctx = GpuContext::new()?;
+        let r = PtRenderer::new(&ctx);
+        Some((ctx, r))
+    };
     let net = Arc::new(Net {
         bytes: Arc::new(AtomicU64::new(0)),
         reconnects: Arc::new(AtomicU64::new(0)),
         received: Arc::new(Mutex::new(BTreeSet::new())),
     });
-    let (tx, mut rx) = mpsc::channel::<ServerMsg>(64);
+    // a short queue: unread batches stay in the connection, so the server slows down (backpressure)
+    let (tx, mut rx) = mpsc::channel::<(ServerMsg, u64)>(4);
     let (out_tx, out_rx) = mpsc::unbounded_channel::<ClientMsg>();
     let t0 = Instant::now();
     let mut task = rt.spawn(network(
@@ -379,13 +388,6 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         faults,
     ));
 
-    let gpu = if args.cpu || args.no_render {
-        None
-    } else {
-        let ctx = GpuContext::new()?;
-        let r = PtRenderer::new(&ctx);
-        Some((ctx, r))
-    };
     let mut manifest: Option<Manifest> = None;
     let mut state: Option<(DetailBuffer, AdaptiveMesh, Selector, BaseMesh)> = None;
     let mut received_nodes: Vec<DetailNode> = Vec::new();
@@ -397,6 +399,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
     let mut duplicates = 0u64;
     let mut arrivals = Arrivals::default();
     let mut first_frame_ms = None;
+    // wire bytes of the messages the client has applied (what its frames show)
+    let mut bytes_applied = 0u64;
     let mut last_view: Option<ViewParams> = None;
     let wait_base = Duration::from_secs(10);
     let mut frame = 0u32;
@@ -436,8 +440,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             } else {
                 rx.try_recv().ok()
             };
-            let Some(msg) = msg else { break };
+            let Some((msg, nbytes)) = msg else { break };
             got_any = true;
+            bytes_applied += nbytes;
             match msg {
                 ServerMsg::Manifest(m) => manifest = Some(*m),
                 // a resumed connection sends the base mesh again: keep what is already built
@@ -577,7 +582,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         }
         frames.push(FrameRecord {
             frame,
-            bytes_received: net.bytes.load(Ordering::Relaxed),
+            bytes_received: bytes_applied,
             nodes: buf.nodes_held(),
             tets: tets as u64,
             refine_ms,
