@@ -38,8 +38,10 @@ pub struct Counts {
     pub empty_base_tets: u64,
 }
 
+/// Coefficient encoding. Externally tagged (`"f32"` or `{"quantized": {"bits": …, "step": …}}`) so
+/// that it also travels in bincode frames, which cannot decode internally tagged enums.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(rename_all = "snake_case")]
 pub enum Encoding {
     F32,
     Quantized { bits: u8, step: f32 },

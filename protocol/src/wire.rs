@@ -219,6 +219,7 @@ pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::store_format::{Counts, Encoding};
     use proptest::prelude::*;
 
     fn hello() -> ClientMsg {
@@ -259,6 +260,41 @@ mod tests {
             }],
         };
         assert_eq!(decode_server(&encode(&n).unwrap()).unwrap(), n);
+        // the manifest (with both encodings) travels in bincode too
+        for encoding in [
+            Encoding::F32,
+            Encoding::Quantized {
+                bits: 12,
+                step: 0.25,
+            },
+        ] {
+            let m = ServerMsg::Manifest(Box::new(Manifest {
+                format: "tetwave-store".into(),
+                version: 1,
+                dataset: "d".into(),
+                source: "s".into(),
+                bounds: [[0.0; 3], [1.0; 3]],
+                base: "box5".into(),
+                base_tets: 5,
+                base_vertices: 8,
+                levels: 2,
+                value_range: [0.0, 1.0],
+                counts: Counts {
+                    tets_total: 365,
+                    leaves: 320,
+                    nodes: 45,
+                    vertices: 35,
+                    coefficients: 27,
+                    outside_vertices: 0,
+                    empty_base_tets: 0,
+                },
+                encoding,
+                max_error_bound: 1e-6,
+                max_abs_error: 0.0,
+                files: Default::default(),
+            }));
+            assert_eq!(decode_server(&encode(&m).unwrap()).unwrap(), m);
+        }
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! `tetwave-server`: prepare stores from volumes, verify them (and, as later stages land, serve them).
+//! `tetwave-server`: prepare stores from volumes, verify them and serve them.
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -71,6 +71,30 @@ enum Cmd {
         store: PathBuf,
         #[arg(long)]
         json: bool,
+    },
+    /// Serve a store: manifest, base mesh and nodes over HTTP, the progressive stream over
+    /// WebSocket (`/v1/stream`), fallback images (`/v1/render`) and a viewer page (`/`).
+    Serve {
+        store: PathBuf,
+        /// Address to bind (loopback by default).
+        #[arg(long, default_value = "127.0.0.1:7878")]
+        addr: String,
+        /// Require this token from every client (`Authorization: Bearer T`, `?token=T`, or the
+        /// stream's Hello); requests without it get 401.
+        #[arg(long, env = "TETWAVE_TOKEN")]
+        token: Option<String>,
+        /// Default order of the stream (a client may pick another with `/v1/stream?order=`).
+        #[arg(long, value_enum, default_value_t = tetwave_server::stream::Order::Level)]
+        order: tetwave_server::stream::Order,
+        /// Nodes per batch.
+        #[arg(long, default_value_t = 512)]
+        batch: usize,
+        /// Most un-acknowledged batches in flight per connection.
+        #[arg(long, default_value_t = 8)]
+        window: u64,
+        /// Worker threads (default: the number of cores).
+        #[arg(long)]
+        threads: Option<usize>,
     },
 }
 
@@ -195,6 +219,59 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     r.vertices, r.nodes, r.max_abs_error, r.max_error_bound, r.exact_vertices, r.seconds
                 );
             }
+        }
+        Cmd::Serve {
+            store,
+            addr,
+            token,
+            order,
+            batch,
+            window,
+            threads,
+        } => {
+            use tetwave_server::stream::{serve_on, ServeConfig, Shared};
+            if !(1..=1 << 16).contains(&batch) {
+                return Err(format!("--batch {batch} outside 1..=65536").into());
+            }
+            if !(1..=1024).contains(&window) {
+                return Err(format!("--window {window} outside 1..=1024").into());
+            }
+            let config = ServeConfig {
+                token: token.filter(|t| !t.is_empty()),
+                order,
+                batch,
+                window,
+                ..ServeConfig::default()
+            };
+            let shared = Shared::open(&store, config)?;
+            let mut rt = tokio::runtime::Builder::new_multi_thread();
+            if let Some(t) = threads {
+                rt.worker_threads(t.max(1));
+            }
+            let rt = rt.enable_all().build()?;
+            rt.block_on(async move {
+                let listener = tokio::net::TcpListener::bind(&addr)
+                    .await
+                    .map_err(|e| format!("{addr}: {e}"))?;
+                let local = listener.local_addr()?;
+                {
+                    use std::io::Write;
+                    let mut out = std::io::stdout().lock();
+                    writeln!(
+                        out,
+                        "listening on http://{local} ({} nodes, order {order:?}{})",
+                        shared.nodes(),
+                        if shared.config.token.is_some() {
+                            ", token required"
+                        } else {
+                            ""
+                        }
+                    )?;
+                    out.flush()?;
+                }
+                serve_on(listener, shared).await?;
+                Ok::<(), Box<dyn std::error::Error>>(())
+            })?;
         }
     }
     Ok(())

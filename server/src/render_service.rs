@@ -1,0 +1,493 @@
+//! Fallback images for clients that cannot render: `GET /v1/render` (a PNG of the store's uniform
+//! level, drawn with the client library's renderer: projected tetrahedra on the GPU when an adapter
+//! exists, the CPU reference integrator otherwise) and `GET /` (a small page that shows them, with
+//! orbit by mouse drag and a tolerance slider; no external resources).
+//!
+//! Query parameters of `/v1/render` (all optional): `width`, `height` (1..=4096, default 512),
+//! `azimuth`, `elevation` (degrees, finite, default 35 / 25; elevation within ±90), `distance`
+//! (> 0, default 1.6 × the bounding-box diagonal), `fov` (degrees in `[1, 179]`, default 40),
+//! `tol` (screen-space tolerance in pixels, ≥ 0: the coarsest uniform level whose tets project to at
+//! most `tol` pixels; 0 = finest) or `level` (≤ the store's levels; default finest), `tf` (a preset:
+//! default, transparent, opaque, shells), `renderer` (`auto`, `gpu`, `cpu`). Anything else, or a value
+//! out of range, is a 400 with a message. The answer carries `X-Tetwave-Renderer`,
+//! `X-Tetwave-Level` and `X-Tetwave-Tets` headers.
+
+use crate::stream::{bad_request, Shared};
+use axum::extract::{Query, State};
+use axum::http::{header, StatusCode};
+use axum::response::{Html, IntoResponse, Response};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+use tetwave_client::camera::Camera;
+use tetwave_client::image_metrics::Rgba8Image;
+use tetwave_client::reference::render_reference;
+use tetwave_client::render::pt::{PtRenderer, TetDrawData};
+use tetwave_client::render::GpuContext;
+use tetwave_client::render_mesh::RenderMesh;
+use tetwave_client::store_reader::LocalStore;
+use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::BaseMesh;
+
+/// Largest image side.
+pub const MAX_SIDE: u32 = 4096;
+/// Transfer-function presets `/v1/render` accepts (never a file path).
+pub const TF_PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
+
+/// Which renderer a request asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RendererChoice {
+    /// GPU when an adapter exists, else the CPU reference.
+    Auto,
+    Gpu,
+    Cpu,
+}
+
+/// A validated `/v1/render` request.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderParams {
+    pub width: u32,
+    pub height: u32,
+    pub azimuth: f64,
+    pub elevation: f64,
+    /// `None`: 1.6 × the bounding-box diagonal.
+    pub distance: Option<f64>,
+    pub fov: f64,
+    /// Explicit level, or one derived from `tol`, or the finest.
+    pub level: Option<u8>,
+    pub tol: Option<f64>,
+    pub tf: String,
+    pub renderer: RendererChoice,
+}
+
+impl RenderParams {
+    /// Validates a query against a store with `levels` levels.
+    pub fn parse(q: &HashMap<String, String>, levels: u8) -> Result<Self, String> {
+        const KNOWN: [&str; 11] = [
+            "width",
+            "height",
+            "azimuth",
+            "elevation",
+            "distance",
+            "fov",
+            "tol",
+            "level",
+            "tf",
+            "renderer",
+            "token",
+        ];
+        if let Some(k) = q.keys().find(|k| !KNOWN.contains(&k.as_str())) {
+            return Err(format!("unknown parameter `{k}`"));
+        }
+        let num = |k: &str, default: f64| -> Result<f64, String> {
+            match q.get(k) {
+                None => Ok(default),
+                Some(v) => {
+                    let x: f64 = v
+                        .trim()
+                        .parse()
+                        .map_err(|_| format!("`{k}` is not a number: {v:?}"))?;
+                    if !x.is_finite() {
+                        return Err(format!("`{k}` must be finite"));
+                    }
+                    Ok(x)
+                }
+            }
+        };
+        let side = |k: &str| -> Result<u32, String> {
+            match q.get(k) {
+                None => Ok(512),
+                Some(v) => match v.trim().parse::<u64>() {
+                    Ok(x) if (1..=MAX_SIDE as u64).contains(&x) => Ok(x as u32),
+                    _ => Err(format!(
+                        "`{k}` must be an integer in 1..={MAX_SIDE}, got {v:?}"
+                    )),
+                },
+            }
+        };
+        let width = side("width")?;
+        let height = side("height")?;
+        let azimuth = num("azimuth", 35.0)?;
+        if azimuth.abs() > 1e6 {
+            return Err("`azimuth` out of range".into());
+        }
+        let elevation = num("elevation", 25.0)?;
+        if !(-90.0..=90.0).contains(&elevation) {
+            return Err(format!(
+                "`elevation` must be within ±90 degrees, got {elevation}"
+            ));
+        }
+        let distance = match q.get("distance") {
+            None => None,
+            Some(_) => {
+                let d = num("distance", 0.0)?;
+                if d <= 0.0 || d > 1e12 {
+                    return Err(format!("`distance` must be > 0 (and sane), got {d}"));
+                }
+                Some(d)
+            }
+        };
+        let fov = num("fov", 40.0)?;
+        if !(1.0..=179.0).contains(&fov) {
+            return Err(format!("`fov` must be within [1, 179] degrees, got {fov}"));
+        }
+        let tol = match q.get("tol") {
+            None => None,
+            Some(_) => {
+                let t = num("tol", 0.0)?;
+                if t < 0.0 {
+                    return Err(format!("`tol` must be ≥ 0, got {t}"));
+                }
+                Some(t)
+            }
+        };
+        let level = match q.get("level") {
+            None => None,
+            Some(v) => match v.trim().parse::<u8>() {
+                Ok(l) if l <= levels => Some(l),
+                _ => {
+                    return Err(format!(
+                        "`level` must be an integer in 0..={levels}, got {v:?}"
+                    ))
+                }
+            },
+        };
+        if level.is_some() && tol.is_some() {
+            return Err("give `level` or `tol`, not both".into());
+        }
+        let tf = q.get("tf").cloned().unwrap_or_else(|| "default".into());
+        if !TF_PRESETS.contains(&tf.as_str()) {
+            return Err(format!(
+                "unknown transfer function {tf:?} (presets: {})",
+                TF_PRESETS.join(", ")
+            ));
+        }
+        let renderer = match q.get("renderer").map(String::as_str) {
+            None | Some("auto") => RendererChoice::Auto,
+            Some("gpu") => RendererChoice::Gpu,
+            Some("cpu") => RendererChoice::Cpu,
+            Some(r) => return Err(format!("`renderer` must be auto, gpu or cpu, got {r:?}")),
+        };
+        Ok(RenderParams {
+            width,
+            height,
+            azimuth,
+            elevation,
+            distance,
+            fov,
+            level,
+            tol,
+            tf,
+            renderer,
+        })
+    }
+
+    /// Eye distance: as asked, else 1.6 × the bounding-box diagonal of `base`.
+    pub fn eye_distance(&self, base: &BaseMesh) -> f64 {
+        self.distance.unwrap_or_else(|| 1.6 * diagonal(base))
+    }
+
+    /// The uniform level to draw: `level`, or the coarsest whose tets' screen-space error
+    /// `H/(2 tan(fov/2)) · diam/dist` is at most `tol` (at the volume's centre), or the finest.
+    pub fn level_for(&self, base: &BaseMesh) -> u8 {
+        if let Some(l) = self.level {
+            return l;
+        }
+        let Some(tol) = self.tol.filter(|&t| t > 0.0) else {
+            return base.levels;
+        };
+        let k = self.height as f64 / (2.0 * (0.5 * self.fov.to_radians()).tan());
+        let dist = self.eye_distance(base);
+        let diam0 = base_diameter(base);
+        (0..=base.levels)
+            .find(|&l| k * diam0 / (1u64 << l) as f64 / dist <= tol)
+            .unwrap_or(base.levels)
+    }
+}
+
+fn diagonal(base: &BaseMesh) -> f64 {
+    let (lo, hi) = base.bounds();
+    (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Longest edge over the base tets.
+fn base_diameter(base: &BaseMesh) -> f64 {
+    let mut d2 = 0.0f64;
+    for t in &base.tets {
+        for i in 0..4 {
+            for j in i + 1..4 {
+                let (p, q) = (base.positions[t[i] as usize], base.positions[t[j] as usize]);
+                d2 = d2.max((0..3).map(|a| (p[a] - q[a]).powi(2)).sum());
+            }
+        }
+    }
+    d2.sqrt()
+}
+
+struct Gpu {
+    ctx: GpuContext,
+    renderer: PtRenderer,
+    /// The last uploaded level.
+    uploaded: Option<(u8, TetDrawData)>,
+}
+
+struct RenderState {
+    /// `None` until first asked; then the context or why there is none.
+    gpu: Option<Result<Gpu, String>>,
+    /// The last level's mesh.
+    mesh: Option<(u8, Arc<RenderMesh>)>,
+}
+
+/// The store and its synthesized finest-level values.
+type StoreData = (LocalStore, Arc<Vec<f32>>);
+
+/// Renders a store's uniform levels on request: synthesis once, meshes and GPU uploads of the last
+/// level kept, one render at a time.
+pub struct RenderService {
+    dir: PathBuf,
+    data: OnceLock<Result<StoreData, String>>,
+    state: Mutex<RenderState>,
+}
+
+/// One rendered image and how.
+pub struct Rendered {
+    pub image: Rgba8Image,
+    pub renderer: String,
+    pub level: u8,
+    pub tets: usize,
+}
+
+impl RenderService {
+    pub fn new(dir: &Path) -> Self {
+        RenderService {
+            dir: dir.to_path_buf(),
+            data: OnceLock::new(),
+            state: Mutex::new(RenderState {
+                gpu: None,
+                mesh: None,
+            }),
+        }
+    }
+
+    fn data(&self) -> Result<&StoreData, String> {
+        self.data
+            .get_or_init(|| {
+                let s = LocalStore::open(&self.dir).map_err(|e| e.to_string())?;
+                let v = s.synthesize_all().map_err(|e| e.to_string())?;
+                Ok((s, Arc::new(v)))
+            })
+            .as_ref()
+            .map_err(|e| e.clone())
+    }
+
+    /// Renders one image (blocking: call from a blocking thread). `Err((status, message))`.
+    pub fn render(&self, p: &RenderParams) -> Result<Rendered, (StatusCode, String)> {
+        let internal = |e: String| (StatusCode::INTERNAL_SERVER_ERROR, e);
+        let (store, values) = self.data().map_err(internal)?;
+        let base = store.base();
+        let level = p.level_for(base);
+        let tf = TransferFunction::preset(&p.tf)
+            .ok_or_else(|| (StatusCode::BAD_REQUEST, format!("unknown tf {:?}", p.tf)))?;
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let mesh = match &st.mesh {
+            Some((l, m)) if *l == level => m.clone(),
+            _ => {
+                let m = Arc::new(RenderMesh::uniform_level(base, values, level));
+                st.mesh = Some((level, m.clone()));
+                m
+            }
+        };
+        let cam = Camera::orbit(
+            mesh.center(),
+            p.eye_distance(base),
+            p.azimuth,
+            p.elevation,
+            p.fov,
+            p.width,
+            p.height,
+        );
+        let want_gpu = p.renderer != RendererChoice::Cpu;
+        if want_gpu && st.gpu.is_none() {
+            st.gpu = Some(
+                GpuContext::new()
+                    .map(|ctx| Gpu {
+                        renderer: PtRenderer::new(&ctx),
+                        ctx,
+                        uploaded: None,
+                    })
+                    .map_err(|e| e.to_string()),
+            );
+        }
+        if want_gpu {
+            match st.gpu.as_mut().expect("set above") {
+                Ok(g) => {
+                    if g.uploaded.as_ref().is_none_or(|(l, _)| *l != level) {
+                        g.uploaded = None;
+                        let d = g
+                            .renderer
+                            .upload(&g.ctx, &mesh)
+                            .map_err(|e| internal(e.to_string()))?;
+                        g.uploaded = Some((level, d));
+                    }
+                    let data = &g.uploaded.as_ref().expect("uploaded").1;
+                    let (image, _) = g
+                        .renderer
+                        .render(&g.ctx, data, &cam, &tf)
+                        .map_err(|e| internal(e.to_string()))?;
+                    return Ok(Rendered {
+                        image,
+                        renderer: format!("gpu-pt {}", g.ctx.describe()),
+                        level,
+                        tets: mesh.tets.len(),
+                    });
+                }
+                Err(e) if p.renderer == RendererChoice::Gpu => {
+                    return Err((StatusCode::SERVICE_UNAVAILABLE, format!("no GPU: {e}")));
+                }
+                Err(_) => {}
+            }
+        }
+        let image = render_reference(&mesh, &cam, &tf);
+        Ok(Rendered {
+            image,
+            renderer: "cpu-reference".into(),
+            level,
+            tets: mesh.tets.len(),
+        })
+    }
+}
+
+/// PNG bytes of an image (RGBA8, as `Rgba8Image::save_png` writes it).
+pub fn png_bytes(img: &Rgba8Image) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    let flat: Vec<u8> = img.pixels.iter().flat_map(|p| *p).collect();
+    let mut out = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(
+            &flat,
+            img.width,
+            img.height,
+            image::ExtendedColorType::Rgba8,
+        )
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+/// `GET /v1/render`.
+pub async fn render(
+    State(s): State<Arc<Shared>>,
+    Query(q): Query<HashMap<String, String>>,
+) -> Response {
+    let p = match RenderParams::parse(&q, s.store.manifest.levels) {
+        Ok(p) => p,
+        Err(m) => return bad_request(m),
+    };
+    let s2 = s.clone();
+    let r = tokio::task::spawn_blocking(move || {
+        let r = s2.render.render(&p)?;
+        let png = png_bytes(&r.image).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))?;
+        Ok::<_, (StatusCode, String)>((r, png))
+    })
+    .await;
+    match r {
+        Ok(Ok((r, png))) => (
+            [
+                (header::CONTENT_TYPE, "image/png".to_string()),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+                (
+                    header::HeaderName::from_static("x-tetwave-renderer"),
+                    r.renderer
+                        .replace(|c: char| !c.is_ascii_graphic() && c != ' ', "?"),
+                ),
+                (
+                    header::HeaderName::from_static("x-tetwave-level"),
+                    r.level.to_string(),
+                ),
+                (
+                    header::HeaderName::from_static("x-tetwave-tets"),
+                    r.tets.to_string(),
+                ),
+            ],
+            png,
+        )
+            .into_response(),
+        Ok(Err((code, m))) => (code, m).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+/// `GET /`: the fallback viewer page.
+pub async fn page(State(s): State<Arc<Shared>>) -> Response {
+    let html = PAGE.replace("{{DATASET}}", &html_escape(&s.store.manifest.dataset));
+    ([(header::CACHE_CONTROL, "no-store")], Html(html)).into_response()
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+const PAGE: &str = r#"<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<title>tetwave: {{DATASET}}</title>
+<style>
+ body { background:#111; color:#ddd; font:14px sans-serif; margin:1em; }
+ #view { background:#000; cursor:grab; user-select:none; display:block; width:512px; height:512px; }
+ #view.drag { cursor:grabbing; }
+ label { margin-right:1em; }
+</style></head>
+<body>
+<h3>tetwave &mdash; {{DATASET}} (server-rendered fallback)</h3>
+<img id="view" width="512" height="512" alt="rendering" draggable="false">
+<p>
+ <label>tolerance <input id="tol" type="range" min="0" max="64" step="0.5" value="2"> <span id="tolv">2</span> px</label>
+ <label>transfer function <select id="tf"><option>default</option><option>transparent</option><option>opaque</option><option>shells</option></select></label>
+</p>
+<p id="info">drag to orbit</p>
+<script>
+(function () {
+  const img = document.getElementById('view'), tol = document.getElementById('tol');
+  const tolv = document.getElementById('tolv'), tf = document.getElementById('tf');
+  const info = document.getElementById('info');
+  const token = new URLSearchParams(location.search).get('token');
+  let az = 35, el = 25, busy = false, again = false, drag = null;
+  function url() {
+    const q = new URLSearchParams({width: 512, height: 512, azimuth: az.toFixed(2),
+      elevation: el.toFixed(2), tol: tol.value, tf: tf.value});
+    if (token) q.set('token', token);
+    return '/v1/render?' + q.toString();
+  }
+  function refresh() {
+    if (busy) { again = true; return; }
+    busy = true;
+    const t0 = performance.now();
+    fetch(url()).then(r => {
+      if (!r.ok) return r.text().then(t => { throw new Error(r.status + ' ' + t); });
+      const lvl = r.headers.get('x-tetwave-level'), who = r.headers.get('x-tetwave-renderer');
+      return r.blob().then(b => {
+        const old = img.src; img.src = URL.createObjectURL(b);
+        if (old.startsWith('blob:')) URL.revokeObjectURL(old);
+        info.textContent = 'level ' + lvl + ', ' + who + ', ' + Math.round(performance.now() - t0) +
+          ' ms; azimuth ' + az.toFixed(1) + ', elevation ' + el.toFixed(1);
+      });
+    }).catch(e => { info.textContent = 'error: ' + e.message; })
+      .finally(() => { busy = false; if (again) { again = false; refresh(); } });
+  }
+  img.addEventListener('mousedown', e => { drag = [e.clientX, e.clientY]; img.classList.add('drag'); e.preventDefault(); });
+  window.addEventListener('mouseup', () => { if (drag) { drag = null; img.classList.remove('drag'); refresh(); } });
+  window.addEventListener('mousemove', e => {
+    if (!drag) return;
+    az -= (e.clientX - drag[0]) * 0.5;
+    el = Math.max(-89, Math.min(89, el + (e.clientY - drag[1]) * 0.5));
+    drag = [e.clientX, e.clientY];
+    refresh();
+  });
+  tol.addEventListener('input', () => { tolv.textContent = tol.value; refresh(); });
+  tf.addEventListener('change', refresh);
+  refresh();
+})();
+</script>
+</body></html>
+"#;

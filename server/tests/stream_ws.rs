@@ -1,0 +1,419 @@
+//! The progressive WebSocket stream (`/v1/stream`) with a minimal tokio-tungstenite client: every
+//! order delivers every node exactly once and synthesis of what arrived equals the store's; view
+//! order follows the client's camera and re-prioritises when it changes; resume with `have`; `Want`
+//! and `Cancel`; flow control by `Ack`; malformed input. Servers bind 127.0.0.1:0; waits are bounded.
+
+mod stream_common;
+
+use std::collections::HashSet;
+use std::time::Duration;
+use stream_common::*;
+use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::wire::{encode, ClientMsg, IdRange, ServerMsg};
+use tetwave_protocol::{DetailNode, LatticeTet};
+use tetwave_server::store::Store;
+use tetwave_server::stream::ServeConfig;
+use tokio_tungstenite::tungstenite::Message;
+
+use futures_util::SinkExt;
+
+fn store_values(store: &Store) -> Vec<f32> {
+    let n = store.manifest.counts.nodes;
+    synthesize_all(
+        &store.base,
+        &store.base.vertex_keys(),
+        store.read_nodes(0, n).unwrap(),
+    )
+    .unwrap()
+}
+
+/// Every node exactly once, and synthesis of the received nodes (sorted by id) equals the store's.
+fn assert_complete(s: &Session, store: &Store, values: &[f32]) {
+    let n = store.manifest.counts.nodes;
+    assert_eq!(s.manifest, store.manifest);
+    assert_eq!(s.base, store.base);
+    assert_eq!(s.nodes.len() as u64, n, "node count");
+    assert_eq!(s.end_nodes_sent, n);
+    let ids: HashSet<u64> = s.nodes.iter().map(|x| x.id).collect();
+    assert_eq!(ids.len() as u64, n, "no duplicates");
+    let mut sorted = s.nodes.clone();
+    sorted.sort_by_key(|x| x.id);
+    let got = synthesize_all(&s.base, &s.base.vertex_keys(), sorted).unwrap();
+    assert_eq!(got.len(), values.len());
+    for (a, b) in got.iter().zip(values) {
+        assert_eq!(a.to_bits(), b.to_bits());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_order_delivers_everything_once_and_synthesis_matches() {
+    let (_d, dir) = make_store(4);
+    let store = Store::open(&dir).unwrap();
+    let values = store_values(&store);
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    for order in ["level", "magnitude", "view", "random"] {
+        let s = session(addr, &format!("?order={order}"), None).await;
+        assert_complete(&s, &store, &values);
+        let ids: Vec<u64> = s.nodes.iter().map(|x| x.id).collect();
+        match order {
+            "level" => assert!(
+                ids.windows(2).all(|w| w[0] < w[1]),
+                "level order is id order"
+            ),
+            "magnitude" => assert!(
+                s.nodes
+                    .windows(2)
+                    .all(|w| w[0].subtree_max_abs >= w[1].subtree_max_abs),
+                "magnitude order: largest subtree error first"
+            ),
+            "random" => assert!(
+                ids.windows(2).filter(|w| w[0] > w[1]).count() > ids.len() / 4,
+                "random order is shuffled"
+            ),
+            _ => {}
+        }
+        eprintln!("{order}: {} nodes in {} batches", s.nodes.len(), s.batches);
+    }
+    // the server's default order comes from its configuration
+    let cfg = ServeConfig {
+        order: tetwave_server::stream::Order::Magnitude,
+        batch: 100,
+        ..ServeConfig::default()
+    };
+    let (addr2, _) = start(&dir, cfg).await;
+    let s = session(addr2, "", None).await;
+    assert_complete(&s, &store, &values);
+    assert!(s
+        .nodes
+        .windows(2)
+        .all(|w| w[0].subtree_max_abs >= w[1].subtree_max_abs));
+    assert!(s.batches >= store.manifest.counts.nodes / 100);
+    // an unknown order is refused before the upgrade
+    let url = format!("ws://{addr}/v1/stream?order=sideways");
+    assert!(tokio_tungstenite::connect_async(url).await.is_err());
+}
+
+fn centre(store: &Store, id: u64) -> [f64; 3] {
+    let t = LatticeTet::from_id(&store.forest(), id);
+    let mut c = [0.0; 3];
+    for w in &t.v {
+        let p = store.base.position(t.base, w);
+        for a in 0..3 {
+            c[a] += 0.25 * p[a];
+        }
+    }
+    c
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Fraction of `nodes` of the finest node level whose centre is nearer `a` than `b`.
+fn nearer(store: &Store, nodes: &[DetailNode], a: [f64; 3], b: [f64; 3]) -> (f64, usize) {
+    let f = store.forest();
+    let fine: Vec<&DetailNode> = nodes
+        .iter()
+        .filter(|x| f.level(x.id) + 1 == f.levels)
+        .collect();
+    let k = fine
+        .iter()
+        .filter(|x| {
+            let c = centre(store, x.id);
+            dist(c, a) < dist(c, b)
+        })
+        .count();
+    (k as f64 / fine.len().max(1) as f64, fine.len())
+}
+
+/// View order sends first what is near the camera, and re-prioritises when a new `View` arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn view_order_follows_the_camera() {
+    let (_d, dir) = make_store(5);
+    let store = Store::open(&dir).unwrap();
+    let cfg = ServeConfig {
+        batch: 256,
+        window: 4,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&dir, cfg).await;
+    let (lo, hi) = store.base.bounds();
+    let c = [
+        0.5 * (lo[0] + hi[0]),
+        0.5 * (lo[1] + hi[1]),
+        0.5 * (lo[2] + hi[2]),
+    ];
+    // eyes beyond two opposite corners, looking at the centre, the whole volume in view
+    let eye = |p: [f64; 3]| [0, 1, 2].map(|k| c[k] + 1.6 * (p[k] - c[k]));
+    let (ea, eb) = (eye(lo), eye(hi));
+
+    let mut ws = connect(addr, "?order=view").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    send(&mut ws, &ClientMsg::View(view_from(ea, c))).await;
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    // take 40 batches under view A (acking), then switch to view B
+    let mut under_a = Vec::new();
+    let mut seq_last = 0;
+    for _ in 0..40 {
+        match recv(&mut ws).await {
+            Some(ServerMsg::Nodes { seq, nodes }) => {
+                under_a.extend(nodes);
+                seq_last = seq;
+            }
+            other => panic!("{other:?}"),
+        }
+        // keep the window full so the switch takes effect quickly: ack everything but the last
+        send(
+            &mut ws,
+            &ClientMsg::Ack {
+                seq: seq_last.saturating_sub(1),
+            },
+        )
+        .await;
+    }
+    send(&mut ws, &ClientMsg::View(view_from(eb, c))).await;
+    send(&mut ws, &ClientMsg::Ack { seq: seq_last }).await;
+    // batches still in flight were chosen under A; skip the window's worth, then measure
+    let mut after = Vec::new();
+    let mut skipped = Vec::new();
+    let mut n_batches = 0;
+    while n_batches < 20 {
+        match recv(&mut ws).await {
+            Some(ServerMsg::Nodes { seq, nodes }) => {
+                n_batches += 1;
+                if n_batches > 4 {
+                    after.extend(nodes);
+                } else {
+                    skipped.extend(nodes);
+                }
+                send(&mut ws, &ClientMsg::Ack { seq }).await;
+            }
+            Some(ServerMsg::End { .. }) => break,
+            other => panic!("{other:?}"),
+        }
+    }
+    let (fa, na) = nearer(&store, &under_a, ea, eb);
+    let (fb, nb) = nearer(&store, &after, eb, ea);
+    eprintln!(
+        "finest-level nodes nearer the camera: {:.0}% of {na} under view A, {:.0}% of {nb} after the switch to B",
+        100.0 * fa,
+        100.0 * fb
+    );
+    assert!(na > 100 && nb > 100, "enough fine nodes to judge");
+    assert!(fa > 0.8, "view A: {fa}");
+    assert!(fb > 0.8, "view B: {fb}");
+    // and the session still completes with everything exactly once
+    let (rest, _, _) = receive_nodes(&mut ws).await;
+    let _ = ws.close(None).await;
+    let mut ids: Vec<u64> = under_a
+        .iter()
+        .chain(&skipped)
+        .chain(&after)
+        .chain(&rest)
+        .map(|x| x.id)
+        .collect();
+    ids.sort_unstable();
+    assert_eq!(ids, (0..store.manifest.counts.nodes).collect::<Vec<_>>());
+}
+
+/// Resume: with `have` ranges the server sends exactly the rest.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn resume_with_have_sends_only_the_rest() {
+    let (_d, dir) = make_store(4);
+    let store = Store::open(&dir).unwrap();
+    let n = store.manifest.counts.nodes;
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    let have = vec![
+        IdRange { from: 0, to: n / 2 },
+        IdRange {
+            from: n / 2 + 10,
+            to: n / 2 + 20,
+        },
+        IdRange {
+            from: n - 5,
+            to: n + 1000, // beyond the store: clipped
+        },
+    ];
+    let held: HashSet<u64> = have.iter().flat_map(|r| r.from..r.to.min(n)).collect();
+    for order in ["level", "magnitude", "view", "random"] {
+        let mut ws = connect(addr, &format!("?order={order}")).await;
+        send(&mut ws, &hello(None, have.clone())).await;
+        let s = receive_all(&mut ws).await;
+        let _ = ws.close(None).await;
+        let ids: HashSet<u64> = s.nodes.iter().map(|x| x.id).collect();
+        assert_eq!(ids.len(), s.nodes.len(), "{order}: no duplicates");
+        let want: HashSet<u64> = (0..n).filter(|i| !held.contains(i)).collect();
+        assert_eq!(ids, want, "{order}");
+        assert_eq!(s.end_nodes_sent, want.len() as u64);
+        // what was held plus what came is the whole store
+        let mut all = store.read_nodes(0, n).unwrap();
+        all.retain(|x| held.contains(&x.id));
+        all.extend(s.nodes);
+        all.sort_by_key(|x| x.id);
+        assert_eq!(all, store.read_nodes(0, n).unwrap());
+    }
+}
+
+/// `Want` re-sends ranges (then `End` again); `Cancel` drops ranges not sent yet.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn want_and_cancel() {
+    let (_d, dir) = make_store(4);
+    let store = Store::open(&dir).unwrap();
+    let n = store.manifest.counts.nodes;
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+
+    let mut ws = connect(addr, "").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    let s = receive_all(&mut ws).await;
+    assert_eq!(s.nodes.len() as u64, n);
+    send(
+        &mut ws,
+        &ClientMsg::Want(vec![
+            IdRange { from: 3, to: 13 },
+            IdRange {
+                from: n - 2,
+                to: n + 5,
+            },
+        ]),
+    )
+    .await;
+    let (again, sent, _) = receive_nodes(&mut ws).await;
+    let ids: Vec<u64> = again.iter().map(|x| x.id).collect();
+    assert_eq!(ids, (3..13).chain(n - 2..n).collect::<Vec<_>>());
+    assert_eq!(sent, n + 12, "End counts every node sent on the connection");
+    assert_eq!(again, {
+        let mut v = store.read_nodes(3, 13).unwrap();
+        v.extend(store.read_nodes(n - 2, n).unwrap());
+        v
+    });
+    let _ = ws.close(None).await;
+
+    // Cancel the upper half right after Hello: none of it arrives (level order sends it last)
+    let mut ws = connect(addr, "").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    send(
+        &mut ws,
+        &ClientMsg::Cancel(vec![IdRange { from: n / 2, to: n }]),
+    )
+    .await;
+    let s = receive_all(&mut ws).await;
+    let ids: Vec<u64> = s.nodes.iter().map(|x| x.id).collect();
+    assert_eq!(ids, (0..n / 2).collect::<Vec<_>>());
+    // a later Want brings cancelled nodes back
+    send(
+        &mut ws,
+        &ClientMsg::Want(vec![IdRange {
+            from: n / 2,
+            to: n / 2 + 3,
+        }]),
+    )
+    .await;
+    let (again, _, _) = receive_nodes(&mut ws).await;
+    assert_eq!(
+        again.iter().map(|x| x.id).collect::<Vec<_>>(),
+        vec![n / 2, n / 2 + 1, n / 2 + 2]
+    );
+    let _ = ws.close(None).await;
+}
+
+/// Flow control: a client that does not acknowledge gets `window` batches and then nothing more
+/// until it acks; the stream then goes on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unacknowledged_batches_are_bounded_by_the_window() {
+    let (_d, dir) = make_store(4);
+    let n = Store::open(&dir).unwrap().manifest.counts.nodes;
+    let cfg = ServeConfig {
+        batch: 64,
+        window: 3,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&dir, cfg).await;
+    let mut ws = connect(addr, "").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut got = Vec::new();
+    for round in 0..3 {
+        let mut seqs = Vec::new();
+        loop {
+            match recv_within(&mut ws, Duration::from_millis(700)).await {
+                Ok(Some(ServerMsg::Nodes { seq, nodes })) => {
+                    seqs.push(seq);
+                    got.extend(nodes);
+                }
+                Ok(other) => panic!("{other:?}"),
+                Err(()) => break, // nothing more without an ack
+            }
+        }
+        assert_eq!(seqs.len(), 3, "round {round}: exactly the window");
+        send(
+            &mut ws,
+            &ClientMsg::Ack {
+                seq: *seqs.last().unwrap(),
+            },
+        )
+        .await;
+    }
+    let (rest, sent, _) = receive_nodes(&mut ws).await;
+    assert_eq!(got.len() + rest.len(), n as usize);
+    assert_eq!(sent, n);
+    let _ = ws.close(None).await;
+}
+
+/// Malformed input gets an `Error` and a closed socket, never a crash; the server goes on serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_client_input() {
+    let (_d, dir) = make_store(2);
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    let expect_error = |code: u16| {
+        move |m: Option<ServerMsg>| match m {
+            Some(ServerMsg::Error { code: c, .. }) => assert_eq!(c, code),
+            other => panic!("expected Error {code}, got {other:?}"),
+        }
+    };
+    // garbage instead of Hello
+    let mut ws = connect(addr, "").await;
+    ws.send(Message::Binary(vec![1, 2, 3, 4, 5, 6, 7].into()))
+        .await
+        .unwrap();
+    expect_error(400)(recv(&mut ws).await);
+    assert!(recv(&mut ws).await.is_none());
+    // text instead of binary
+    let mut ws = connect(addr, "").await;
+    ws.send(Message::Text("hello".into())).await.unwrap();
+    expect_error(400)(recv(&mut ws).await);
+    // a message other than Hello first
+    let mut ws = connect(addr, "").await;
+    send(&mut ws, &ClientMsg::Ack { seq: 0 }).await;
+    expect_error(400)(recv(&mut ws).await);
+    // a wrong protocol version inside Hello
+    let mut ws = connect(addr, "").await;
+    send(
+        &mut ws,
+        &ClientMsg::Hello {
+            version: 999,
+            token: None,
+            have: vec![],
+        },
+    )
+    .await;
+    expect_error(426)(recv(&mut ws).await);
+    // garbage in the middle of a session
+    let mut ws = connect(addr, "").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    let mut f = encode(&ClientMsg::Ack { seq: 1 }).unwrap();
+    f[6] = 200; // unknown message kind
+    ws.send(Message::Binary(f.into())).await.unwrap();
+    let mut saw_error = false;
+    while let Some(m) = recv(&mut ws).await {
+        if let ServerMsg::Error { code, .. } = m {
+            assert_eq!(code, 400);
+            saw_error = true;
+        }
+    }
+    assert!(saw_error);
+    // the server is still fine
+    let s = session(addr, "", None).await;
+    assert_eq!(s.nodes.len() as u64, s.manifest.counts.nodes);
+}
