@@ -4,48 +4,18 @@
 //! hand-written Python, not the readers' code).
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+mod fixture_mesh;
+use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
 
 use tetwave_server::resample::mesh_io::{read_mesh, ImportError, ImportedMesh, MeshFormat};
 use tetwave_server::resample::unstructured::{
     boundary_distance, clean_import, min_dihedral_deg, CleanError, ImportOptions,
 };
 
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(name)
-}
-
 fn read(name: &str) -> ImportedMesh {
     read_mesh(&fixture(name), None).unwrap_or_else(|e| panic!("{name}: {e}"))
-}
-
-const TETS: [[u32; 4]; 7] = [
-    [0, 1, 3, 7],
-    [0, 1, 5, 7],
-    [0, 2, 3, 7],
-    [0, 2, 6, 7],
-    [0, 4, 5, 7],
-    [0, 4, 6, 7],
-    [4, 5, 7, 8],
-];
-
-fn cube_points() -> Vec<[f64; 3]> {
-    let mut p = Vec::new();
-    for z in [0.3, 1.0] {
-        for y in [0.2, 0.9] {
-            for x in [0.1, 0.8] {
-                p.push([x, y, z]);
-            }
-        }
-    }
-    p.push([0.45, 0.55, 1.4]);
-    p
-}
-
-fn temperature(p: [f64; 3]) -> f64 {
-    p[0] + 2.0 * p[1] + 3.0 * p[2]
 }
 
 fn cell_array<'m>(m: &'m ImportedMesh, name: &str) -> &'m [f64] {
@@ -477,13 +447,7 @@ fn new_fixtures_survive_truncation() {
 /// Random byte changes on the new fixtures: an error or a consistent mesh, never a panic.
 #[test]
 fn new_fixtures_corrupted_never_panic() {
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = move |n: usize| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % n.max(1) as u64) as usize
-    };
+    let mut rng = Corruptor::new(0x9e37_79b9_7f4a_7c15);
     for name in [
         "cube_10.msh",
         "cube.mesh",
@@ -498,26 +462,7 @@ fn new_fixtures_corrupted_never_panic() {
         let bytes = std::fs::read(fixture(name)).unwrap();
         let fmt = tetwave_server::resample::mesh_io::format_of(Path::new(name)).unwrap();
         for round in 0..300 {
-            let mut b = bytes.clone();
-            for _ in 0..1 + round % 4 {
-                let i = next(b.len());
-                match next(4) {
-                    0 => b[i] = next(256) as u8,
-                    1 => b[i] = b"0123456789-.e \n$<>"[next(18)],
-                    2 => {
-                        let end = (i + 1 + next(16)).min(b.len());
-                        b.drain(i..end);
-                    }
-                    _ => {
-                        let end = (i + 1 + next(16)).min(b.len());
-                        let run = b[i..end].to_vec();
-                        b.splice(i..i, run);
-                    }
-                }
-                if b.is_empty() {
-                    b.push(b'x');
-                }
-            }
+            let b = rng.corrupt(&bytes, round);
             match tetwave_server::resample::mesh_io::parse_mesh(Path::new(name), &b, fmt) {
                 Ok(m) => {
                     let n = m.mesh.points.len();

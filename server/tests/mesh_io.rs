@@ -5,53 +5,19 @@
 
 use std::path::{Path, PathBuf};
 
+mod fixture_mesh;
+use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
+
 use tetwave_server::resample::mesh_io::{
     format_of_content, parse_tet_mesh, read_tet_mesh, read_tet_mesh_as, ImportError, MeshFormat,
     TetMesh,
 };
-
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(name)
-}
 
 fn read(name: &str) -> TetMesh {
     match read_tet_mesh(&fixture(name)) {
         Ok(m) => m,
         Err(e) => panic!("{name}: {e}"),
     }
-}
-
-// The mesh of every valid fixture (see scripts/gen-fixtures.py).
-const XS: [f64; 2] = [0.1, 0.8];
-const YS: [f64; 2] = [0.2, 0.9];
-const ZS: [f64; 2] = [0.3, 1.0];
-const TETS: [[u32; 4]; 7] = [
-    [0, 1, 3, 7],
-    [0, 1, 5, 7],
-    [0, 2, 3, 7],
-    [0, 2, 6, 7],
-    [0, 4, 5, 7],
-    [0, 4, 6, 7],
-    [4, 5, 7, 8],
-];
-
-fn cube_points() -> Vec<[f64; 3]> {
-    let mut p = Vec::new();
-    for z in ZS {
-        for y in YS {
-            for x in XS {
-                p.push([x, y, z]);
-            }
-        }
-    }
-    p.push([0.45, 0.55, 1.4]);
-    p
-}
-
-fn temperature(p: [f64; 3]) -> f64 {
-    p[0] + 2.0 * p[1] + 3.0 * p[2]
 }
 
 fn pressure(p: [f64; 3]) -> f64 {
@@ -462,39 +428,12 @@ fn corrupted_bytes_never_panic() {
         .ok()
         .and_then(|r| r.parse().ok())
         .unwrap_or(300);
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move |n: usize| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state % n.max(1) as u64) as usize
-    };
+    let mut rng = Corruptor::new(0x2545_f491_4f6c_dd1d);
     for name in VALID {
         let bytes = std::fs::read(fixture(name)).expect("fixture");
         let fmt = format(name);
         for round in 0..rounds {
-            let mut b = bytes.clone();
-            for _ in 0..1 + round % 4 {
-                let i = next(b.len());
-                match next(6) {
-                    0 => b[i] = next(256) as u8,
-                    1 => b[i] = b"0123456789"[next(10)],
-                    2 => b[i] = b'9',
-                    3 => b[i] = b"-.e \n<>$_="[next(10)],
-                    4 => {
-                        let end = (i + 1 + next(16)).min(b.len());
-                        b.drain(i..end);
-                    }
-                    _ => {
-                        let end = (i + 1 + next(16)).min(b.len());
-                        let run = b[i..end].to_vec();
-                        b.splice(i..i, run);
-                    }
-                }
-                if b.is_empty() {
-                    b.push(b'x');
-                }
-            }
+            let b = rng.corrupt(&bytes, round);
             let what = format!("{name} round {round}");
             match parse_tet_mesh(Path::new(name), &b, fmt) {
                 Ok(m) => assert_consistent(&what, &m),
