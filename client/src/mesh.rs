@@ -51,6 +51,7 @@
 
 use crate::detail_buffer::{Arrivals, DetailBuffer};
 use rustc_hash::FxHashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
 use tetwave_protocol::base::signed_volume;
 use tetwave_protocol::hierarchy::{Bary, Lattice, BEY_CHILDREN, EDGES, FACES};
@@ -298,6 +299,8 @@ struct Node {
     /// Marked edges of a leaf (its green pattern); 0 for refined nodes.
     mask: u8,
     flags: u8,
+    /// Refined children (0 for a leaf): a refined node with none has 8 leaf children.
+    nref: u8,
 }
 
 impl Node {
@@ -307,6 +310,7 @@ impl Node {
         children: NONE,
         mask: 0,
         flags: 0,
+        nref: 0,
     };
     #[inline]
     fn is_leaf(&self) -> bool {
@@ -416,6 +420,44 @@ pub struct AdaptiveMesh {
     /// Red splits and merges done so far (closure refinements included).
     n_splits: u64,
     n_merges: u64,
+
+    /// Identity of this mesh (a clone gets a new one), for incremental consumers of [`Self::changes`].
+    uid: MeshUid,
+    /// Structural changes since [`Self::changes_start`] (see [`SlotChange`]); bounded, see
+    /// [`Self::trim_changes`].
+    changes: Vec<SlotChange>,
+    changes_start: u64,
+}
+
+/// A node slot whose structure changed: split (`block` = its new children), merged (`block` = its
+/// former children, now free), or whose `empty` flag flipped (`block` = its children or `u32::MAX`).
+/// The slots whose selection status may have changed are `slot`, the 8 slots of `block` and the
+/// slot of the parent of the node in `slot` (if the node that changed has gone since, so has its
+/// parent's split, which is recorded too).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlotChange {
+    pub slot: u32,
+    pub block: u32,
+}
+
+/// Most [`SlotChange`]s kept unread (beyond, the log restarts and a reader rescans).
+const MAX_CHANGES: usize = 1 << 16;
+
+static NEXT_UID: AtomicU64 = AtomicU64::new(1);
+
+#[derive(Debug)]
+struct MeshUid(u64);
+
+impl MeshUid {
+    fn new() -> Self {
+        MeshUid(NEXT_UID.fetch_add(1, Ordering::Relaxed))
+    }
+}
+
+impl Clone for MeshUid {
+    fn clone(&self) -> Self {
+        MeshUid::new()
+    }
 }
 
 /// One node of the red tree as selection sees it ([`AdaptiveMesh::red_node`]).
@@ -497,6 +539,7 @@ impl AdaptiveMesh {
                 children: NONE,
                 mask: 0,
                 flags,
+                nref: 0,
             });
         }
         let mut m = AdaptiveMesh {
@@ -524,6 +567,9 @@ impl AdaptiveMesh {
             work: Vec::new(),
             n_splits: 0,
             n_merges: 0,
+            uid: MeshUid::new(),
+            changes: Vec::new(),
+            changes_start: 0,
         };
         for g in 0..nv {
             let p = base.positions[g];
@@ -586,11 +632,73 @@ impl AdaptiveMesh {
             v: n.v,
             leaf,
             empty: n.flags & EMPTY != 0,
-            children_leaves: !leaf
-                && self.nodes[n.children as usize..n.children as usize + 8]
-                    .iter()
-                    .all(|c| c.is_leaf()),
+            children_leaves: !leaf && n.nref == 0,
         }
+    }
+
+    /// Appends the slots of the subtree of the red tree rooted at `slot` (itself included) to `out`.
+    pub fn subtree_slots(&self, slot: usize, out: &mut Vec<u32>) {
+        let start = out.len();
+        out.push(slot as u32);
+        let mut i = start;
+        while i < out.len() {
+            let n = &self.nodes[out[i] as usize];
+            if !n.is_leaf() {
+                out.extend(n.children..n.children + 8);
+            }
+            i += 1;
+        }
+    }
+
+    /// Whether `slot` holds the live node of hierarchy tet `id`.
+    #[inline]
+    pub fn slot_holds(&self, slot: usize, id: TetId) -> bool {
+        self.nodes
+            .get(slot)
+            .is_some_and(|n| n.alive() && n.id == id)
+    }
+
+    /// Node slot of hierarchy tet `id`, if it is in the red tree (see [`Self::red_node`]).
+    #[inline]
+    pub fn slot_of(&self, id: TetId) -> Option<usize> {
+        self.find(id).map(|s| s as usize)
+    }
+
+    /// Identity of this mesh object: unique per process, a clone gets a new one.
+    pub fn uid(&self) -> u64 {
+        self.uid.0
+    }
+
+    /// Sequence number after the last recorded [`SlotChange`].
+    pub fn change_seq(&self) -> u64 {
+        self.changes_start + self.changes.len() as u64
+    }
+
+    /// The structural changes since sequence number `seq` (from [`Self::change_seq`]); `None` when
+    /// some of them were dropped (the log is bounded: read and [`Self::trim_changes`] it often).
+    pub fn changes_since(&self, seq: u64) -> Option<&[SlotChange]> {
+        let i = seq.checked_sub(self.changes_start)? as usize;
+        self.changes.get(i..)
+    }
+
+    /// Forgets the changes before sequence number `seq`.
+    pub fn trim_changes(&mut self, seq: u64) {
+        if seq >= self.change_seq() {
+            self.changes_start = self.change_seq();
+            self.changes.clear();
+        } else if seq > self.changes_start {
+            self.changes.drain(..(seq - self.changes_start) as usize);
+            self.changes_start = seq;
+        }
+    }
+
+    #[inline]
+    fn log_change(&mut self, slot: u32, block: u32) {
+        if self.changes.len() >= MAX_CHANGES {
+            self.changes_start += self.changes.len() as u64;
+            self.changes.clear();
+        }
+        self.changes.push(SlotChange { slot, block });
     }
 
     /// The node of hierarchy tet `id`, if it is in the red tree.
@@ -699,11 +807,7 @@ impl AdaptiveMesh {
     pub fn coarsenable_ids(&self) -> Vec<TetId> {
         self.nodes
             .iter()
-            .filter(|n| {
-                n.alive()
-                    && !n.is_leaf()
-                    && (0..8).all(|i| self.nodes[(n.children + i) as usize].is_leaf())
-            })
+            .filter(|n| n.alive() && !n.is_leaf() && self.children_leaves(n))
             .map(|n| n.id)
             .collect()
     }
@@ -782,6 +886,7 @@ impl AdaptiveMesh {
             + self.by_key.capacity() * 4
             + self.by_edge.capacity() * (size_of::<(u64, u32)>() + 1)
             + self.work.capacity() * size_of::<(u32, TetId)>()
+            + self.changes.capacity() * size_of::<SlotChange>()
     }
 
     // ---------------------------------------------------------------- leaf mesh
@@ -1126,6 +1231,7 @@ impl AdaptiveMesh {
                 children: NONE,
                 mask: 0,
                 flags,
+                nref: 0,
             };
             self.work.push((block + i as u32, id));
         }
@@ -1134,6 +1240,8 @@ impl AdaptiveMesh {
         node.mask = 0;
         self.n_leaves += 7;
         self.n_splits += 1;
+        self.log_change(slot, block);
+        self.count_in_parent(n.id, 1);
         for (e, &c) in created.iter().enumerate() {
             if c {
                 self.locate(lt.base, &lt.edge_midpoint(e));
@@ -1200,27 +1308,43 @@ impl AdaptiveMesh {
     /// would be forced under that are dropped and their midpoints restored, until none is; only the
     /// rest are unrefined. The result is the same, without the wasted unrefine + refine pairs.
     pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
-        let mut cand: Vec<(u32, [u32; 6])> = Vec::with_capacity(ts.len());
-        for &t in ts {
-            if let Some(slot) = self.find(t) {
-                let n = self.nodes[slot as usize];
-                if !n.is_leaf() && (0..8).all(|i| self.nodes[(n.children + i) as usize].is_leaf()) {
-                    cand.push((slot, self.present_mids(&n.v)));
+        self.coarsen_batch_at(ts, &[], buf)
+    }
+
+    /// [`Self::coarsen_batch`] with `hints[i]`: the node slot `ts[i]` probably is in (checked).
+    pub fn coarsen_batch_at(
+        &mut self,
+        ts: &[TetId],
+        hints: &[u32],
+        buf: &DetailBuffer,
+    ) -> Result<usize, MeshError> {
+        let mut cand: Vec<(u32, [u32; 6], bool)> = Vec::with_capacity(ts.len());
+        let mut slots: Vec<u32> = Vec::with_capacity(ts.len());
+        for (i, &t) in ts.iter().enumerate() {
+            let slot = match hints.get(i) {
+                Some(&h) if self.slot_holds(h as usize, t) => h,
+                _ => self.find(t).unwrap_or(NONE),
+            };
+            slots.push(slot);
+            if slot != NONE {
+                let n = &self.nodes[slot as usize];
+                if !n.is_leaf() && self.children_leaves(n) {
+                    cand.push((slot, self.child_mids(n), true));
                 }
             }
         }
         cand.sort_unstable_by_key(|c| c.0);
         cand.dedup_by_key(|c| c.0);
-        for (_, mids) in &cand {
+        for (_, mids, _) in &cand {
             for &m in mids {
                 self.vref[m as usize] -= 1;
             }
         }
-        let mut keep = vec![true; cand.len()];
         loop {
             let mut dropped = false;
-            for (i, (slot, mids)) in cand.iter().enumerate() {
-                if !keep[i] {
+            for c in cand.iter_mut() {
+                let (slot, mids, keep) = c;
+                if !*keep {
                     continue;
                 }
                 let v = self.nodes[*slot as usize].v;
@@ -1238,8 +1362,8 @@ impl AdaptiveMesh {
                     })
                     .1;
                 if forced {
-                    keep[i] = false;
-                    for &m in mids {
+                    *keep = false;
+                    for &m in mids.iter() {
                         self.vref[m as usize] += 1;
                     }
                     dropped = true;
@@ -1249,20 +1373,65 @@ impl AdaptiveMesh {
                 break;
             }
         }
-        for (i, (_, mids)) in cand.iter().enumerate() {
-            if keep[i] {
+        for (_, mids, keep) in &cand {
+            if *keep {
                 for &m in mids {
                     self.vref[m as usize] += 1;
                 }
             }
         }
-        for (i, &(slot, _)) in cand.iter().enumerate() {
-            if keep[i] {
+        for &(slot, _, keep) in &cand {
+            if keep {
                 self.unrefine(slot);
             }
         }
-        self.close(buf)?;
-        Ok(ts.iter().filter(|&&t| self.is_leaf(t)).count())
+        let closed = self.close(buf);
+        // a tet of `ts` keeps its slot (coarsening frees children only, the closure refines)
+        let held = ts
+            .iter()
+            .zip(&slots)
+            .filter(|&(&t, &s)| {
+                s != NONE && {
+                    let n = &self.nodes[s as usize];
+                    n.alive() && n.id == t && n.is_leaf()
+                }
+            })
+            .count();
+        closed?;
+        Ok(held)
+    }
+
+    /// Whether the 8 children of refined node `n` are leaves.
+    #[inline]
+    fn children_leaves(&self, n: &Node) -> bool {
+        debug_assert_eq!(
+            n.nref as usize,
+            (0..8)
+                .filter(|&i| !self.nodes[(n.children + i) as usize].is_leaf())
+                .count()
+        );
+        n.nref == 0
+    }
+
+    /// Adds `d` to the refined-children count of the parent of `id` (if not a base tet).
+    #[inline]
+    fn count_in_parent(&mut self, id: TetId, d: i8) {
+        if let Some(p) = self.forest.parent(id) {
+            let ps = self.find(p).expect("a node's parent is in the tree") as usize;
+            let n = &mut self.nodes[ps];
+            n.nref = n.nref.wrapping_add_signed(d);
+        }
+    }
+
+    /// Midpoint slots of the 6 edges of refined node `n`, read off its children ([`BEY_CHILDREN`]:
+    /// `T0 = [x0, x01, x02, x03]`, `T1 = [x01, x1, x12, x13]`, `T2 = [x02, x12, x2, x23]`).
+    #[inline]
+    fn child_mids(&self, n: &Node) -> [u32; 6] {
+        let c = n.children as usize;
+        let (c0, c1, c2) = (self.nodes[c].v, self.nodes[c + 1].v, self.nodes[c + 2].v);
+        let m = [c0[1], c0[2], c0[3], c1[2], c1[3], c2[3]];
+        debug_assert_eq!(m, self.present_mids(&n.v));
+        m
     }
 
     /// Removes the 8 (leaf) children of `slot` and releases its midpoints; queues `slot` and the
@@ -1270,7 +1439,7 @@ impl AdaptiveMesh {
     fn unrefine(&mut self, slot: u32) {
         let n = self.nodes[slot as usize];
         let t = n.id;
-        let all = self.present_mids(&n.v);
+        let all = self.child_mids(&n);
         let lt = self.lattice_of(t);
         for i in 0..8 {
             self.nodes[(n.children + i) as usize] = Node::DEAD;
@@ -1279,6 +1448,8 @@ impl AdaptiveMesh {
         self.nodes[slot as usize].children = NONE;
         self.n_leaves -= 7;
         self.n_merges += 1;
+        self.log_change(slot, n.children);
+        self.count_in_parent(t, -1);
         let mut removed = [false; 6];
         for e in 0..6 {
             let s = all[e] as usize;
@@ -1373,6 +1544,8 @@ impl AdaptiveMesh {
             let old = self.nodes[c].flags & EMPTY != 0;
             if empty != old {
                 self.nodes[c].flags ^= EMPTY;
+                let block = self.nodes[c].children;
+                self.log_change(c as u32, block);
                 self.refresh_empty(c as u32, buf);
             }
         }
@@ -1429,6 +1602,15 @@ impl AdaptiveMesh {
                         )));
                     }
                     want_ref[m as usize] += 1;
+                }
+                let nref = (0..8)
+                    .filter(|&i| !self.nodes[(n.children + i) as usize].is_leaf())
+                    .count();
+                if nref != n.nref as usize {
+                    return Err(ConformityError::Other(format!(
+                        "refined tet {} counts {} refined children, has {nref}",
+                        n.id, n.nref
+                    )));
                 }
                 for (i, c) in lt.children().into_iter().enumerate() {
                     let cs = n.children + i as u32;

@@ -256,7 +256,7 @@ pub fn run_progressive(
         next = end;
         if !arr.is_empty() {
             mesh.apply_arrivals(&buf, &arr);
-            sel.notify_arrivals();
+            sel.notify_arrived(&mesh, &arr.nodes);
         }
         let arrive = t0.elapsed().as_secs_f64() * 1e3;
         let cam = step_camera(cfg, center, step);
@@ -484,7 +484,7 @@ fn worker(
                     }
                     if !arr.is_empty() {
                         mesh.apply_arrivals(&buf, &arr);
-                        sel.notify_arrivals();
+                        sel.notify_arrived(&mesh, &arr.nodes);
                         published_converged = false;
                     }
                 }

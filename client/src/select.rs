@@ -17,14 +17,19 @@
 //!   are complementary, so a static view never oscillates between them.
 //!
 //! # Budget
-//! A frame sweeps the node array (resumable: a sweep may span frames), pushing split candidates on a
-//! max-heap and merge candidates on a min-heap by error, then applies merges (smallest error first, in
-//! batches through [`AdaptiveMesh::coarsen_batch`], so that uniformly refined regions coarsen) and
-//! splits (largest error first), each re-checked against the current view when popped. It stops at
-//! [`Budget::max_ops`] operations or [`Budget::max_time`]; what is left stays in the heaps or is found
-//! by the next sweep. Every operation ends with a conforming mesh, so every frame does. A sweep that
-//! changes nothing while the view and the buffer stayed the same marks the selector *converged*: later
-//! frames return at once until the camera moves or [`Selector::notify_arrivals`] is called.
+//! A sweep takes the candidates of the current mesh (see "Incremental sweeps" at [`Selector`]: a
+//! scan of the node array, resumable across frames, or the candidate list kept up to date), pushing
+//! split candidates on a max-heap and merge candidates on a min-heap by error, then applies merges
+//! (smallest error first, in batches through [`AdaptiveMesh::coarsen_batch`], so that uniformly
+//! refined regions coarsen) and splits (largest error first), each re-checked when popped unless the
+//! mesh and the view stayed as they were since it was pushed. It stops at [`Budget::max_ops`]
+//! operations or [`Budget::max_time`]; what is left stays in the heaps or is found by the next sweep.
+//! Every operation ends with a conforming mesh, so every frame does. A sweep that changes nothing
+//! while the view and the buffer stayed the same marks the selector *converged*: later frames return
+//! at once until the camera moves (in [`Mode::Complete`] the camera does not matter) or
+//! [`Selector::notify_arrivals`] / [`Selector::notify_arrived`] is called. Without a budget, a sweep
+//! that changed nothing and left the mesh untouched is not replayed as a consolidating sweep (it
+//! would do exactly the same).
 
 use crate::camera::Camera;
 use crate::detail_buffer::DetailBuffer;
@@ -229,7 +234,7 @@ pub struct FrameStats {
     /// Merges that held (the tet is a leaf after the batch's closure).
     pub merges: usize,
     pub merge_attempts: usize,
-    /// Node slots looked at by the sweep.
+    /// Node slots looked at by the sweeps (scanned, or listed candidates evaluated).
     pub scanned: usize,
     /// Sweeps completed in this frame.
     pub sweeps: usize,
@@ -242,8 +247,15 @@ pub struct FrameStats {
     pub op_time: Duration,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Cand(f64, TetId);
+/// A candidate: priority, tet id, the node slot it had when pushed (a hint) and the selector's tag
+/// then (see `Selector::tag`); only the first two are ordered.
+#[derive(Debug, Clone, Copy)]
+struct Cand(f64, TetId, u32, u32);
+impl PartialEq for Cand {
+    fn eq(&self, o: &Self) -> bool {
+        self.cmp(o) == Ordering::Equal
+    }
+}
 impl Eq for Cand {}
 impl PartialOrd for Cand {
     fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
@@ -263,7 +275,65 @@ const SCAN_CHUNK: usize = 512;
 /// Sweeps one unbudgeted [`Selector::converge`] may take before giving up.
 const MAX_SWEEPS: usize = 256;
 
+/// What selection keeps of one node slot (24 bytes): pure functions of the node's id (level; the
+/// bounding sphere, kept apart in `Selector::geo` since complete mode needs none) and what the
+/// buffer said of it (presence, subtree max, usability: these only grow).
+#[derive(Debug, Clone, Copy)]
+struct SlotInfo {
+    /// The node the entry describes; `NO_ID`: none.
+    id: TetId,
+    /// [`DetailBuffer::nodes_held`] (low 32 bits) when presence and usability were looked up.
+    checked: u32,
+    smax: f32,
+    level: u8,
+    present: bool,
+    usable: bool,
+    /// `Selector::geo` holds this node's bounding sphere.
+    geo: bool,
+}
+
+const NO_ID: TetId = TetId::MAX;
+
+const NO_INFO: SlotInfo = SlotInfo {
+    id: NO_ID,
+    checked: u32::MAX,
+    smax: 0.0,
+    level: 0,
+    present: false,
+    usable: false,
+    geo: false,
+};
+
+/// What the criteria want of one node of the red tree.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Status {
+    Keep,
+    /// A leaf wanted split, with its priority.
+    Split(f64),
+    /// A refined node with 8 leaf children whose split should be undone, with its priority.
+    Merge(f64),
+}
+
 /// Frame-by-frame selective refinement (see the module docs).
+///
+/// # Incremental sweeps
+/// A sweep starts from the candidates of the current mesh, view and buffer: the leaves wanted split
+/// and the refined nodes (with 8 leaf children) wanted merged. Finding them by looking at every node
+/// is the *full scan*; it runs once per *epoch* (the view, the mode, the parameters or the buffer
+/// changed) and records the candidate slots in a list. Later sweeps of the same epoch start from that
+/// list plus the slots the mesh reports as changed since ([`AdaptiveMesh::changes_since`]): the
+/// criteria are pure functions of the node's id for a given view and buffer, so a node whose slot
+/// did not change keeps its status, and the list is a superset of the candidates. Each listed slot
+/// is evaluated again (dropped when it is no candidate any more), so a sweep sees exactly the
+/// candidates a full scan would. Per slot the bounding sphere, level, subtree max and usability are
+/// cached (keyed by the node id). [`Selector::full_scan`] builds the reference selector that scans
+/// every node with [`Selector::want_split`] / [`Selector::want_merge`] at every sweep.
+///
+/// A camera motion that keeps the lens (field of view, near plane, viewport) does not need a full
+/// scan either (except with [`CoarsenRef::Grandparent`]): every evaluated slot keeps a certificate,
+/// how far the camera may move before its criterion could answer otherwise (see `Kinetic`), and a
+/// motion evaluates again only the slots whose certificates it uses up. Arrivals reported with
+/// [`Selector::notify_arrived`] change the status of the arrived nodes' subtrees only.
 #[derive(Debug, Clone)]
 pub struct Selector {
     pub params: SelectParams,
@@ -282,6 +352,102 @@ pub struct Selector {
     converged: bool,
     last_cam: Option<Camera>,
     last_mode: Option<Mode>,
+    last_params: Option<SelectParams>,
+    /// Reference mode: scan every node with the uncached criteria at every sweep.
+    reference: bool,
+    /// Bumped whenever the criteria may give other answers (view, mode, parameters, buffer, mesh).
+    epoch: u64,
+    /// Epoch of the sweep in progress.
+    sweep_epoch: u64,
+    /// [`AdaptiveMesh::change_seq`] when the sweep in progress started.
+    sweep_seq: u64,
+    /// The sweep in progress started from the candidate list (no scan).
+    sweep_listed: bool,
+    /// The full scan in progress has seen every change of the mesh since it started.
+    scan_ok: bool,
+    /// The candidate list holds every candidate of this epoch (see the type's docs).
+    list_epoch: Option<u64>,
+    list: Vec<u32>,
+    in_list: Vec<bool>,
+    info: Vec<SlotInfo>,
+    /// Bounding spheres by slot, valid where `info` says so.
+    geo: Vec<(DVec3, f64)>,
+    /// The mesh followed ([`AdaptiveMesh::uid`]) and the changes read from it.
+    mesh_uid: u64,
+    seen: u64,
+    batch: Vec<TetId>,
+    batch_slots: Vec<u32>,
+    /// Changes with every frame and every change of the mesh ([`Self::retag`]): a candidate popped
+    /// with the tag it was pushed with has the status it was pushed with.
+    tag: u32,
+    tag_seq: u64,
+    /// Bumped when the criteria change other than by a camera motion (see `Kinetic`).
+    full_epoch: u64,
+    /// Full epoch of the full scan in progress.
+    scan_full_epoch: u64,
+    /// Next list entry a listed sweep looks at.
+    lcursor: usize,
+    /// Slots to look at again (changed by the mesh or by arrivals), by the next listed sweep.
+    todo: Vec<u32>,
+    /// The slots the listed sweep in progress looks at again first, and the next one.
+    flushing: Vec<u32>,
+    fcursor: usize,
+    kin: Kinetic,
+    /// The camera moved since the last frame, by a motion `Kinetic` can follow.
+    moved: bool,
+}
+
+/// Motion-bounded re-evaluation (see [`Selector`]): a slot's split criterion, evaluated for one
+/// view, keeps its answer while the camera moves less than the slot's *margins*: its distance to
+/// the error threshold (the eye moves it at most by the eye's displacement) and, for the frustum,
+/// to the planes that decide (a motion moves a plane relative to a scene point at most by the eye's
+/// displacement plus the normal's change times the point's distance from the eye). The bounds add
+/// up over motions in `we` and `wf`; each slot records the values of those sums at which it must be
+/// evaluated again (or sooner, when its node changes).
+#[derive(Debug, Clone, Default)]
+struct Kinetic {
+    /// Full epoch whose certificates are held (`None`: not following).
+    epoch: Option<u64>,
+    /// The view the bounds were last brought to.
+    view: Option<View>,
+    /// Sums of the eye displacements, and of the plane displacement bounds.
+    we: f64,
+    wf: f64,
+    /// Per slot: evaluate again once `we` or `wf` reaches these (rounded down).
+    until_e: Vec<f32>,
+    until_f: Vec<f32>,
+    /// Bounding box of the scene (the base vertices).
+    lo: DVec3,
+    hi: DVec3,
+    scene: bool,
+    due: Vec<u32>,
+    /// No slot's certificate ends at or below these bounds.
+    clean: (f64, f64),
+    /// The due pass in progress (the bounds it started from) and its next slot.
+    pass: Option<(f64, f64)>,
+    cursor: usize,
+}
+
+/// `x` rounded up to an `f32`.
+#[inline]
+fn f32_up(x: f64) -> f32 {
+    let y = x as f32;
+    if (y as f64) < x {
+        y.next_up()
+    } else {
+        y
+    }
+}
+
+/// `x` rounded down to an `f32`.
+#[inline]
+fn f32_down(x: f64) -> f32 {
+    let y = x as f32;
+    if (y as f64) > x {
+        y.next_down()
+    } else {
+        y
+    }
 }
 
 impl Selector {
@@ -298,13 +464,70 @@ impl Selector {
             converged: false,
             last_cam: None,
             last_mode: None,
+            last_params: None,
+            reference: false,
+            epoch: 0,
+            sweep_epoch: 0,
+            sweep_seq: 0,
+            sweep_listed: false,
+            scan_ok: false,
+            list_epoch: None,
+            list: Vec::new(),
+            in_list: Vec::new(),
+            info: Vec::new(),
+            geo: Vec::new(),
+            mesh_uid: 0,
+            seen: 0,
+            batch: Vec::new(),
+            batch_slots: Vec::new(),
+            tag: 0,
+            tag_seq: 0,
+            full_epoch: 0,
+            scan_full_epoch: 0,
+            lcursor: 0,
+            todo: Vec::new(),
+            flushing: Vec::new(),
+            fcursor: 0,
+            kin: Kinetic::default(),
+            moved: false,
+        }
+    }
+
+    /// The reference selector: every sweep scans every node with [`Self::want_split`] and
+    /// [`Self::want_merge`] (no candidate list, no caches). Same meshes as [`Self::new`], slower.
+    pub fn full_scan(params: SelectParams) -> Self {
+        Selector {
+            reference: true,
+            ..Selector::new(params)
         }
     }
 
     /// New nodes arrived in the buffer (or the parameters changed): the selector looks again.
     pub fn notify_arrivals(&mut self) {
+        self.full_epoch += 1;
+        self.epoch += 1;
         self.dirty = true;
         self.converged = false;
+    }
+
+    /// Nodes `ids` arrived in the buffer and `mesh` has applied them
+    /// ([`AdaptiveMesh::apply_arrivals`]): like [`Self::notify_arrivals`], but only the subtrees of
+    /// the arrived nodes are looked at again (their usability is all that changed).
+    pub fn notify_arrived(&mut self, mesh: &AdaptiveMesh, ids: &[TetId]) {
+        if ids.is_empty() {
+            return;
+        }
+        if self.reference || mesh.uid() != self.mesh_uid {
+            self.notify_arrivals();
+            return;
+        }
+        self.dirty = true;
+        self.converged = false;
+        for &id in ids {
+            if let Some(s) = mesh.slot_of(id) {
+                mesh.subtree_slots(s, &mut self.todo);
+            }
+        }
     }
 
     /// Whether the last frame found nothing left to do.
@@ -345,12 +568,18 @@ impl Selector {
         n: &RedNode,
     ) -> Option<f64> {
         let (c, r) = bounding_sphere(mesh, &n.v);
+        self.sphere_error(view, c, r, buf.subtree_max(n.id))
+    }
+
+    /// [`Self::error`] of a node with bounding sphere `(c, r)` and subtree max `smax`.
+    #[inline]
+    fn sphere_error(&self, view: &View, c: DVec3, r: f64, smax: Option<f32>) -> Option<f64> {
         if self.params.frustum && !view.sphere_visible(c, r) {
             return None;
         }
         let mut e = view.error_px(c, 2.0 * r);
         if let Some(delta) = self.params.data_aware {
-            if let Some(m) = buf.subtree_max(n.id) {
+            if let Some(m) = smax {
                 let [lo, hi] = self.params.value_range;
                 let range = ((hi - lo) as f64).max(1e-30);
                 e *= (m as f64 / (delta.max(1e-30) as f64 * range)).min(1.0);
@@ -388,6 +617,573 @@ impl Selector {
         })
     }
 
+    // ------------------------------------------------------------ cached criteria
+
+    /// The cached facts of node `n` in `slot`, filled or refreshed as needed.
+    #[inline]
+    fn info_of(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        slot: usize,
+        n: &RedNode,
+    ) -> SlotInfo {
+        if slot >= self.info.len() {
+            self.info
+                .resize(mesh.node_slot_len().max(slot + 1), NO_INFO);
+        }
+        let e = &mut self.info[slot];
+        if e.id != n.id {
+            *e = SlotInfo {
+                id: n.id,
+                level: mesh.forest().level(n.id),
+                ..NO_INFO
+            };
+        }
+        if !e.usable {
+            let held = buf.nodes_held() as u32;
+            if e.checked != held {
+                e.checked = held;
+                if let Some(m) = buf.subtree_max(n.id) {
+                    e.present = true;
+                    e.smax = m;
+                    e.usable = buf.is_usable(n.id);
+                }
+            }
+        }
+        *e
+    }
+
+    /// The cached bounding sphere of node `n` in `slot` (after [`Self::info_of`]).
+    #[inline]
+    fn sphere_of(&mut self, mesh: &AdaptiveMesh, slot: usize, n: &RedNode) -> (DVec3, f64) {
+        let i = &mut self.info[slot];
+        if !i.geo {
+            if slot >= self.geo.len() {
+                self.geo
+                    .resize(mesh.node_slot_len().max(slot + 1), (DVec3::ZERO, 0.0));
+            }
+            i.geo = true;
+            self.geo[slot] = bounding_sphere(mesh, &n.v);
+        }
+        self.geo[slot]
+    }
+
+    /// [`Self::want_split`] from the cache.
+    #[inline]
+    fn split_cached(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        slot: usize,
+        n: &RedNode,
+    ) -> (Option<f64>, SlotInfo) {
+        let levels = mesh.forest().levels;
+        let i = self.info_of(mesh, buf, slot, n);
+        if n.empty || !i.usable || i.level >= levels {
+            return (None, i);
+        }
+        if mode == Mode::Complete {
+            return (Some((levels - i.level) as f64), i);
+        }
+        let (c, r) = self.sphere_of(mesh, slot, n);
+        let e = self
+            .sphere_error(view, c, r, Some(i.smax))
+            .filter(|&e| e > view.tol_px);
+        (e, i)
+    }
+
+    /// The status of the live node in `slot` (the cached [`Self::want_split`] /
+    /// [`Self::want_merge`]).
+    #[inline]
+    fn eval(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        slot: usize,
+    ) -> Status {
+        self.eval_cert(mesh, buf, view, mode, slot, false).0
+    }
+
+    /// [`Self::eval`], and with `cert` the slot's certificate (see [`Kinetic`]): the values of
+    /// `we` and `wf` up to which its status cannot change without a change of its node.
+    fn eval_cert(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        slot: usize,
+        cert: bool,
+    ) -> (Status, f32, f32) {
+        const INF: f32 = f32::INFINITY;
+        let Some(n) = mesh.red_node(slot) else {
+            return (Status::Keep, INF, INF);
+        };
+        if !n.leaf && !n.children_leaves {
+            return (Status::Keep, INF, INF);
+        }
+        let levels = mesh.forest().levels;
+        let i = self.info_of(mesh, buf, slot, &n);
+        if n.empty || !i.usable || i.level >= levels {
+            // not wanted split, whatever the view
+            if n.leaf {
+                return (Status::Keep, INF, INF);
+            }
+            return (
+                self.merge_status(mesh, buf, view, mode, slot, &n, i),
+                INF,
+                INF,
+            );
+        }
+        if mode == Mode::Complete {
+            let s = if n.leaf {
+                Status::Split((levels - i.level) as f64)
+            } else {
+                Status::Keep
+            };
+            return (s, INF, INF);
+        }
+        // the criterion, as `want_split` computes it (same operations, same results)
+        let (c, r) = self.sphere_of(mesh, slot, &n);
+        let visible = !self.params.frustum || view.sphere_visible(c, r);
+        let d = (c - view.eye).length();
+        let mut e = view.pixels_per_unit * (2.0 * r) / d.max(1e-12);
+        let mut fac = 1.0;
+        if let Some(delta) = self.params.data_aware {
+            let [lo, hi] = self.params.value_range;
+            let range = ((hi - lo) as f64).max(1e-30);
+            fac = (i.smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0);
+            e *= fac;
+        }
+        let err = e > view.tol_px;
+        let status = if n.leaf {
+            if visible && err {
+                Status::Split(e)
+            } else {
+                Status::Keep
+            }
+        } else if (visible && err)
+            || (self.params.coarsen_ref == CoarsenRef::Grandparent
+                && self.parent_wants_split(mesh, buf, view, mode, &n))
+        {
+            Status::Keep
+        } else {
+            Status::Merge(if visible { e } else { -1.0 })
+        };
+        if !cert {
+            return (status, INF, INF);
+        }
+        let m_e = if fac <= 0.0 || r <= 0.0 || view.tol_px <= 0.0 || !e.is_finite() {
+            f64::INFINITY
+        } else {
+            let big_r = view.pixels_per_unit * 2.0 * r * fac / view.tol_px;
+            ((d - big_r).abs() - 1e-9 * (d + big_r) - 1e-12).max(0.0)
+        };
+        let (we, wf) = (self.kin.we, self.kin.wf);
+        if !self.params.frustum {
+            return (status, f32_down(we + m_e), INF);
+        }
+        let eps = 1e-9 * (c.length() + view.eye.length() + r + 1.0);
+        let vals = view.planes.map(|(n, d)| n.dot(c) + d + r);
+        if visible {
+            if err {
+                let min = vals.iter().copied().fold(f64::INFINITY, f64::min);
+                (
+                    status,
+                    f32_down(we + m_e),
+                    f32_down(wf + (min - eps).max(0.0)),
+                )
+            } else {
+                (status, f32_down(we + m_e), INF) // leaving the view keeps it unwanted
+            }
+        } else {
+            let worst = vals.iter().map(|&v| -v).fold(0.0, f64::max);
+            let m_f = (worst - eps).max(0.0);
+            // back in view and, unless already, over the threshold: wf bounds both motions
+            let m = if err { m_f } else { m_f.max(m_e) };
+            (status, INF, f32_down(wf + m))
+        }
+    }
+
+    /// Grandparent rule: whether the parent of refined node `n` is wanted split.
+    fn parent_wants_split(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        n: &RedNode,
+    ) -> bool {
+        if let Some(p) = mesh.forest().parent(n.id) {
+            if let Some(ps) = mesh.slot_of(p) {
+                let pn = mesh.red_node(ps).expect("slot_of gives live slots");
+                return self
+                    .split_cached(mesh, buf, view, mode, ps, &pn)
+                    .0
+                    .is_some();
+            }
+        }
+        false
+    }
+
+    /// Merge status of refined node `n` (8 leaf children) that is not wanted split.
+    #[allow(clippy::too_many_arguments)]
+    fn merge_status(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        slot: usize,
+        n: &RedNode,
+        i: SlotInfo,
+    ) -> Status {
+        if mode == Mode::Complete {
+            return Status::Merge(0.0);
+        }
+        if self.params.coarsen_ref == CoarsenRef::Grandparent
+            && self.parent_wants_split(mesh, buf, view, mode, n)
+        {
+            return Status::Keep;
+        }
+        let smax = i.present.then_some(i.smax);
+        let (c, r) = self.sphere_of(mesh, slot, n);
+        Status::Merge(self.sphere_error(view, c, r, smax).unwrap_or(-1.0))
+    }
+
+    /// The status of hierarchy tet `id` (not in the red tree: [`Status::Keep`]) and its slot;
+    /// `hint`: the slot it probably is in.
+    fn status_of(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        id: TetId,
+        hint: u32,
+    ) -> (Status, u32) {
+        if self.reference {
+            let Some(n) = mesh.red_node_of(id) else {
+                return (Status::Keep, u32::MAX);
+            };
+            return (self.status_uncached(mesh, buf, view, mode, &n), u32::MAX);
+        }
+        let slot = if mesh.slot_holds(hint as usize, id) {
+            Some(hint as usize)
+        } else {
+            mesh.slot_of(id)
+        };
+        match slot {
+            Some(s) => (self.eval(mesh, buf, view, mode, s), s as u32),
+            None => (Status::Keep, u32::MAX),
+        }
+    }
+
+    fn status_uncached(
+        &self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        n: &RedNode,
+    ) -> Status {
+        if n.leaf {
+            if let Some(e) = self.want_split(mesh, buf, view, mode, n) {
+                return Status::Split(e);
+            }
+        } else if n.children_leaves {
+            if let Some(e) = self.want_merge(mesh, buf, view, mode, n) {
+                return Status::Merge(e);
+            }
+        }
+        Status::Keep
+    }
+
+    /// Moves [`Self::tag`] on if the mesh changed since it was set.
+    #[inline]
+    fn retag(&mut self, mesh: &AdaptiveMesh) {
+        if mesh.change_seq() != self.tag_seq {
+            self.tag_seq = mesh.change_seq();
+            self.tag = self.tag.wrapping_add(1);
+        }
+    }
+
+    /// Whether a candidate pushed with `tag` into slot `slot` still has its status.
+    #[inline]
+    fn trusted(&mut self, mesh: &AdaptiveMesh, tag: u32, slot: u32) -> bool {
+        self.retag(mesh);
+        !self.reference && tag == self.tag && slot != u32::MAX
+    }
+
+    #[inline]
+    fn push(&mut self, id: TetId, slot: u32, s: Status) {
+        match s {
+            Status::Split(e) => self.splits.push(Cand(e, id, slot, self.tag)),
+            Status::Merge(e) => self.merges.push(Reverse(Cand(e, id, slot, self.tag))),
+            Status::Keep => {}
+        }
+    }
+
+    #[inline]
+    fn list_add(&mut self, slot: usize) {
+        if slot >= self.in_list.len() {
+            self.in_list.resize(slot + 1, false);
+        }
+        if !self.in_list[slot] {
+            self.in_list[slot] = true;
+            self.list.push(slot as u32);
+        }
+    }
+
+    fn list_clear(&mut self) {
+        for &s in &self.list {
+            self.in_list[s as usize] = false;
+        }
+        self.list.clear();
+        self.list_epoch = None;
+    }
+
+    /// Queues the slots the mesh changed since the last look (see [`Self::flush_step`]); false
+    /// (and the list is no longer complete) when the mesh dropped some of its change log.
+    fn absorb_changes(&mut self, mesh: &mut AdaptiveMesh) -> bool {
+        let seq = mesh.change_seq();
+        if seq == self.seen {
+            return true;
+        }
+        let ok = match mesh.changes_since(self.seen) {
+            Some(ch) => {
+                for c in ch {
+                    self.todo.push(c.slot);
+                    if c.block != u32::MAX {
+                        self.todo.extend(c.block..c.block + 8);
+                    }
+                    if let Some(n) = mesh.red_node(c.slot as usize) {
+                        if let Some(p) = mesh.forest().parent(n.id) {
+                            if let Some(ps) = mesh.slot_of(p) {
+                                self.todo.push(ps as u32);
+                            }
+                        }
+                    }
+                }
+                true
+            }
+            None => false,
+        };
+        self.seen = seq;
+        mesh.trim_changes(seq);
+        if !ok {
+            self.scan_ok = false;
+            self.list_epoch = None;
+            self.kin.epoch = None;
+        }
+        ok
+    }
+
+    /// Whether camera motions are followed by [`Kinetic`] certificates in `mode`.
+    fn kin_capable(&self, mode: Mode) -> bool {
+        !self.reference && mode != Mode::Complete && self.params.coarsen_ref == CoarsenRef::Parent
+    }
+
+    fn kin_active(&self, mode: Mode) -> bool {
+        self.kin.epoch == Some(self.full_epoch) && self.kin_capable(mode)
+    }
+
+    /// Looks again at the next `n` slots queued for this sweep (`Self::flushing`): with
+    /// certificates, evaluates them (listing candidates); otherwise lists them all. Returns the
+    /// slots looked at.
+    fn flush_step(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        n: usize,
+    ) -> usize {
+        let fl = std::mem::take(&mut self.flushing);
+        let end = (self.fcursor + n).min(fl.len());
+        let kin = self.kin_active(mode);
+        for &s in &fl[self.fcursor..end] {
+            if !kin || self.eval_kin(mesh, buf, view, mode, s as usize) != Status::Keep {
+                self.list_add(s as usize);
+            }
+        }
+        let done = end - self.fcursor;
+        self.fcursor = end;
+        self.flushing = fl;
+        if self.fcursor == self.flushing.len() {
+            self.flushing.clear();
+            self.fcursor = 0;
+        }
+        done
+    }
+
+    /// Starts following camera motions for a full scan with `view`.
+    fn kin_start(&mut self, mesh: &AdaptiveMesh, view: &View) {
+        let k = &mut self.kin;
+        if !k.scene {
+            let nb = mesh.vertex_keys().base_vertex_count() as u32;
+            let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
+            for v in 0..nb {
+                let p = mesh.vertex_position(v);
+                let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+            k.lo = lo;
+            k.hi = hi;
+            k.scene = true;
+        }
+        k.epoch = Some(self.full_epoch);
+        k.view = Some(*view);
+        k.clean = (k.we, k.wf); // once the scan is done
+        k.pass = None;
+        let len = mesh.node_slot_len();
+        k.until_e.clear();
+        k.until_f.clear();
+        k.until_e.resize(len, f32::NEG_INFINITY);
+        k.until_f.resize(len, f32::NEG_INFINITY);
+    }
+
+    /// [`Self::eval`], recording the slot's certificate for later motions.
+    fn eval_kin(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        slot: usize,
+    ) -> Status {
+        let (s, ue, uf) = self.eval_cert(mesh, buf, view, mode, slot, true);
+        if slot >= self.kin.until_e.len() {
+            let len = mesh.node_slot_len().max(slot + 1);
+            self.kin.until_e.resize(len, f32::NEG_INFINITY);
+            self.kin.until_f.resize(len, f32::NEG_INFINITY);
+        }
+        self.kin.until_e[slot] = ue;
+        self.kin.until_f[slot] = uf;
+        s
+    }
+
+    /// The camera moved from `Kinetic::view` to `view`: adds the motion's bounds (the slots whose
+    /// certificates they reach are evaluated by the next listed sweep's due pass).
+    fn kin_advance(&mut self, view: &View) {
+        let k = &mut self.kin;
+        let old = k.view.expect("following");
+        let dm = (view.eye - old.eye).length();
+        let dn = (0..5)
+            .map(|i| (view.planes[i].0 - old.planes[i].0).length())
+            .fold(0.0, f64::max);
+        let mut dmax: f64 = 0.0;
+        for i in 0..8 {
+            let p = DVec3::new(
+                if i & 1 == 0 { k.lo.x } else { k.hi.x },
+                if i & 2 == 0 { k.lo.y } else { k.hi.y },
+                if i & 4 == 0 { k.lo.z } else { k.hi.z },
+            );
+            dmax = dmax.max((p - view.eye).length());
+        }
+        let slack = 1.0 + 1e-9;
+        k.we += dm * slack + 1e-12;
+        k.wf += (dm + dn * dmax) * slack + 1e-12;
+        k.view = Some(*view);
+    }
+
+    /// Evaluates the due slots (certificates used up) among the next `n` slots of the due pass,
+    /// listing the candidates; returns the slots looked at. Ends the pass at the last slot.
+    fn due_pass_step(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        n: usize,
+    ) -> usize {
+        let k = &mut self.kin;
+        let len = k.until_e.len().min(mesh.node_slot_len());
+        let start = k.cursor.min(len);
+        let end = (start + n).min(len);
+        let mut due = std::mem::take(&mut k.due);
+        due.clear();
+        // rounded up: a slot in doubt is due
+        let (we, wf) = (f32_up(k.we), f32_up(k.wf));
+        for (c, (ue, uf)) in k.until_e[start..end]
+            .chunks(64)
+            .zip(k.until_f[start..end].chunks(64))
+            .enumerate()
+        {
+            let mut mask = 0u64;
+            for j in 0..ue.len() {
+                mask |= (((ue[j] <= we) | (uf[j] <= wf)) as u64) << j;
+            }
+            while mask != 0 {
+                due.push((start + c * 64) as u32 + mask.trailing_zeros());
+                mask &= mask - 1;
+            }
+        }
+        k.cursor = end;
+        if end == len {
+            // every slot is certified beyond the bounds the pass started from
+            k.clean = k.pass.take().expect("a pass in progress");
+        }
+        for &slot in &due {
+            if self.eval_kin(mesh, buf, view, mode, slot as usize) != Status::Keep {
+                self.list_add(slot as usize);
+            }
+        }
+        self.kin.due = due;
+        end - start
+    }
+
+    /// The scan of a listed sweep, until done or `until`: the slots changed before the sweep, the
+    /// due pass, then the listed slots that still are candidates are pushed (the others leave the
+    /// list).
+    fn scan_listed(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        until: Option<Instant>,
+        st: &mut FrameStats,
+    ) {
+        loop {
+            if !self.flushing.is_empty() {
+                st.scanned += self.flush_step(mesh, buf, view, mode, SCAN_CHUNK);
+            } else if self.kin.pass.is_some() {
+                st.scanned += self.due_pass_step(mesh, buf, view, mode, 8 * SCAN_CHUNK);
+            } else if self.lcursor < self.list.len() {
+                let end = (self.lcursor + SCAN_CHUNK).min(self.list.len());
+                let mut i = self.lcursor;
+                let mut end = end;
+                while i < end {
+                    let slot = self.list[i] as usize;
+                    let s = self.eval(mesh, buf, view, mode, slot);
+                    st.scanned += 1;
+                    if s == Status::Keep {
+                        self.in_list[slot] = false;
+                        self.list.swap_remove(i);
+                        end = end.min(self.list.len());
+                        continue;
+                    }
+                    let id = mesh.red_node(slot).expect("a candidate is live").id;
+                    self.push(id, slot as u32, s);
+                    i += 1;
+                }
+                self.lcursor = i;
+            } else {
+                return;
+            }
+            if until.is_some_and(|t| Instant::now() >= t) {
+                return;
+            }
+        }
+    }
+
     /// One frame of selective refinement under the mode's budget (see the module docs).
     pub fn frame(
         &mut self,
@@ -415,6 +1211,58 @@ impl Selector {
         self.run(mesh, buf, cam, mode, Budget::UNLIMITED)
     }
 
+    /// Notices what changed since the last frame: another mesh, other parameters, a camera that
+    /// matters (not in [`Mode::Complete`]), another mode.
+    fn sync(&mut self, mesh: &mut AdaptiveMesh, cam: &Camera, mode: Mode) {
+        let mut full = false;
+        if mesh.uid() != self.mesh_uid {
+            self.mesh_uid = mesh.uid();
+            self.seen = mesh.change_seq();
+            self.info.clear();
+            self.geo.clear();
+            self.kin = Kinetic::default();
+            self.todo.clear();
+            self.flushing.clear();
+            self.fcursor = 0;
+            self.list_clear();
+            self.cursor = 0;
+            self.scan_ok = false;
+            full = true;
+        }
+        if self.last_params.as_ref() != Some(&self.params) {
+            self.last_params = Some(self.params.clone());
+            full = true;
+        }
+        let mut moved = false;
+        if self.last_mode != Some(mode) {
+            full = true;
+        } else if mode != Mode::Complete && self.last_cam.as_ref() != Some(cam) {
+            // a motion of the eye and the view direction only can be followed
+            let same_lens = self.last_cam.as_ref().is_some_and(|l| {
+                l.fovy_deg == cam.fovy_deg
+                    && l.near == cam.near
+                    && l.width == cam.width
+                    && l.height == cam.height
+            });
+            if same_lens && self.kin_active(mode) {
+                moved = true;
+            } else {
+                full = true;
+            }
+        }
+        self.last_cam = Some(*cam);
+        self.last_mode = Some(mode);
+        if full {
+            self.full_epoch += 1;
+        }
+        if full || moved {
+            self.epoch += 1;
+            self.dirty = true;
+            self.converged = false;
+        }
+        self.moved = moved && !full;
+    }
+
     fn run(
         &mut self,
         mesh: &mut AdaptiveMesh,
@@ -425,23 +1273,30 @@ impl Selector {
     ) -> Result<FrameStats, MeshError> {
         let start = Instant::now();
         let mut st = FrameStats::default();
-        if self.last_cam.as_ref() != Some(cam) || self.last_mode != Some(mode) {
-            self.last_cam = Some(*cam);
-            self.last_mode = Some(mode);
-            self.dirty = true;
-            self.converged = false;
-        }
+        self.tag = self.tag.wrapping_add(1);
+        self.tag_seq = mesh.change_seq();
+        self.sync(mesh, cam, mode);
         if self.converged {
             st.converged = true;
             st.elapsed = start.elapsed();
             return Ok(st);
         }
         let view = View::new(cam, self.params.tol);
+        if self.moved {
+            self.moved = false;
+            if self.kin_active(mode) {
+                self.kin_advance(&view);
+            } else {
+                self.full_epoch += 1;
+            }
+        }
+        let unlimited = budget.max_ops == usize::MAX && budget.max_time.is_none();
         let deadline = budget.max_time.map(|d| start + d);
         let scan_deadline = budget.max_time.map(|d| start + d / 2);
         let past = |t: Option<Instant>| t.is_some_and(|t| Instant::now() >= t);
         let mut ops = 0usize;
         loop {
+            let listed = !self.reference && self.absorb_changes(mesh);
             if self.cursor == 0 {
                 // a new sweep sees the current view and buffer
                 self.splits.clear();
@@ -449,23 +1304,62 @@ impl Selector {
                 self.sweep_changes = 0;
                 self.sweep_refused = 0;
                 self.dirty = false;
+                self.sweep_epoch = self.epoch;
+                self.sweep_seq = mesh.change_seq();
+                self.sweep_listed = listed && self.list_epoch == Some(self.full_epoch);
+                if self.sweep_listed {
+                    // the changed slots, the slots whose certificates the camera's motion used
+                    // up, then the listed slots (see `Self::scan_listed`)
+                    self.cursor = usize::MAX;
+                    self.lcursor = 0;
+                    debug_assert!(self.flushing.is_empty());
+                    std::mem::swap(&mut self.todo, &mut self.flushing);
+                    self.fcursor = 0;
+                    if self.kin_active(mode) && (self.kin.we, self.kin.wf) != self.kin.clean {
+                        self.kin.pass = Some((self.kin.we, self.kin.wf));
+                        self.kin.cursor = 0;
+                    }
+                } else if !self.reference {
+                    self.list_clear();
+                    self.scan_ok = true;
+                    self.scan_full_epoch = self.full_epoch;
+                    self.todo.clear();
+                    self.flushing.clear();
+                    self.fcursor = 0;
+                    if self.kin_capable(mode) {
+                        self.kin_start(mesh, &view);
+                    } else {
+                        self.kin.epoch = None;
+                    }
+                }
             }
             // scan
             let len = mesh.node_slot_len();
             let have_work = !self.splits.is_empty() || !self.merges.is_empty();
+            let scan_until = if have_work { scan_deadline } else { deadline };
+            self.retag(mesh);
+            if self.sweep_listed {
+                self.scan_listed(mesh, buf, &view, mode, scan_until, &mut st);
+            }
             while self.cursor < len {
                 let end = (self.cursor + SCAN_CHUNK).min(len);
                 for slot in self.cursor..end {
-                    let Some(n) = mesh.red_node(slot) else {
-                        continue;
-                    };
-                    if n.leaf {
-                        if let Some(e) = self.want_split(mesh, buf, &view, mode, &n) {
-                            self.splits.push(Cand(e, n.id));
-                        }
-                    } else if n.children_leaves {
-                        if let Some(e) = self.want_merge(mesh, buf, &view, mode, &n) {
-                            self.merges.push(Reverse(Cand(e, n.id)));
+                    if self.reference {
+                        let Some(n) = mesh.red_node(slot) else {
+                            continue;
+                        };
+                        let s = self.status_uncached(mesh, buf, &view, mode, &n);
+                        self.push(n.id, u32::MAX, s);
+                    } else {
+                        let s = if self.kin_active(mode) {
+                            self.eval_kin(mesh, buf, &view, mode, slot)
+                        } else {
+                            self.eval(mesh, buf, &view, mode, slot)
+                        };
+                        if s != Status::Keep {
+                            let id = mesh.red_node(slot).expect("a candidate is live").id;
+                            self.push(id, slot as u32, s);
+                            self.list_add(slot);
                         }
                     }
                 }
@@ -475,7 +1369,18 @@ impl Selector {
                     break;
                 }
             }
-            let sweep_done = self.cursor >= len;
+            let sweep_done = self.cursor >= len
+                && (!self.sweep_listed
+                    || (self.flushing.is_empty()
+                        && self.kin.pass.is_none()
+                        && self.lcursor >= self.list.len()));
+            if sweep_done && !self.reference && !self.sweep_listed {
+                // a full scan done within one full epoch, every change seen: the list is complete
+                let ok = self.absorb_changes(mesh);
+                if ok && self.scan_ok && self.scan_full_epoch == self.full_epoch {
+                    self.list_epoch = Some(self.full_epoch);
+                }
+            }
             // apply: merges (up to half the ops while splits wait), splits, merges again
             let consolidating = self.consolidating;
             let merge_ops = if consolidating {
@@ -530,7 +1435,13 @@ impl Selector {
                 st.sweeps += 1;
                 self.cursor = 0;
                 if self.sweep_changes == 0 && !self.dirty {
-                    if self.sweep_refused > 0 && !self.consolidating {
+                    // Without a budget the last sweep merged all its candidates in one batch; if
+                    // it left the mesh as it was, a consolidating sweep would replay it exactly.
+                    let replay = unlimited
+                        && !self.reference
+                        && mesh.change_seq() == self.sweep_seq
+                        && self.sweep_epoch == self.epoch;
+                    if self.sweep_refused > 0 && !self.consolidating && !replay {
                         self.consolidating = true;
                         continue;
                     }
@@ -546,6 +1457,9 @@ impl Selector {
             if out_of_budget {
                 break;
             }
+        }
+        if !self.reference {
+            self.absorb_changes(mesh);
         }
         st.converged = self.converged;
         st.pending = self.splits.len() + self.merges.len();
@@ -565,28 +1479,31 @@ impl Selector {
         deadline: Option<Instant>,
         st: &mut FrameStats,
     ) -> Result<(), MeshError> {
-        let mut batch = Vec::new();
+        let mut batch = std::mem::take(&mut self.batch);
+        let mut slots = std::mem::take(&mut self.batch_slots);
         while *ops < max_ops && !self.merges.is_empty() {
             if deadline.is_some_and(|t| Instant::now() >= t) {
                 break;
             }
             batch.clear();
+            slots.clear();
             let chunk = if max_ops == usize::MAX {
                 usize::MAX
             } else {
                 MERGE_CHUNK.min(max_ops - *ops)
             };
             while batch.len() < chunk {
-                let Some(Reverse(Cand(_, id))) = self.merges.pop() else {
+                let Some(Reverse(Cand(_, id, hint, tag))) = self.merges.pop() else {
                     break;
                 };
-                if let Some(n) = mesh.red_node_of(id) {
-                    if !n.leaf
-                        && n.children_leaves
-                        && self.want_merge(mesh, buf, view, mode, &n).is_some()
-                    {
-                        batch.push(id);
-                    }
+                if self.trusted(mesh, tag, hint) {
+                    batch.push(id);
+                    slots.push(hint);
+                } else if let (Status::Merge(_), s) =
+                    self.status_of(mesh, buf, view, mode, id, hint)
+                {
+                    batch.push(id);
+                    slots.push(s);
                 }
             }
             if batch.is_empty() {
@@ -595,27 +1512,39 @@ impl Selector {
             *ops += batch.len();
             st.merge_attempts += batch.len();
             let t = Instant::now();
-            let held = mesh.coarsen_batch(&batch, buf)?;
+            let held = mesh.coarsen_batch_at(&batch, &slots, buf);
             st.op_time += t.elapsed();
+            let held = match held {
+                Ok(h) => h,
+                Err(e) => {
+                    self.batch = batch;
+                    self.batch_slots = slots;
+                    return Err(e);
+                }
+            };
             st.merges += held;
             self.sweep_changes += held;
             self.sweep_refused += batch.len() - held;
             // parents whose children are now all leaves may merge next (ROAM-style)
             let forest = mesh.forest();
-            for &id in &batch {
+            for (&id, &slot) in batch.iter().zip(&slots) {
                 if let Some(p) = forest.parent(id) {
-                    if mesh.is_leaf(id) {
-                        if let Some(pn) = mesh.red_node_of(p) {
-                            if pn.children_leaves {
-                                if let Some(e) = self.want_merge(mesh, buf, view, mode, &pn) {
-                                    self.merges.push(Reverse(Cand(e, p)));
-                                }
-                            }
+                    let leaf = if mesh.slot_holds(slot as usize, id) {
+                        mesh.red_node(slot as usize).is_some_and(|n| n.leaf)
+                    } else {
+                        mesh.is_leaf(id)
+                    };
+                    if leaf {
+                        let (s, ps) = self.status_of(mesh, buf, view, mode, p, u32::MAX);
+                        if let Status::Merge(_) = s {
+                            self.push(p, ps, s);
                         }
                     }
                 }
             }
         }
+        self.batch = batch;
+        self.batch_slots = slots;
         Ok(())
     }
 
@@ -639,13 +1568,15 @@ impl Selector {
             {
                 break;
             }
-            let Some(Cand(_, id)) = self.splits.pop() else {
+            let Some(Cand(_, id, hint, tag)) = self.splits.pop() else {
                 break;
             };
-            let Some(n) = mesh.red_node_of(id) else {
-                continue;
-            };
-            if !n.leaf || self.want_split(mesh, buf, view, mode, &n).is_none() {
+            if !self.trusted(mesh, tag, hint)
+                && !matches!(
+                    self.status_of(mesh, buf, view, mode, id, hint).0,
+                    Status::Split(_)
+                )
+            {
                 continue;
             }
             k += 1;
@@ -659,12 +1590,9 @@ impl Selector {
             let forest = mesh.forest();
             for i in 0..8 {
                 let c = forest.child(id, i);
-                if let Some(cn) = mesh.red_node_of(c) {
-                    if cn.leaf {
-                        if let Some(e) = self.want_split(mesh, buf, view, mode, &cn) {
-                            self.splits.push(Cand(e, c));
-                        }
-                    }
+                let (s, cs) = self.status_of(mesh, buf, view, mode, c, u32::MAX);
+                if let Status::Split(_) = s {
+                    self.push(c, cs, s);
                 }
             }
         }

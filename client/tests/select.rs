@@ -300,3 +300,158 @@ fn background_refiner() {
         .all(|t| t.v.iter().all(|&v| (v as usize) < s.positions.len())));
     r.stop().unwrap();
 }
+
+fn mix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = x;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A uniform draw in `[0, 1)` from the state `s`.
+fn unit(s: &mut u64) -> f64 {
+    *s = mix(*s);
+    (*s >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// The incremental selector (candidate list, motion certificates, arrivals by subtree) converges
+/// to exactly the mesh of the full-scan reference, frame after frame: random arrival orders and
+/// camera paths (small turns, jumps, zooms, other lenses, other modes), each criterion variant.
+#[test]
+fn incremental_equals_full_scan() {
+    use tetwave_client::progressive::{order_nodes, ArrivalOrder};
+    let (base, all_nodes) = make_nodes(box5(4), harmonic);
+    let variants: [(Tolerance, bool, Option<f32>, CoarsenRef); 5] = [
+        (
+            Tolerance::PercentOfHeight(12.5),
+            true,
+            None,
+            CoarsenRef::Parent,
+        ),
+        (
+            Tolerance::PercentOfHeight(6.0),
+            true,
+            None,
+            CoarsenRef::Parent,
+        ),
+        (Tolerance::Pixels(20.0), false, None, CoarsenRef::Parent),
+        (
+            Tolerance::PercentOfHeight(8.0),
+            true,
+            Some(0.05),
+            CoarsenRef::Parent,
+        ),
+        (
+            Tolerance::PercentOfHeight(10.0),
+            true,
+            None,
+            CoarsenRef::Grandparent,
+        ),
+    ];
+    let mut frames = 0;
+    for (vi, &(tol, frustum, data_aware, coarsen_ref)) in variants.iter().enumerate() {
+        for seed in 0..3u64 {
+            let mut s = mix(seed * 31 + vi as u64 + 1);
+            let mut nodes = all_nodes.clone();
+            let order = if seed == 0 {
+                ArrivalOrder::Level
+            } else {
+                ArrivalOrder::Random
+            };
+            order_nodes(&mut nodes, order, s);
+            let mut p = SelectParams::new(tol, [-1.0, 1.0]);
+            p.frustum = frustum;
+            p.data_aware = data_aware;
+            p.coarsen_ref = coarsen_ref;
+            p.interactive = Budget::UNLIMITED;
+            p.progressive = Budget::UNLIMITED;
+            let mut a = AdaptiveMesh::new(&base);
+            let mut b = AdaptiveMesh::new(&base);
+            let mut ba = DetailBuffer::new(base.forest(), base.vertex_keys());
+            let mut bb = DetailBuffer::new(base.forest(), base.vertex_keys());
+            let mut inc = Selector::new(p.clone());
+            let mut full = Selector::full_scan(p.clone());
+            let (mut az, mut el, mut dist, mut fovy) = (0.0f64, 10.0f64, 40.0f64, 45.0f64);
+            let mut next = 0;
+            let mut arr = Arrivals::default();
+            for step in 0..60 {
+                // nodes arrive for a while
+                if next < nodes.len() && step % 2 == 0 {
+                    let end = (next + 150).min(nodes.len());
+                    arr.clear();
+                    for n in &nodes[next..end] {
+                        ba.insert(n, &mut arr).unwrap();
+                    }
+                    a.apply_arrivals(&ba, &arr);
+                    inc.notify_arrived(&a, &arr.nodes);
+                    arr.clear();
+                    for n in &nodes[next..end] {
+                        bb.insert(n, &mut arr).unwrap();
+                    }
+                    b.apply_arrivals(&bb, &arr);
+                    full.notify_arrivals();
+                    next = end;
+                }
+                // the camera: mostly small turns, sometimes a jump, a zoom or another lens
+                let r = unit(&mut s);
+                if r < 0.6 {
+                    az += 3.0 * unit(&mut s);
+                    el += unit(&mut s) - 0.5;
+                } else if r < 0.75 {
+                    az = 360.0 * unit(&mut s);
+                    el = 60.0 * unit(&mut s) - 30.0;
+                } else if r < 0.9 {
+                    dist = 20.0 + 40.0 * unit(&mut s);
+                } else if r < 0.95 {
+                    fovy = 30.0 + 30.0 * unit(&mut s);
+                }
+                let c = Camera::orbit(DVec3::splat(15.0), dist, az, el, fovy, 256, 192);
+                let mode = match step % 23 {
+                    7 => Mode::Complete,
+                    11 => Mode::Interactive,
+                    _ => Mode::Progressive,
+                };
+                let sa = inc.converge(&mut a, &ba, &c, mode).unwrap();
+                let sb = full.converge(&mut b, &bb, &c, mode).unwrap();
+                assert!(sa.converged && sb.converged);
+                assert_eq!(
+                    sorted_leaves(&a),
+                    sorted_leaves(&b),
+                    "variant {vi}, seed {seed}, step {step}"
+                );
+                assert_eq!(a.op_counts(), b.op_counts());
+                if step % 15 == 0 {
+                    a.check_conformity().unwrap();
+                }
+                frames += 1;
+            }
+        }
+    }
+    assert_eq!(frames, 5 * 3 * 60);
+}
+
+/// A selector that follows a mesh changed behind its back (refinements it did not ask for) still
+/// reaches the reference mesh.
+#[test]
+fn incremental_sees_outside_changes() {
+    let (mut a, buf, _) = loaded(4, harmonic);
+    let mut b = a.clone();
+    let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
+    let mut inc = Selector::new(p.clone());
+    let mut full = Selector::full_scan(p);
+    for (i, az) in [0.0, 2.0, 4.0, 6.0].into_iter().enumerate() {
+        let c = cam(az, 45.0);
+        // refine a few leaves by hand in both meshes
+        for m in [&mut a, &mut b] {
+            let mut leaves = sorted_leaves(m);
+            leaves.retain(|&t| !m.is_empty_tet(t) && m.forest().level(t) < 3);
+            for &t in leaves.iter().skip(i).step_by(7).take(5) {
+                m.refine(t, &buf).unwrap();
+            }
+        }
+        inc.converge(&mut a, &buf, &c, Mode::Progressive).unwrap();
+        full.converge(&mut b, &buf, &c, Mode::Progressive).unwrap();
+        assert_eq!(sorted_leaves(&a), sorted_leaves(&b), "round {i}");
+    }
+}
