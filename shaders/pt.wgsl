@@ -16,7 +16,7 @@ struct Globals {
     eye: vec4<f32>,
     // xyz: unit view direction; w: extinction scale (1 / bounding-box diagonal)
     fwd: vec4<f32>,
-    // x: number of transfer-function points; y: scalar resolution for sub-steps (as f32 bits);
+    // x: number of transfer-function table intervals; y: scalar resolution for sub-steps (f32 bits);
     // z: max extinction (per diagonal, f32 bits)
     tf_info: vec4<u32>,
 };
@@ -28,95 +28,88 @@ struct TetGeo {
     grad: vec4<f32>,
 };
 
-// Transfer-function point: a = (s, r, g, b), b = (extinction per diagonal, 0, 0, 0).
-struct TfPoint {
-    a: vec4<f32>,
-    b: vec4<f32>,
-};
-
+// The transfer function tabulated at `tf_info.x + 1` evenly spaced normalized scalars: (r, g, b,
+// extinction per diagonal); linear interpolation between entries.
 @group(0) @binding(0) var<uniform> globals: Globals;
 @group(0) @binding(1) var<storage, read> positions: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read> geo: array<TetGeo>;
-@group(0) @binding(5) var<storage, read> tf: array<TfPoint>;
+@group(0) @binding(5) var<storage, read> tf: array<vec4<f32>>;
 
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
-    // world position (relative to origin) on the exit face
-    @location(0) world: vec3<f32>,
-    @location(1) @interpolate(flat) tet: u32,
+    // ray vector from the eye to this point of the exit face
+    @location(0) d: vec3<f32>,
+    // per tet, constant over it (no buffer reads in the fragment stage but the transfer function):
+    // the x, y and z components of the 4 outward face normals, the 4 offsets `w_i - n_i·eye` (the
+    // ray `eye + t·dir` meets plane `i` at `t = c_i / (n_i·dir)`), and the scalar gradient with the
+    // scalar extended to the eye in `w`
+    @location(1) @interpolate(flat) nx: vec4<f32>,
+    @location(2) @interpolate(flat) ny: vec4<f32>,
+    @location(3) @interpolate(flat) nz: vec4<f32>,
+    @location(4) @interpolate(flat) c: vec4<f32>,
+    @location(5) @interpolate(flat) grad: vec4<f32>,
 };
 
-// Indexed draw: vertex `v` is corner `v % 4` of tet `v / 4`; the CPU's index buffer lists each tet's
-// 4 faces (outward winding counter-clockwise) in back-to-front tet order, and the rasterizer culls
-// front faces, so only exit faces reach the fragment stage. Each tet's 4 corners are shaded once and
-// reused by its 4 faces.
+// Indexed draw: vertex `v` is corner `v % 4` of tet `v / 4`; the CPU's index buffer lists, in
+// back-to-front tet order, only each tet's exit faces (outward winding counter-clockwise), and the
+// rasterizer also culls front faces, so only exit faces reach the fragment stage.
 @vertex
 fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
     let t = vi / 4u;
     let p = positions[tets[t][vi % 4u]].xyz;
+    let eye = globals.eye.xyz;
+    let g = geo[t];
+    let pl = g.planes;
     var out: VsOut;
-    out.world = p;
-    out.tet = t;
+    out.d = p - eye;
+    out.nx = vec4<f32>(pl[0].x, pl[1].x, pl[2].x, pl[3].x);
+    out.ny = vec4<f32>(pl[0].y, pl[1].y, pl[2].y, pl[3].y);
+    out.nz = vec4<f32>(pl[0].z, pl[1].z, pl[2].z, pl[3].z);
+    out.c = vec4<f32>(pl[0].w, pl[1].w, pl[2].w, pl[3].w)
+        - (out.nx * eye.x + out.ny * eye.y + out.nz * eye.z);
+    out.grad = vec4<f32>(g.grad.xyz, dot(g.grad.xyz, eye) + g.grad.w);
     out.clip = globals.view_proj * vec4<f32>(p, 1.0);
     return out;
 }
 
 fn tf_eval(s: f32) -> vec4<f32> {
-    // returns (r, g, b, extinction per diagonal), piecewise linear, clamped at the ends
+    // returns (r, g, b, extinction per diagonal), clamped at the ends
     let n = globals.tf_info.x;
-    let first = tf[0u];
-    if (s <= first.a.x || n == 1u) {
-        return vec4<f32>(first.a.yzw, first.b.x);
-    }
-    for (var i = 1u; i < n; i = i + 1u) {
-        let q = tf[i];
-        if (s <= q.a.x) {
-            let p = tf[i - 1u];
-            let span = q.a.x - p.a.x;
-            var u = 1.0;
-            if (span > 0.0) { u = (s - p.a.x) / span; }
-            return mix(vec4<f32>(p.a.yzw, p.b.x), vec4<f32>(q.a.yzw, q.b.x), u);
-        }
-    }
-    let last = tf[n - 1u];
-    return vec4<f32>(last.a.yzw, last.b.x);
+    let x = clamp(s, 0.0, 1.0) * f32(n);
+    let k = min(u32(x), n - 1u);
+    return mix(tf[k], tf[k + 1u], x - f32(k));
 }
 
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
-    let g = geo[in.tet];
-    // zero-volume tets have zero planes: they contribute nothing
-    if (dot(g.planes[0].xyz, g.planes[0].xyz) == 0.0) {
-        discard;
-    }
-    let eye = globals.eye.xyz;
-    var dir = in.world - eye;
-    let t_exit = length(dir);
+    let t_exit = length(in.d);
     if (!(t_exit > 0.0)) {
         discard;
     }
-    dir = dir / t_exit;
-    // rays start at the near plane
-    var t_in = globals.eye.w / max(dot(dir, globals.fwd.xyz), 1e-6);
-    for (var i = 0u; i < 4u; i = i + 1u) {
-        let pl = g.planes[i];
-        let den = dot(pl.xyz, dir);
-        if (den < 0.0) {
-            t_in = max(t_in, (pl.w - dot(pl.xyz, eye)) / den);
-        }
-    }
+    let dir = in.d / t_exit;
+    // rays start at the near plane; the entry is the farthest crossing of a plane the ray enters by
+    let den = in.nx * dir.x + in.ny * dir.y + in.nz * dir.z;
+    let hits = select(vec4<f32>(-1e30), in.c / den, den < vec4<f32>(0.0));
+    let t_near = globals.eye.w / max(dot(dir, globals.fwd.xyz), 1e-6);
+    let t_in = max(t_near, max(max(hits.x, hits.y), max(hits.z, hits.w)));
     let len = t_exit - t_in;
     if (!(len > 0.0) || len > 1e30) {
         discard;
     }
-    let s0 = dot(g.grad.xyz, eye + dir * t_in) + g.grad.w;
-    let s1 = dot(g.grad.xyz, in.world) + g.grad.w;
+    let gd = dot(in.grad.xyz, dir);
+    let s0 = in.grad.w + t_in * gd;
+    let s1 = in.grad.w + t_exit * gd;
     let ext_scale = globals.fwd.w;
     let s_res = bitcast<f32>(globals.tf_info.y);
     // sub-steps: each step uses the exact absorption of its own constant extinction, so the error
     // comes only from the transfer function varying within a step: bound the scalar change per step
     let steps = u32(clamp(ceil(abs(s1 - s0) / s_res), 1.0, 64.0));
+    if (steps == 1u) {
+        let e = tf_eval(0.5 * (s0 + s1));
+        let a = 1.0 - exp(-e.w * ext_scale * len);
+        return vec4<f32>(e.xyz * a, a);
+    }
     let h = len / f32(steps);
     var col = vec3<f32>(0.0);
     var tr = 1.0;

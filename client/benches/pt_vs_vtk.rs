@@ -11,7 +11,7 @@ use std::time::Instant;
 use tetwave_client::camera::Camera;
 use tetwave_client::image_metrics::psnr;
 use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::{PtRenderer, VisibilityOrder};
+use tetwave_client::render::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_client::render::GpuContext;
 use tetwave_client::render_mesh::RenderMesh;
 use tetwave_client::transfer::TransferFunction;
@@ -64,6 +64,21 @@ fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
     Ok(())
 }
 
+/// CPU time (user + system, all threads, lavapipe's included) of this process in ms, from
+/// /proc/self/stat: less sensitive than wall time to other jobs on a shared machine.
+fn cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<f64> = rest
+        .split_whitespace()
+        .map(|x| x.parse().unwrap_or(0.0))
+        .collect();
+    // fields 14 and 15 (utime, stime) are at 11 and 12 after the ')'; clock ticks of 10 ms
+    f.get(11)
+        .zip(f.get(12))
+        .map_or(0.0, |(u, s)| (u + s) * 10.0)
+}
+
 fn main() {
     let n = env("TETWAVE_BENCH_N", 32);
     let size = env("TETWAVE_BENCH_SIZE", 512) as u32;
@@ -93,31 +108,37 @@ fn main() {
     let reference = render_reference(&mesh, &cam, &tf);
     let reference_ms = t.elapsed().as_secs_f64() * 1e3;
     reference.save_png(&out.join("reference.png")).unwrap();
-    for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
+    let fast = PtRenderer::with_accumulation(&ctx, Accumulation::U8);
+    for (order, acc) in [
+        (VisibilityOrder::Centroid, Accumulation::Best),
+        (VisibilityOrder::Mpvo, Accumulation::Best),
+        (VisibilityOrder::Mpvo, Accumulation::U8),
+    ] {
+        let r = if acc == Accumulation::U8 { &fast } else { &r };
         r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap(); // warm-up
         let mut times = Vec::new();
         let mut last = None;
+        let cpu0 = cpu_ms();
         for _ in 0..frames {
             let (img, ft) = r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap();
             times.push(ft);
             last = Some(img);
         }
+        let cpu = (cpu_ms() - cpu0) / frames as f64;
         let img = last.unwrap();
-        let name = format!(
-            "ours-{}.png",
-            if order == VisibilityOrder::Mpvo {
-                "mpvo"
-            } else {
-                "centroid"
-            }
-        );
+        let order_name = format!("{order:?}").to_lowercase();
+        let acc_name = format!("{acc:?}").to_lowercase();
+        let name = if acc == Accumulation::Best {
+            format!("ours-{order_name}.png")
+        } else {
+            format!("ours-{order_name}-{acc_name}.png")
+        };
         img.save_png(&out.join(&name)).unwrap();
         let mean = |f: &dyn Fn(&tetwave_client::render::pt::FrameTimes) -> f64| {
             times.iter().map(f).sum::<f64>() / times.len() as f64
         };
         println!(
-            "{{\"bench\":\"pt\",\"order\":{:?},\"n\":{n},\"tets\":{},\"size\":{size},\"frames\":{frames},\"mean_ms\":{:.2},\"sort_ms\":{:.2},\"gpu_ms\":{:.2},\"readback_ms\":{:.2},\"psnr_db\":{:.2},\"tets_per_s\":{:.0},\"upload_ms\":{upload_ms:.1},\"reference_ms\":{reference_ms:.0},\"adapter\":{:?},\"image\":{:?}}}",
-            format!("{order:?}").to_lowercase(),
+            "{{\"bench\":\"pt\",\"order\":{order_name:?},\"accumulation\":{acc_name:?},\"n\":{n},\"tets\":{},\"size\":{size},\"frames\":{frames},\"mean_ms\":{:.2},\"cpu_ms\":{cpu:.0},\"sort_ms\":{:.2},\"gpu_ms\":{:.2},\"readback_ms\":{:.2},\"psnr_db\":{:.2},\"tets_per_s\":{:.0},\"upload_ms\":{upload_ms:.1},\"reference_ms\":{reference_ms:.0},\"adapter\":{:?},\"image\":{:?}}}",
             mesh.tets.len(),
             mean(&|t| t.total_ms),
             mean(&|t| t.sort_ms),

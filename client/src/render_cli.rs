@@ -4,7 +4,7 @@
 use crate::camera::Camera;
 use crate::image_metrics::{psnr, Rgba8Image};
 use crate::reference::render_reference;
-use crate::render::pt::{PtRenderer, VisibilityOrder};
+use crate::render::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use crate::render::{GpuContext, RenderError};
 use crate::render_mesh::RenderMesh;
 use crate::store_reader::{LocalStore, StoreReadError};
@@ -46,6 +46,10 @@ pub struct RenderArgs {
     /// Visibility order: centroid (approximate) or mpvo (exact for convex acyclic meshes).
     #[arg(long, value_enum, default_value_t = VisibilityOrder::Centroid)]
     pub order: VisibilityOrder,
+    /// Precision of the blending target: best (32-bit float where blendable), f32, f16, or u8
+    /// (fastest on CPU rasterizers, least accurate).
+    #[arg(long, value_enum, default_value_t = Accumulation::Best)]
+    pub accumulation: Accumulation,
     /// Output PNG.
     #[arg(short = 'o', long, default_value = "out.png")]
     pub output: PathBuf,
@@ -145,11 +149,11 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             (img, ms, "cpu-reference".into(), None)
         } else {
             let ctx = GpuContext::new()?;
-            let r = PtRenderer::new(&ctx);
-            let data = r.upload(&ctx, &mesh)?;
+            let r = PtRenderer::with_accumulation(&ctx, a.accumulation);
+            let data = r.upload_with(&ctx, &mesh, a.order == VisibilityOrder::Mpvo)?;
             // first frame warms the pipeline up; time the second
-            r.render(&ctx, &data, &cam, &tf)?;
-            let (img, times) = r.render(&ctx, &data, &cam, &tf)?;
+            r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
+            let (img, times) = r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
             let refimg = a.compare.then(|| reference(&mesh));
             (
                 img,

@@ -51,11 +51,9 @@ impl GpuContext {
             }
         }
         let adapter = found.ok_or(RenderError::NoAdapter)?;
-        // TETWAVE_F16=1 forces half-float accumulation (faster blending, less precise)
         let float32_blend = adapter
             .features()
-            .contains(wgpu::Features::FLOAT32_BLENDABLE)
-            && std::env::var_os("TETWAVE_F16").is_none();
+            .contains(wgpu::Features::FLOAT32_BLENDABLE);
         let mut required_features = wgpu::Features::empty();
         if float32_blend {
             required_features |= wgpu::Features::FLOAT32_BLENDABLE;

@@ -48,12 +48,10 @@ struct TetGeo {
     grad: [f32; 4],
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct TfPointGpu {
-    a: [f32; 4],
-    b: [f32; 4],
-}
+/// Intervals of the transfer-function table the fragment stage interpolates (a table lookup costs
+/// one interpolation instead of a search over the points; the table differs from the piecewise-linear
+/// function only inside the intervals that contain a breakpoint).
+pub const TF_TABLE_INTERVALS: u32 = 4096;
 
 /// Corner indices of the 4 faces of a positively oriented tet, each wound counter-clockwise seen from
 /// outside (face `i` is opposite corner `i`).
@@ -61,8 +59,20 @@ const FACES_POS: [u32; 12] = [1, 2, 3, 0, 3, 2, 0, 1, 3, 0, 2, 1];
 /// The same for a negatively oriented tet (every face reversed).
 const FACES_NEG: [u32; 12] = [1, 3, 2, 0, 2, 3, 0, 3, 1, 0, 1, 2];
 
-/// Face adjacency and the tets' outward face planes `(n, d)`, for MPVO ordering.
-type MpvoData = (Vec<[u32; 4]>, Vec<[[f32; 4]; 4]>);
+/// Precision of the colour accumulation target (blending happens in this format).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+pub enum Accumulation {
+    /// 32-bit float per channel where the adapter can blend it, else 16-bit (the default: exact
+    /// enough for the ≥ 45 dB image tests).
+    #[default]
+    Best,
+    /// 32-bit float per channel (needs `FLOAT32_BLENDABLE`).
+    F32,
+    /// 16-bit float per channel.
+    F16,
+    /// 8-bit unorm per channel: fastest blending on CPU rasterizers, ~8-bit rounding per layer.
+    U8,
+}
 
 /// Pipeline and layouts: create once per device and format.
 pub struct PtRenderer {
@@ -73,8 +83,11 @@ pub struct PtRenderer {
 
 /// One mesh on the GPU. Valid for the mesh it was built from; positions are relative to `origin`.
 pub struct TetDrawData {
-    /// Face adjacency and CPU copies of the face planes, present when uploaded for MPVO ordering.
-    mpvo: Option<MpvoData>,
+    /// Face adjacency, present when uploaded for MPVO ordering.
+    neighbors: Option<Vec<[u32; 4]>>,
+    /// CPU copies of the outward face planes (`n·x = w`, relative to `origin`): each frame draws
+    /// only the faces the eye sees from inside (the exit faces), and MPVO orders by them.
+    planes: Vec<[[f32; 4]; 4]>,
     /// Per tet: positively oriented (decides the winding of its faces).
     positive: Vec<bool>,
     positions: wgpu::Buffer,
@@ -97,12 +110,21 @@ pub struct FrameTimes {
 }
 
 impl PtRenderer {
+    /// The renderer with [`Accumulation::Best`].
     pub fn new(ctx: &GpuContext) -> Self {
+        Self::with_accumulation(ctx, Accumulation::Best)
+    }
+
+    /// The renderer accumulating in the given precision ([`Accumulation::F32`] falls back to 16-bit
+    /// floats where the adapter cannot blend 32-bit floats).
+    pub fn with_accumulation(ctx: &GpuContext, acc: Accumulation) -> Self {
         let device = &ctx.device;
-        let format = if ctx.float32_blend {
-            wgpu::TextureFormat::Rgba32Float
-        } else {
-            wgpu::TextureFormat::Rgba16Float
+        let format = match acc {
+            Accumulation::Best | Accumulation::F32 if ctx.float32_blend => {
+                wgpu::TextureFormat::Rgba32Float
+            }
+            Accumulation::U8 => wgpu::TextureFormat::Rgba8Unorm,
+            _ => wgpu::TextureFormat::Rgba16Float,
         };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("pt.wgsl"),
@@ -134,7 +156,7 @@ impl PtRenderer {
                 },
                 storage(1, wgpu::ShaderStages::VERTEX),
                 storage(2, wgpu::ShaderStages::VERTEX),
-                storage(3, wgpu::ShaderStages::FRAGMENT),
+                storage(3, wgpu::ShaderStages::VERTEX),
                 storage(5, wgpu::ShaderStages::FRAGMENT),
             ],
         });
@@ -250,12 +272,8 @@ impl PtRenderer {
                     usage: wgpu::BufferUsages::STORAGE,
                 })
         };
-        let mpvo = mpvo.then(|| {
-            (
-                face_neighbors(&mesh.tets),
-                geo.iter().map(|g| g.planes).collect(),
-            )
-        });
+        let neighbors = mpvo.then(|| face_neighbors(&mesh.tets));
+        let planes = geo.iter().map(|g| g.planes).collect();
         let positive = mesh
             .tets
             .iter()
@@ -265,7 +283,8 @@ impl PtRenderer {
             })
             .collect();
         Ok(TetDrawData {
-            mpvo,
+            neighbors,
+            planes,
             positive,
             positions: make("positions", bytemuck::cast_slice(&positions)),
             tets: make("tets", bytemuck::cast_slice(&tets)),
@@ -302,9 +321,9 @@ impl PtRenderer {
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
-        let order: Vec<u32> = match (&data.mpvo, visibility) {
-            (Some((nb, planes)), VisibilityOrder::Mpvo) => {
-                mpvo_order(planes, nb, &data.centroids, eye32).0
+        let order: Vec<u32> = match (&data.neighbors, visibility) {
+            (Some(nb), VisibilityOrder::Mpvo) => {
+                mpvo_order(&data.planes, nb, &data.centroids, eye32).0
             }
             _ => centroid_order(&data.centroids, eye32),
         };
@@ -331,18 +350,16 @@ impl PtRenderer {
                 (1.0 / data.diagonal) as f32,
             ],
             tf_info: [
-                tf.points.len() as u32,
+                TF_TABLE_INTERVALS,
                 (s_res as f32).to_bits(),
                 (tf.max_extinction() as f32).to_bits(),
                 0,
             ],
         };
-        let tf_gpu: Vec<TfPointGpu> = tf
-            .points
-            .iter()
-            .map(|p| TfPointGpu {
-                a: [p.s, p.rgb[0], p.rgb[1], p.rgb[2]],
-                b: [p.extinction, 0.0, 0.0, 0.0],
+        let tf_gpu: Vec<[f32; 4]> = (0..=TF_TABLE_INTERVALS)
+            .map(|k| {
+                let (rgb, ext) = tf.eval(k as f64 / TF_TABLE_INTERVALS as f64);
+                [rgb[0] as f32, rgb[1] as f32, rgb[2] as f32, ext as f32]
             })
             .collect();
         let gbuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -350,23 +367,30 @@ impl PtRenderer {
             contents: bytemuck::bytes_of(&globals),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        // 4 faces per tet, outward winding counter-clockwise (reversed for negatively oriented tets)
-        let indices: Vec<[u32; 12]> = order
+        // only the exit faces (the eye on the inner side of the face plane; none for a zero-volume
+        // tet), outward winding counter-clockwise (reversed for negatively oriented tets); the
+        // rasterizer still culls front faces, so a face misjudged at a grazing angle draws nothing
+        let indices: Vec<[u32; 3]> = order
             .par_iter()
-            .map(|&t| {
+            .flat_map_iter(|&t| {
                 let b = t * 4;
                 let f = if data.positive[t as usize] {
                     FACES_POS
                 } else {
                     FACES_NEG
                 };
-                std::array::from_fn(|k| b + f[k])
+                let pl = &data.planes[t as usize];
+                (0..4).filter_map(move |i| {
+                    let [nx, ny, nz, w] = pl[i];
+                    let c = w - (nx * eye32[0] + ny * eye32[1] + nz * eye32[2]);
+                    (c > 0.0).then(|| [b + f[3 * i], b + f[3 * i + 1], b + f[3 * i + 2]])
+                })
             })
             .collect();
         let ibuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("faces"),
             contents: if indices.is_empty() {
-                &[0u8; 48]
+                &[0u8; 12]
             } else {
                 bytemuck::cast_slice(&indices)
             },
@@ -419,10 +443,10 @@ impl PtRenderer {
             view_formats: &[],
         });
         let view = texture.create_view(&Default::default());
-        let texel = if self.format == wgpu::TextureFormat::Rgba32Float {
-            16
-        } else {
-            8
+        let texel = match self.format {
+            wgpu::TextureFormat::Rgba32Float => 16,
+            wgpu::TextureFormat::Rgba16Float => 8,
+            _ => 4,
         };
         let bpr = (w * texel).div_ceil(256) * 256;
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -449,11 +473,11 @@ impl PtRenderer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            if data.tet_count > 0 {
+            if !indices.is_empty() {
                 pass.set_pipeline(&self.pipeline);
                 pass.set_bind_group(0, &bind, &[]);
                 pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..12 * data.tet_count, 0, 0..1);
+                pass.draw_indexed(0..3 * indices.len() as u32, 0, 0..1);
             }
         }
         enc.copy_texture_to_buffer(
@@ -493,16 +517,16 @@ impl PtRenderer {
         for y in 0..h {
             let row = &bytes[(y * bpr) as usize..];
             for x in 0..w as usize {
-                let c: [f64; 4] = if texel == 16 {
-                    let f: &[f32] = bytemuck::cast_slice(&row[x * 16..x * 16 + 16]);
-                    [f[0] as f64, f[1] as f64, f[2] as f64, f[3] as f64]
-                } else {
-                    let f: &[u16] = bytemuck::cast_slice(&row[x * 8..x * 8 + 8]);
-                    f.iter()
-                        .map(|&b| half_to_f64(b))
-                        .collect::<Vec<_>>()
-                        .try_into()
-                        .unwrap()
+                let c: [f64; 4] = match texel {
+                    16 => {
+                        let f: &[f32] = bytemuck::cast_slice(&row[x * 16..x * 16 + 16]);
+                        std::array::from_fn(|k| f[k] as f64)
+                    }
+                    8 => {
+                        let f: &[u16] = bytemuck::cast_slice(&row[x * 8..x * 8 + 8]);
+                        std::array::from_fn(|k| half_to_f64(f[k]))
+                    }
+                    _ => std::array::from_fn(|k| row[x * 4 + k] as f64 / 255.0),
                 };
                 px.push(c.map(|v| if v.is_finite() { v } else { f64::NAN }));
             }
