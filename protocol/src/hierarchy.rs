@@ -61,22 +61,56 @@ pub struct BeySplitEdges {
 /// The (lazily built) [`BeySplitEdges`].
 pub fn bey_split_edges() -> &'static BeySplitEdges {
     static CELL: std::sync::OnceLock<BeySplitEdges> = std::sync::OnceLock::new();
-    CELL.get_or_init(|| {
-        let mut edges: Vec<(usize, usize)> = Vec::new();
-        let mut child_edges = [[0usize; 6]; 8];
-        for (i, c) in BEY_CHILDREN.iter().enumerate() {
-            for (e, &(a, b)) in EDGES.iter().enumerate() {
-                let pair = (c[a].min(c[b]), c[a].max(c[b]));
-                let idx = edges.iter().position(|&x| x == pair).unwrap_or_else(|| {
-                    edges.push(pair);
-                    edges.len() - 1
-                });
-                child_edges[i][e] = idx;
-            }
-        }
-        BeySplitEdges { edges, child_edges }
+    CELL.get_or_init(|| BeySplitEdges {
+        edges: BEY_SPLIT.edges.to_vec(),
+        child_edges: BEY_SPLIT.child_edges,
     })
 }
+
+/// [`BeySplitEdges`] as constant tables (fixed sizes, usable in unrolled loops), plus for each split
+/// edge the first child (in Bey order) that has it and its local edge index there.
+#[derive(Debug, Clone, Copy)]
+pub struct BeySplit {
+    pub edges: [(usize, usize); 25],
+    pub child_edges: [[usize; 6]; 8],
+    pub first_child: [(usize, usize); 25],
+}
+
+/// The edges of a Bey split (see [`BeySplitEdges`]), in the same order.
+pub const BEY_SPLIT: BeySplit = {
+    let mut edges = [(0usize, 0usize); 25];
+    let mut child_edges = [[0usize; 6]; 8];
+    let mut first_child = [(0usize, 0usize); 25];
+    let mut len = 0;
+    let mut i = 0;
+    while i < 8 {
+        let c = BEY_CHILDREN[i];
+        let mut e = 0;
+        while e < 6 {
+            let (a, b) = EDGES[e];
+            let (x, y) = (c[a], c[b]);
+            let pair = if x < y { (x, y) } else { (y, x) };
+            let mut idx = 0;
+            while idx < len && (edges[idx].0 != pair.0 || edges[idx].1 != pair.1) {
+                idx += 1;
+            }
+            if idx == len {
+                edges[len] = pair;
+                first_child[len] = (i, e);
+                len += 1;
+            }
+            child_edges[i][e] = idx;
+            e += 1;
+        }
+        i += 1;
+    }
+    assert!(len == 25);
+    BeySplit {
+        edges,
+        child_edges,
+        first_child,
+    }
+};
 
 /// Id arithmetic of a forest with `n_base` roots and `levels` levels of refinement.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -7,19 +7,60 @@ use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_server::analysis::analyze_hierarchy;
 use tetwave_server::resample::synthetic::{kuhn_cube_mesh, Synthetic};
 use tetwave_server::resample::unstructured::{clean, Locator};
-use tetwave_server::resample::{resample, BaseSpec, Source};
+use tetwave_server::resample::{resample, BaseSpec, Resampled, Source};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());
     v[v.len() / 2]
 }
 
+/// Analysis alone, repeated on copies of one resampled input: min and median seconds per level.
+fn analysis_loop(source: &Source, threads: usize) {
+    // TETWAVE_BENCH_LEVELS=5 (say) limits the loop to one level
+    let only: Option<u8> = std::env::var("TETWAVE_BENCH_LEVELS")
+        .ok()
+        .and_then(|v| v.parse().ok());
+    for (levels, runs) in [(5u8, 60), (6, 30), (7, 8)] {
+        if only.is_some_and(|l| l != levels) {
+            continue;
+        }
+        let r = resample(source, &BaseSpec::Box5, levels).unwrap();
+        let vertices = r.samples.len();
+        let mut times = Vec::new();
+        for _ in 0..runs {
+            let copy = Resampled {
+                base: r.base.clone(),
+                keys: r.keys.clone(),
+                samples: r.samples.clone(),
+                outside: r.outside,
+            };
+            let t = Instant::now();
+            let a = analyze_hierarchy(copy, None, false).unwrap();
+            times.push(t.elapsed().as_secs_f64());
+            drop(a);
+        }
+        let min = times.iter().copied().fold(f64::INFINITY, f64::min);
+        let med = median(times);
+        println!(
+            "{{\"bench\":\"analysis_loop\",\"levels\":{levels},\"vertices\":{vertices},\"runs\":{runs},\"min_s\":{min:.5},\"median_s\":{med:.5},\"vertices_per_s_min\":{:.0},\"vertices_per_s_median\":{:.0},\"threads\":{threads}}}",
+            vertices as f64 / min,
+            vertices as f64 / med
+        );
+    }
+}
+
 fn main() {
     let runs = 5;
-    // TETWAVE_BENCH=analysis runs only the analysis/synthesis part (for profiling)
-    let only_analysis = std::env::var("TETWAVE_BENCH").is_ok_and(|v| v == "analysis");
+    // TETWAVE_BENCH=analysis runs only the analysis/synthesis part (for profiling);
+    // TETWAVE_BENCH=analysis-loop runs only the analysis, many times on one resampled input
+    let mode = std::env::var("TETWAVE_BENCH").unwrap_or_default();
+    let only_analysis = mode == "analysis";
     let threads = rayon::current_num_threads();
     let source = Source::Synthetic(Synthetic::Harmonic);
+    if mode == "analysis-loop" {
+        analysis_loop(&source, threads);
+        return;
+    }
     for levels in [5u8, 6, 7] {
         let mut t_analysis = Vec::new();
         let mut t_synth = Vec::new();
