@@ -368,6 +368,15 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
     } else {
         let ctx = GpuContext::new()?;
         let r = PtRenderer::new(&ctx);
+        // one tiny draw compiles the driver's shader variants now rather than on the first frame
+        let tet = RenderMesh::new(
+            vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            vec![[0, 1, 2, 3]],
+            vec![0.0, 1.0, 0.5, 0.25],
+        );
+        let warm_cam = Camera::orbit(glam::DVec3::splat(0.25), 3.0, 30.0, 20.0, 40.0, 16, 16);
+        let data = r.upload(&ctx, &tet)?;
+        r.render(&ctx, &data, &warm_cam, &tf)?;
         Some((ctx, r))
     };
     let net = Arc::new(Net {
@@ -475,7 +484,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
                     }
                     applied += nodes.len();
                     mesh.apply_arrivals(buf, &arrivals);
-                    sel.notify_arrivals();
+                    sel.notify_arrived(mesh, &arrivals.nodes);
                     let _ = out_tx.send(ClientMsg::Ack { seq });
                 }
                 ServerMsg::End { .. } => {
@@ -496,7 +505,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
                     return Err(StreamError::Server { code, message })
                 }
             }
-            if Instant::now() >= deadline && state.is_some() {
+            // the first image goes out as soon as the base mesh is there
+            if state.is_some() && (first_frame_ms.is_none() || Instant::now() >= deadline) {
                 break;
             }
         }

@@ -289,7 +289,15 @@ async fn want_and_cancel() {
     });
     let _ = ws.close(None).await;
 
-    // Cancel the upper half right after Hello: none of it arrives (level order sends it last)
+    // Cancel the upper half right after Hello: none of it arrives (level order sends it last). A
+    // window of one small batch keeps the server from sending past the first batch before it has
+    // read the Cancel (it waits for the Ack, which the socket delivers after the Cancel).
+    let cfg = ServeConfig {
+        batch: 64,
+        window: 1,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&dir, cfg).await;
     let mut ws = connect(addr, "").await;
     send(&mut ws, &hello(None, vec![])).await;
     send(
