@@ -33,6 +33,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 use futures_util::{SinkExt, StreamExt};
+use glam::DVec3;
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, OnceLock};
@@ -778,47 +779,32 @@ pub const DATA_DELTA: f64 = 0.01;
 
 /// Screen-space error × data term of node `i` for a view: the priority of view order.
 struct ViewPriority {
-    eye: [f64; 3],
-    fwd: [f64; 3],
-    right: [f64; 3],
-    up: [f64; 3],
+    eye: DVec3,
+    fwd: DVec3,
+    right: DVec3,
+    up: DVec3,
     tan_x: f64,
     tan_y: f64,
     k: f64,
     inv_range: f64,
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-fn normalize(a: [f64; 3]) -> Option<[f64; 3]> {
-    let l = dot(a, a).sqrt();
-    (l > 1e-300 && l.is_finite()).then(|| [a[0] / l, a[1] / l, a[2] / l])
-}
-
 impl ViewPriority {
     fn new(v: &ViewParams, value_range: [f32; 2]) -> Self {
-        let fwd = normalize(sub(v.target, v.eye)).unwrap_or([0.0, 0.0, -1.0]);
-        let right = normalize(cross(fwd, v.up))
-            .or_else(|| normalize(cross(fwd, [0.0, 1.0, 0.0])))
-            .or_else(|| normalize(cross(fwd, [1.0, 0.0, 0.0])))
-            .unwrap_or([1.0, 0.0, 0.0]);
-        let up = cross(right, fwd);
+        let eye = DVec3::from_array(v.eye);
+        let fwd = (DVec3::from_array(v.target) - eye)
+            .try_normalize()
+            .unwrap_or(DVec3::NEG_Z);
+        let right = [DVec3::from_array(v.up), DVec3::Y, DVec3::X]
+            .into_iter()
+            .find_map(|u| fwd.cross(u).try_normalize())
+            .unwrap_or(DVec3::X);
+        let up = right.cross(fwd);
         let tan_y = (0.5 * v.fovy_deg.to_radians()).tan();
         let tan_x = tan_y * v.width as f64 / v.height as f64;
         let range = (value_range[1] as f64 - value_range[0] as f64).abs();
         ViewPriority {
-            eye: v.eye,
+            eye,
             fwd,
             right,
             up,
@@ -833,13 +819,12 @@ impl ViewPriority {
     /// frustum (δ = [`DATA_DELTA`]).
     #[inline]
     fn eval(&self, centre: [f32; 3], diam: f32, smax: f32) -> f32 {
-        let c = [centre[0] as f64, centre[1] as f64, centre[2] as f64];
-        let d = sub(c, self.eye);
+        let d = DVec3::from_array(centre.map(f64::from)) - self.eye;
         let r = 0.5 * diam as f64;
-        let dist = dot(d, d).sqrt().max(1e-9 * (1.0 + r));
-        let z = dot(d, self.fwd);
-        let x = dot(d, self.right).abs();
-        let y = dot(d, self.up).abs();
+        let dist = d.length().max(1e-9 * (1.0 + r));
+        let z = d.dot(self.fwd);
+        let x = d.dot(self.right).abs();
+        let y = d.dot(self.up).abs();
         let outside = z < -r
             || (x - z * self.tan_x) / (1.0 + self.tan_x * self.tan_x).sqrt() > r
             || (y - z * self.tan_y) / (1.0 + self.tan_y * self.tan_y).sqrt() > r;
