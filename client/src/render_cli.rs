@@ -46,8 +46,8 @@ pub struct RenderArgs {
     /// Visibility order: centroid (approximate) or mpvo (exact for convex acyclic meshes).
     #[arg(long, value_enum, default_value_t = VisibilityOrder::Centroid)]
     pub order: VisibilityOrder,
-    /// Precision of the blending target: best (32-bit float where blendable), f32, f16, or u8
-    /// (fastest on CPU rasterizers, least accurate).
+    /// Precision of the blending target: best (32-bit float where blendable, else 16-bit), f16, or
+    /// u8 (fastest on CPU rasterizers, least accurate).
     #[arg(long, value_enum, default_value_t = Accumulation::Best)]
     pub accumulation: Accumulation,
     /// Output PNG.

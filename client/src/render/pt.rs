@@ -66,8 +66,6 @@ pub enum Accumulation {
     /// enough for the ≥ 45 dB image tests).
     #[default]
     Best,
-    /// 32-bit float per channel (needs `FLOAT32_BLENDABLE`).
-    F32,
     /// 16-bit float per channel.
     F16,
     /// 8-bit unorm per channel: fastest blending on CPU rasterizers, ~8-bit rounding per layer.
@@ -115,14 +113,11 @@ impl PtRenderer {
         Self::with_accumulation(ctx, Accumulation::Best)
     }
 
-    /// The renderer accumulating in the given precision ([`Accumulation::F32`] falls back to 16-bit
-    /// floats where the adapter cannot blend 32-bit floats).
+    /// The renderer accumulating in the given precision.
     pub fn with_accumulation(ctx: &GpuContext, acc: Accumulation) -> Self {
         let device = &ctx.device;
         let format = match acc {
-            Accumulation::Best | Accumulation::F32 if ctx.float32_blend => {
-                wgpu::TextureFormat::Rgba32Float
-            }
+            Accumulation::Best if ctx.float32_blend => wgpu::TextureFormat::Rgba32Float,
             Accumulation::U8 => wgpu::TextureFormat::Rgba8Unorm,
             _ => wgpu::TextureFormat::Rgba16Float,
         };
