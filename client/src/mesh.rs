@@ -10,13 +10,17 @@
 //!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
 //!   through a free list of blocks. A node (32 bytes) keeps its id, its 4 vertex slots (hierarchy
 //!   vertex order), its first child slot, flags, and for a leaf its green pattern (the marked-edge
-//!   mask; the midpoints are looked up by edge when the greens are listed).
+//!   mask; the midpoints are looked up when the greens are listed).
 //! - **vertices**: slot arrays (key, position, value, edge endpoints, reference count, level, number of
 //!   dependants). Base vertices are slots `0..nv` (slot = key) and never go away. A non-base vertex, the
 //!   midpoint of an edge of a level-`k` tet, is present iff some refined level-`k` tet contains that
-//!   edge; its reference count is the number of such refined tets. Two hash maps find vertices: by
-//!   key (for arriving coefficients) and by the edge whose midpoint it is (sorted endpoint keys; the
-//!   closure's lookups need no lattice arithmetic).
+//!   edge; its reference count is the number of such refined tets. One array, dense over the key space
+//!   and allocated once, finds a vertex's slot by key: for arriving coefficients, and for the
+//!   closure, which computes the keys of a tet's edge midpoints and level-`k+2` points from its
+//!   lattice tet (integer barycentric weights, [`AdaptiveMesh::lattice_of`]).
+//! - The node and vertex arrays (except positions and values, which renderers read as slices) are
+//!   `SegVec`s: they grow by segments and never copy what they hold, so no operation pays for
+//!   moving a large array (a frame budget could not absorb it).
 //!
 //! # Values
 //! A midpoint's value is `synthesize(d, predict(f(u), f(v)))` with `d` its coefficient from the
@@ -32,9 +36,11 @@
 //! face) or if any of the 24 level-`k+2` lattice points on its boundary is present (1-irregularity:
 //! otherwise a vertex would hang on its faces). Those 24 points are the midpoints of the half edges of
 //! marked edges (12) and of the segments joining two marked midpoints of one face (12), so the test
-//! is a handful of edge-map lookups. The closure is a worklist: every vertex that appears or
-//! disappears puts the leaves whose closure contains it (point location down the tree with integer
-//! barycentric coordinates) on the list; forced leaves are red-refined (domino). The number of
+//! is a handful of key lookups. The closure is a worklist (a leaf is on it at most once): every vertex
+//! that appears or disappears puts the leaves whose closure contains it (point location down the tree
+//! with integer barycentric coordinates) on the list; forced leaves are red-refined (domino). The
+//! result does not depend on the order (refining only adds vertices, and the test is monotone in
+//! them). The number of
 //! closure refinements per operation is bounded by the number of hierarchy nodes (an error, never an
 //! endless loop). The closure may red-refine an *empty* tet (one outside the input domain) when its
 //! neighbours need it; explicit [`AdaptiveMesh::refine`] of an empty tet is refused, and empty leaves
@@ -54,7 +60,7 @@ use rustc_hash::FxHashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
 use tetwave_protocol::base::signed_volume;
-use tetwave_protocol::hierarchy::{Bary, Lattice, BEY_CHILDREN, EDGES, FACES};
+use tetwave_protocol::hierarchy::{midpoint, Bary, Lattice, BEY_CHILDREN, EDGES, FACES};
 use tetwave_protocol::wavelet::{predict, synthesize};
 use tetwave_protocol::{BaseMesh, Forest, LatticeTet, TetId, VertexKeys};
 
@@ -62,6 +68,8 @@ const NONE: u32 = u32::MAX;
 const ALIVE: u8 = 1;
 const EMPTY: u8 = 2;
 const FLIP: u8 = 4;
+/// On the closure's worklist (see `AdaptiveMesh::queue`).
+const QUEUED: u8 = 8;
 
 /// Edges of the face opposite vertex `d` (the edges not touching `d`), as a mask over [`EDGES`].
 const FACE_MASK: [u8; 4] = face_masks();
@@ -222,11 +230,127 @@ fn grow<T>(v: &mut Vec<T>, extra: usize) {
     }
 }
 
-#[inline]
-fn edge_key(a: u64, b: u64) -> u64 {
-    // vertex keys fit in 32 bits (checked in `AdaptiveMesh::new`)
-    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-    (lo << 32) | hi
+const SEG_BITS: u32 = 12;
+const SEG_LEN: usize = 1 << SEG_BITS;
+const SEG_MASK: usize = SEG_LEN - 1;
+
+/// A growable array stored in fixed segments of [`SEG_LEN`] items: growing never moves (copies) what
+/// it holds, so no single push costs more than allocating one segment, whatever the length. The
+/// mesh's node and vertex arrays and the selector's per-slot arrays use it; a `Vec` that doubles or
+/// grows by a fraction copies all of it at once (tens of ms for the node array of a level-6 mesh).
+#[derive(Clone)]
+pub(crate) struct SegVec<T> {
+    segs: Vec<Box<[T]>>,
+    len: usize,
+}
+
+impl<T: Copy> SegVec<T> {
+    pub(crate) const fn new() -> Self {
+        SegVec {
+            segs: Vec::new(),
+            len: 0,
+        }
+    }
+
+    #[inline]
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Items held by the allocated segments.
+    #[inline]
+    pub(crate) fn capacity(&self) -> usize {
+        self.segs.len() * SEG_LEN
+    }
+
+    /// Bytes held (segments and the segment table).
+    pub(crate) fn bytes(&self) -> usize {
+        self.capacity() * std::mem::size_of::<T>()
+            + self.segs.capacity() * std::mem::size_of::<Box<[T]>>()
+    }
+
+    #[inline]
+    pub(crate) fn push(&mut self, x: T) {
+        if self.len == self.capacity() {
+            self.segs.push(vec![x; SEG_LEN].into_boxed_slice());
+        }
+        let i = self.len;
+        self.len += 1;
+        self.segs[i >> SEG_BITS][i & SEG_MASK] = x;
+    }
+
+    /// Sets the length to `n`, filling new items with `x`.
+    pub(crate) fn resize(&mut self, n: usize, x: T) {
+        while self.len < n {
+            if self.len == self.capacity() {
+                self.segs.push(vec![x; SEG_LEN].into_boxed_slice());
+                self.len = (self.len + SEG_LEN).min(n);
+            } else {
+                let i = self.len;
+                let end = (i | SEG_MASK) + 1;
+                let end = end.min(n);
+                self.segs[i >> SEG_BITS][i & SEG_MASK..((end - 1) & SEG_MASK) + 1].fill(x);
+                self.len = end;
+            }
+        }
+        self.len = n;
+    }
+
+    /// Empties it, keeping the segments.
+    pub(crate) fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    #[inline]
+    pub(crate) fn get(&self, i: usize) -> Option<&T> {
+        if i < self.len {
+            Some(&self.segs[i >> SEG_BITS][i & SEG_MASK])
+        } else {
+            None
+        }
+    }
+
+    /// The contiguous run of items from `i` to `end` or to the end of `i`'s segment, whichever
+    /// comes first (`i < end ≤ len`).
+    #[inline]
+    pub(crate) fn run(&self, i: usize, end: usize) -> &[T] {
+        assert!(i < end && end <= self.len);
+        let stop = ((i | SEG_MASK) + 1).min(end);
+        &self.segs[i >> SEG_BITS][i & SEG_MASK..((stop - 1) & SEG_MASK) + 1]
+    }
+
+    pub(crate) fn iter(&self) -> impl Iterator<Item = &T> + '_ {
+        self.segs.iter().flat_map(|s| s.iter()).take(self.len)
+    }
+}
+
+impl<T: Copy> Default for SegVec<T> {
+    fn default() -> Self {
+        SegVec::new()
+    }
+}
+
+impl<T: Copy> std::ops::Index<usize> for SegVec<T> {
+    type Output = T;
+    #[inline]
+    fn index(&self, i: usize) -> &T {
+        assert!(i < self.len, "index {i} out of {}", self.len);
+        &self.segs[i >> SEG_BITS][i & SEG_MASK]
+    }
+}
+
+impl<T: Copy> std::ops::IndexMut<usize> for SegVec<T> {
+    #[inline]
+    fn index_mut(&mut self, i: usize) -> &mut T {
+        assert!(i < self.len, "index {i} out of {}", self.len);
+        &mut self.segs[i >> SEG_BITS][i & SEG_MASK]
+    }
+}
+
+impl<T> std::fmt::Debug for SegVec<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SegVec(len {})", self.len)
+    }
 }
 
 /// The green closure of a tet `v` (in an orientation-consistent vertex order) with marked-edge mask
@@ -289,6 +413,40 @@ pub fn green_split<P: Copy>(
     t[b] = mid[e];
     green_split(t, rest & !VERTEX_MASK[b], mid, mkey, out);
 }
+
+/// A candidate of [`AdaptiveMesh::coarsen_batch_at`].
+struct BatchCand {
+    slot: u32,
+    id: TetId,
+    mids: [u32; 6],
+    keep: bool,
+    level: u8,
+    /// Its lattice tet, once needed.
+    lt: Option<LatticeTet>,
+    /// Slots of the level-k+2 points on its boundary, looked up when first needed (`UNKNOWN`):
+    /// the halves of edge `e` at `2e`, `2e + 1`; the segments of face `d` at `12 + 3d ..`.
+    pts: [u32; 24],
+    /// What forced it when last refused (from the mesh's refusal records), if anything.
+    wit: Option<Witness>,
+    /// `wit` was found in this batch (not read from a record).
+    fresh: bool,
+}
+
+/// Vertices whose presence forces a refined tet to be refined again if its split is undone (see
+/// [`AdaptiveMesh::coarsen_batch_at`]): up to 4 (slot, key) pairs, unused ones `(NONE, 0)`. Any
+/// present superset forces it too (the closure's test is monotone in the present vertices).
+type Witness = [(u32, u32); 4];
+
+/// A refined tet whose last merge attempt was refused: its midpoints and why (valid while it stays
+/// refined; `AdaptiveMesh::unrefine` drops it).
+#[derive(Debug, Clone, Copy)]
+struct Refusal {
+    id: TetId,
+    mids: [u32; 6],
+    wit: Witness,
+}
+
+const UNKNOWN: u32 = u32::MAX - 1;
 
 /// One node of the red tree (see the module docs): 32 bytes.
 #[derive(Debug, Clone, Copy)]
@@ -398,25 +556,26 @@ pub struct AdaptiveMesh {
     boundary: Vec<[bool; 4]>,
     domain_volume: f64,
 
-    nodes: Vec<Node>,
+    nodes: SegVec<Node>,
     free_blocks: Vec<u32>,
     n_leaves: usize,
 
-    vkey: Vec<u64>,
+    vkey: SegVec<u64>,
     vpos: Vec<[f32; 3]>,
     vval: Vec<f32>,
-    vends: Vec<[u32; 2]>,
-    vref: Vec<u32>,
-    vlevel: Vec<u8>,
-    vdeps: Vec<u32>,
+    vends: SegVec<[u32; 2]>,
+    vref: SegVec<u32>,
+    vlevel: SegVec<u8>,
+    vdeps: SegVec<u32>,
     free_vertices: Vec<u32>,
     n_vertices: usize,
     /// Slot by vertex key, dense over the key space (`NONE`: absent); base keys map to themselves.
+    /// Allocated once: it never grows.
     by_key: Vec<u32>,
-    /// Midpoint slot by edge (packed sorted endpoint keys).
-    by_edge: FxHashMap<u64, u32>,
 
     work: Vec<(u32, TetId)>,
+    /// Refined tets (by slot) whose last merge attempt in a batch was refused, and why.
+    refused: FxHashMap<u32, Refusal>,
     /// Red splits and merges done so far (closure refinements included).
     n_splits: u64,
     n_merges: u64,
@@ -520,7 +679,7 @@ impl AdaptiveMesh {
                 })
             })
             .collect();
-        let mut nodes = Vec::with_capacity(base.tets.len());
+        let mut nodes = SegVec::new();
         let mut domain_volume = 0.0;
         for (t, tv) in base.tets.iter().enumerate() {
             let p = tv.map(|g| base.positions[g as usize]);
@@ -553,18 +712,18 @@ impl AdaptiveMesh {
             nodes,
             free_blocks: Vec::new(),
             n_leaves: base.tets.len(),
-            vkey: Vec::new(),
+            vkey: SegVec::new(),
             vpos: Vec::new(),
             vval: Vec::new(),
-            vends: Vec::new(),
-            vref: Vec::new(),
-            vlevel: Vec::new(),
-            vdeps: Vec::new(),
+            vends: SegVec::new(),
+            vref: SegVec::new(),
+            vlevel: SegVec::new(),
+            vdeps: SegVec::new(),
             free_vertices: Vec::new(),
             n_vertices: 0,
             by_key: Vec::new(),
-            by_edge: FxHashMap::default(),
             work: Vec::new(),
+            refused: FxHashMap::default(),
             n_splits: 0,
             n_merges: 0,
             uid: MeshUid::new(),
@@ -717,7 +876,7 @@ impl AdaptiveMesh {
     /// [`Self::for_each_leaf_tet`] would list, without listing them.
     pub fn piece_counts(&self) -> (usize, usize) {
         let (mut all, mut drawable) = (0, 0);
-        for n in &self.nodes {
+        for n in self.nodes.iter() {
             if n.alive() && n.is_leaf() {
                 let k = green_piece_count(n.mask);
                 all += k;
@@ -873,19 +1032,19 @@ impl AdaptiveMesh {
     /// Bytes held by the node, vertex and map storage (capacities).
     pub fn bytes_held(&self) -> usize {
         use std::mem::size_of;
-        self.nodes.capacity() * size_of::<Node>()
+        self.nodes.bytes()
             + self.free_blocks.capacity() * 4
-            + self.vkey.capacity() * 8
+            + self.vkey.bytes()
             + self.vpos.capacity() * 12
             + self.vval.capacity() * 4
-            + self.vends.capacity() * 8
-            + self.vref.capacity() * 4
-            + self.vlevel.capacity()
-            + self.vdeps.capacity() * 4
+            + self.vends.bytes()
+            + self.vref.bytes()
+            + self.vlevel.bytes()
+            + self.vdeps.bytes()
             + self.free_vertices.capacity() * 4
             + self.by_key.capacity() * 4
-            + self.by_edge.capacity() * (size_of::<(u64, u32)>() + 1)
             + self.work.capacity() * size_of::<(u32, TetId)>()
+            + self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)
             + self.changes.capacity() * size_of::<SlotChange>()
     }
 
@@ -893,7 +1052,7 @@ impl AdaptiveMesh {
 
     /// Calls `f` with every tet of the leaf mesh (red leaves and green pieces), positively oriented.
     pub fn for_each_leaf_tet(&self, mut f: impl FnMut(LeafTet)) {
-        for n in &self.nodes {
+        for n in self.nodes.iter() {
             if !n.alive() || !n.is_leaf() {
                 continue;
             }
@@ -935,15 +1094,15 @@ impl AdaptiveMesh {
         out
     }
 
-    /// Midpoint slots and keys of the marked edges of leaf `n` (looked up by edge: greens are few).
+    /// Midpoint slots and keys of the marked edges of leaf `n` (greens are few).
     fn green_mids(&self, n: &Node) -> ([u32; 6], [u64; 6]) {
         let mut mid = [NONE; 6];
         let mut mkey = [u64::MAX; 6];
-        for (e, &(a, b)) in EDGES.iter().enumerate() {
+        let lt = self.lattice_of(n.id);
+        for e in 0..6 {
             if n.mask & (1 << e) != 0 {
-                let m = self
-                    .edge_mid(self.vkey[n.v[a] as usize], self.vkey[n.v[b] as usize])
-                    .expect("marked edge without midpoint");
+                let m = self.slot_at(lt.base, &lt.edge_midpoint(e));
+                assert!(m != NONE, "marked edge without midpoint");
                 mid[e] = m;
                 mkey[e] = self.vkey[m as usize];
             }
@@ -953,63 +1112,75 @@ impl AdaptiveMesh {
 
     // ---------------------------------------------------------------- closure
 
+    /// Slot of the present vertex at lattice point `w` of base tet `b` (`NONE`: absent).
     #[inline]
-    fn edge_mid(&self, ka: u64, kb: u64) -> Option<u32> {
-        self.by_edge.get(&edge_key(ka, kb)).copied()
+    fn slot_at(&self, b: u32, w: &Bary) -> u32 {
+        self.by_key[self.keys.key(b, w) as usize]
     }
 
-    /// Green pattern of a tet with vertices `v` and midpoints `mid` (`NONE` = absent): returns the
-    /// mask and whether the tet is forced (bad pattern or a level-k+2 point on its boundary).
-    fn classify_with(&self, v: &[u32; 4], mid: &[u32; 6]) -> (u8, bool) {
-        self.classify_by(v, mid, |a, b| self.edge_mid(a, b).is_some())
+    /// Slots of the present midpoints of the 6 edges of lattice tet `lt` of level `k` (`NONE`:
+    /// absent).
+    #[inline]
+    fn lattice_mids(&self, lt: &LatticeTet, k: u8) -> [u32; 6] {
+        if k >= self.forest.levels {
+            return [NONE; 6];
+        }
+        std::array::from_fn(|e| self.slot_at(lt.base, &lt.edge_midpoint(e)))
     }
 
-    /// [`Self::classify_with`] with `present(ka, kb)` telling whether the midpoint of the edge
-    /// with endpoint keys `ka`, `kb` is present.
+    /// Green pattern of lattice tet `lt` of level `k` with midpoints `mid` (`NONE` = absent): the
+    /// mask and whether the tet is forced (bad pattern, or a present level-k+2 point on its boundary:
+    /// the midpoint of a half of a marked edge, or of the segment joining two marked midpoints of one
+    /// face). `present(s)` tells whether the vertex in slot `s` counts as present.
     #[inline]
-    fn classify_by(
+    fn classify(
         &self,
-        v: &[u32; 4],
+        lt: &LatticeTet,
+        k: u8,
         mid: &[u32; 6],
-        present: impl Fn(u64, u64) -> bool,
+        present: impl Fn(u32) -> bool,
     ) -> (u8, bool) {
-        let k = v.map(|s| self.vkey[s as usize]);
         let mut mask = 0u8;
-        let mut mk = [0u64; 6];
-        for e in 0..6 {
-            if mid[e] != NONE {
+        for (e, &m) in mid.iter().enumerate() {
+            if m != NONE {
                 mask |= 1 << e;
-                mk[e] = self.vkey[mid[e] as usize];
             }
         }
         if !green_pattern_ok(mask) {
             return (mask, true);
         }
-        for e in 0..6 {
+        if mask == 0 || k + 2 > self.forest.levels {
+            return (mask, false);
+        }
+        let b = lt.base;
+        let at = |w: &Bary| {
+            let s = self.slot_at(b, w);
+            s != NONE && present(s)
+        };
+        let mut mw = [[0u32; 4]; 6];
+        for (e, &(x, y)) in EDGES.iter().enumerate() {
             if mask & (1 << e) != 0 {
-                let (a, b) = EDGES[e];
-                if present(k[a], mk[e]) || present(mk[e], k[b]) {
+                let m = lt.edge_midpoint(e);
+                if at(&midpoint(&lt.v[x], &m)) || at(&midpoint(&m, &lt.v[y])) {
                     return (mask, true);
                 }
+                mw[e] = m;
             }
         }
-        for fm in FACE_MASK {
-            let m = mask & fm;
-            if m.count_ones() >= 2 {
-                let es: [usize; 3] = {
-                    let mut es = [6; 3];
-                    let mut j = 0;
-                    for e in 0..6 {
-                        if m & (1 << e) != 0 {
-                            es[j] = e;
-                            j += 1;
-                        }
+        if mask.count_ones() >= 2 {
+            for fm in FACE_MASK {
+                let m = mask & fm;
+                if m.count_ones() >= 2 {
+                    let x = m.trailing_zeros() as usize;
+                    let rest = m & (m - 1);
+                    let y = rest.trailing_zeros() as usize;
+                    if at(&midpoint(&mw[x], &mw[y])) {
+                        return (mask, true);
                     }
-                    es
-                };
-                for x in 0..3 {
-                    for y in x + 1..3 {
-                        if es[y] < 6 && present(mk[es[x]], mk[es[y]]) {
+                    let z = rest & (rest - 1);
+                    if z != 0 {
+                        let z = z.trailing_zeros() as usize;
+                        if at(&midpoint(&mw[x], &mw[z])) || at(&midpoint(&mw[y], &mw[z])) {
                             return (mask, true);
                         }
                     }
@@ -1019,12 +1190,25 @@ impl AdaptiveMesh {
         (mask, false)
     }
 
-    fn present_mids(&self, v: &[u32; 4]) -> [u32; 6] {
-        let k = v.map(|s| self.vkey[s as usize]);
-        std::array::from_fn(|e| {
-            let (a, b) = EDGES[e];
-            self.edge_mid(k[a], k[b]).unwrap_or(NONE)
-        })
+    /// Puts the node in `slot` on the worklist unless it is there already.
+    #[inline]
+    fn queue(&mut self, slot: u32) {
+        let n = &mut self.nodes[slot as usize];
+        if n.flags & QUEUED == 0 {
+            n.flags |= QUEUED;
+            let id = n.id;
+            self.work.push((slot, id));
+        }
+    }
+
+    /// Empties the worklist (clearing the queued flags).
+    fn clear_work(&mut self) {
+        while let Some((slot, id)) = self.work.pop() {
+            let n = &mut self.nodes[slot as usize];
+            if n.alive() && n.id == id {
+                n.flags &= !QUEUED;
+            }
+        }
     }
 
     /// Pushes every leaf whose closure contains lattice point `w` of base tet `b` onto the worklist.
@@ -1048,7 +1232,20 @@ impl AdaptiveMesh {
                 }
             }
             if ok {
+                let from = work.len();
                 self.descend(c, lam, &mut work);
+                // leaves already on the list are not queued twice
+                let mut j = from;
+                for i in from..work.len() {
+                    let (s, _) = work[i];
+                    let f = &mut self.nodes[s as usize].flags;
+                    if *f & QUEUED == 0 {
+                        *f |= QUEUED;
+                        work[j] = work[i];
+                        j += 1;
+                    }
+                }
+                work.truncate(j);
             }
         }
         self.work = work;
@@ -1076,21 +1273,34 @@ impl AdaptiveMesh {
     fn close(&mut self, buf: &DetailBuffer) -> Result<(), MeshError> {
         let bound = self.forest.nodes() as usize + 8;
         let mut refines = 0usize;
+        let levels = self.forest.levels;
         while let Some((slot, id)) = self.work.pop() {
             let n = self.nodes[slot as usize];
-            if !n.alive() || n.id != id || !n.is_leaf() {
+            if !n.alive() || n.id != id || n.flags & QUEUED == 0 {
                 continue;
             }
-            let mid = self.present_mids(&n.v);
-            let (mask, forced) = self.classify_with(&n.v, &mid);
+            self.nodes[slot as usize].flags &= !QUEUED;
+            if !n.is_leaf() {
+                continue;
+            }
+            let k = self.forest.level(id);
+            if k >= levels {
+                // no midpoints at the finest level
+                continue;
+            }
+            let lt = self.lattice_of(id);
+            let mid = self.lattice_mids(&lt, k);
+            let (mask, forced) = self.classify(&lt, k, &mid, |_| true);
             if forced {
                 refines += 1;
                 if refines > bound {
-                    self.work.clear();
+                    self.clear_work();
                     return Err(MeshError::ClosureBound(bound));
                 }
-                let lt = self.lattice_of(id);
-                self.refine_slot(slot, &lt, buf)?;
+                if let Err(e) = self.refine_slot(slot, &lt, buf) {
+                    self.clear_work();
+                    return Err(e);
+                }
             } else {
                 self.nodes[slot as usize].mask = mask;
             }
@@ -1114,13 +1324,8 @@ impl AdaptiveMesh {
                 s
             }
             None => {
-                grow(&mut self.vkey, 1);
                 grow(&mut self.vpos, 1);
                 grow(&mut self.vval, 1);
-                grow(&mut self.vends, 1);
-                grow(&mut self.vref, 1);
-                grow(&mut self.vlevel, 1);
-                grow(&mut self.vdeps, 1);
                 self.vkey.push(key);
                 self.vpos.push(pos);
                 self.vval.push(val);
@@ -1162,8 +1367,9 @@ impl AdaptiveMesh {
             Some(b) => b,
             None => {
                 let b = self.nodes.len() as u32;
-                grow(&mut self.nodes, 8);
-                self.nodes.extend_from_slice(&[Node::DEAD; 8]);
+                for _ in 0..8 {
+                    self.nodes.push(Node::DEAD);
+                }
                 b
             }
         }
@@ -1188,15 +1394,14 @@ impl AdaptiveMesh {
         let mut created = [false; 6];
         for (e, &(a, b)) in EDGES.iter().enumerate() {
             let (sa, sb) = (n.v[a], n.v[b]);
-            let ek = edge_key(self.vkey[sa as usize], self.vkey[sb as usize]);
-            let s = match self.by_edge.get(&ek) {
-                Some(&s) => {
+            let w = lt.edge_midpoint(e);
+            let key = self.keys.key(lt.base, &w);
+            let s = match self.by_key[key as usize] {
+                s if s != NONE => {
                     self.vref[s as usize] += 1;
                     s
                 }
-                None => {
-                    let w = lt.edge_midpoint(e);
-                    let key = self.keys.key(lt.base, &w);
+                _ => {
                     let p = self.lattice_position(lt.base, &w);
                     let val = self.synth_value(buf, key, [sa, sb]);
                     let s = self.new_vertex(
@@ -1206,7 +1411,6 @@ impl AdaptiveMesh {
                         [sa, sb],
                         val,
                     );
-                    self.by_edge.insert(ek, s);
                     self.by_key[key as usize] = s;
                     created[e] = true;
                     s
@@ -1230,7 +1434,7 @@ impl AdaptiveMesh {
                 v: c.map(|p| pts[p]),
                 children: NONE,
                 mask: 0,
-                flags,
+                flags: flags | QUEUED,
                 nref: 0,
             };
             self.work.push((block + i as u32, id));
@@ -1280,8 +1484,7 @@ impl AdaptiveMesh {
         if (0..8).any(|i| !self.nodes[(n.children + i) as usize].is_leaf()) {
             return Err(MeshError::ChildrenRefined(t));
         }
-        let all = self.present_mids(&n.v);
-        debug_assert!(all.iter().all(|&m| m != NONE));
+        let all = self.child_mids(&n);
         // midpoints that stay: created by another refined tet too
         let after: [u32; 6] = std::array::from_fn(|e| {
             if self.vref[all[e] as usize] > 1 {
@@ -1290,7 +1493,8 @@ impl AdaptiveMesh {
                 NONE
             }
         });
-        if self.classify_with(&n.v, &after).1 {
+        let lt = self.lattice_of(t);
+        if self.classify(&lt, self.forest.level(t), &after, |_| true).1 {
             return Err(MeshError::Forced(t));
         }
         self.unrefine(slot);
@@ -1307,6 +1511,13 @@ impl AdaptiveMesh {
     /// every candidate's midpoints are released virtually (reference counts), then candidates that
     /// would be forced under that are dropped and their midpoints restored, until none is; only the
     /// rest are unrefined. The result is the same, without the wasted unrefine + refine pairs.
+    ///
+    /// A refused candidate is remembered with a *witness*: up to 4 vertices whose presence alone
+    /// forces it (monotone test). When it comes back in a later batch while it stayed refined, a
+    /// witness still present with the whole batch released settles it without the closure's test
+    /// and without reading its children (repeatedly refused merges are the bulk of a
+    /// view-dependent run's attempts); otherwise it is tested again. The records are bounded and
+    /// only save work ([`Self::clear_refusal_records`]).
     pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
         self.coarsen_batch_at(ts, &[], buf)
     }
@@ -1318,7 +1529,6 @@ impl AdaptiveMesh {
         hints: &[u32],
         buf: &DetailBuffer,
     ) -> Result<usize, MeshError> {
-        let mut cand: Vec<(u32, [u32; 6], bool)> = Vec::with_capacity(ts.len());
         let mut slots: Vec<u32> = Vec::with_capacity(ts.len());
         for (i, &t) in ts.iter().enumerate() {
             let slot = match hints.get(i) {
@@ -1326,63 +1536,101 @@ impl AdaptiveMesh {
                 _ => self.find(t).unwrap_or(NONE),
             };
             slots.push(slot);
-            if slot != NONE {
-                let n = &self.nodes[slot as usize];
-                if !n.is_leaf() && self.children_leaves(n) {
-                    cand.push((slot, self.child_mids(n), true));
-                }
-            }
         }
-        cand.sort_unstable_by_key(|c| c.0);
-        cand.dedup_by_key(|c| c.0);
-        for (_, mids, _) in &cand {
-            for &m in mids {
+        let mut order: Vec<u32> = slots.iter().copied().filter(|&s| s != NONE).collect();
+        order.sort_unstable();
+        order.dedup();
+        let mut cand: Vec<BatchCand> = Vec::with_capacity(order.len());
+        for &slot in &order {
+            let n = &self.nodes[slot as usize];
+            if n.is_leaf() || !self.children_leaves(n) {
+                continue;
+            }
+            let rec = self.refused.get(&slot).filter(|r| r.id == n.id);
+            cand.push(BatchCand {
+                slot,
+                id: n.id,
+                mids: rec.map_or_else(|| self.child_mids(n), |r| r.mids),
+                keep: true,
+                level: self.forest.level(n.id),
+                lt: None,
+                pts: [UNKNOWN; 24],
+                wit: rec.map(|r| r.wit),
+                fresh: false,
+            });
+        }
+        for c in &cand {
+            for &m in &c.mids {
                 self.vref[m as usize] -= 1;
             }
         }
-        loop {
-            let mut dropped = false;
-            for c in cand.iter_mut() {
-                let (slot, mids, keep) = c;
-                if !*keep {
+        // With every candidate released, those forced anyway are forced whatever else holds:
+        // their witnesses are kept for the next batches, where a witness still present settles
+        // the candidate without the closure's test.
+        let mut first: Vec<(usize, Option<Witness>)> = Vec::new();
+        for (i, c) in cand.iter_mut().enumerate() {
+            if let Some(w) = c.wit {
+                if self.witness_present(&w) {
+                    first.push((i, None));
                     continue;
                 }
-                let v = self.nodes[*slot as usize].v;
-                let after: [u32; 6] = std::array::from_fn(|e| {
-                    if self.vref[mids[e] as usize] > 0 {
-                        mids[e]
-                    } else {
-                        NONE
-                    }
-                });
-                let forced = self
-                    .classify_by(&v, &after, |a, b| {
-                        self.edge_mid(a, b)
-                            .is_some_and(|s| self.vref[s as usize] > 0)
-                    })
-                    .1;
-                if forced {
-                    *keep = false;
-                    for &m in mids.iter() {
+            }
+            if let Some(w) = self.forced_witness(c) {
+                first.push((i, Some(w)));
+            }
+        }
+        for &(i, w) in &first {
+            let c = &mut cand[i];
+            c.keep = false;
+            if w.is_some() {
+                c.wit = w;
+                c.fresh = true;
+            }
+            for &m in &c.mids {
+                self.vref[m as usize] += 1;
+            }
+        }
+        let mut dropped = !first.is_empty();
+        while dropped {
+            dropped = false;
+            for c in cand.iter_mut() {
+                if !c.keep {
+                    continue;
+                }
+                if let Some(w) = self.forced_witness(c) {
+                    c.keep = false;
+                    c.wit = Some(w);
+                    c.fresh = true;
+                    for &m in &c.mids {
                         self.vref[m as usize] += 1;
                     }
                     dropped = true;
                 }
             }
-            if !dropped {
-                break;
-            }
         }
-        for (_, mids, keep) in &cand {
-            if *keep {
-                for &m in mids {
+        for c in &cand {
+            if c.keep {
+                for &m in &c.mids {
                     self.vref[m as usize] += 1;
                 }
+            } else if let (true, Some(wit)) = (c.fresh, c.wit) {
+                // bounded: records of tets no longer candidates are dropped wholesale
+                if self.refused.len() >= (self.n_leaves / 16).max(1024) {
+                    self.refused.clear();
+                }
+                self.refused.insert(
+                    c.slot,
+                    Refusal {
+                        id: c.id,
+                        mids: c.mids,
+                        wit,
+                    },
+                );
             }
         }
-        for &(slot, _, keep) in &cand {
-            if keep {
-                self.unrefine(slot);
+        for c in &cand {
+            if c.keep {
+                self.unrefine(c.slot);
             }
         }
         let closed = self.close(buf);
@@ -1399,6 +1647,104 @@ impl AdaptiveMesh {
             .count();
         closed?;
         Ok(held)
+    }
+
+    /// Whether the vertices of witness `w` are all present (positive count, same key).
+    #[inline]
+    fn witness_present(&self, w: &Witness) -> bool {
+        w.iter().all(|&(s, k)| {
+            s == NONE || (self.vref[s as usize] > 0 && self.vkey[s as usize] == k as u64)
+        })
+    }
+
+    /// Whether batch candidate `c` would be forced with the reference counts as they stand (the
+    /// candidates still kept released): [`Self::classify`] with a vertex present iff its count is
+    /// positive, returning a witness when forced; the level-k+2 points' slots are looked up once
+    /// and kept in `c`.
+    fn forced_witness(&self, c: &mut BatchCand) -> Option<Witness> {
+        let mut mask = 0u8;
+        for (e, &m) in c.mids.iter().enumerate() {
+            if self.vref[m as usize] > 0 {
+                mask |= 1 << e;
+            }
+        }
+        let wit = |ss: &[u32]| -> Witness {
+            let mut w = [(NONE, 0u32); 4];
+            for (i, &s) in ss.iter().enumerate() {
+                w[i] = (s, self.vkey[s as usize] as u32);
+            }
+            w
+        };
+        if !green_pattern_ok(mask) {
+            // 3 edges off a face, or 4 edges: present midpoints that alone are a bad pattern
+            let mut ss = [NONE; 4];
+            let mut j = 0;
+            for e in 0..6 {
+                if mask & (1 << e) != 0 && j < 4 {
+                    ss[j] = c.mids[e];
+                    j += 1;
+                }
+            }
+            let n = if mask.count_ones() == 3 { 3 } else { 4 };
+            return Some(wit(&ss[..n]));
+        }
+        if mask == 0 || c.level + 2 > self.forest.levels {
+            return None;
+        }
+        let lt = match c.lt {
+            Some(lt) => lt,
+            None => {
+                let lt = self.lattice_of(c.id);
+                c.lt = Some(lt);
+                lt
+            }
+        };
+        let pt = |c: &mut BatchCand, i: usize, w: &dyn Fn() -> Bary| -> Option<u32> {
+            if c.pts[i] == UNKNOWN {
+                c.pts[i] = self.slot_at(lt.base, &w());
+            }
+            let s = c.pts[i];
+            (s != NONE && self.vref[s as usize] > 0).then_some(s)
+        };
+        for (e, &(x, y)) in EDGES.iter().enumerate() {
+            if mask & (1 << e) != 0 {
+                let m = || lt.edge_midpoint(e);
+                if let Some(s) = pt(c, 2 * e, &|| midpoint(&lt.v[x], &m()))
+                    .or_else(|| pt(c, 2 * e + 1, &|| midpoint(&m(), &lt.v[y])))
+                {
+                    return Some(wit(&[c.mids[e], s]));
+                }
+            }
+        }
+        if mask.count_ones() >= 2 {
+            for (d, &fm) in FACE_MASK.iter().enumerate() {
+                let m = mask & fm;
+                if m.count_ones() < 2 {
+                    continue;
+                }
+                // the face's edges in increasing order; pair (0,1), (0,2), (1,2)
+                let e0 = fm.trailing_zeros() as usize;
+                let r = fm & (fm - 1);
+                let e1 = r.trailing_zeros() as usize;
+                let e2 = (r & (r - 1)).trailing_zeros() as usize;
+                for (p, (x, y)) in [(e0, e1), (e0, e2), (e1, e2)].into_iter().enumerate() {
+                    if m & (1 << x) != 0 && m & (1 << y) != 0 {
+                        if let Some(s) = pt(c, 12 + 3 * d + p, &|| {
+                            midpoint(&lt.edge_midpoint(x), &lt.edge_midpoint(y))
+                        }) {
+                            return Some(wit(&[c.mids[x], c.mids[y], s]));
+                        }
+                    }
+                }
+            }
+        }
+        None
+    }
+
+    /// Forgets why earlier merges were refused (see [`Self::coarsen_batch_at`]). The records only
+    /// save work: every operation gives the same result with or without them.
+    pub fn clear_refusal_records(&mut self) {
+        self.refused.clear();
     }
 
     /// Whether the 8 children of refined node `n` are leaves.
@@ -1430,7 +1776,10 @@ impl AdaptiveMesh {
         let c = n.children as usize;
         let (c0, c1, c2) = (self.nodes[c].v, self.nodes[c + 1].v, self.nodes[c + 2].v);
         let m = [c0[1], c0[2], c0[3], c1[2], c1[3], c2[3]];
-        debug_assert_eq!(m, self.present_mids(&n.v));
+        debug_assert_eq!(
+            m,
+            self.lattice_mids(&self.lattice_of(n.id), self.forest.level(n.id))
+        );
         m
     }
 
@@ -1441,6 +1790,9 @@ impl AdaptiveMesh {
         let t = n.id;
         let all = self.child_mids(&n);
         let lt = self.lattice_of(t);
+        if !self.refused.is_empty() {
+            self.refused.remove(&slot);
+        }
         for i in 0..8 {
             self.nodes[(n.children + i) as usize] = Node::DEAD;
         }
@@ -1457,10 +1809,6 @@ impl AdaptiveMesh {
             if self.vref[s] == 0 {
                 let ends = self.vends[s];
                 debug_assert_eq!(self.vdeps[s], 0);
-                self.by_edge.remove(&edge_key(
-                    self.vkey[ends[0] as usize],
-                    self.vkey[ends[1] as usize],
-                ));
                 self.by_key[self.vkey[s] as usize] = NONE;
                 self.vdeps[ends[0] as usize] -= 1;
                 self.vdeps[ends[1] as usize] -= 1;
@@ -1469,7 +1817,7 @@ impl AdaptiveMesh {
                 removed[e] = true;
             }
         }
-        self.work.push((slot, t));
+        self.queue(slot);
         for (e, &r) in removed.iter().enumerate() {
             if r {
                 self.locate(lt.base, &lt.edge_midpoint(e));
@@ -1592,8 +1940,9 @@ impl AdaptiveMesh {
                     });
                 }
             }
+            let level = self.forest.level(n.id);
             if !n.is_leaf() {
-                let mids = self.present_mids(&n.v);
+                let mids = self.lattice_mids(&lt, level);
                 for &m in &mids {
                     if m == NONE {
                         return Err(ConformityError::Other(format!(
@@ -1625,8 +1974,8 @@ impl AdaptiveMesh {
                 }
                 continue;
             }
-            let mid = self.present_mids(&n.v);
-            let (mask, forced) = self.classify_with(&n.v, &mid);
+            let mid = self.lattice_mids(&lt, level);
+            let (mask, forced) = self.classify(&lt, level, &mid, |_| true);
             if forced {
                 return Err(ConformityError::NotClosed { id: n.id, mask });
             }
@@ -1762,6 +2111,39 @@ mod tests {
         }
         // corner children keep the orientation
         assert!(!maps.flip[0] && !maps.flip[1] && !maps.flip[2] && !maps.flip[3]);
+    }
+
+    #[test]
+    fn segvec_matches_vec() {
+        let mut s: SegVec<u32> = SegVec::new();
+        let mut v: Vec<u32> = Vec::new();
+        for i in 0..(3 * SEG_LEN as u32 + 17) {
+            s.push(i);
+            v.push(i);
+        }
+        s.resize(5 * SEG_LEN + 3, 7);
+        v.resize(5 * SEG_LEN + 3, 7);
+        s[SEG_LEN] = 99;
+        v[SEG_LEN] = 99;
+        assert_eq!(s.len(), v.len());
+        assert!(s.capacity() >= s.len() && s.capacity().is_multiple_of(SEG_LEN));
+        assert!(s.iter().copied().eq(v.iter().copied()));
+        assert_eq!(s.get(v.len()), None);
+        // runs cover any range segment by segment
+        let (a, b) = (SEG_LEN - 5, 4 * SEG_LEN + 11);
+        let mut i = a;
+        let mut got = Vec::new();
+        while i < b {
+            let r = s.run(i, b);
+            assert!(!r.is_empty() && r.len() <= SEG_LEN);
+            got.extend_from_slice(r);
+            i += r.len();
+        }
+        assert_eq!(got, v[a..b]);
+        s.clear();
+        assert_eq!(s.len(), 0);
+        s.resize(10, 1);
+        assert!(s.iter().all(|&x| x == 1));
     }
 
     #[test]

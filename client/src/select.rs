@@ -24,6 +24,12 @@
 //! refined regions coarsen) and splits (largest error first), each re-checked when popped unless the
 //! mesh and the view stayed as they were since it was pushed. It stops at [`Budget::max_ops`]
 //! operations or [`Budget::max_time`]; what is left stays in the heaps or is found by the next sweep.
+//! Under a time budget the clock is read before every split, every 64 merge candidates popped and
+//! every merge batch (at most `MERGE_CHUNK` candidates), and every few hundred slots scanned; a
+//! consolidating sweep (one batch of every merge candidate, run before declaring convergence when
+//! merges were refused), which cannot be cut, starts only with at least half of a frame's budget
+//! left. Per-slot storage grows by segments that are never copied, so no frame pays for moving a
+//! large array.
 //! Every operation ends with a conforming mesh, so every frame does. A sweep that changes nothing
 //! while the view and the buffer stayed the same marks the selector *converged*: later frames return
 //! at once until the camera moves (in [`Mode::Complete`] the camera does not matter) or
@@ -33,7 +39,7 @@
 
 use crate::camera::Camera;
 use crate::detail_buffer::DetailBuffer;
-use crate::mesh::{AdaptiveMesh, MeshError, RedNode};
+use crate::mesh::{AdaptiveMesh, MeshError, RedNode, SegVec};
 use glam::DVec3;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
@@ -173,6 +179,8 @@ pub struct View {
     /// `H / (2·tan(fovy/2))`.
     pub pixels_per_unit: f64,
     pub tol_px: f64,
+    /// The camera's right, up and forward unit vectors.
+    pub basis: [DVec3; 3],
 }
 
 impl View {
@@ -195,6 +203,7 @@ impl View {
             ],
             pixels_per_unit: cam.height as f64 / (2.0 * ty),
             tol_px: tol.pixels(cam.height),
+            basis: [r, u, f],
         }
     }
 
@@ -268,6 +277,65 @@ impl Ord for Cand {
     }
 }
 
+/// A max-priority queue for a sweep's candidates: what a scan pushes before the first pop is
+/// sorted once (cheaper than a heap for the bulk), later pushes go to a heap. Pops come in the
+/// order a `BinaryHeap` would give (up to equal items).
+#[derive(Debug, Clone)]
+struct CandQueue<T> {
+    /// Ascending once `sorted`: popped from the back.
+    bulk: Vec<T>,
+    sorted: bool,
+    heap: BinaryHeap<T>,
+}
+
+impl<T: Ord> Default for CandQueue<T> {
+    fn default() -> Self {
+        CandQueue {
+            bulk: Vec::new(),
+            sorted: false,
+            heap: BinaryHeap::new(),
+        }
+    }
+}
+
+impl<T: Ord> CandQueue<T> {
+    #[inline]
+    fn push(&mut self, x: T) {
+        if self.sorted {
+            self.heap.push(x);
+        } else {
+            self.bulk.push(x);
+        }
+    }
+
+    #[inline]
+    fn pop(&mut self) -> Option<T> {
+        if !self.sorted {
+            self.bulk.sort_unstable();
+            self.sorted = true;
+        }
+        match (self.bulk.last(), self.heap.peek()) {
+            (Some(a), Some(b)) if b > a => self.heap.pop(),
+            (Some(_), _) => self.bulk.pop(),
+            _ => self.heap.pop(),
+        }
+    }
+
+    fn clear(&mut self) {
+        self.bulk.clear();
+        self.heap.clear();
+        self.sorted = false;
+    }
+
+    fn len(&self) -> usize {
+        self.bulk.len() + self.heap.len()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.bulk.is_empty() && self.heap.is_empty()
+    }
+}
+
 /// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most.
 const MERGE_CHUNK: usize = 256;
 /// Node slots scanned between two clock reads.
@@ -338,8 +406,8 @@ enum Status {
 pub struct Selector {
     pub params: SelectParams,
     cursor: usize,
-    splits: BinaryHeap<Cand>,
-    merges: BinaryHeap<Reverse<Cand>>,
+    splits: CandQueue<Cand>,
+    merges: CandQueue<Reverse<Cand>>,
     sweep_changes: usize,
     /// Merges refused by the closure in this sweep.
     sweep_refused: usize,
@@ -368,10 +436,13 @@ pub struct Selector {
     /// The candidate list holds every candidate of this epoch (see the type's docs).
     list_epoch: Option<u64>,
     list: Vec<u32>,
-    in_list: Vec<bool>,
-    info: Vec<SlotInfo>,
+    in_list: SegVec<bool>,
+    info: SegVec<SlotInfo>,
+    /// Per slot: the status last evaluated and `epoch + 1` then (0: none); reused while the
+    /// epoch lasts and the slot does not change (see `Self::eval`).
+    stat: SegVec<(u64, Status)>,
     /// Bounding spheres by slot, valid where `info` says so.
-    geo: Vec<(DVec3, f64)>,
+    geo: SegVec<(DVec3, f64)>,
     /// The mesh followed ([`AdaptiveMesh::uid`]) and the changes read from it.
     mesh_uid: u64,
     seen: u64,
@@ -414,8 +485,8 @@ struct Kinetic {
     we: f64,
     wf: f64,
     /// Per slot: evaluate again once `we` or `wf` reaches these (rounded down).
-    until_e: Vec<f32>,
-    until_f: Vec<f32>,
+    until_e: SegVec<f32>,
+    until_f: SegVec<f32>,
     /// Bounding box of the scene (the base vertices).
     lo: DVec3,
     hi: DVec3,
@@ -455,8 +526,8 @@ impl Selector {
         Selector {
             params,
             cursor: 0,
-            splits: BinaryHeap::new(),
-            merges: BinaryHeap::new(),
+            splits: CandQueue::default(),
+            merges: CandQueue::default(),
             sweep_changes: 0,
             sweep_refused: 0,
             consolidating: false,
@@ -473,9 +544,10 @@ impl Selector {
             scan_ok: false,
             list_epoch: None,
             list: Vec::new(),
-            in_list: Vec::new(),
-            info: Vec::new(),
-            geo: Vec::new(),
+            in_list: SegVec::new(),
+            info: SegVec::new(),
+            stat: SegVec::new(),
+            geo: SegVec::new(),
             mesh_uid: 0,
             seen: 0,
             batch: Vec::new(),
@@ -523,10 +595,15 @@ impl Selector {
         }
         self.dirty = true;
         self.converged = false;
+        let from = self.todo.len();
         for &id in ids {
             if let Some(s) = mesh.slot_of(id) {
                 mesh.subtree_slots(s, &mut self.todo);
             }
+        }
+        for i in from..self.todo.len() {
+            let s = self.todo[i];
+            self.forget(s);
         }
     }
 
@@ -706,7 +783,37 @@ impl Selector {
         mode: Mode,
         slot: usize,
     ) -> Status {
-        self.eval_cert(mesh, buf, view, mode, slot, false).0
+        // the status is a function of the node for one epoch: reused unless the slot changed
+        // since (changes not yet read from the mesh could concern it)
+        if self.seen == mesh.change_seq() && !self.reference {
+            if let Some(&(e, st)) = self.stat.get(slot) {
+                if e == self.epoch + 1 {
+                    return st;
+                }
+            }
+        }
+        let st = self.eval_cert(mesh, buf, view, mode, slot, false).0;
+        self.remember(slot, st);
+        st
+    }
+
+    /// Records the status just evaluated for `slot` (see [`Self::eval`]).
+    #[inline]
+    fn remember(&mut self, slot: usize, st: Status) {
+        if slot >= self.stat.len() {
+            self.stat.resize(slot + 1, (0, Status::Keep));
+        }
+        self.stat[slot] = (self.epoch + 1, st);
+    }
+
+    /// Forgets the status recorded for `slot`.
+    #[inline]
+    fn forget(&mut self, slot: u32) {
+        if let Some(e) = self.stat.get(slot as usize) {
+            if e.0 != 0 {
+                self.stat[slot as usize].0 = 0;
+            }
+        }
     }
 
     /// [`Self::eval`], and with `cert` the slot's certificate (see [`Kinetic`]): the values of
@@ -957,6 +1064,7 @@ impl Selector {
         }
         let ok = match mesh.changes_since(self.seen) {
             Some(ch) => {
+                let from = self.todo.len();
                 for c in ch {
                     self.todo.push(c.slot);
                     if c.block != u32::MAX {
@@ -970,6 +1078,10 @@ impl Selector {
                         }
                     }
                 }
+                for i in from..self.todo.len() {
+                    let s = self.todo[i];
+                    self.forget(s);
+                }
                 true
             }
             None => false,
@@ -977,6 +1089,7 @@ impl Selector {
         self.seen = seq;
         mesh.trim_changes(seq);
         if !ok {
+            self.stat.clear();
             self.scan_ok = false;
             self.list_epoch = None;
             self.kin.epoch = None;
@@ -1066,6 +1179,7 @@ impl Selector {
         }
         self.kin.until_e[slot] = ue;
         self.kin.until_f[slot] = uf;
+        self.remember(slot, s);
         s
     }
 
@@ -1087,9 +1201,29 @@ impl Selector {
             );
             dmax = dmax.max((p - view.eye).length());
         }
-        let slack = 1.0 + 1e-9;
-        k.we += dm * slack + 1e-12;
-        k.wf += (dm + dn * dmax) * slack + 1e-12;
+        // Same lens: the frustum's planes and the eye are fixed in the camera's frame, which moved
+        // rigidly. Written as a rotation `R` about the scene's centre `o` and a translation `t`,
+        // the motion moves every scene point relative to the camera by at most
+        // `|R − I|·ρ + |t| = 2·sin(θ/2)·ρ + |t|` (`ρ`: the scene's radius about `o`), which bounds
+        // the change of its distance to the eye and to each plane. An orbit about the scene is
+        // a pure rotation: `t = 0`.
+        let o = (k.lo + k.hi) * 0.5;
+        let rho = (k.hi - k.lo).length() * 0.5;
+        let [r0, u0, f0] = old.basis;
+        let [r1, u1, f1] = view.basis;
+        // |R − I| (operator norm) = 2·sin(θ/2) = |B1 − B0|_F / √2 for orthonormal bases B
+        let s2 = (((r1 - r0).length_squared()
+            + (u1 - u0).length_squared()
+            + (f1 - f0).length_squared())
+            * 0.5)
+            .sqrt();
+        let rot = |v: DVec3| r1 * r0.dot(v) + u1 * u0.dot(v) + f1 * f0.dot(v);
+        let t = (view.eye - o - rot(old.eye - o)).length();
+        let rigid = s2 * rho + t;
+        let slack = 1.0 + 1e-6;
+        let abs = 1e-9 * (rho + o.length() + view.eye.length() + 1.0);
+        k.we += dm.min(rigid) * slack + abs;
+        k.wf += (dm + dn * dmax).min(rigid) * slack + abs;
         k.view = Some(*view);
     }
 
@@ -1111,20 +1245,27 @@ impl Selector {
         due.clear();
         // rounded up: a slot in doubt is due
         let (we, wf) = (f32_up(k.we), f32_up(k.wf));
-        for (c, (ue, uf)) in k.until_e[start..end]
-            .chunks(64)
-            .zip(k.until_f[start..end].chunks(64))
-            .enumerate()
-        {
-            let mut mask = 0u64;
-            for j in 0..ue.len() {
-                mask |= (((ue[j] <= we) | (uf[j] <= wf)) as u64) << j;
+        // stops after a chunk's worth of due slots, so that the caller reads the clock often
+        let mut i = start;
+        while i < end && due.len() < SCAN_CHUNK {
+            let ue = k.until_e.run(i, end);
+            let uf = k.until_f.run(i, end);
+            let mut off = 0;
+            while off < ue.len() && due.len() < SCAN_CHUNK {
+                let c = (ue.len() - off).min(64);
+                let mut mask = 0u64;
+                for j in 0..c {
+                    mask |= (((ue[off + j] <= we) | (uf[off + j] <= wf)) as u64) << j;
+                }
+                while mask != 0 {
+                    due.push((i + off) as u32 + mask.trailing_zeros());
+                    mask &= mask - 1;
+                }
+                off += c;
             }
-            while mask != 0 {
-                due.push((start + c * 64) as u32 + mask.trailing_zeros());
-                mask &= mask - 1;
-            }
+            i += off;
         }
+        let end = i;
         k.cursor = end;
         if end == len {
             // every slot is certified beyond the bounds the pass started from
@@ -1220,6 +1361,7 @@ impl Selector {
             self.seen = mesh.change_seq();
             self.info.clear();
             self.geo.clear();
+            self.stat.clear();
             self.kin = Kinetic::default();
             self.todo.clear();
             self.flushing.clear();
@@ -1443,6 +1585,11 @@ impl Selector {
                         && self.sweep_epoch == self.epoch;
                     if self.sweep_refused > 0 && !self.consolidating && !replay {
                         self.consolidating = true;
+                        // its batch cannot be cut: under a time budget it starts with at least
+                        // half of a frame left, if need be in the next frame
+                        if budget.max_time.is_some_and(|d| start.elapsed() > d / 2) {
+                            break;
+                        }
                         continue;
                     }
                     self.consolidating = false;
@@ -1487,12 +1634,22 @@ impl Selector {
             }
             batch.clear();
             slots.clear();
-            let chunk = if max_ops == usize::MAX {
+            // one batch without a budget; chunks under an operation or time budget
+            let chunk = if max_ops == usize::MAX && deadline.is_none() {
                 usize::MAX
             } else {
                 MERGE_CHUNK.min(max_ops - *ops)
             };
+            // read what the last batch changed: the statuses of the other slots stay known
+            if !self.reference {
+                self.absorb_changes(mesh);
+            }
+            let mut popped = 0usize;
             while batch.len() < chunk {
+                popped += 1;
+                if popped.is_multiple_of(64) && deadline.is_some_and(|t| Instant::now() >= t) {
+                    break;
+                }
                 let Some(Reverse(Cand(_, id, hint, tag))) = self.merges.pop() else {
                     break;
                 };
@@ -1560,17 +1717,17 @@ impl Selector {
         deadline: Option<Instant>,
         st: &mut FrameStats,
     ) -> Result<(), MeshError> {
-        let mut k = 0usize;
         while *ops < max_ops {
-            if deadline.is_some()
-                && k.is_multiple_of(8)
-                && deadline.is_some_and(|t| Instant::now() >= t)
-            {
+            // one split (with its closure) can take tens of µs: the clock is read before each
+            if deadline.is_some_and(|t| Instant::now() >= t) {
                 break;
             }
             let Some(Cand(_, id, hint, tag)) = self.splits.pop() else {
                 break;
             };
+            if !self.reference {
+                self.absorb_changes(mesh);
+            }
             if !self.trusted(mesh, tag, hint)
                 && !matches!(
                     self.status_of(mesh, buf, view, mode, id, hint).0,
@@ -1579,7 +1736,6 @@ impl Selector {
             {
                 continue;
             }
-            k += 1;
             *ops += 1;
             let t = Instant::now();
             mesh.refine(id, buf)?;

@@ -591,6 +591,8 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
     let forest = data.base.forest();
     let mut buf = DetailBuffer::new(forest, data.keys.clone());
     let mut mesh = AdaptiveMesh::new(&data.base);
+    // the same operations without the refusal records (they must only save work)
+    let mut twin = AdaptiveMesh::new(&data.base);
     let mut order: Vec<usize> = (0..data.nodes.len()).collect();
     // some duplicates, then a random arrival order
     for i in 0..data.nodes.len() / 4 {
@@ -610,6 +612,7 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
                     }
                 }
                 stats.corrected += mesh.apply_arrivals(&buf, &arr);
+                twin.apply_arrivals(&buf, &arr);
                 arr.clear();
             }
             Op::Refine(pick) => {
@@ -622,6 +625,7 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
                     let t = cands[pick as usize % cands.len()];
                     let leaves = mesh.leaf_count();
                     mesh.refine(t, &buf).unwrap();
+                    twin.refine(t, &buf).unwrap();
                     assert!(mesh.is_refined(t));
                     stats.closure_refines += (mesh.leaf_count() - leaves - 7) / 7;
                 }
@@ -632,7 +636,9 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
                     let t = cands[pick as usize % cands.len()];
                     let leaves = mesh.leaf_count();
                     let verts = mesh.vertex_count();
-                    match mesh.coarsen(t, &buf) {
+                    let r = mesh.coarsen(t, &buf);
+                    assert_eq!(r, twin.coarsen(t, &buf));
+                    match r {
                         Ok(()) => {
                             assert!(mesh.is_leaf(t));
                             stats.coarsened += 1;
@@ -656,11 +662,18 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
                     .map(|(_, t)| t)
                     .collect();
                 let leaves = mesh.leaf_count();
-                let done = mesh.coarsen_batch(&cands, &buf).unwrap();
-                assert!(done <= cands.len());
-                assert!(mesh.leaf_count() <= leaves);
+                // twice: the second batch meets the records of the first one's refusals
+                for _ in 0..2 {
+                    let done = mesh.coarsen_batch(&cands, &buf).unwrap();
+                    twin.clear_refusal_records();
+                    assert_eq!(done, twin.coarsen_batch(&cands, &buf).unwrap());
+                    assert!(done <= cands.len());
+                    assert!(mesh.leaf_count() <= leaves);
+                }
             }
         }
+        assert_eq!(mesh.leaf_ids(), twin.leaf_ids(), "after {o:?}");
+        assert_eq!(mesh.op_counts(), twin.op_counts(), "after {o:?}");
         if let Err(e) = mesh.check_conformity() {
             panic!("after {o:?}: {e}");
         }
