@@ -230,7 +230,7 @@ fn grow<T>(v: &mut Vec<T>, extra: usize) {
     }
 }
 
-const SEG_BITS: u32 = 12;
+const SEG_BITS: u32 = 10;
 const SEG_LEN: usize = 1 << SEG_BITS;
 const SEG_MASK: usize = SEG_LEN - 1;
 
@@ -1614,9 +1614,15 @@ impl AdaptiveMesh {
                     self.vref[m as usize] += 1;
                 }
             } else if let (true, Some(wit)) = (c.fresh, c.wit) {
-                // bounded: records of tets no longer candidates are dropped wholesale
-                if self.refused.len() >= (self.n_leaves / 16).max(1024) {
-                    self.refused.clear();
+                // bounded: records of tets no longer candidates are dropped wholesale (and the
+                // table shrunk when the mesh did)
+                let bound = (self.n_leaves / 16).max(1024);
+                if self.refused.len() >= bound {
+                    if self.refused.capacity() > 2 * bound {
+                        self.refused = FxHashMap::default();
+                    } else {
+                        self.refused.clear();
+                    }
                 }
                 self.refused.insert(
                     c.slot,
