@@ -143,6 +143,8 @@ pub struct RunReport {
     /// [`Self::splits`] / [`Self::merges`] is the green closure's doing).
     pub sel_splits: usize,
     pub sel_merge_attempts: usize,
+    /// Criteria evaluations by the selector (machine-independent work).
+    pub sel_evals: u64,
     pub sel_merges: usize,
     /// Uniform finest-level leaves of the hierarchy.
     pub uniform_leaves: u64,
@@ -353,6 +355,7 @@ pub fn run_progressive(
         sweeps,
         sel_splits,
         sel_merge_attempts,
+        sel_evals: sel.evaluations(),
         sel_merges,
         uniform_leaves: base.forest().leaves(),
         cut_steps,

@@ -220,6 +220,16 @@ impl View {
     }
 }
 
+/// The data-aware weight (see the module docs): `min(1, smax / (δ · value range))` for a subtree
+/// whose details are at most `smax` in magnitude. Selection scales the screen-space error by it;
+/// the server's view order ranks nodes with the same product.
+#[inline]
+pub fn data_weight(smax: f32, value_range: [f32; 2], delta: f32) -> f64 {
+    let [lo, hi] = value_range;
+    let range = ((hi - lo) as f64).max(1e-30);
+    (smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0)
+}
+
 /// Bounding sphere (centroid, distance to the farthest vertex) of mesh vertices `v`.
 #[inline]
 pub fn bounding_sphere(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (DVec3, f64) {
@@ -466,6 +476,8 @@ pub struct Selector {
     kin: Kinetic,
     /// The camera moved since the last frame, by a motion `Kinetic` can follow.
     moved: bool,
+    /// Criteria evaluated so far (see [`Self::evaluations`]).
+    evals: u64,
 }
 
 /// Motion-bounded re-evaluation (see [`Selector`]): a slot's split criterion, evaluated for one
@@ -562,6 +574,7 @@ impl Selector {
             fcursor: 0,
             kin: Kinetic::default(),
             moved: false,
+            evals: 0,
         }
     }
 
@@ -605,6 +618,12 @@ impl Selector {
             let s = self.todo[i];
             self.forget(s);
         }
+    }
+
+    /// How many times a node's criteria were evaluated (cached statuses not counted) since this
+    /// selector was made: a measure of selection work that does not depend on the machine's load.
+    pub fn evaluations(&self) -> u64 {
+        self.evals
     }
 
     /// Whether the last frame found nothing left to do.
@@ -657,9 +676,7 @@ impl Selector {
         let mut e = view.error_px(c, 2.0 * r);
         if let Some(delta) = self.params.data_aware {
             if let Some(m) = smax {
-                let [lo, hi] = self.params.value_range;
-                let range = ((hi - lo) as f64).max(1e-30);
-                e *= (m as f64 / (delta.max(1e-30) as f64 * range)).min(1.0);
+                e *= data_weight(m, self.params.value_range, delta);
             }
         }
         Some(e)
@@ -717,7 +734,8 @@ impl Selector {
                 ..NO_INFO
             };
         }
-        if !e.usable {
+        // the finest level has no detail nodes: nothing to look up (such leaves are never split)
+        if !e.usable && e.level < mesh.forest().levels {
             let held = buf.nodes_held() as u32;
             if e.checked != held {
                 e.checked = held;
@@ -828,6 +846,7 @@ impl Selector {
         cert: bool,
     ) -> (Status, f32, f32) {
         const INF: f32 = f32::INFINITY;
+        self.evals += 1;
         let Some(n) = mesh.red_node(slot) else {
             return (Status::Keep, INF, INF);
         };
@@ -862,9 +881,7 @@ impl Selector {
         let mut e = view.pixels_per_unit * (2.0 * r) / d.max(1e-12);
         let mut fac = 1.0;
         if let Some(delta) = self.params.data_aware {
-            let [lo, hi] = self.params.value_range;
-            let range = ((hi - lo) as f64).max(1e-30);
-            fac = (i.smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0);
+            fac = data_weight(i.smax, self.params.value_range, delta);
             e *= fac;
         }
         let err = e > view.tol_px;

@@ -373,6 +373,7 @@ fn incremental_equals_full_scan() {
             let mut inc = Selector::new(p.clone());
             let mut full = Selector::full_scan(p.clone());
             let (mut az, mut el, mut dist, mut fovy) = (0.0f64, 10.0f64, 40.0f64, 45.0f64);
+            let mut target = DVec3::splat(15.0);
             let mut next = 0;
             let mut arr = Arrivals::default();
             for step in 0..60 {
@@ -393,11 +394,16 @@ fn incremental_equals_full_scan() {
                     full.notify_arrivals();
                     next = end;
                 }
-                // the camera: mostly small turns, sometimes a jump, a zoom or another lens
+                // the camera: mostly small turns (some about a point off the scene's centre, some
+                // with a pan), sometimes a jump, a zoom or another lens
                 let r = unit(&mut s);
                 if r < 0.6 {
                     az += 3.0 * unit(&mut s);
                     el += unit(&mut s) - 0.5;
+                    if unit(&mut s) < 0.3 {
+                        let d = DVec3::new(unit(&mut s), unit(&mut s), unit(&mut s)) - 0.5;
+                        target = (target + 4.0 * d).clamp(DVec3::splat(0.0), DVec3::splat(30.0));
+                    }
                 } else if r < 0.75 {
                     az = 360.0 * unit(&mut s);
                     el = 60.0 * unit(&mut s) - 30.0;
@@ -406,7 +412,7 @@ fn incremental_equals_full_scan() {
                 } else if r < 0.95 {
                     fovy = 30.0 + 30.0 * unit(&mut s);
                 }
-                let c = Camera::orbit(DVec3::splat(15.0), dist, az, el, fovy, 256, 192);
+                let c = Camera::orbit(target, dist, az, el, fovy, 256, 192);
                 let mode = match step % 23 {
                     7 => Mode::Complete,
                     11 => Mode::Interactive,
