@@ -38,6 +38,8 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
+use tetwave_client::camera::Camera;
+use tetwave_client::select::{data_weight, Tolerance, View};
 use tetwave_protocol::wire::{
     decode_client, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
 };
@@ -775,64 +777,49 @@ impl Schedule {
 }
 
 /// Detail magnitude (relative to the value range) from which a node's data weight is full.
-pub const DATA_DELTA: f64 = 0.01;
+pub const DATA_DELTA: f32 = 0.01;
 
-/// Screen-space error × data term of node `i` for a view: the priority of view order.
+/// Screen-space error × data term of node `i` for a view: the priority of view order, with the
+/// client's own criteria ([`View`], [`data_weight`]) so that the order follows what selection will
+/// want.
 struct ViewPriority {
-    eye: DVec3,
-    fwd: DVec3,
-    right: DVec3,
-    up: DVec3,
-    tan_x: f64,
-    tan_y: f64,
-    k: f64,
-    inv_range: f64,
+    view: View,
+    value_range: [f32; 2],
 }
 
 impl ViewPriority {
     fn new(v: &ViewParams, value_range: [f32; 2]) -> Self {
         let eye = DVec3::from_array(v.eye);
-        let fwd = (DVec3::from_array(v.target) - eye)
-            .try_normalize()
-            .unwrap_or(DVec3::NEG_Z);
-        let right = [DVec3::from_array(v.up), DVec3::Y, DVec3::X]
+        let target = DVec3::from_array(v.target);
+        let fwd = (target - eye).try_normalize().unwrap_or(DVec3::NEG_Z);
+        // a view from a client: any up vector (degenerate ones replaced), a near plane at the eye
+        let up = [DVec3::from_array(v.up), DVec3::Y, DVec3::X]
             .into_iter()
-            .find_map(|u| fwd.cross(u).try_normalize())
-            .unwrap_or(DVec3::X);
-        let up = right.cross(fwd);
-        let tan_y = (0.5 * v.fovy_deg.to_radians()).tan();
-        let tan_x = tan_y * v.width as f64 / v.height as f64;
-        let range = (value_range[1] as f64 - value_range[0] as f64).abs();
-        ViewPriority {
+            .find(|u| fwd.cross(*u).try_normalize().is_some())
+            .unwrap_or(DVec3::Y);
+        let cam = Camera {
             eye,
-            fwd,
-            right,
+            target: eye + fwd,
             up,
-            tan_x,
-            tan_y,
-            k: v.height as f64 / (2.0 * tan_y),
-            inv_range: if range > 0.0 { 1.0 / range } else { 1.0 },
+            fovy_deg: v.fovy_deg,
+            near: 0.0,
+            width: v.width.max(1),
+            height: v.height.max(1),
+        };
+        ViewPriority {
+            view: View::new(&cam, Tolerance::Pixels(v.tol_px)),
+            value_range,
         }
     }
 
-    /// `H/(2 tan(fovy/2)) · diam/dist · clamp(smax/(δ·range), 10⁻³, 1)`, × 10⁻⁶ outside the view
-    /// frustum (δ = [`DATA_DELTA`]).
+    /// `H/(2 tan(fovy/2)) · diam/dist · max(data weight, 10⁻³)`, × 10⁻⁶ outside the view frustum
+    /// (data weight with δ = [`DATA_DELTA`]: flat subtrees last, but still sent).
     #[inline]
     fn eval(&self, centre: [f32; 3], diam: f32, smax: f32) -> f32 {
-        let d = DVec3::from_array(centre.map(f64::from)) - self.eye;
-        let r = 0.5 * diam as f64;
-        let dist = d.length().max(1e-9 * (1.0 + r));
-        let z = d.dot(self.fwd);
-        let x = d.dot(self.right).abs();
-        let y = d.dot(self.up).abs();
-        let outside = z < -r
-            || (x - z * self.tan_x) / (1.0 + self.tan_x * self.tan_x).sqrt() > r
-            || (y - z * self.tan_y) / (1.0 + self.tan_y * self.tan_y).sqrt() > r;
-        // the client's data-aware weight (`select.rs`): details at or above DATA_DELTA of the value
-        // range count fully, smaller ones proportionally, flat subtrees last (but still sent)
-        let data = (smax as f64 * self.inv_range / DATA_DELTA).clamp(1e-3, 1.0);
-        let mut e = self.k * diam as f64 / dist * data;
-        if outside {
+        let c = DVec3::from_array(centre.map(f64::from));
+        let data = data_weight(smax, self.value_range, DATA_DELTA).max(1e-3);
+        let mut e = self.view.error_px(c, diam as f64) * data;
+        if !self.view.sphere_visible(c, 0.5 * diam as f64) {
             e *= 1e-6;
         }
         if e.is_finite() {
