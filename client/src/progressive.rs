@@ -123,6 +123,14 @@ pub struct RunReport {
     pub mesh_mb: f64,
     /// Mesh bytes per hierarchy leaf at the end of the run.
     pub bytes_per_leaf: f64,
+    /// Largest hierarchy leaf count of the run, and the mesh bytes at the end per such leaf (the
+    /// arrays keep the capacity of the largest mesh).
+    pub max_leaves: usize,
+    pub bytes_per_max_leaf: f64,
+    /// Selector bytes (caches, candidates, certificates; see `Selector::bytes_held`): average in
+    /// MB, and per hierarchy leaf at the end of the run.
+    pub sel_mb: f64,
+    pub sel_bytes_per_leaf: f64,
     /// Selection + refinement per step.
     pub avg_refine_ms: f64,
     pub max_refine_ms: f64,
@@ -241,6 +249,7 @@ pub fn run_progressive(
     let mut arr = Arrivals::default();
     let (mut sum_tets, mut sum_leaves, mut sum_v, mut sum_e, mut sum_b, mut sum_mb) =
         (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let (mut sum_sel, mut max_leaves) = (0f64, 0usize);
     let (mut max_tets, mut refine_total, mut refine_max) = (0usize, 0f64, 0f64);
     let (mut arrive_total, mut arrive_max) = (0f64, 0f64);
     let mut cut_steps = 0;
@@ -290,6 +299,8 @@ pub fn run_progressive(
         sum_e += edges_on_box(&mesh, all) as f64;
         sum_b += mesh.bytes_held() as f64;
         sum_mb += (mesh.bytes_held() + buf.bytes_held()) as f64;
+        sum_sel += sel.bytes_held() as f64;
+        max_leaves = max_leaves.max(mesh.leaf_count());
     }
     let (splits, merges) = mesh.op_counts();
     let (mut settle_frames, mut final_same) = (None, None);
@@ -336,6 +347,10 @@ pub fn run_progressive(
         mb: sum_mb / n / 1e6,
         mesh_mb: sum_b / n / 1e6,
         bytes_per_leaf: mesh.bytes_held() as f64 / leaves as f64,
+        max_leaves,
+        bytes_per_max_leaf: mesh.bytes_held() as f64 / max_leaves.max(leaves) as f64,
+        sel_mb: sum_sel / n / 1e6,
+        sel_bytes_per_leaf: sel.bytes_held() as f64 / leaves as f64,
         avg_refine_ms: refine_total / n,
         max_refine_ms: refine_max,
         avg_arrive_ms: arrive_total / n,
@@ -615,12 +630,12 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
 }
 
 /// Header of the text table [`table_row`] fills.
-pub const TABLE_HEADER: &str = "tol      avg tets  max tets  vertices     edges      MB  B/leaf  refine ms avg/max  arrive ms avg/max  tets/s (ops only)  sweeps  final=unbudgeted";
+pub const TABLE_HEADER: &str = "tol      avg tets  max tets  vertices     edges      MB  B/leaf (+sel)  refine ms avg/max  arrive ms avg/max  tets/s (ops only)  sweeps  final=unbudgeted";
 
 /// One text row of the table.
 pub fn table_row(r: &RunReport) -> String {
     format!(
-        "{:<7} {:>9.0} {:>9} {:>9.0} {:>9.0} {:>7.2} {:>7.1} {:>9.3}/{:<8.3} {:>8.3}/{:<8.3} {:>6.2}M ({:>6.2}M) {:>7}  {}",
+        "{:<7} {:>9.0} {:>9} {:>9.0} {:>9.0} {:>7.2} {:>6.1} (+{:>5.1}) {:>9.3}/{:<8.3} {:>8.3}/{:<8.3} {:>6.2}M ({:>6.2}M) {:>7}  {}",
         r.tol,
         r.avg_tets,
         r.max_tets,
@@ -628,6 +643,7 @@ pub fn table_row(r: &RunReport) -> String {
         r.avg_edges,
         r.mb,
         r.bytes_per_leaf,
+        r.sel_bytes_per_leaf,
         r.avg_refine_ms,
         r.max_refine_ms,
         r.avg_arrive_ms,

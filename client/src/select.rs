@@ -341,6 +341,10 @@ impl<T: Ord> CandQueue<T> {
         self.bulk.len() + self.heap.len()
     }
 
+    fn capacity(&self) -> usize {
+        self.bulk.capacity() + self.heap.capacity()
+    }
+
     fn is_empty(&self) -> bool {
         self.bulk.is_empty() && self.heap.is_empty()
     }
@@ -624,6 +628,24 @@ impl Selector {
     /// selector was made: a measure of selection work that does not depend on the machine's load.
     pub fn evaluations(&self) -> u64 {
         self.evals
+    }
+
+    /// Bytes held by the selector's per-slot caches, candidate list, heaps and certificates
+    /// (capacities).
+    pub fn bytes_held(&self) -> usize {
+        use std::mem::size_of;
+        let k = &self.kin;
+        self.in_list.bytes()
+            + self.info.bytes()
+            + self.stat.bytes()
+            + self.geo.bytes()
+            + k.until_e.bytes()
+            + k.until_f.bytes()
+            + (k.due.capacity() + self.list.capacity() + self.todo.capacity()) * 4
+            + (self.flushing.capacity() + self.batch_slots.capacity()) * 4
+            + self.batch.capacity() * size_of::<TetId>()
+            + self.splits.capacity() * size_of::<Cand>()
+            + self.merges.capacity() * size_of::<Reverse<Cand>>()
     }
 
     /// Whether the last frame found nothing left to do.
