@@ -22,15 +22,30 @@ impl Rgba8Image {
         }
     }
 
-    pub fn save_png(&self, path: &std::path::Path) -> Result<(), image::ImageError> {
-        let flat: Vec<u8> = self.pixels.iter().flat_map(|p| *p).collect();
-        image::save_buffer(
-            path,
+    /// PNG bytes of the image as it looks over black: RGB only, opaque. The colour channels are
+    /// premultiplied, i.e. already composited over black; a PNG with the alpha channel kept would be
+    /// shown darkened a second time by any viewer (PNG alpha is straight). The metrics compare these
+    /// same RGB channels.
+    pub fn png_bytes(&self) -> Result<Vec<u8>, image::ImageError> {
+        use image::ImageEncoder;
+        let flat: Vec<u8> = self
+            .pixels
+            .iter()
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        let mut out = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut out).write_image(
             &flat,
             self.width,
             self.height,
-            image::ExtendedColorType::Rgba8,
-        )
+            image::ExtendedColorType::Rgb8,
+        )?;
+        Ok(out)
+    }
+
+    /// Writes [`Self::png_bytes`] to `path`.
+    pub fn save_png(&self, path: &std::path::Path) -> Result<(), image::ImageError> {
+        std::fs::write(path, self.png_bytes()?).map_err(image::ImageError::IoError)
     }
 
     /// Fraction of pixels with any non-zero RGB.

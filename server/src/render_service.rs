@@ -357,20 +357,9 @@ impl RenderService {
     }
 }
 
-/// PNG bytes of an image (RGBA8, as `Rgba8Image::save_png` writes it).
+/// PNG bytes of an image, as `Rgba8Image::save_png` writes it (opaque, over black).
 pub fn png_bytes(img: &Rgba8Image) -> Result<Vec<u8>, String> {
-    use image::ImageEncoder;
-    let flat: Vec<u8> = img.pixels.iter().flat_map(|p| *p).collect();
-    let mut out = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut out)
-        .write_image(
-            &flat,
-            img.width,
-            img.height,
-            image::ExtendedColorType::Rgba8,
-        )
-        .map_err(|e| e.to_string())?;
-    Ok(out)
+    img.png_bytes().map_err(|e| e.to_string())
 }
 
 /// `GET /v1/render`.
