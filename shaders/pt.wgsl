@@ -3,9 +3,16 @@
 // Tets are drawn back to front; only each tet's exit faces (outward normal pointing away from the
 // eye) are rasterized. The fragment on an exit face knows where the pixel's ray leaves the tet; it finds where the ray
 // entered from the tet's face planes (clamped to the near plane, so a camera inside the mesh works),
-// evaluates the normalized scalar at both ends from the tet's linear gradient, and integrates
-// emission–absorption along the chord with the transfer function (midpoint sub-steps). Output is
-// premultiplied; blending is `over` (src ONE, dst ONE_MINUS_SRC_ALPHA).
+// takes the normalized scalar at both ends (linear in the tet), and integrates emission–absorption
+// along the chord with the transfer function (midpoint sub-steps). Output is premultiplied; blending
+// is `over` (src ONE, dst ONE_MINUS_SRC_ALPHA).
+//
+// Two fragment entry points (two pipelines; the CPU draws each tet with one of them):
+// - `fs_main`: exactly two sub-steps, straight-line code, for tets whose scalar range is at most four
+//   sub-step resolutions (`FAST_MAX_STEPS` in pt.rs; all tets of a fine mesh). A loop in a lavapipe
+//   fragment shader is expensive even when few pixels run it (measured on the 196,608-tet benchmark:
+//   the adaptive loop behind a rarely taken branch made the frame ~45% slower), so this has none.
+// - `fs_steps`: as many sub-steps as the scalar change needs (2 to 64), for tets with a larger range.
 //
 // Spaces: every position is world space relative to `origin` (chosen by the CPU near the mesh's
 // centre, so large coordinate offsets do not cost f32 precision).
@@ -34,21 +41,22 @@ struct TetGeo {
 @group(0) @binding(1) var<storage, read> positions: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read> geo: array<TetGeo>;
-@group(0) @binding(5) var<storage, read> tf: array<vec4<f32>>;
+// (A uniform array: lavapipe reads storage buffers at per-pixel indices one lane at a time, several
+// times slower.) 4096 entries fill the 64 KiB that every adapter allows for a uniform binding.
+@group(0) @binding(5) var<uniform> tf: array<vec4<f32>, 4096>;
 
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
-    // ray vector from the eye to this point of the exit face
-    @location(0) d: vec3<f32>,
-    // per tet, constant over it (no buffer reads in the fragment stage but the transfer function):
-    // the x, y and z components of the 4 outward face normals, the 4 offsets `w_i - n_i·eye` (the
-    // ray `eye + t·dir` meets plane `i` at `t = c_i / (n_i·dir)`), and the scalar gradient with the
-    // scalar extended to the eye in `w`
-    @location(1) @interpolate(flat) nx: vec4<f32>,
-    @location(2) @interpolate(flat) ny: vec4<f32>,
-    @location(3) @interpolate(flat) nz: vec4<f32>,
-    @location(4) @interpolate(flat) c: vec4<f32>,
-    @location(5) @interpolate(flat) grad: vec4<f32>,
+    // xyz: ray vector d from the eye to this point of the exit face (the ray is eye + λ·d, λ = 1 at
+    // the exit); w: the normalized scalar here (linear over the face)
+    @location(0) d: vec4<f32>,
+    // n_i·d for the tet's 4 outward face normals (linear over the face, so interpolated instead of
+    // computed per fragment)
+    @location(1) den: vec4<f32>,
+    // per tet, constant over it: c_i = w_i - n_i·eye (the ray meets plane i at λ = c_i / (n_i·d))
+    @location(2) @interpolate(flat) c: vec4<f32>,
+    // the tet's linear scalar extended to the eye
+    @location(3) @interpolate(flat) s_eye: f32,
 };
 
 // Indexed draw: vertex `v` is corner `v % 4` of tet `v / 4`; the CPU's index buffer lists, in
@@ -61,55 +69,71 @@ fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
     let eye = globals.eye.xyz;
     let g = geo[t];
     let pl = g.planes;
+    let nx = vec4<f32>(pl[0].x, pl[1].x, pl[2].x, pl[3].x);
+    let ny = vec4<f32>(pl[0].y, pl[1].y, pl[2].y, pl[3].y);
+    let nz = vec4<f32>(pl[0].z, pl[1].z, pl[2].z, pl[3].z);
+    let d = p - eye;
     var out: VsOut;
-    out.d = p - eye;
-    out.nx = vec4<f32>(pl[0].x, pl[1].x, pl[2].x, pl[3].x);
-    out.ny = vec4<f32>(pl[0].y, pl[1].y, pl[2].y, pl[3].y);
-    out.nz = vec4<f32>(pl[0].z, pl[1].z, pl[2].z, pl[3].z);
-    out.c = vec4<f32>(pl[0].w, pl[1].w, pl[2].w, pl[3].w)
-        - (out.nx * eye.x + out.ny * eye.y + out.nz * eye.z);
-    out.grad = vec4<f32>(g.grad.xyz, dot(g.grad.xyz, eye) + g.grad.w);
+    out.d = vec4<f32>(d, dot(g.grad.xyz, p) + g.grad.w);
+    out.den = nx * d.x + ny * d.y + nz * d.z;
+    out.c = vec4<f32>(pl[0].w, pl[1].w, pl[2].w, pl[3].w) - (nx * eye.x + ny * eye.y + nz * eye.z);
+    out.s_eye = dot(g.grad.xyz, eye) + g.grad.w;
     out.clip = globals.view_proj * vec4<f32>(p, 1.0);
     return out;
 }
 
 fn tf_eval(s: f32) -> vec4<f32> {
-    // returns (r, g, b, extinction per diagonal), clamped at the ends
+    // returns (r, g, b, extinction per diagonal), clamped at the ends (a nearest-entry lookup would
+    // save one of the two reads, ~10% of the frame on lavapipe, but costs up to ~30 dB where the
+    // scalar sits between entries on a steep part of the function, e.g. a constant field)
     let n = globals.tf_info.x;
     let x = clamp(s, 0.0, 1.0) * f32(n);
     let k = min(u32(x), n - 1u);
     return mix(tf[k], tf[k + 1u], x - f32(k));
 }
 
+// The ray's chord through the tet: (entry scalar, exit scalar, world length); length ≤ 0 or NaN: none.
+fn chord(in: VsOut) -> vec3<f32> {
+    let d = in.d.xyz;
+    // rays start at the near plane; the entry is the farthest crossing of a plane the ray enters by
+    let hits = select(vec4<f32>(-1e30), in.c / in.den, in.den < vec4<f32>(0.0));
+    let l_near = globals.eye.w / max(dot(d, globals.fwd.xyz), 1e-30);
+    let l_in = max(l_near, max(max(hits.x, hits.y), max(hits.z, hits.w)));
+    let len = (1.0 - l_in) * sqrt(dot(d, d));
+    return vec3<f32>(mix(in.s_eye, in.d.w, l_in), in.d.w, len);
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
-    let t_exit = length(in.d);
-    if (!(t_exit > 0.0)) {
-        discard;
-    }
-    let dir = in.d / t_exit;
-    // rays start at the near plane; the entry is the farthest crossing of a plane the ray enters by
-    let den = in.nx * dir.x + in.ny * dir.y + in.nz * dir.z;
-    let hits = select(vec4<f32>(-1e30), in.c / den, den < vec4<f32>(0.0));
-    let t_near = globals.eye.w / max(dot(dir, globals.fwd.xyz), 1e-6);
-    let t_in = max(t_near, max(max(hits.x, hits.y), max(hits.z, hits.w)));
-    let len = t_exit - t_in;
+    let ch = chord(in);
+    let len = ch.z;
     if (!(len > 0.0) || len > 1e30) {
         discard;
     }
-    let gd = dot(in.grad.xyz, dir);
-    let s0 = in.grad.w + t_in * gd;
-    let s1 = in.grad.w + t_exit * gd;
+    // two midpoint sub-steps (each with the exact absorption of its own constant extinction), the
+    // front one composited over the back one
+    let h = 0.5 * len * globals.fwd.w;
+    let ef = tf_eval(mix(ch.x, ch.y, 0.25));
+    let eb = tf_eval(mix(ch.x, ch.y, 0.75));
+    let af = 1.0 - exp(-ef.w * h);
+    let ab = 1.0 - exp(-eb.w * h);
+    return vec4<f32>(ef.xyz * af + (1.0 - af) * eb.xyz * ab, 1.0 - (1.0 - af) * (1.0 - ab));
+}
+
+@fragment
+fn fs_steps(in: VsOut) -> @location(0) vec4<f32> {
+    let ch = chord(in);
+    let len = ch.z;
+    if (!(len > 0.0) || len > 1e30) {
+        discard;
+    }
+    let s0 = ch.x;
+    let s1 = ch.y;
     let ext_scale = globals.fwd.w;
     let s_res = bitcast<f32>(globals.tf_info.y);
     // sub-steps: each step uses the exact absorption of its own constant extinction, so the error
     // comes only from the transfer function varying within a step: bound the scalar change per step
-    let steps = u32(clamp(ceil(abs(s1 - s0) / s_res), 1.0, 64.0));
-    if (steps == 1u) {
-        let e = tf_eval(0.5 * (s0 + s1));
-        let a = 1.0 - exp(-e.w * ext_scale * len);
-        return vec4<f32>(e.xyz * a, a);
-    }
+    let steps = u32(clamp(ceil(abs(s1 - s0) / s_res), 2.0, 64.0));
     let h = len / f32(steps);
     var col = vec3<f32>(0.0);
     var tr = 1.0;

@@ -4,7 +4,9 @@
 //! `vtkProjectedTetrahedraMapper` in the same run.
 //!
 //! `TETWAVE_BENCH_N` (default 32), `TETWAVE_BENCH_SIZE` (512), `TETWAVE_BENCH_FRAMES` (5),
-//! `TETWAVE_BENCH_OUT` (out/bench-vs-vtk).
+//! `TETWAVE_BENCH_OUT` (out/bench-vs-vtk), `TETWAVE_BENCH_ONLY` (e.g. `mpvo-best`: only the
+//! configurations named; default all). Besides means, each line has the fastest frame's wall and
+//! CPU time (`min_ms`, `min_cpu_ms`), steadier on a shared machine.
 
 use std::io::Write;
 use std::time::Instant;
@@ -79,6 +81,18 @@ fn cpu_ms() -> f64 {
         .map_or(0.0, |(u, s)| (u + s) * 10.0)
 }
 
+/// CPU time of all threads of this process in ms, in nanosecond resolution (sum of the threads'
+/// run times in /proc/self/task/*/schedstat); for per-frame minima.
+fn cpu_ms_fine() -> f64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    dir.filter_map(|e| std::fs::read_to_string(e.ok()?.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .sum::<f64>()
+        / 1e6
+}
+
 fn main() {
     let n = env("TETWAVE_BENCH_N", 32);
     let size = env("TETWAVE_BENCH_SIZE", 512) as u32;
@@ -114,13 +128,20 @@ fn main() {
         (VisibilityOrder::Mpvo, Accumulation::Best),
         (VisibilityOrder::Mpvo, Accumulation::U8),
     ] {
+        let only = std::env::var("TETWAVE_BENCH_ONLY").unwrap_or_default();
+        if !only.is_empty() && !only.contains(&format!("{order:?}-{acc:?}").to_lowercase()) {
+            continue;
+        }
         let r = if acc == Accumulation::U8 { &fast } else { &r };
         r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap(); // warm-up
         let mut times = Vec::new();
         let mut last = None;
         let cpu0 = cpu_ms();
+        let mut min_cpu = f64::INFINITY;
         for _ in 0..frames {
+            let c0 = cpu_ms_fine();
             let (img, ft) = r.render_ordered(&ctx, &data, &cam, &tf, order).unwrap();
+            min_cpu = min_cpu.min(cpu_ms_fine() - c0);
             times.push(ft);
             last = Some(img);
         }
@@ -138,9 +159,10 @@ fn main() {
             times.iter().map(f).sum::<f64>() / times.len() as f64
         };
         println!(
-            "{{\"bench\":\"pt\",\"order\":{order_name:?},\"accumulation\":{acc_name:?},\"n\":{n},\"tets\":{},\"size\":{size},\"frames\":{frames},\"mean_ms\":{:.2},\"cpu_ms\":{cpu:.0},\"sort_ms\":{:.2},\"gpu_ms\":{:.2},\"readback_ms\":{:.2},\"psnr_db\":{:.2},\"tets_per_s\":{:.0},\"upload_ms\":{upload_ms:.1},\"reference_ms\":{reference_ms:.0},\"adapter\":{:?},\"image\":{:?}}}",
+            "{{\"bench\":\"pt\",\"order\":{order_name:?},\"accumulation\":{acc_name:?},\"n\":{n},\"tets\":{},\"size\":{size},\"frames\":{frames},\"mean_ms\":{:.2},\"cpu_ms\":{cpu:.0},\"min_ms\":{:.2},\"min_cpu_ms\":{min_cpu:.1},\"sort_ms\":{:.2},\"gpu_ms\":{:.2},\"readback_ms\":{:.2},\"psnr_db\":{:.2},\"tets_per_s\":{:.0},\"upload_ms\":{upload_ms:.1},\"reference_ms\":{reference_ms:.0},\"adapter\":{:?},\"image\":{:?}}}",
             mesh.tets.len(),
             mean(&|t| t.total_ms),
+            times.iter().map(|t| t.total_ms).fold(f64::INFINITY, f64::min),
             mean(&|t| t.sort_ms),
             mean(&|t| t.gpu_ms),
             mean(&|t| t.readback_ms),

@@ -51,6 +51,16 @@ impl GpuContext {
             }
         }
         let adapter = found.ok_or(RenderError::NoAdapter)?;
+        // the transfer-function table is one 64 KiB uniform binding (see `pt::TF_TABLE_INTERVALS`)
+        let uniform = adapter.limits().max_uniform_buffer_binding_size;
+        if uniform < pt::TF_TABLE_BYTES {
+            return Err(RenderError::Device(format!(
+                "{} allows {uniform} bytes per uniform binding; the renderer's transfer-function \
+                 table needs {}",
+                adapter.get_info().name,
+                pt::TF_TABLE_BYTES
+            )));
+        }
         let float32_blend = adapter
             .features()
             .contains(wgpu::Features::FLOAT32_BLENDABLE);
