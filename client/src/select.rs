@@ -40,7 +40,7 @@
 use crate::camera::Camera;
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError, RedNode, SegVec};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
 use std::fmt;
@@ -230,20 +230,28 @@ pub fn data_weight(smax: f32, value_range: [f32; 2], delta: f32) -> f64 {
     (smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0)
 }
 
-/// Bounding sphere (centroid, distance to the farthest vertex) of mesh vertices `v`.
+/// Bounding sphere of mesh vertices `v`: the centroid rounded to `f32`, and the distance from it to
+/// the farthest vertex rounded up to `f32` (so that selection caches it in 16 bytes, exactly).
 #[inline]
 pub fn bounding_sphere(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (DVec3, f64) {
+    let (c, r) = sphere32(mesh, v);
+    (c.as_dvec3(), r as f64)
+}
+
+#[inline]
+fn sphere32(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (Vec3, f32) {
     let pos = mesh.positions();
     let p = v.map(|s| {
         let q = pos[s as usize];
         DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64)
     });
-    let c = (p[0] + p[1] + p[2] + p[3]) * 0.25;
+    let c = ((p[0] + p[1] + p[2] + p[3]) * 0.25).as_vec3();
+    let cd = c.as_dvec3();
     let r2 = p
         .iter()
-        .map(|q| q.distance_squared(c))
+        .map(|q| q.distance_squared(cd))
         .fold(0.0f64, f64::max);
-    (c, r2.sqrt())
+    (c, f32_up(r2.sqrt()))
 }
 
 /// What one [`Selector::frame`] did.
@@ -386,6 +394,40 @@ const NO_INFO: SlotInfo = SlotInfo {
     geo: false,
 };
 
+/// A remembered status (16 bytes): its priority, kind (0 keep, 1 split, 2 merge) and the low 32 bits
+/// of `epoch + 1` when it was evaluated (0: none; the entries are cleared when those bits wrap).
+#[derive(Debug, Clone, Copy)]
+struct StatEntry {
+    prio: f64,
+    epoch: u32,
+    kind: u8,
+}
+
+const NO_STAT: StatEntry = StatEntry {
+    prio: 0.0,
+    epoch: 0,
+    kind: 0,
+};
+
+impl StatEntry {
+    fn new(st: Status, epoch: u32) -> Self {
+        let (kind, prio) = match st {
+            Status::Keep => (0, 0.0),
+            Status::Split(e) => (1, e),
+            Status::Merge(e) => (2, e),
+        };
+        StatEntry { prio, epoch, kind }
+    }
+
+    fn status(&self) -> Status {
+        match self.kind {
+            1 => Status::Split(self.prio),
+            2 => Status::Merge(self.prio),
+            _ => Status::Keep,
+        }
+    }
+}
+
 /// What the criteria want of one node of the red tree.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Status {
@@ -452,11 +494,11 @@ pub struct Selector {
     list: Vec<u32>,
     in_list: SegVec<bool>,
     info: SegVec<SlotInfo>,
-    /// Per slot: the status last evaluated and `epoch + 1` then (0: none); reused while the
-    /// epoch lasts and the slot does not change (see `Self::eval`).
-    stat: SegVec<(u64, Status)>,
-    /// Bounding spheres by slot, valid where `info` says so.
-    geo: SegVec<(DVec3, f64)>,
+    /// Per slot: the status last evaluated; reused while the epoch lasts and the slot does not
+    /// change (see `Self::eval`).
+    stat: SegVec<StatEntry>,
+    /// Bounding spheres by slot ([`bounding_sphere`]), valid where `info` says so.
+    geo: SegVec<(Vec3, f32)>,
     /// The mesh followed ([`AdaptiveMesh::uid`]) and the changes read from it.
     mesh_uid: u64,
     seen: u64,
@@ -594,7 +636,7 @@ impl Selector {
     /// New nodes arrived in the buffer (or the parameters changed): the selector looks again.
     pub fn notify_arrivals(&mut self) {
         self.full_epoch += 1;
-        self.epoch += 1;
+        self.bump_epoch();
         self.dirty = true;
         self.converged = false;
     }
@@ -778,12 +820,13 @@ impl Selector {
         if !i.geo {
             if slot >= self.geo.len() {
                 self.geo
-                    .resize(mesh.node_slot_len().max(slot + 1), (DVec3::ZERO, 0.0));
+                    .resize(mesh.node_slot_len().max(slot + 1), (Vec3::ZERO, 0.0));
             }
             i.geo = true;
-            self.geo[slot] = bounding_sphere(mesh, &n.v);
+            self.geo[slot] = sphere32(mesh, &n.v);
         }
-        self.geo[slot]
+        let (c, r) = self.geo[slot];
+        (c.as_dvec3(), r as f64)
     }
 
     /// [`Self::want_split`] from the cache.
@@ -826,9 +869,9 @@ impl Selector {
         // the status is a function of the node for one epoch: reused unless the slot changed
         // since (changes not yet read from the mesh could concern it)
         if self.seen == mesh.change_seq() && !self.reference {
-            if let Some(&(e, st)) = self.stat.get(slot) {
-                if e == self.epoch + 1 {
-                    return st;
+            if let Some(e) = self.stat.get(slot) {
+                if e.epoch == self.stat_epoch() {
+                    return e.status();
                 }
             }
         }
@@ -837,21 +880,37 @@ impl Selector {
         st
     }
 
+    /// The low 32 bits of `epoch + 1`, as [`StatEntry`] keeps them.
+    #[inline]
+    fn stat_epoch(&self) -> u32 {
+        (self.epoch + 1) as u32
+    }
+
+    /// Moves to a new epoch (every remembered status is stale).
+    fn bump_epoch(&mut self) {
+        self.epoch += 1;
+        if self.stat_epoch() == 0 {
+            // the 32 bits wrapped: forget everything rather than trust an entry 2^32 epochs old
+            self.stat.clear();
+            self.epoch += 1;
+        }
+    }
+
     /// Records the status just evaluated for `slot` (see [`Self::eval`]).
     #[inline]
     fn remember(&mut self, slot: usize, st: Status) {
         if slot >= self.stat.len() {
-            self.stat.resize(slot + 1, (0, Status::Keep));
+            self.stat.resize(slot + 1, NO_STAT);
         }
-        self.stat[slot] = (self.epoch + 1, st);
+        self.stat[slot] = StatEntry::new(st, self.stat_epoch());
     }
 
     /// Forgets the status recorded for `slot`.
     #[inline]
     fn forget(&mut self, slot: u32) {
         if let Some(e) = self.stat.get(slot as usize) {
-            if e.0 != 0 {
-                self.stat[slot as usize].0 = 0;
+            if e.epoch != 0 {
+                self.stat[slot as usize].epoch = 0;
             }
         }
     }
@@ -1437,7 +1496,7 @@ impl Selector {
             self.full_epoch += 1;
         }
         if full || moved {
-            self.epoch += 1;
+            self.bump_epoch();
             self.dirty = true;
             self.converged = false;
         }
