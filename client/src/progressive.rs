@@ -48,7 +48,8 @@ pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64) {
     }
 }
 
-fn splitmix(mut x: u64) -> u64 {
+/// SplitMix64: the seeded mixing behind [`order_nodes`]'s random order (also used by tests).
+pub fn splitmix(mut x: u64) -> u64 {
     x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
     let mut z = x;
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);

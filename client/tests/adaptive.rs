@@ -5,6 +5,7 @@ use proptest::prelude::*;
 use std::time::Instant;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
 use tetwave_client::mesh::{AdaptiveMesh, MeshError};
+use tetwave_client::progressive::splitmix;
 use tetwave_protocol::base::signed_volume;
 use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
 use tetwave_protocol::synthesis::synthesize_all;
@@ -152,14 +153,6 @@ fn make_data(mut base: BaseMesh, empty_seed: u64) -> Data {
         nodes,
         reference,
     }
-}
-
-fn splitmix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    let mut z = x;
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
 }
 
 fn shuffle<T>(v: &mut [T], mut seed: u64) {

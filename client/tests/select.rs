@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use tetwave_client::camera::Camera;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
 use tetwave_client::mesh::AdaptiveMesh;
-use tetwave_client::progressive::BackgroundRefiner;
+use tetwave_client::progressive::{splitmix, BackgroundRefiner};
 use tetwave_client::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
@@ -301,17 +301,9 @@ fn background_refiner() {
     r.stop().unwrap();
 }
 
-fn mix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    let mut z = x;
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// A uniform draw in `[0, 1)` from the state `s`.
 fn unit(s: &mut u64) -> f64 {
-    *s = mix(*s);
+    *s = splitmix(*s);
     (*s >> 11) as f64 / (1u64 << 53) as f64
 }
 
@@ -352,7 +344,7 @@ fn incremental_equals_full_scan() {
     let mut frames = 0;
     for (vi, &(tol, frustum, data_aware, coarsen_ref)) in variants.iter().enumerate() {
         for seed in 0..3u64 {
-            let mut s = mix(seed * 31 + vi as u64 + 1);
+            let mut s = splitmix(seed * 31 + vi as u64 + 1);
             let mut nodes = all_nodes.clone();
             let order = if seed == 0 {
                 ArrivalOrder::Level
