@@ -264,7 +264,7 @@ impl<T: Copy> SegVec<T> {
     }
 
     /// Bytes held (segments and the segment table).
-    pub fn bytes(&self) -> usize {
+    pub(crate) fn bytes(&self) -> usize {
         self.capacity() * std::mem::size_of::<T>()
             + self.segs.capacity() * std::mem::size_of::<Box<[T]>>()
     }

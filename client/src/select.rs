@@ -737,13 +737,18 @@ impl Selector {
         if self.params.frustum && !view.sphere_visible(c, r) {
             return None;
         }
-        let mut e = view.error_px(c, 2.0 * r);
-        if let Some(delta) = self.params.data_aware {
-            if let Some(m) = smax {
-                e *= data_weight(m, self.params.value_range, delta);
-            }
-        }
-        Some(e)
+        Some(self.weighted_error(view, c, r, smax).0)
+    }
+
+    /// Screen-space error of a sphere times its data weight (the frustum aside), and that weight
+    /// (1 unless data-aware with a known subtree max).
+    #[inline]
+    fn weighted_error(&self, view: &View, c: DVec3, r: f64, smax: Option<f32>) -> (f64, f64) {
+        let fac = match (self.params.data_aware, smax) {
+            (Some(delta), Some(m)) => data_weight(m, self.params.value_range, delta),
+            _ => 1.0,
+        };
+        (view.error_px(c, 2.0 * r) * fac, fac)
     }
 
     /// Merge priority of refined node `n` (children all leaves): `Some(error)` when its split
@@ -955,16 +960,10 @@ impl Selector {
             };
             return (s, INF, INF);
         }
-        // the criterion, as `want_split` computes it (same operations, same results)
+        // the criterion, as `want_split` computes it
         let (c, r) = self.sphere_of(mesh, slot, &n);
         let visible = !self.params.frustum || view.sphere_visible(c, r);
-        let d = (c - view.eye).length();
-        let mut e = view.pixels_per_unit * (2.0 * r) / d.max(1e-12);
-        let mut fac = 1.0;
-        if let Some(delta) = self.params.data_aware {
-            fac = data_weight(i.smax, self.params.value_range, delta);
-            e *= fac;
-        }
+        let (e, fac) = self.weighted_error(view, c, r, Some(i.smax));
         let err = e > view.tol_px;
         let status = if n.leaf {
             if visible && err {
@@ -983,6 +982,7 @@ impl Selector {
         if !cert {
             return (status, INF, INF);
         }
+        let d = (c - view.eye).length();
         let m_e = if fac <= 0.0 || r <= 0.0 || view.tol_px <= 0.0 || !e.is_finite() {
             f64::INFINITY
         } else {
