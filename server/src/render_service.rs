@@ -357,11 +357,6 @@ impl RenderService {
     }
 }
 
-/// PNG bytes of an image, as `Rgba8Image::save_png` writes it (opaque, over black).
-pub fn png_bytes(img: &Rgba8Image) -> Result<Vec<u8>, String> {
-    img.png_bytes().map_err(|e| e.to_string())
-}
-
 /// `GET /v1/render`.
 pub async fn render(
     State(s): State<Arc<Shared>>,
@@ -374,7 +369,10 @@ pub async fn render(
     let s2 = s.clone();
     let r = tokio::task::spawn_blocking(move || {
         let r = s2.render.render(&p)?;
-        let png = png_bytes(&r.image).map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e))?;
+        let png = r
+            .image
+            .png_bytes()
+            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
         Ok::<_, (StatusCode, String)>((r, png))
     })
     .await;
