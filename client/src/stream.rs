@@ -368,15 +368,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
     } else {
         let ctx = GpuContext::new()?;
         let r = PtRenderer::new(&ctx);
-        // one tiny draw compiles the driver's shader variants now rather than on the first frame
-        let tet = RenderMesh::new(
-            vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-            vec![[0, 1, 2, 3]],
-            vec![0.0, 1.0, 0.5, 0.25],
-        );
-        let warm_cam = Camera::orbit(glam::DVec3::splat(0.25), 3.0, 30.0, 20.0, 40.0, 16, 16);
-        let data = r.upload(&ctx, &tet)?;
-        r.render(&ctx, &data, &warm_cam, &tf)?;
+        r.warm_up(&ctx, &tf)?;
         Some((ctx, r))
     };
     let net = Arc::new(Net {

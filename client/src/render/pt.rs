@@ -354,6 +354,20 @@ impl PtRenderer {
         })
     }
 
+    /// Draws two one-tet meshes (one through each fragment pipeline), so that the driver compiles
+    /// its shader variants now rather than during the first real frame.
+    pub fn warm_up(&self, ctx: &GpuContext, tf: &TransferFunction) -> Result<(), RenderError> {
+        let corners = vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let cam = Camera::orbit(DVec3::splat(0.25), 3.0, 30.0, 20.0, 40.0, 16, 16);
+        // a constant field takes the two-sub-step shader, a full-range one the adaptive shader
+        for values in [vec![0.5; 4], vec![0.0, 1.0, 0.5, 0.25]] {
+            let tet = RenderMesh::new(corners.clone(), vec![[0, 1, 2, 3]], values);
+            let data = self.upload(ctx, &tet)?;
+            self.render(ctx, &data, &cam, tf)?;
+        }
+        Ok(())
+    }
+
     /// Renders one frame to an image (premultiplied colour over black).
     pub fn render(
         &self,
