@@ -240,7 +240,8 @@ const SEG_MASK: usize = SEG_LEN - 1;
 /// grows by a fraction copies all of it at once (tens of ms for the node array of a level-6 mesh).
 #[derive(Clone)]
 pub(crate) struct SegVec<T> {
-    segs: Vec<Box<[T]>>,
+    /// Fixed-size segments: an index masked to a segment needs no bounds check.
+    segs: Vec<Box<[T; SEG_LEN]>>,
     len: usize,
 }
 
@@ -266,13 +267,13 @@ impl<T: Copy> SegVec<T> {
     /// Bytes held (segments and the segment table).
     pub(crate) fn bytes(&self) -> usize {
         self.capacity() * std::mem::size_of::<T>()
-            + self.segs.capacity() * std::mem::size_of::<Box<[T]>>()
+            + self.segs.capacity() * std::mem::size_of::<Box<[T; SEG_LEN]>>()
     }
 
     #[inline]
     pub(crate) fn push(&mut self, x: T) {
         if self.len == self.capacity() {
-            self.segs.push(vec![x; SEG_LEN].into_boxed_slice());
+            self.segs.push(segment(x));
         }
         let i = self.len;
         self.len += 1;
@@ -283,7 +284,7 @@ impl<T: Copy> SegVec<T> {
     pub(crate) fn resize(&mut self, n: usize, x: T) {
         while self.len < n {
             if self.len == self.capacity() {
-                self.segs.push(vec![x; SEG_LEN].into_boxed_slice());
+                self.segs.push(segment(x));
                 self.len = (self.len + SEG_LEN).min(n);
             } else {
                 let i = self.len;
@@ -322,6 +323,14 @@ impl<T: Copy> SegVec<T> {
     pub(crate) fn iter(&self) -> impl Iterator<Item = &T> + '_ {
         self.segs.iter().flat_map(|s| s.iter()).take(self.len)
     }
+}
+
+/// One segment filled with `x`.
+fn segment<T: Copy>(x: T) -> Box<[T; SEG_LEN]> {
+    vec![x; SEG_LEN]
+        .into_boxed_slice()
+        .try_into()
+        .unwrap_or_else(|_| unreachable!("SEG_LEN items"))
 }
 
 impl<T: Copy> Default for SegVec<T> {
@@ -1658,9 +1667,10 @@ impl AdaptiveMesh {
     /// Whether the vertices of witness `w` are all present (positive count, same key).
     #[inline]
     fn witness_present(&self, w: &Witness) -> bool {
-        w.iter().all(|&(s, k)| {
+        let present = |(s, k): (u32, u32)| {
             s == NONE || (self.vref[s as usize] > 0 && self.vkey[s as usize] == k as u64)
-        })
+        };
+        present(w[0]) && present(w[1]) && present(w[2]) && present(w[3])
     }
 
     /// Whether batch candidate `c` would be forced with the reference counts as they stand (the
