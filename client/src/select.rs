@@ -345,6 +345,13 @@ impl<T: Ord> CandQueue<T> {
         self.sorted = false;
     }
 
+    /// Moves every item to `out`, in no particular order (nothing is sorted).
+    fn drain_into(&mut self, out: &mut Vec<T>) {
+        out.append(&mut self.bulk);
+        out.extend(self.heap.drain());
+        self.sorted = false;
+    }
+
     fn len(&self) -> usize {
         self.bulk.len() + self.heap.len()
     }
@@ -504,6 +511,8 @@ pub struct Selector {
     seen: u64,
     batch: Vec<TetId>,
     batch_slots: Vec<u32>,
+    /// Scratch: the merge candidates of an unbudgeted batch, unsorted.
+    unordered: Vec<Reverse<Cand>>,
     /// Changes with every frame and every change of the mesh ([`Self::retag`]): a candidate popped
     /// with the tag it was pushed with has the status it was pushed with.
     tag: u32,
@@ -610,6 +619,7 @@ impl Selector {
             seen: 0,
             batch: Vec::new(),
             batch_slots: Vec::new(),
+            unordered: Vec::new(),
             tag: 0,
             tag_seq: 0,
             full_epoch: 0,
@@ -687,7 +697,7 @@ impl Selector {
             + (self.flushing.capacity() + self.batch_slots.capacity()) * 4
             + self.batch.capacity() * size_of::<TetId>()
             + self.splits.capacity() * size_of::<Cand>()
-            + self.merges.capacity() * size_of::<Reverse<Cand>>()
+            + (self.merges.capacity() + self.unordered.capacity()) * size_of::<Reverse<Cand>>()
     }
 
     /// Whether the last frame found nothing left to do.
@@ -1630,7 +1640,8 @@ impl Selector {
             };
             let half = if consolidating {
                 usize::MAX
-            } else if self.splits.is_empty() {
+            } else if self.splits.is_empty() || budget.max_ops == usize::MAX {
+                // (without an operation budget: one batch, not chunks of a huge "half")
                 budget.max_ops
             } else {
                 budget.max_ops / 2 + 1
@@ -1742,13 +1753,21 @@ impl Selector {
             if !self.reference {
                 self.absorb_changes(mesh);
             }
+            // one batch takes them all, in any order: no need to sort them
+            let mut all = std::mem::take(&mut self.unordered);
+            if chunk == usize::MAX {
+                self.merges.drain_into(&mut all);
+            }
+            let mut next = all.drain(..);
             let mut popped = 0usize;
             while batch.len() < chunk {
                 popped += 1;
                 if popped.is_multiple_of(64) && deadline.is_some_and(|t| Instant::now() >= t) {
                     break;
                 }
-                let Some(Reverse(Cand(_, id, hint, tag))) = self.merges.pop() else {
+                let Some(Reverse(Cand(_, id, hint, tag))) =
+                    next.next().or_else(|| self.merges.pop())
+                else {
                     break;
                 };
                 if self.trusted(mesh, tag, hint) {
@@ -1761,6 +1780,11 @@ impl Selector {
                     slots.push(s);
                 }
             }
+            // (all taken unless cut short: the rest wait in the queue)
+            for c in next {
+                self.merges.push(c);
+            }
+            self.unordered = all;
             if batch.is_empty() {
                 continue;
             }
