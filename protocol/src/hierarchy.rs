@@ -161,8 +161,12 @@ impl Forest {
 
     /// Level of a tet id (ids beyond the forest still get the level of their range).
     pub fn level(&self, id: TetId) -> u8 {
+        // id ≥ level_start(k) ⇔ 7·id + n ≥ n·8^k (n·(8^k − 1) is a multiple of 7): shifts, no
+        // division (this is on the client's hot paths)
+        let n = self.n_base as u128;
+        let q = 7 * id as u128 + n;
         let mut k = 0u8;
-        while k < 21 && id >= self.level_start(k + 1) {
+        while k < 21 && q >= n << (3 * (k as u32 + 1)) {
             k += 1;
         }
         k
@@ -442,6 +446,37 @@ mod tests {
         for k in 0..=4u8 {
             assert_eq!(f.level(f.level_start(k)), k);
             assert_eq!(f.level(f.level_start(k + 1) - 1), k);
+        }
+    }
+
+    /// `level` (shifts) agrees with the definition through `level_start` at every level boundary
+    /// of forests from 1 to 2^20 roots, up to the largest level ids can name.
+    #[test]
+    fn level_matches_level_start() {
+        // `level_start` in u128 (no overflow)
+        let start = |n: u64, k: u8| n as u128 * ((1u128 << (3 * k as u32)) - 1) / 7;
+        let by_start = |n: u64, id: TetId| {
+            let mut k = 0u8;
+            while k < 21 && id as u128 >= start(n, k + 1) {
+                k += 1;
+            }
+            k
+        };
+        for n in [1u64, 2, 5, 6, 7, 48, 1000, 1 << 20] {
+            let f = Forest::new(n, MAX_LEVELS);
+            for k in 0..=21u8 {
+                let Ok(s) = u64::try_from(start(n, k)) else {
+                    break;
+                };
+                for id in [
+                    s.saturating_sub(1),
+                    s,
+                    s.saturating_add(1),
+                    s.saturating_add(n / 2),
+                ] {
+                    assert_eq!(f.level(id), by_start(n, id), "n {n} id {id}");
+                }
+            }
         }
     }
 
