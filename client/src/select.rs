@@ -793,7 +793,7 @@ impl Selector {
     // ------------------------------------------------------------ cached criteria
 
     /// The cached facts of node `n` in `slot`, filled or refreshed as needed.
-    #[inline]
+    #[inline(always)]
     fn info_of(
         &mut self,
         mesh: &AdaptiveMesh,
@@ -829,7 +829,7 @@ impl Selector {
     }
 
     /// The cached bounding sphere of node `n` in `slot` (after [`Self::info_of`]).
-    #[inline]
+    #[inline(always)]
     fn sphere_of(&mut self, mesh: &AdaptiveMesh, slot: usize, n: &RedNode) -> (DVec3, f64) {
         let i = &mut self.info[slot];
         if !i.geo {
