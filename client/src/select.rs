@@ -401,20 +401,19 @@ const NO_INFO: SlotInfo = SlotInfo {
     geo: false,
 };
 
-/// A remembered status (16 bytes): its priority, kind (0 keep, 1 split, 2 merge) and the low 32 bits
-/// of `epoch + 1` when it was evaluated (0: none; the entries are cleared when those bits wrap).
+/// A remembered status (8 bytes): its priority (as queued: an `f32`, see [`Selector::push`]), kind
+/// (0 keep, 1 split, 2 merge, low 2 bits of `word`) and the low 30 bits of `epoch + 1` when it was
+/// evaluated (0: none; the entries are cleared when those bits wrap).
 #[derive(Debug, Clone, Copy)]
 struct StatEntry {
-    prio: f64,
-    epoch: u32,
-    kind: u8,
+    prio: f32,
+    word: u32,
 }
 
-const NO_STAT: StatEntry = StatEntry {
-    prio: 0.0,
-    epoch: 0,
-    kind: 0,
-};
+const NO_STAT: StatEntry = StatEntry { prio: 0.0, word: 0 };
+
+/// Bits of an epoch a [`StatEntry`] keeps.
+const STAT_EPOCH_MASK: u64 = (1 << 30) - 1;
 
 impl StatEntry {
     fn new(st: Status, epoch: u32) -> Self {
@@ -423,13 +422,21 @@ impl StatEntry {
             Status::Split(e) => (1, e),
             Status::Merge(e) => (2, e),
         };
-        StatEntry { prio, epoch, kind }
+        StatEntry {
+            prio: prio as f32,
+            word: epoch << 2 | kind,
+        }
+    }
+
+    #[inline]
+    fn epoch(&self) -> u32 {
+        self.word >> 2
     }
 
     fn status(&self) -> Status {
-        match self.kind {
-            1 => Status::Split(self.prio),
-            2 => Status::Merge(self.prio),
+        match self.word & 3 {
+            1 => Status::Split(self.prio as f64),
+            2 => Status::Merge(self.prio as f64),
             _ => Status::Keep,
         }
     }
@@ -885,7 +892,7 @@ impl Selector {
         // since (changes not yet read from the mesh could concern it)
         if self.seen == mesh.change_seq() && !self.reference {
             if let Some(e) = self.stat.get(slot) {
-                if e.epoch == self.stat_epoch() {
+                if e.epoch() == self.stat_epoch() {
                     return e.status();
                 }
             }
@@ -895,17 +902,17 @@ impl Selector {
         st
     }
 
-    /// The low 32 bits of `epoch + 1`, as [`StatEntry`] keeps them.
+    /// The low 30 bits of `epoch + 1`, as [`StatEntry`] keeps them.
     #[inline]
     fn stat_epoch(&self) -> u32 {
-        (self.epoch + 1) as u32
+        ((self.epoch + 1) & STAT_EPOCH_MASK) as u32
     }
 
     /// Moves to a new epoch (every remembered status is stale).
     fn bump_epoch(&mut self) {
         self.epoch += 1;
         if self.stat_epoch() == 0 {
-            // the 32 bits wrapped: forget everything rather than trust an entry 2^32 epochs old
+            // the 30 bits wrapped: forget everything rather than trust an entry 2^30 epochs old
             self.stat.clear();
             self.epoch += 1;
         }
@@ -924,8 +931,8 @@ impl Selector {
     #[inline]
     fn forget(&mut self, slot: u32) {
         if let Some(e) = self.stat.get(slot as usize) {
-            if e.epoch != 0 {
-                self.stat[slot as usize].epoch = 0;
+            if e.epoch() != 0 {
+                self.stat[slot as usize].word = 0;
             }
         }
     }
@@ -1135,11 +1142,14 @@ impl Selector {
         !self.reference && tag == self.tag && slot != u32::MAX
     }
 
+    /// Queues a candidate, its priority rounded to an `f32`: the precision [`StatEntry`] keeps,
+    /// so that a remembered status and a fresh one queue alike.
     #[inline]
     fn push(&mut self, id: TetId, slot: u32, s: Status) {
+        let q = |e: f64| e as f32 as f64;
         match s {
-            Status::Split(e) => self.splits.push(Cand(e, id, slot, self.tag)),
-            Status::Merge(e) => self.merges.push(Reverse(Cand(e, id, slot, self.tag))),
+            Status::Split(e) => self.splits.push(Cand(q(e), id, slot, self.tag)),
+            Status::Merge(e) => self.merges.push(Reverse(Cand(q(e), id, slot, self.tag))),
             Status::Keep => {}
         }
     }
