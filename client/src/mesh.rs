@@ -446,12 +446,11 @@ struct BatchCand {
 /// present superset forces it too (the closure's test is monotone in the present vertices).
 type Witness = [(u32, u32); 4];
 
-/// A refined tet whose last merge attempt was refused: its midpoints and why (valid while it stays
+/// A refined tet whose last merge attempt was refused, and why (valid while it stays
 /// refined; `AdaptiveMesh::unrefine` drops it).
 #[derive(Debug, Clone, Copy)]
 struct Refusal {
     id: TetId,
-    mids: [u32; 6],
     wit: Witness,
 }
 
@@ -1559,7 +1558,7 @@ impl AdaptiveMesh {
             cand.push(BatchCand {
                 slot,
                 id: n.id,
-                mids: rec.map_or_else(|| self.child_mids(n), |r| r.mids),
+                mids: self.child_mids(n),
                 keep: true,
                 level: self.forest.level(n.id),
                 lt: None,
@@ -1633,14 +1632,7 @@ impl AdaptiveMesh {
                         self.refused.clear();
                     }
                 }
-                self.refused.insert(
-                    c.slot,
-                    Refusal {
-                        id: c.id,
-                        mids: c.mids,
-                        wit,
-                    },
-                );
+                self.refused.insert(c.slot, Refusal { id: c.id, wit });
             }
         }
         for c in &cand {
