@@ -372,13 +372,13 @@ const SCAN_CHUNK: usize = 512;
 /// Sweeps one unbudgeted [`Selector::converge`] may take before giving up.
 const MAX_SWEEPS: usize = 256;
 
-/// What selection keeps of one node slot (24 bytes): pure functions of the node's id (level; the
+/// What selection keeps of one node slot (16 bytes): pure functions of the node's id (level; the
 /// bounding sphere, kept apart in `Selector::geo` since complete mode needs none) and what the
 /// buffer said of it (presence, subtree max, usability: these only grow).
 #[derive(Debug, Clone, Copy)]
 struct SlotInfo {
-    /// The node the entry describes; `NO_ID`: none.
-    id: TetId,
+    /// The node the entry describes, as [`info_tag`] names it; 0: none.
+    tag: u32,
     /// [`DetailBuffer::nodes_held`] (low 32 bits) when presence and usability were looked up.
     checked: u32,
     smax: f32,
@@ -389,10 +389,22 @@ struct SlotInfo {
     geo: bool,
 }
 
-const NO_ID: TetId = TetId::MAX;
+/// The name of node `id` in [`SlotInfo::tag`]: its low 32 bits plus one, never 0. Two nodes that
+/// share a slot over time have different tags as long as ids fit in 32 bits; a forest with more
+/// tets (`wide`) gets tag 0, which never matches: its entries are filled again at every use.
+#[inline]
+fn info_tag(id: TetId, wide: bool) -> u32 {
+    if wide {
+        0
+    } else {
+        (id as u32).wrapping_add(1)
+    }
+}
+
+const _: () = assert!(std::mem::size_of::<SlotInfo>() == 16);
 
 const NO_INFO: SlotInfo = SlotInfo {
-    id: NO_ID,
+    tag: 0,
     checked: u32::MAX,
     smax: 0.0,
     level: 0,
@@ -411,6 +423,8 @@ struct StatEntry {
 }
 
 const NO_STAT: StatEntry = StatEntry { prio: 0.0, word: 0 };
+
+const _: () = assert!(std::mem::size_of::<StatEntry>() == 8);
 
 /// Bits of an epoch a [`StatEntry`] keeps.
 const STAT_EPOCH_MASK: u64 = (1 << 30) - 1;
@@ -812,16 +826,18 @@ impl Selector {
             self.info
                 .resize(mesh.node_slot_len().max(slot + 1), NO_INFO);
         }
+        let forest = mesh.forest();
+        let tag = info_tag(n.id, forest.total_tets() > u32::MAX as u64);
         let e = &mut self.info[slot];
-        if e.id != n.id {
+        if e.tag != tag || tag == 0 {
             *e = SlotInfo {
-                id: n.id,
-                level: mesh.forest().level(n.id),
+                tag,
+                level: forest.level(n.id),
                 ..NO_INFO
             };
         }
         // the finest level has no detail nodes: nothing to look up (such leaves are never split)
-        if !e.usable && e.level < mesh.forest().levels {
+        if !e.usable && e.level < forest.levels {
             let held = buf.nodes_held() as u32;
             if e.checked != held {
                 e.checked = held;
