@@ -1266,14 +1266,17 @@ impl AdaptiveMesh {
             return;
         }
         let maps = child_maps();
-        for i in 0..8 {
-            let a = &maps.to_child[i];
-            let mu: [i64; 4] = std::array::from_fn(|r| {
-                a[r][0] * lam[0] + a[r][1] * lam[1] + a[r][2] * lam[2] + a[r][3] * lam[3]
-            });
-            if mu.iter().all(|&x| x >= 0) {
-                self.descend(n.children + i as u32, mu, out);
+        let [l0, l1, l2, l3] = lam;
+        'child: for (i, a) in maps.to_child.iter().enumerate() {
+            // row by row, leaving at the first negative weight (most children fail early)
+            let mut mu = [0i64; 4];
+            for (m, r) in mu.iter_mut().zip(a) {
+                *m = r[0] * l0 + r[1] * l1 + r[2] * l2 + r[3] * l3;
+                if *m < 0 {
+                    continue 'child;
+                }
             }
+            self.descend(n.children + i as u32, mu, out);
         }
     }
 
