@@ -429,16 +429,23 @@ struct BatchCand {
     id: TetId,
     mids: [u32; 6],
     keep: bool,
-    level: u8,
-    /// Its lattice tet, once needed.
-    lt: Option<LatticeTet>,
-    /// Slots of the level-k+2 points on its boundary, looked up when first needed (`UNKNOWN`):
-    /// the halves of edge `e` at `2e`, `2e + 1`; the segments of face `d` at `12 + 3d ..`.
-    pts: [u32; 24],
     /// What forced it when last refused (from the mesh's refusal records), if anything.
     wit: Option<Witness>,
     /// `wit` was found in this batch (not read from a record).
     fresh: bool,
+    /// Its entry in the batch's [`BatchAux`] list once the closure's test needed one (`NONE`).
+    aux: u32,
+}
+
+/// What the closure's test of one batch candidate looks up (kept apart: most candidates are
+/// settled by a witness and never need it).
+struct BatchAux {
+    level: u8,
+    /// Its lattice tet (unless too fine for level-k+2 points).
+    lt: Option<LatticeTet>,
+    /// Slots of the level-k+2 points on its boundary, looked up when first needed (`UNKNOWN`):
+    /// the halves of edge `e` at `2e`, `2e + 1`; the segments of face `d` at `12 + 3d ..`.
+    pts: [u32; 24],
 }
 
 /// Vertices whose presence forces a refined tet to be refined again if its split is undone (see
@@ -1563,11 +1570,9 @@ impl AdaptiveMesh {
                 id: n.id,
                 mids: self.child_mids(n),
                 keep: true,
-                level: self.forest.level(n.id),
-                lt: None,
-                pts: [UNKNOWN; 24],
                 wit: rec.map(|r| r.wit),
                 fresh: false,
+                aux: NONE,
             });
         }
         for c in &cand {
@@ -1578,6 +1583,7 @@ impl AdaptiveMesh {
         // With every candidate released, those forced anyway are forced whatever else holds:
         // their witnesses are kept for the next batches, where a witness still present settles
         // the candidate without the closure's test.
+        let mut aux: Vec<BatchAux> = Vec::new();
         let mut first: Vec<(usize, Option<Witness>)> = Vec::new();
         for (i, c) in cand.iter_mut().enumerate() {
             if let Some(w) = c.wit {
@@ -1586,7 +1592,7 @@ impl AdaptiveMesh {
                     continue;
                 }
             }
-            if let Some(w) = self.forced_witness(c) {
+            if let Some(w) = self.forced_witness(c, &mut aux) {
                 first.push((i, Some(w)));
             }
         }
@@ -1608,7 +1614,7 @@ impl AdaptiveMesh {
                 if !c.keep {
                     continue;
                 }
-                if let Some(w) = self.forced_witness(c) {
+                if let Some(w) = self.forced_witness(c, &mut aux) {
                     c.keep = false;
                     c.wit = Some(w);
                     c.fresh = true;
@@ -1662,17 +1668,18 @@ impl AdaptiveMesh {
     /// Whether the vertices of witness `w` are all present (positive count, same key).
     #[inline]
     fn witness_present(&self, w: &Witness) -> bool {
-        let present = |(s, k): (u32, u32)| {
-            s == NONE || (self.vref[s as usize] > 0 && self.vkey[s as usize] == k as u64)
-        };
-        present(w[0]) && present(w[1]) && present(w[2]) && present(w[3])
+        #[inline(always)]
+        fn present(m: &AdaptiveMesh, (s, k): (u32, u32)) -> bool {
+            s == NONE || (m.vref[s as usize] > 0 && m.vkey[s as usize] == k as u64)
+        }
+        present(self, w[0]) && present(self, w[1]) && present(self, w[2]) && present(self, w[3])
     }
 
     /// Whether batch candidate `c` would be forced with the reference counts as they stand (the
     /// candidates still kept released): [`Self::classify`] with a vertex present iff its count is
     /// positive, returning a witness when forced; the level-k+2 points' slots are looked up once
     /// and kept in `c`.
-    fn forced_witness(&self, c: &mut BatchCand) -> Option<Witness> {
+    fn forced_witness(&self, c: &mut BatchCand, aux: &mut Vec<BatchAux>) -> Option<Witness> {
         let mut mask = 0u8;
         for (e, &m) in c.mids.iter().enumerate() {
             if self.vref[m as usize] > 0 {
@@ -1699,29 +1706,34 @@ impl AdaptiveMesh {
             let n = if mask.count_ones() == 3 { 3 } else { 4 };
             return Some(wit(&ss[..n]));
         }
-        if mask == 0 || c.level + 2 > self.forest.levels {
+        if mask == 0 {
             return None;
         }
-        let lt = match c.lt {
-            Some(lt) => lt,
-            None => {
-                let lt = self.lattice_of(c.id);
-                c.lt = Some(lt);
-                lt
+        if c.aux == NONE {
+            c.aux = aux.len() as u32;
+            aux.push(BatchAux {
+                level: self.forest.level(c.id),
+                lt: None,
+                pts: [UNKNOWN; 24],
+            });
+        }
+        let a = &mut aux[c.aux as usize];
+        if a.level + 2 > self.forest.levels {
+            return None;
+        }
+        let lt = *a.lt.get_or_insert_with(|| self.lattice_of(c.id));
+        let pt = |a: &mut BatchAux, i: usize, w: &dyn Fn() -> Bary| -> Option<u32> {
+            if a.pts[i] == UNKNOWN {
+                a.pts[i] = self.slot_at(lt.base, &w());
             }
-        };
-        let pt = |c: &mut BatchCand, i: usize, w: &dyn Fn() -> Bary| -> Option<u32> {
-            if c.pts[i] == UNKNOWN {
-                c.pts[i] = self.slot_at(lt.base, &w());
-            }
-            let s = c.pts[i];
+            let s = a.pts[i];
             (s != NONE && self.vref[s as usize] > 0).then_some(s)
         };
         for (e, &(x, y)) in EDGES.iter().enumerate() {
             if mask & (1 << e) != 0 {
                 let m = || lt.edge_midpoint(e);
-                if let Some(s) = pt(c, 2 * e, &|| midpoint(&lt.v[x], &m()))
-                    .or_else(|| pt(c, 2 * e + 1, &|| midpoint(&m(), &lt.v[y])))
+                if let Some(s) = pt(a, 2 * e, &|| midpoint(&lt.v[x], &m()))
+                    .or_else(|| pt(a, 2 * e + 1, &|| midpoint(&m(), &lt.v[y])))
                 {
                     return Some(wit(&[c.mids[e], s]));
                 }
@@ -1740,7 +1752,7 @@ impl AdaptiveMesh {
                 let e2 = (r & (r - 1)).trailing_zeros() as usize;
                 for (p, (x, y)) in [(e0, e1), (e0, e2), (e1, e2)].into_iter().enumerate() {
                     if m & (1 << x) != 0 && m & (1 << y) != 0 {
-                        if let Some(s) = pt(c, 12 + 3 * d + p, &|| {
+                        if let Some(s) = pt(a, 12 + 3 * d + p, &|| {
                             midpoint(&lt.edge_midpoint(x), &lt.edge_midpoint(y))
                         }) {
                             return Some(wit(&[c.mids[x], c.mids[y], s]));
