@@ -70,6 +70,8 @@ const EMPTY: u8 = 2;
 const FLIP: u8 = 4;
 /// On the closure's worklist (see `AdaptiveMesh::queue`).
 const QUEUED: u8 = 8;
+/// Seen while a merge batch gathers its candidates (cleared before it returns).
+const BATCHED: u8 = 16;
 
 /// Edges of the face opposite vertex `d` (the edges not touching `d`), as a mask over [`EDGES`].
 const FACE_MASK: [u8; 4] = face_masks();
@@ -1548,18 +1550,18 @@ impl AdaptiveMesh {
         buf: &DetailBuffer,
     ) -> Result<usize, MeshError> {
         let mut slots: Vec<u32> = Vec::with_capacity(ts.len());
+        let mut cand: Vec<BatchCand> = Vec::with_capacity(ts.len());
+        // in the given order, each tet once (flagged while gathering)
         for (i, &t) in ts.iter().enumerate() {
             let slot = match hints.get(i) {
                 Some(&h) if self.slot_holds(h as usize, t) => h,
                 _ => self.find(t).unwrap_or(NONE),
             };
             slots.push(slot);
-        }
-        let mut order: Vec<u32> = slots.iter().copied().filter(|&s| s != NONE).collect();
-        order.sort_unstable();
-        order.dedup();
-        let mut cand: Vec<BatchCand> = Vec::with_capacity(order.len());
-        for &slot in &order {
+            if slot == NONE || self.nodes[slot as usize].flags & BATCHED != 0 {
+                continue;
+            }
+            self.nodes[slot as usize].flags |= BATCHED;
             let n = &self.nodes[slot as usize];
             if n.is_leaf() || !self.children_leaves(n) {
                 continue;
@@ -1574,6 +1576,11 @@ impl AdaptiveMesh {
                 fresh: false,
                 aux: NONE,
             });
+        }
+        for &s in &slots {
+            if s != NONE {
+                self.nodes[s as usize].flags &= !BATCHED;
+            }
         }
         for c in &cand {
             for &m in &c.mids {
