@@ -995,8 +995,20 @@ impl Selector {
         }
         // the criterion, as `want_split` computes it
         let (c, r) = self.sphere_of(mesh, slot, &n);
-        let visible = !self.params.frustum || view.sphere_visible(c, r);
-        let (e, fac) = self.weighted_error(view, c, r, Some(i.smax));
+        // `View::sphere_visible` and `Self::weighted_error` with their terms kept for the
+        // certificate below (same operations, same results)
+        let x = view.planes.map(|(n, d)| n.dot(c) + d);
+        let visible = !self.params.frustum || x.iter().all(|&v| v >= -r);
+        let d = (c - view.eye).length();
+        let fac = match self.params.data_aware {
+            Some(delta) => data_weight(i.smax, self.params.value_range, delta),
+            None => 1.0,
+        };
+        let e = view.pixels_per_unit * (2.0 * r) / d.max(1e-12) * fac;
+        debug_assert!({
+            let (e0, f0) = self.weighted_error(view, c, r, Some(i.smax));
+            e0.to_bits() == e.to_bits() && f0.to_bits() == fac.to_bits()
+        });
         let err = e > view.tol_px;
         let status = if n.leaf {
             if visible && err {
@@ -1015,7 +1027,6 @@ impl Selector {
         if !cert {
             return (status, INF, INF);
         }
-        let d = (c - view.eye).length();
         let m_e = if fac <= 0.0 || r <= 0.0 || view.tol_px <= 0.0 || !e.is_finite() {
             f64::INFINITY
         } else {
@@ -1027,7 +1038,7 @@ impl Selector {
             return (status, f32_down(we + m_e), INF);
         }
         let eps = 1e-9 * (c.length() + view.eye.length() + r + 1.0);
-        let vals = view.planes.map(|(n, d)| n.dot(c) + d + r);
+        let vals = x.map(|v| v + r);
         if visible {
             if err {
                 let min = vals.iter().copied().fold(f64::INFINITY, f64::min);
