@@ -442,8 +442,7 @@ struct BatchCand {
 /// What the closure's test of one batch candidate looks up (kept apart: most candidates are
 /// settled by a witness and never need it).
 struct BatchAux {
-    level: u8,
-    /// Its lattice tet (unless too fine for level-k+2 points).
+    /// Its lattice tet; `None`: too fine to have level-k+2 points.
     lt: Option<LatticeTet>,
     /// Slots of the level-k+2 points on its boundary, looked up when first needed (`UNKNOWN`):
     /// the halves of edge `e` at `2e`, `2e + 1`; the segments of face `d` at `12 + 3d ..`.
@@ -1685,7 +1684,7 @@ impl AdaptiveMesh {
     /// Whether batch candidate `c` would be forced with the reference counts as they stand (the
     /// candidates still kept released): [`Self::classify`] with a vertex present iff its count is
     /// positive, returning a witness when forced; the level-k+2 points' slots are looked up once
-    /// and kept in `c`.
+    /// and kept in `c`'s entry of `aux`.
     fn forced_witness(&self, c: &mut BatchCand, aux: &mut Vec<BatchAux>) -> Option<Witness> {
         let mut mask = 0u8;
         for (e, &m) in c.mids.iter().enumerate() {
@@ -1718,17 +1717,14 @@ impl AdaptiveMesh {
         }
         if c.aux == NONE {
             c.aux = aux.len() as u32;
+            let fits = self.forest.level(c.id) + 2 <= self.forest.levels;
             aux.push(BatchAux {
-                level: self.forest.level(c.id),
-                lt: None,
+                lt: fits.then(|| self.lattice_of(c.id)),
                 pts: [UNKNOWN; 24],
             });
         }
         let a = &mut aux[c.aux as usize];
-        if a.level + 2 > self.forest.levels {
-            return None;
-        }
-        let lt = *a.lt.get_or_insert_with(|| self.lattice_of(c.id));
+        let lt = a.lt?;
         let pt = |a: &mut BatchAux, i: usize, w: &dyn Fn() -> Bary| -> Option<u32> {
             if a.pts[i] == UNKNOWN {
                 a.pts[i] = self.slot_at(lt.base, &w());

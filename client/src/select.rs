@@ -210,13 +210,31 @@ impl View {
     /// Whether a sphere is at least partly inside the frustum.
     #[inline]
     pub fn sphere_visible(&self, c: DVec3, r: f64) -> bool {
-        self.planes.iter().all(|&(n, d)| n.dot(c) + d >= -r)
+        Self::offsets_visible(&self.plane_offsets(c), r)
+    }
+
+    /// Signed distances `n·c + d` of point `c` to the frustum's planes (positive inside).
+    #[inline]
+    pub fn plane_offsets(&self, c: DVec3) -> [f64; 5] {
+        self.planes.map(|(n, d)| n.dot(c) + d)
+    }
+
+    /// [`Self::sphere_visible`] of a sphere of radius `r` whose centre has plane offsets `x`.
+    #[inline]
+    pub fn offsets_visible(x: &[f64; 5], r: f64) -> bool {
+        x.iter().all(|&v| v >= -r)
     }
 
     /// Thesis eq. 43: vertical pixels of a sphere of diameter `diam` centred at `c`.
     #[inline]
     pub fn error_px(&self, c: DVec3, diam: f64) -> f64 {
-        self.pixels_per_unit * diam / (c - self.eye).length().max(1e-12)
+        self.error_px_at((c - self.eye).length(), diam)
+    }
+
+    /// [`Self::error_px`] of a sphere at distance `dist` from the eye.
+    #[inline]
+    pub fn error_px_at(&self, dist: f64, diam: f64) -> f64 {
+        self.pixels_per_unit * diam / dist.max(1e-12)
     }
 }
 
@@ -775,11 +793,17 @@ impl Selector {
     /// (1 unless data-aware with a known subtree max).
     #[inline]
     fn weighted_error(&self, view: &View, c: DVec3, r: f64, smax: Option<f32>) -> (f64, f64) {
-        let fac = match (self.params.data_aware, smax) {
+        let fac = self.weight(smax);
+        (view.error_px(c, 2.0 * r) * fac, fac)
+    }
+
+    /// The data weight of a node with subtree max `smax` (1 unless data-aware with one).
+    #[inline]
+    fn weight(&self, smax: Option<f32>) -> f64 {
+        match (self.params.data_aware, smax) {
             (Some(delta), Some(m)) => data_weight(m, self.params.value_range, delta),
             _ => 1.0,
-        };
-        (view.error_px(c, 2.0 * r) * fac, fac)
+        }
     }
 
     /// Merge priority of refined node `n` (children all leaves): `Some(error)` when its split
@@ -995,20 +1019,13 @@ impl Selector {
         }
         // the criterion, as `want_split` computes it
         let (c, r) = self.sphere_of(mesh, slot, &n);
-        // `View::sphere_visible` and `Self::weighted_error` with their terms kept for the
-        // certificate below (same operations, same results)
-        let x = view.planes.map(|(n, d)| n.dot(c) + d);
-        let visible = !self.params.frustum || x.iter().all(|&v| v >= -r);
+        // `View::sphere_visible` and `Self::weighted_error` in steps whose terms the certificate
+        // below uses again
+        let x = view.plane_offsets(c);
+        let visible = !self.params.frustum || View::offsets_visible(&x, r);
         let d = (c - view.eye).length();
-        let fac = match self.params.data_aware {
-            Some(delta) => data_weight(i.smax, self.params.value_range, delta),
-            None => 1.0,
-        };
-        let e = view.pixels_per_unit * (2.0 * r) / d.max(1e-12) * fac;
-        debug_assert!({
-            let (e0, f0) = self.weighted_error(view, c, r, Some(i.smax));
-            e0.to_bits() == e.to_bits() && f0.to_bits() == fac.to_bits()
-        });
+        let fac = self.weight(Some(i.smax));
+        let e = view.error_px_at(d, 2.0 * r) * fac;
         let err = e > view.tol_px;
         let status = if n.leaf {
             if visible && err {
