@@ -123,12 +123,12 @@ fn main() {
     let reference_ms = t.elapsed().as_secs_f64() * 1e3;
     reference.save_png(&out.join("reference.png")).unwrap();
     let fast = PtRenderer::with_accumulation(&ctx, Accumulation::U8);
+    let only = std::env::var("TETWAVE_BENCH_ONLY").unwrap_or_default();
     for (order, acc) in [
         (VisibilityOrder::Centroid, Accumulation::Best),
         (VisibilityOrder::Mpvo, Accumulation::Best),
         (VisibilityOrder::Mpvo, Accumulation::U8),
     ] {
-        let only = std::env::var("TETWAVE_BENCH_ONLY").unwrap_or_default();
         if !only.is_empty() && !only.contains(&format!("{order:?}-{acc:?}").to_lowercase()) {
             continue;
         }

@@ -8,10 +8,16 @@ pub struct Rgba8Image {
     pub pixels: Vec<[u8; 4]>,
 }
 
+/// A `[0, 1]` channel value in 8 bits (clamped, rounded to nearest).
+#[inline]
+pub fn unit_to_u8(x: f64) -> u8 {
+    (x.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
 impl Rgba8Image {
     /// From premultiplied linear colour over black, `[0, 1]` per channel.
     pub fn from_f64(width: u32, height: u32, rgba: &[[f64; 4]]) -> Self {
-        let q = |x: f64| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
+        let q = unit_to_u8;
         Rgba8Image {
             width,
             height,

@@ -95,15 +95,18 @@ pub struct PtRenderer {
     pipeline_steps: wgpu::RenderPipeline,
     layout: wgpu::BindGroupLayout,
     format: wgpu::TextureFormat,
+    /// The uniform buffers: per-frame globals and the transfer-function table (written while the
+    /// frame holds `cache`).
+    globals: wgpu::Buffer,
+    tf_table: wgpu::Buffer,
     /// Per-frame objects kept between frames (held for the whole frame).
     cache: std::sync::Mutex<FrameCache>,
 }
 
-/// Objects a frame needs that outlive it: the uniform buffers, and the target and readback for the
-/// last image size; the transfer-function table is rewritten only when the function changes.
+/// Objects a frame needs that outlive it: the target and readback for the last image size; the
+/// transfer-function table is rewritten only when the function changes.
 #[derive(Default)]
 struct FrameCache {
-    uniforms: Option<(wgpu::Buffer, wgpu::Buffer)>,
     tf_points: Option<Vec<crate::transfer::TfPoint>>,
     target: Option<(u32, u32, wgpu::Texture, wgpu::TextureView, wgpu::Buffer)>,
 }
@@ -242,9 +245,19 @@ impl PtRenderer {
                 cache: None,
             })
         };
+        let uniform = |label: &str, size: usize| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
         PtRenderer {
             pipeline: make_pipeline("fs_main"),
             pipeline_steps: make_pipeline("fs_steps"),
+            globals: uniform("globals", std::mem::size_of::<Globals>()),
+            tf_table: uniform("tf", TF_TABLE_BYTES as usize),
             cache: Default::default(),
             layout,
             format,
@@ -429,20 +442,7 @@ impl PtRenderer {
         };
         let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         let cache = &mut *cache;
-        let (gbuf, tfbuf) = cache.uniforms.get_or_insert_with(|| {
-            let uniform = |label: &str, size: usize| {
-                device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size: size as u64,
-                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                })
-            };
-            (
-                uniform("globals", std::mem::size_of::<Globals>()),
-                uniform("tf", TF_TABLE_BYTES as usize),
-            )
-        });
+        let (gbuf, tfbuf) = (&self.globals, &self.tf_table);
         ctx.queue
             .write_buffer(gbuf, 0, bytemuck::bytes_of(&globals));
         if cache.tf_points.as_ref() != Some(&tf.points) {
@@ -488,7 +488,8 @@ impl PtRenderer {
                 let before = indices.len();
                 indices.extend(exit_faces(t));
                 let added = (indices.len() - before) as u32;
-                if added == 0 {
+                // (past MAX_RUNS the frame is drawn as one adaptive run: no more runs to track)
+                if added == 0 || runs.len() > MAX_RUNS {
                     continue;
                 }
                 let slow = data.s_range[t as usize] > fast_limit;
@@ -645,7 +646,7 @@ impl PtRenderer {
         // straight to 8 bits per channel, as `Rgba8Image::from_f64` rounds (non-finite → 0)
         let q = |x: f32| {
             if x.is_finite() {
-                (x.clamp(0.0, 1.0) * 255.0).round() as u8
+                crate::image_metrics::unit_to_u8(x as f64)
             } else {
                 0
             }
