@@ -605,6 +605,36 @@ struct Kinetic {
     cursor: usize,
 }
 
+/// Bit `j` set when slot `j` is due, `ue[j] ≤ we` or `uf[j] ≤ wf`, for up to 64 slots. On x86-64
+/// four slots per vector compare (SSE2, always there); one slot at a time took 6–7 instructions, a
+/// twentieth of the selection's at 10%.
+#[inline]
+fn due_mask(ue: &[f32], uf: &[f32], we: f32, wf: f32) -> u64 {
+    assert!(ue.len() == uf.len() && ue.len() <= 64);
+    let mut mask = 0u64;
+    let mut j = 0;
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{
+            _mm_cmple_ps, _mm_loadu_ps, _mm_movemask_ps, _mm_or_ps, _mm_set1_ps,
+        };
+        // SAFETY: SSE2 is part of the x86-64 baseline; every load reads 4 floats at `j < len − 3`.
+        unsafe {
+            let (vwe, vwf) = (_mm_set1_ps(we), _mm_set1_ps(wf));
+            while j + 4 <= ue.len() {
+                let e = _mm_cmple_ps(_mm_loadu_ps(ue.as_ptr().add(j)), vwe);
+                let f = _mm_cmple_ps(_mm_loadu_ps(uf.as_ptr().add(j)), vwf);
+                mask |= (_mm_movemask_ps(_mm_or_ps(e, f)) as u64) << j;
+                j += 4;
+            }
+        }
+    }
+    for k in j..ue.len() {
+        mask |= (((ue[k] <= we) | (uf[k] <= wf)) as u64) << k;
+    }
+    mask
+}
+
 /// `x` rounded up to an `f32`.
 #[inline]
 fn f32_up(x: f64) -> f32 {
@@ -1415,10 +1445,7 @@ impl Selector {
             let mut off = 0;
             while off < ue.len() && due.len() < SCAN_CHUNK {
                 let c = (ue.len() - off).min(64);
-                let mut mask = 0u64;
-                for j in 0..c {
-                    mask |= (((ue[off + j] <= we) | (uf[off + j] <= wf)) as u64) << j;
-                }
+                let mut mask = due_mask(&ue[off..off + c], &uf[off..off + c], we, wf);
                 while mask != 0 {
                     due.push((i + off) as u32 + mask.trailing_zeros());
                     mask &= mask - 1;
@@ -1929,5 +1956,44 @@ impl Selector {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The vector due mask against its definition, on every length up to 64, with values at,
+    /// around and beyond the bounds (infinities and NaN included).
+    #[test]
+    fn due_mask_matches_definition() {
+        let vals = [
+            f32::NEG_INFINITY,
+            -1.0,
+            0.5,
+            1.0,
+            1.0f32.next_up(),
+            2.0,
+            f32::INFINITY,
+            f32::NAN,
+        ];
+        let mut x = 7u64;
+        for len in 0..=64 {
+            for _ in 0..50 {
+                let mut pick = || {
+                    x = x
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    vals[(x >> 61) as usize]
+                };
+                let ue: Vec<f32> = (0..len).map(|_| pick()).collect();
+                let uf: Vec<f32> = (0..len).map(|_| pick()).collect();
+                let (we, wf) = (1.0, 0.5);
+                let want = (0..len).fold(0u64, |m, j| {
+                    m | (((ue[j] <= we) || (uf[j] <= wf)) as u64) << j
+                });
+                assert_eq!(due_mask(&ue, &uf, we, wf), want, "{ue:?} {uf:?}");
+            }
+        }
     }
 }
