@@ -299,6 +299,17 @@ impl<T: Copy> SegVec<T> {
         self.len = n;
     }
 
+    /// The segment of item `i < len`, without a second bounds check: `len ≤ segs.len() · SEG_LEN`
+    /// always holds (`push` and `resize` add a segment before the length passes it, `clear` only
+    /// lowers it), so the caller's check of `i` covers the segment table too. Indexing checked
+    /// both: 7 % of the selection's instructions at level 5, 10%.
+    #[inline(always)]
+    fn seg(&self, i: usize) -> &[T; SEG_LEN] {
+        debug_assert!(i < self.len && i >> SEG_BITS < self.segs.len());
+        // SAFETY: `i < len ≤ segs.len() · SEG_LEN`, see above
+        unsafe { self.segs.get_unchecked(i >> SEG_BITS) }
+    }
+
     /// Empties it, keeping the segments.
     pub(crate) fn clear(&mut self) {
         self.len = 0;
@@ -307,7 +318,7 @@ impl<T: Copy> SegVec<T> {
     #[inline]
     pub(crate) fn get(&self, i: usize) -> Option<&T> {
         if i < self.len {
-            Some(&self.segs[i >> SEG_BITS][i & SEG_MASK])
+            Some(&self.seg(i)[i & SEG_MASK])
         } else {
             None
         }
@@ -346,7 +357,7 @@ impl<T: Copy> std::ops::Index<usize> for SegVec<T> {
     #[inline]
     fn index(&self, i: usize) -> &T {
         assert!(i < self.len, "index {i} out of {}", self.len);
-        &self.segs[i >> SEG_BITS][i & SEG_MASK]
+        &self.seg(i)[i & SEG_MASK]
     }
 }
 
@@ -354,7 +365,9 @@ impl<T: Copy> std::ops::IndexMut<usize> for SegVec<T> {
     #[inline]
     fn index_mut(&mut self, i: usize) -> &mut T {
         assert!(i < self.len, "index {i} out of {}", self.len);
-        &mut self.segs[i >> SEG_BITS][i & SEG_MASK]
+        debug_assert!(i >> SEG_BITS < self.segs.len());
+        // SAFETY: as in `seg`: `i < len ≤ segs.len() · SEG_LEN`
+        unsafe { &mut self.segs.get_unchecked_mut(i >> SEG_BITS)[i & SEG_MASK] }
     }
 }
 
