@@ -1009,6 +1009,7 @@ impl Selector {
 
     /// [`Self::eval`], and with `cert` the slot's certificate (see [`Kinetic`]): the values of
     /// `we` and `wf` up to which its status cannot change without a change of its node.
+    #[inline(always)]
     fn eval_cert(
         &mut self,
         mesh: &AdaptiveMesh,
