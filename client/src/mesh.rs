@@ -72,6 +72,8 @@ const FLIP: u8 = 4;
 const QUEUED: u8 = 8;
 /// Seen while a merge batch gathers its candidates (cleared before it returns).
 const BATCHED: u8 = 16;
+/// Owners remembered per vertex ([`AdaptiveMesh::vowner`]).
+const OWNERS: usize = 2;
 
 /// Edges of the face opposite vertex `d` (the edges not touching `d`), as a mask over [`EDGES`].
 const FACE_MASK: [u8; 4] = face_masks();
@@ -681,6 +683,11 @@ pub struct AdaptiveMesh {
     vref: SegVec<u32>,
     vlevel: SegVec<u8>,
     vdeps: SegVec<u32>,
+    /// Per vertex: up to [`OWNERS`] of the refined tets that have it as an edge midpoint (`NONE`: not
+    /// known), kept while they stay refined. A refusal witness whose every vertex has such an
+    /// owner outside a merge batch is present whatever the batch releases, which settles its
+    /// candidate before it is gathered.
+    vowner: SegVec<[u32; OWNERS]>,
     free_vertices: Vec<u32>,
     n_vertices: usize,
     /// Slot by vertex key; base keys map to themselves.
@@ -832,6 +839,7 @@ impl AdaptiveMesh {
             vref: SegVec::new(),
             vlevel: SegVec::new(),
             vdeps: SegVec::new(),
+            vowner: SegVec::new(),
             free_vertices: Vec::new(),
             n_vertices: 0,
             by_key: KeySlots::new(0),
@@ -852,6 +860,7 @@ impl AdaptiveMesh {
             m.vref.push(u32::MAX);
             m.vlevel.push(0);
             m.vdeps.push(0);
+            m.vowner.push([NONE; OWNERS]);
         }
         m.n_vertices = nv;
         let nkeys = m.keys.vertex_count();
@@ -1153,6 +1162,7 @@ impl AdaptiveMesh {
             + self.vref.bytes()
             + self.vlevel.bytes()
             + self.vdeps.bytes()
+            + self.vowner.bytes()
             + self.free_vertices.capacity() * 4
             + self.by_key.bytes()
             + self.work.capacity() * size_of::<(u32, TetId)>()
@@ -1436,6 +1446,7 @@ impl AdaptiveMesh {
                 self.vref[i] = 1;
                 self.vlevel[i] = level;
                 self.vdeps[i] = 0;
+                self.vowner[i] = [NONE; OWNERS];
                 s
             }
             None => {
@@ -1448,6 +1459,7 @@ impl AdaptiveMesh {
                 self.vref.push(1);
                 self.vlevel.push(level);
                 self.vdeps.push(0);
+                self.vowner.push([NONE; OWNERS]);
                 (self.vkey.len() - 1) as u32
             }
         };
@@ -1532,6 +1544,9 @@ impl AdaptiveMesh {
                 }
             };
             pts[4 + e] = s;
+            if let Some(o) = self.vowner[s as usize].iter_mut().find(|o| **o == NONE) {
+                *o = slot;
+            }
         }
         let block = self.alloc_block();
         let maps = child_maps();
@@ -1645,7 +1660,7 @@ impl AdaptiveMesh {
         buf: &DetailBuffer,
     ) -> Result<usize, MeshError> {
         let mut slots: Vec<u32> = Vec::with_capacity(ts.len());
-        let mut cand: Vec<BatchCand> = Vec::with_capacity(ts.len());
+        let mut gathered: Vec<u32> = Vec::with_capacity(ts.len());
         // in the given order, each tet once (flagged while gathering)
         for (i, &t) in ts.iter().enumerate() {
             let slot = match hints.get(i) {
@@ -1658,10 +1673,20 @@ impl AdaptiveMesh {
             }
             self.nodes[slot as usize].flags |= BATCHED;
             let n = &self.nodes[slot as usize];
-            if n.is_leaf() || !self.children_leaves(n) {
+            if !n.is_leaf() && self.children_leaves(n) {
+                gathered.push(slot);
+            }
+        }
+        // With every candidate flagged: a refused one whose witness vertices all have an owner
+        // outside the batch stays forced whatever the batch releases, and leaving out a candidate
+        // that is forced anyway changes nothing (forcing only grows with the vertices present).
+        let mut cand: Vec<BatchCand> = Vec::with_capacity(gathered.len());
+        for &slot in &gathered {
+            let n = &self.nodes[slot as usize];
+            let rec = self.refused.get(&slot).filter(|r| r.id == n.id);
+            if rec.is_some_and(|r| self.witness_held(&r.wit)) {
                 continue;
             }
-            let rec = self.refused.get(&slot).filter(|r| r.id == n.id);
             cand.push(BatchCand {
                 slot,
                 id: n.id,
@@ -1775,6 +1800,20 @@ impl AdaptiveMesh {
             s == NONE || (m.vref[s as usize] > 0 && m.vkey[s as usize] == k as u64)
         }
         present(self, w[0]) && present(self, w[1]) && present(self, w[2]) && present(self, w[3])
+    }
+
+    /// Whether every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not
+    /// a candidate of the batch being gathered (not flagged [`BATCHED`]).
+    #[inline]
+    fn witness_held(&self, w: &Witness) -> bool {
+        w.iter().all(|&(s, k)| {
+            s == NONE
+                || (self.vref[s as usize] > 0
+                    && self.vkey[s as usize] == k as u64
+                    && self.vowner[s as usize]
+                        .iter()
+                        .any(|&o| o != NONE && self.nodes[o as usize].flags & BATCHED == 0))
+        })
     }
 
     /// Whether batch candidate `c` would be forced with the reference counts as they stand (the
@@ -1927,6 +1966,12 @@ impl AdaptiveMesh {
         let mut removed = [false; 6];
         for e in 0..6 {
             let s = all[e] as usize;
+            let o = &mut self.vowner[s];
+            for x in o.iter_mut() {
+                if *x == slot {
+                    *x = NONE;
+                }
+            }
             self.vref[s] -= 1;
             if self.vref[s] == 0 {
                 let ends = self.vends[s];
@@ -2192,6 +2237,24 @@ impl AdaptiveMesh {
                     have: self.vref[s],
                     want: want_ref[s],
                 });
+            }
+        }
+        for s in 0..self.vkey.len() {
+            for &o in &self.vowner[s] {
+                if o == NONE {
+                    continue;
+                }
+                let n = &self.nodes[o as usize];
+                if self.vref[s] == 0
+                    || !n.alive()
+                    || n.is_leaf()
+                    || !self.child_mids(n).contains(&(s as u32))
+                {
+                    return Err(ConformityError::Other(format!(
+                        "vertex {} names slot {o} as an owner, which does not refine its edge",
+                        self.vkey[s]
+                    )));
+                }
             }
         }
         let keyed = self.by_key.count();
