@@ -312,6 +312,14 @@ impl<T: Copy> SegVec<T> {
         unsafe { self.segs.get_unchecked(i >> SEG_BITS) }
     }
 
+    /// [`Self::seg`], mutable.
+    #[inline(always)]
+    fn seg_mut(&mut self, i: usize) -> &mut [T; SEG_LEN] {
+        debug_assert!(i < self.len && i >> SEG_BITS < self.segs.len());
+        // SAFETY: as in `seg`
+        unsafe { self.segs.get_unchecked_mut(i >> SEG_BITS) }
+    }
+
     /// Empties it, keeping the segments.
     pub(crate) fn clear(&mut self) {
         self.len = 0;
@@ -367,9 +375,7 @@ impl<T: Copy> std::ops::IndexMut<usize> for SegVec<T> {
     #[inline]
     fn index_mut(&mut self, i: usize) -> &mut T {
         assert!(i < self.len, "index {i} out of {}", self.len);
-        debug_assert!(i >> SEG_BITS < self.segs.len());
-        // SAFETY: as in `seg`: `i < len ≤ segs.len() · SEG_LEN`
-        unsafe { &mut self.segs.get_unchecked_mut(i >> SEG_BITS)[i & SEG_MASK] }
+        &mut self.seg_mut(i)[i & SEG_MASK]
     }
 }
 
@@ -554,11 +560,11 @@ struct BatchAux {
 /// present superset forces it too (the closure's test is monotone in the present vertices).
 type Witness = [(u32, u32); 4];
 
-/// A refined tet whose last merge attempt was refused, and why (valid while it stays
-/// refined; `AdaptiveMesh::unrefine` drops it).
+/// Why the last merge attempt of a refined tet was refused, kept by its slot. Only
+/// `AdaptiveMesh::unrefine` makes a refined tet a leaf or frees a slot, and it drops the record:
+/// a record's slot holds the tet it was made for (the conformity check verifies it).
 #[derive(Debug, Clone, Copy)]
 struct Refusal {
-    id: TetId,
     wit: Witness,
 }
 
@@ -1683,7 +1689,7 @@ impl AdaptiveMesh {
         let mut cand: Vec<BatchCand> = Vec::with_capacity(gathered.len());
         for &slot in &gathered {
             let n = &self.nodes[slot as usize];
-            let rec = self.refused.get(&slot).filter(|r| r.id == n.id);
+            let rec = self.refused.get(&slot);
             if rec.is_some_and(|r| self.witness_held(&r.wit)) {
                 continue;
             }
@@ -1768,7 +1774,7 @@ impl AdaptiveMesh {
                         self.refused.clear();
                     }
                 }
-                self.refused.insert(c.slot, Refusal { id: c.id, wit });
+                self.refused.insert(c.slot, Refusal { wit });
             }
         }
         for c in &cand {
@@ -2257,6 +2263,14 @@ impl AdaptiveMesh {
                 }
             }
         }
+        for &slot in self.refused.keys() {
+            let n = self.nodes.get(slot as usize);
+            if !n.is_some_and(|n| n.alive() && !n.is_leaf()) {
+                return Err(ConformityError::Other(format!(
+                    "a refusal record for slot {slot}, which holds no refined tet"
+                )));
+            }
+        }
         let keyed = self.by_key.count();
         if present != self.n_vertices || keyed != present {
             return Err(ConformityError::Other(format!(
@@ -2304,7 +2318,7 @@ mod tests {
             }
         }
         assert_eq!(t.count(), want.len());
-        // pages in use ≤ what the present keys need plus the recycled ones
+        // the pages in use are exactly those of the present keys (emptied ones are recycled)
         let used = t.pages.len() - t.free.len();
         let mut pages: Vec<u64> = want.keys().map(|k| k >> KEY_PAGE_BITS).collect();
         pages.dedup();
