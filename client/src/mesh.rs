@@ -700,6 +700,10 @@ pub struct AdaptiveMesh {
     by_key: KeySlots,
 
     work: Vec<(u32, TetId)>,
+    /// The candidates the last merge batch settled by their witness alone, each with the owners
+    /// (one per witness vertex, `NONE` padding) outside the batch that keep the witness present:
+    /// while those owners stay refined and out of a batch, so does the candidate.
+    held: Vec<(u32, [u32; 4])>,
     /// Refined tets (by slot) whose last merge attempt in a batch was refused, and why.
     refused: FxHashMap<u32, Refusal>,
     /// Red splits and merges done so far (closure refinements included).
@@ -850,6 +854,7 @@ impl AdaptiveMesh {
             n_vertices: 0,
             by_key: KeySlots::new(0),
             work: Vec::new(),
+            held: Vec::new(),
             refused: FxHashMap::default(),
             n_splits: 0,
             n_merges: 0,
@@ -1172,6 +1177,7 @@ impl AdaptiveMesh {
             + self.free_vertices.capacity() * 4
             + self.by_key.bytes()
             + self.work.capacity() * size_of::<(u32, TetId)>()
+            + self.held.capacity() * size_of::<(u32, [u32; 4])>()
             + self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)
             + self.changes.capacity() * size_of::<SlotChange>()
     }
@@ -1687,10 +1693,12 @@ impl AdaptiveMesh {
         // outside the batch stays forced whatever the batch releases, and leaving out a candidate
         // that is forced anyway changes nothing (forcing only grows with the vertices present).
         let mut cand: Vec<BatchCand> = Vec::with_capacity(gathered.len());
+        self.held.clear();
         for &slot in &gathered {
             let n = &self.nodes[slot as usize];
             let rec = self.refused.get(&slot);
-            if rec.is_some_and(|r| self.witness_held(&r.wit)) {
+            if let Some(owners) = rec.and_then(|r| self.witness_held(&r.wit)) {
+                self.held.push((slot, owners));
                 continue;
             }
             cand.push(BatchCand {
@@ -1808,18 +1816,31 @@ impl AdaptiveMesh {
         present(self, w[0]) && present(self, w[1]) && present(self, w[2]) && present(self, w[3])
     }
 
-    /// Whether every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not
-    /// a candidate of the batch being gathered (not flagged [`BATCHED`]).
+    /// When every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not a
+    /// candidate of the batch being gathered (not flagged [`BATCHED`]): those owners.
     #[inline]
-    fn witness_held(&self, w: &Witness) -> bool {
-        w.iter().all(|&(s, k)| {
-            s == NONE
-                || (self.vref[s as usize] > 0
-                    && self.vkey[s as usize] == k as u64
-                    && self.vowner[s as usize]
-                        .iter()
-                        .any(|&o| o != NONE && self.nodes[o as usize].flags & BATCHED == 0))
-        })
+    fn witness_held(&self, w: &Witness) -> Option<[u32; 4]> {
+        let mut owners = [NONE; 4];
+        for (o, &(s, k)) in owners.iter_mut().zip(w) {
+            if s == NONE {
+                continue;
+            }
+            if self.vref[s as usize] == 0 || self.vkey[s as usize] != k as u64 {
+                return None;
+            }
+            *o = *self.vowner[s as usize]
+                .iter()
+                .find(|&&o| o != NONE && self.nodes[o as usize].flags & BATCHED == 0)?;
+        }
+        Some(owners)
+    }
+
+    /// The candidates the last [`Self::coarsen_batch_at`] settled by their refusal witness, each
+    /// with the refined tets outside the batch whose midpoints make the witness (slots, `NONE`
+    /// padding). Such a candidate stays refused in any batch that leaves all of them out, until
+    /// one of them changes.
+    pub fn batch_held(&self) -> &[(u32, [u32; 4])] {
+        &self.held
     }
 
     /// Whether batch candidate `c` would be forced with the reference counts as they stand (the

@@ -538,7 +538,12 @@ pub struct Selector {
     /// The candidate list holds every candidate of this epoch (see the type's docs).
     list_epoch: Option<u64>,
     list: Vec<u32>,
-    in_list: SegVec<bool>,
+    /// Per slot: [`LISTED`], and [`PARKED`] for a listed merge candidate the last batch settled
+    /// by owners outside it (see [`AdaptiveMesh::batch_held`]): the listed scan leaves it out
+    /// until one of those owners is queued to merge or changes, and it is refused meanwhile.
+    in_list: SegVec<u8>,
+    /// Parked slots by the owner slot that holds them.
+    waiters: rustc_hash::FxHashMap<u32, Vec<u32>>,
     info: SegVec<SlotInfo>,
     /// Per slot: the status last evaluated; reused while the epoch lasts and the slot does not
     /// change (see `Self::eval`).
@@ -604,6 +609,11 @@ struct Kinetic {
     pass: Option<(f64, f64)>,
     cursor: usize,
 }
+
+/// [`Selector::in_list`]: on the candidate list.
+const LISTED: u8 = 1;
+/// [`Selector::in_list`]: parked.
+const PARKED: u8 = 2;
 
 /// Bit `j` set when slot `j` is due, `ue[j] ≤ we` or `uf[j] ≤ wf`, for up to 64 slots. On x86-64
 /// four slots per vector compare (SSE2, always there); one slot at a time took 6–7 instructions, a
@@ -681,6 +691,7 @@ impl Selector {
             list_epoch: None,
             list: Vec::new(),
             in_list: SegVec::new(),
+            waiters: Default::default(),
             info: SegVec::new(),
             stat: SegVec::new(),
             geo: SegVec::new(),
@@ -757,6 +768,12 @@ impl Selector {
         use std::mem::size_of;
         let k = &self.kin;
         self.in_list.bytes()
+            + self.waiters.capacity() * (size_of::<(u32, Vec<u32>)>() + 1)
+            + self
+                .waiters
+                .values()
+                .map(|v| v.capacity() * 4)
+                .sum::<usize>()
             + self.info.bytes()
             + self.stat.bytes()
             + self.geo.bytes()
@@ -1232,20 +1249,65 @@ impl Selector {
     #[inline]
     fn list_add(&mut self, slot: usize) {
         if slot >= self.in_list.len() {
-            self.in_list.resize(slot + 1, false);
+            self.in_list.resize(slot + 1, 0);
         }
-        if !self.in_list[slot] {
-            self.in_list[slot] = true;
+        if self.in_list[slot] & LISTED == 0 {
+            self.in_list[slot] = LISTED;
             self.list.push(slot as u32);
         }
     }
 
     fn list_clear(&mut self) {
         for &s in &self.list {
-            self.in_list[s as usize] = false;
+            self.in_list[s as usize] = 0;
         }
         self.list.clear();
         self.list_epoch = None;
+        self.waiters.clear();
+    }
+
+    /// Parks the listed candidates the last merge batch settled by owners outside it.
+    fn park(&mut self, mesh: &AdaptiveMesh) {
+        for &(slot, owners) in mesh.batch_held() {
+            let s = slot as usize;
+            if s < self.in_list.len() && self.in_list[s] & LISTED != 0 {
+                self.in_list[s] |= PARKED;
+                for o in owners {
+                    if o != u32::MAX {
+                        self.waiters.entry(o).or_default().push(slot);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Unparks the slots parked on `owner` (it changed, or is queued to merge); with `now`, the
+    /// view of a listed scan, queues them too (the scan may have passed them), and so on for
+    /// the slots parked on those.
+    fn wake(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>) {
+        if !self.waiters.contains_key(&owner) {
+            return;
+        }
+        let mut owners = vec![owner];
+        while let Some(o) = owners.pop() {
+            let Some(parked) = self.waiters.remove(&o) else {
+                continue;
+            };
+            for &a in &parked {
+                let i = a as usize;
+                if i >= self.in_list.len() || self.in_list[i] & PARKED == 0 {
+                    continue;
+                }
+                self.in_list[i] &= !PARKED;
+                if let Some((mesh, buf, view, mode)) = now {
+                    let s = self.eval(mesh, buf, view, mode, i);
+                    if let (Status::Merge(_), Some(n)) = (s, mesh.red_node(i)) {
+                        self.push(n.id, a, s);
+                        owners.push(a);
+                    }
+                }
+            }
+        }
     }
 
     /// Queues the slots the mesh changed since the last look (see [`Self::flush_step`]); false
@@ -1274,6 +1336,12 @@ impl Selector {
                 for i in from..self.todo.len() {
                     let s = self.todo[i];
                     self.forget(s);
+                    if let Some(f) = self.in_list.get(s as usize) {
+                        if f & PARKED != 0 {
+                            self.in_list[s as usize] &= !PARKED;
+                        }
+                    }
+                    self.wake(s, None);
                 }
                 true
             }
@@ -1282,6 +1350,11 @@ impl Selector {
         self.seen = seq;
         mesh.trim_changes(seq);
         if !ok {
+            // changes unknown: no parked slot can be trusted
+            for &s in &self.list {
+                self.in_list[s as usize] &= !PARKED;
+            }
+            self.waiters.clear();
             self.stat.clear();
             self.scan_ok = false;
             self.list_epoch = None;
@@ -1493,16 +1566,23 @@ impl Selector {
                 let mut end = end;
                 while i < end {
                     let slot = self.list[i] as usize;
-                    let s = self.eval(mesh, buf, view, mode, slot);
                     st.scanned += 1;
+                    if self.in_list[slot] & PARKED != 0 {
+                        i += 1;
+                        continue;
+                    }
+                    let s = self.eval(mesh, buf, view, mode, slot);
                     if s == Status::Keep {
-                        self.in_list[slot] = false;
+                        self.in_list[slot] = 0;
                         self.list.swap_remove(i);
                         end = end.min(self.list.len());
                         continue;
                     }
                     let id = mesh.red_node(slot).expect("a candidate is live").id;
                     self.push(id, slot as u32, s);
+                    if let Status::Merge(_) = s {
+                        self.wake(slot as u32, Some((mesh, buf, view, mode)));
+                    }
                     i += 1;
                 }
                 self.lcursor = i;
@@ -1692,6 +1772,9 @@ impl Selector {
                             let id = mesh.red_node(slot).expect("a candidate is live").id;
                             self.push(id, slot as u32, s);
                             self.list_add(slot);
+                            if let Status::Merge(_) = s {
+                                self.wake(slot as u32, None);
+                            }
                         }
                     }
                 }
@@ -1883,6 +1966,9 @@ impl Selector {
                     return Err(e);
                 }
             };
+            if !self.reference {
+                self.park(mesh);
+            }
             st.merges += held;
             self.sweep_changes += held;
             self.sweep_refused += batch.len() - held;
@@ -1899,6 +1985,7 @@ impl Selector {
                         let (s, ps) = self.status_of(mesh, buf, view, mode, p, u32::MAX);
                         if let Status::Merge(_) = s {
                             self.push(p, ps, s);
+                            self.wake(ps, None);
                         }
                     }
                 }
