@@ -1966,7 +1966,9 @@ impl Selector {
                     return Err(e);
                 }
             };
-            if !self.reference {
+            // Parking needs every merge candidate of the sweep in this batch or an earlier one:
+            // a candidate still queued for a later chunk could be an owner that holds one here.
+            if !self.reference && self.merges.is_empty() {
                 self.park(mesh);
             }
             st.merges += held;

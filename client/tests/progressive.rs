@@ -82,6 +82,34 @@ fn orders_and_budgets_settle() {
     }
 }
 
+/// Budgets that cut merges into chunks, on a hierarchy large enough for groups of merges that
+/// only hold together: the settled mesh is the unbudgeted one from the same state (parked
+/// candidates must not outlive the chunk that could free them).
+#[test]
+fn chunked_merges_settle() {
+    let (base, nodes) = make_nodes(box5(4), harmonic);
+    for (seed, order) in [ArrivalOrder::Level, ArrivalOrder::Random]
+        .into_iter()
+        .enumerate()
+    {
+        let mut ns = nodes.clone();
+        order_nodes(&mut ns, order, seed as u64 + 3);
+        for tol in [12.5, 8.0, 5.0] {
+            for ops in [16, 64, 300] {
+                let c = RunConfig {
+                    steps: 60,
+                    per_step: 400,
+                    rotate: 0.08,
+                    budget_ops: Some(ops),
+                    ..cfg(Some(tol))
+                };
+                let r = run_progressive(&base, &ns, [-1.0, 1.0], &c, order).unwrap();
+                assert_eq!(r.final_same, Some(true), "{order:?} {tol}% {ops} ops");
+            }
+        }
+    }
+}
+
 /// Euler's formula on the box gives the leaf mesh's exact edge count.
 #[test]
 fn euler_edges() {
