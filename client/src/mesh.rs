@@ -1345,8 +1345,11 @@ impl AdaptiveMesh {
         }
     }
 
-    /// Pushes every leaf whose closure contains lattice point `w` of base tet `b` onto the worklist.
-    fn locate(&mut self, b: u32, w: &Bary) {
+    /// Pushes every leaf of level `≤ max_level` whose closure contains lattice point `w` of base tet
+    /// `b` onto the worklist. For the midpoint of a level-`k` edge, the leaves whose closure can
+    /// change are those of level `≤ k`: a finer leaf holding the point has it as a vertex (a lattice
+    /// tet holds no other point of its lattice), not as the midpoint of one of its edges.
+    fn locate(&mut self, b: u32, w: &Bary, max_level: u8) {
         let mut work = std::mem::take(&mut self.work);
         let tv = self.base_tets[b as usize];
         let first = (0..4).find(|&i| w[i] != 0).expect("zero weights");
@@ -1367,7 +1370,7 @@ impl AdaptiveMesh {
             }
             if ok {
                 let from = work.len();
-                self.descend(c, lam, &mut work);
+                self.descend(c, lam, max_level, &mut work);
                 // leaves already on the list are not queued twice
                 let mut j = from;
                 for i in from..work.len() {
@@ -1385,10 +1388,13 @@ impl AdaptiveMesh {
         self.work = work;
     }
 
-    fn descend(&self, slot: u32, lam: [i64; 4], out: &mut Vec<(u32, TetId)>) {
+    fn descend(&self, slot: u32, lam: [i64; 4], levels_left: u8, out: &mut Vec<(u32, TetId)>) {
         let n = &self.nodes[slot as usize];
         if n.is_leaf() {
             out.push((slot, n.id));
+            return;
+        }
+        if levels_left == 0 {
             return;
         }
         let maps = child_maps();
@@ -1402,7 +1408,7 @@ impl AdaptiveMesh {
                     continue 'child;
                 }
             }
-            self.descend(n.children + i as u32, mu, out);
+            self.descend(n.children + i as u32, mu, levels_left - 1, out);
         }
     }
 
@@ -1590,7 +1596,7 @@ impl AdaptiveMesh {
         self.count_in_parent(n.id, 1);
         for (e, &c) in created.iter().enumerate() {
             if c {
-                self.locate(lt.base, &lt.edge_midpoint(e));
+                self.locate(lt.base, &lt.edge_midpoint(e), level);
             }
         }
         Ok(())
@@ -2012,9 +2018,10 @@ impl AdaptiveMesh {
             }
         }
         self.queue(slot);
+        let level = self.forest.level(t);
         for (e, &r) in removed.iter().enumerate() {
             if r {
-                self.locate(lt.base, &lt.edge_midpoint(e));
+                self.locate(lt.base, &lt.edge_midpoint(e), level);
             }
         }
     }
