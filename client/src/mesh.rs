@@ -1665,7 +1665,11 @@ impl AdaptiveMesh {
     /// witness still present with the whole batch released settles it without the closure's test
     /// and without reading its children (repeatedly refused merges are the bulk of a
     /// view-dependent run's attempts); otherwise it is tested again. The records are bounded and
-    /// only save work ([`Self::clear_refusal_records`]).
+    /// only save work ([`Self::clear_refusal_records`]). Before any of that, a recorded candidate
+    /// whose witness vertices each have a remembered owner (a refined tet splitting that vertex's
+    /// edge) outside the batch is left out: forced whatever the batch releases, and leaving out a
+    /// candidate that is forced anyway changes no other outcome. [`Self::batch_held`] lists those
+    /// with their owners.
     pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
         self.coarsen_batch_at(ts, &[], buf)
     }

@@ -41,6 +41,7 @@ use crate::camera::Camera;
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError, RedNode, SegVec};
 use glam::{DVec3, Vec3};
+use rustc_hash::FxHashMap;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
 use std::fmt;
@@ -504,6 +505,14 @@ enum Status {
 /// how far the camera may move before its criterion could answer otherwise (see `Kinetic`), and a
 /// motion evaluates again only the slots whose certificates it uses up. Arrivals reported with
 /// [`Selector::notify_arrived`] change the status of the arrived nodes' subtrees only.
+///
+/// Merge candidates the mesh settles by refined tets outside their batch
+/// ([`AdaptiveMesh::batch_held`]) are *parked*: listed scans leave them out, which changes no
+/// outcome while those tets stay refined and out of the batches. When one of them is queued to
+/// merge by a listed scan, the candidates parked on it are queued with it (and, in turn, those
+/// parked on them); when one changes, or is queued by a full scan or as the parent of a merge,
+/// they are only unparked, for the next sweep. A batch that leaves merge candidates queued (under
+/// a budget) parks nothing: a later chunk could hold one of the owners.
 #[derive(Debug, Clone)]
 pub struct Selector {
     pub params: SelectParams,
@@ -543,7 +552,7 @@ pub struct Selector {
     /// until one of those owners is queued to merge or changes, and it is refused meanwhile.
     in_list: SegVec<u8>,
     /// Parked slots by the owner slot that holds them.
-    waiters: rustc_hash::FxHashMap<u32, Vec<u32>>,
+    waiters: FxHashMap<u32, Vec<u32>>,
     info: SegVec<SlotInfo>,
     /// Per slot: the status last evaluated; reused while the epoch lasts and the slot does not
     /// change (see `Self::eval`).
