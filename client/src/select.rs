@@ -601,15 +601,21 @@ struct Kinetic {
     epoch: Option<u64>,
     /// The view the bounds were last brought to.
     view: Option<View>,
-    /// Sums of the eye displacements, and of the plane displacement bounds.
+    /// Sums of the motion bounds for the eye distance and for the plane offsets, per unit of a
+    /// slot's *reach* `max(|c − o| + r, rho_floor)` (its bounding sphere's farthest distance from
+    /// the scene's centre `o`): a rotation by `θ` about `o` moves a point at most `2·sin(θ/2)`
+    /// times its distance from `o`, so slots near the centre keep their certificates longer.
     we: f64,
     wf: f64,
     /// Per slot: evaluate again once `we` or `wf` reaches these (rounded down).
     until_e: SegVec<f32>,
     until_f: SegVec<f32>,
-    /// Bounding box of the scene (the base vertices).
+    /// Bounding box of the scene (the base vertices), its centre and the least reach counted
+    /// (a quarter of its half diagonal: translations and the other bounds divide by it).
     lo: DVec3,
     hi: DVec3,
+    centre: DVec3,
+    rho_floor: f64,
     scene: bool,
     due: Vec<u32>,
     /// No slot's certificate ends at or below these bounds.
@@ -1108,6 +1114,9 @@ impl Selector {
             ((d - big_r).abs() - 1e-9 * (d + big_r) - 1e-12).max(0.0)
         };
         let (we, wf) = (self.kin.we, self.kin.wf);
+        // margins in units of the slot's reach (see `Kinetic::we`)
+        let reach = ((c - self.kin.centre).length() + r).max(self.kin.rho_floor);
+        let m_e = m_e / reach;
         if !self.params.frustum {
             return (status, f32_down(we + m_e), INF);
         }
@@ -1119,14 +1128,14 @@ impl Selector {
                 (
                     status,
                     f32_down(we + m_e),
-                    f32_down(wf + (min - eps).max(0.0)),
+                    f32_down(wf + (min - eps).max(0.0) / reach),
                 )
             } else {
                 (status, f32_down(we + m_e), INF) // leaving the view keeps it unwanted
             }
         } else {
             let worst = vals.iter().map(|&v| -v).fold(0.0, f64::max);
-            let m_f = (worst - eps).max(0.0);
+            let m_f = (worst - eps).max(0.0) / reach;
             // back in view and, unless already, over the threshold: wf bounds both motions
             let m = if err { m_f } else { m_f.max(m_e) };
             (status, INF, f32_down(wf + m))
@@ -1424,6 +1433,8 @@ impl Selector {
             }
             k.lo = lo;
             k.hi = hi;
+            k.centre = (lo + hi) * 0.5;
+            k.rho_floor = ((hi - lo).length() * 0.125).max(1e-9);
             k.scene = true;
         }
         k.epoch = Some(self.full_epoch);
@@ -1494,11 +1505,15 @@ impl Selector {
             .sqrt();
         let rot = |v: DVec3| r1 * r0.dot(v) + u1 * u0.dot(v) + f1 * f0.dot(v);
         let t = (view.eye - o - rot(old.eye - o)).length();
-        let rigid = s2 * rho + t;
+        // per unit of reach `ρ' ≥ rho_floor`: a point within `ρ'` of `o` moves at most
+        // `s2·ρ' + t ≤ ρ'·(s2 + t/rho_floor)`, and any bound `b` independent of the point is at most
+        // `ρ'·b/rho_floor`
+        let rf = k.rho_floor;
+        let rigid = s2 + t / rf;
         let slack = 1.0 + 1e-6;
-        let abs = 1e-9 * (rho + o.length() + view.eye.length() + 1.0);
-        k.we += dm.min(rigid) * slack + abs;
-        k.wf += (dm + dn * dmax).min(rigid) * slack + abs;
+        let abs = 1e-9 * (rho + o.length() + view.eye.length() + 1.0) / rf;
+        k.we += (dm / rf).min(rigid) * slack + abs;
+        k.wf += ((dm + dn * dmax) / rf).min(rigid) * slack + abs;
         k.view = Some(*view);
     }
 
