@@ -17,14 +17,10 @@ pub fn unit_to_u8(x: f64) -> u8 {
 impl Rgba8Image {
     /// From premultiplied linear colour over black, `[0, 1]` per channel.
     pub fn from_f64(width: u32, height: u32, rgba: &[[f64; 4]]) -> Self {
-        let q = unit_to_u8;
         Rgba8Image {
             width,
             height,
-            pixels: rgba
-                .iter()
-                .map(|p| [q(p[0]), q(p[1]), q(p[2]), q(p[3])])
-                .collect(),
+            pixels: rgba.iter().map(|p| p.map(unit_to_u8)).collect(),
         }
     }
 

@@ -1816,14 +1816,17 @@ impl AdaptiveMesh {
         Ok(held)
     }
 
+    /// Whether slot `s` holds a present vertex of key `k` (a witness entry's test).
+    #[inline(always)]
+    fn holds_vertex(&self, s: u32, k: u32) -> bool {
+        self.vref[s as usize] > 0 && self.vkey[s as usize] == k as u64
+    }
+
     /// Whether the vertices of witness `w` are all present (positive count, same key).
     #[inline]
     fn witness_present(&self, w: &Witness) -> bool {
-        #[inline(always)]
-        fn present(m: &AdaptiveMesh, (s, k): (u32, u32)) -> bool {
-            s == NONE || (m.vref[s as usize] > 0 && m.vkey[s as usize] == k as u64)
-        }
-        present(self, w[0]) && present(self, w[1]) && present(self, w[2]) && present(self, w[3])
+        let present = |(s, k): (u32, u32)| s == NONE || self.holds_vertex(s, k);
+        present(w[0]) && present(w[1]) && present(w[2]) && present(w[3])
     }
 
     /// When every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not a
@@ -1835,7 +1838,7 @@ impl AdaptiveMesh {
             if s == NONE {
                 continue;
             }
-            if self.vref[s as usize] == 0 || self.vkey[s as usize] != k as u64 {
+            if !self.holds_vertex(s, k) {
                 return None;
             }
             *o = *self.vowner[s as usize]

@@ -1299,6 +1299,18 @@ impl Selector {
         }
     }
 
+    /// Clears `slot`'s parked flag; whether it was parked.
+    #[inline]
+    fn unpark(&mut self, slot: u32) -> bool {
+        match self.in_list.get(slot as usize) {
+            Some(&f) if f & PARKED != 0 => {
+                self.in_list[slot as usize] = f & !PARKED;
+                true
+            }
+            _ => false,
+        }
+    }
+
     /// Unparks the slots parked on `owner` (it changed, or is queued to merge); with `now`, the
     /// view of a listed scan, queues them too (the scan may have passed them), and so on for
     /// the slots parked on those.
@@ -1312,14 +1324,12 @@ impl Selector {
                 continue;
             };
             for &a in &parked {
-                let i = a as usize;
-                if i >= self.in_list.len() || self.in_list[i] & PARKED == 0 {
+                if !self.unpark(a) {
                     continue;
                 }
-                self.in_list[i] &= !PARKED;
                 if let Some((mesh, buf, view, mode)) = now {
-                    let s = self.eval(mesh, buf, view, mode, i);
-                    if let (Status::Merge(_), Some(n)) = (s, mesh.red_node(i)) {
+                    let s = self.eval(mesh, buf, view, mode, a as usize);
+                    if let (Status::Merge(_), Some(n)) = (s, mesh.red_node(a as usize)) {
                         self.push(n.id, a, s);
                         owners.push(a);
                     }
@@ -1354,11 +1364,7 @@ impl Selector {
                 for i in from..self.todo.len() {
                     let s = self.todo[i];
                     self.forget(s);
-                    if let Some(f) = self.in_list.get(s as usize) {
-                        if f & PARKED != 0 {
-                            self.in_list[s as usize] &= !PARKED;
-                        }
-                    }
+                    self.unpark(s);
                     self.wake(s, None);
                 }
                 true
@@ -1369,8 +1375,8 @@ impl Selector {
         mesh.trim_changes(seq);
         if !ok {
             // changes unknown: no parked slot can be trusted
-            for &s in &self.list {
-                self.in_list[s as usize] &= !PARKED;
+            for i in 0..self.list.len() {
+                self.unpark(self.list[i]);
             }
             self.waiters.clear();
             self.stat.clear();
