@@ -384,8 +384,11 @@ impl<T: Ord> CandQueue<T> {
     }
 }
 
-/// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most.
+/// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most, when a batch is cut into chunks.
 const MERGE_CHUNK: usize = 256;
+/// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
+/// and at least half of the frame is left (see `Selector::apply_merges`).
+const WHOLE_MERGES: usize = 2048;
 /// Node slots scanned between two clock reads.
 const SCAN_CHUNK: usize = 512;
 /// Sweeps one unbudgeted [`Selector::converge`] may take before giving up.
@@ -522,6 +525,8 @@ pub struct Selector {
     sweep_changes: usize,
     /// Merges refused by the closure in this sweep.
     sweep_refused: usize,
+    /// Whether a merge batch of this sweep was cut into chunks (see `Selector::run`'s replay).
+    sweep_chunked: bool,
     /// This sweep merges all its candidates in one batch, without the budget: the last sweep
     /// changed nothing but refused merges that may only hold together (a group split across
     /// batches); run once before declaring convergence, so budgeted frames reach the unbudgeted mesh.
@@ -691,6 +696,7 @@ impl Selector {
             merges: CandQueue::default(),
             sweep_changes: 0,
             sweep_refused: 0,
+            sweep_chunked: false,
             consolidating: false,
             dirty: true,
             converged: false,
@@ -1732,7 +1738,6 @@ impl Selector {
                 self.full_epoch += 1;
             }
         }
-        let unlimited = budget.max_ops == usize::MAX && budget.max_time.is_none();
         let deadline = budget.max_time.map(|d| start + d);
         let scan_deadline = budget.max_time.map(|d| start + d / 2);
         let past = |t: Option<Instant>| t.is_some_and(|t| Instant::now() >= t);
@@ -1745,6 +1750,7 @@ impl Selector {
                 self.merges.clear();
                 self.sweep_changes = 0;
                 self.sweep_refused = 0;
+                self.sweep_chunked = false;
                 self.dirty = false;
                 self.sweep_epoch = self.epoch;
                 self.sweep_seq = mesh.change_seq();
@@ -1851,6 +1857,7 @@ impl Selector {
                     &mut ops,
                     half,
                     merge_deadline,
+                    scan_deadline,
                     &mut st,
                 )?;
             }
@@ -1873,6 +1880,7 @@ impl Selector {
                     &mut ops,
                     merge_ops,
                     merge_deadline,
+                    scan_deadline,
                     &mut st,
                 )?;
             }
@@ -1881,9 +1889,10 @@ impl Selector {
                 st.sweeps += 1;
                 self.cursor = 0;
                 if self.sweep_changes == 0 && !self.dirty {
-                    // Without a budget the last sweep merged all its candidates in one batch; if
-                    // it left the mesh as it was, a consolidating sweep would replay it exactly.
-                    let replay = unlimited
+                    // A sweep whose merges were never cut into chunks merged all its candidates
+                    // in one batch; if it left the mesh as it was, a consolidating sweep would
+                    // replay it exactly.
+                    let replay = !self.sweep_chunked
                         && !self.reference
                         && mesh.change_seq() == self.sweep_seq
                         && self.sweep_epoch == self.epoch;
@@ -1928,6 +1937,7 @@ impl Selector {
         ops: &mut usize,
         max_ops: usize,
         deadline: Option<Instant>,
+        whole_until: Option<Instant>,
         st: &mut FrameStats,
     ) -> Result<(), MeshError> {
         let mut batch = std::mem::take(&mut self.batch);
@@ -1938,10 +1948,23 @@ impl Selector {
             }
             batch.clear();
             slots.clear();
-            // one batch without a budget; chunks under an operation or time budget
-            let chunk = if max_ops == usize::MAX && deadline.is_none() {
+            // One batch without a budget, and under a time budget alone when few candidates wait
+            // and half of the frame is left: a batch finds every merge its candidates allow
+            // together, chunks only those each chunk allows, so chunking costs a consolidating
+            // sweep (level 5, 10%, 8 ms: 1,688 sweeps instead of 626, 2.7 times the attempts).
+            // Otherwise chunks, with a clock check between them.
+            let whole = max_ops == usize::MAX
+                && match deadline {
+                    None => true,
+                    Some(_) => {
+                        self.merges.len() <= WHOLE_MERGES
+                            && whole_until.is_some_and(|t| Instant::now() < t)
+                    }
+                };
+            let chunk = if whole {
                 usize::MAX
             } else {
+                self.sweep_chunked = true;
                 MERGE_CHUNK.min(max_ops - *ops)
             };
             // read what the last batch changed: the statuses of the other slots stay known

@@ -110,6 +110,39 @@ fn chunked_merges_settle() {
     }
 }
 
+/// A time budget that never runs out takes the unbudgeted run's path exactly: its merge batches
+/// are not cut into chunks (few candidates, most of the frame left), so no consolidating sweep.
+#[test]
+fn ample_time_budget_is_unbudgeted() {
+    let (base, nodes) = make_nodes(box5(4), harmonic);
+    for tol in [12.5, 5.0] {
+        let c = RunConfig {
+            steps: 40,
+            per_step: 400,
+            rotate: 0.08,
+            ..cfg(Some(tol))
+        };
+        let free = run_progressive(&base, &nodes, [-1.0, 1.0], &c, ArrivalOrder::Level).unwrap();
+        let timed = RunConfig {
+            budget_ms: Some(60_000.0),
+            ..c
+        };
+        let r = run_progressive(&base, &nodes, [-1.0, 1.0], &timed, ArrivalOrder::Level).unwrap();
+        assert!(free.merges > 0, "{tol}%: no merges to compare");
+        let path = |r: &tetwave_client::progressive::RunReport| {
+            (
+                r.splits,
+                r.merges,
+                r.sweeps,
+                r.sel_merge_attempts,
+                r.final_tets,
+            )
+        };
+        assert_eq!(path(&r), path(&free), "{tol}%");
+        assert_eq!(r.final_same, Some(true), "{tol}%");
+    }
+}
+
 /// Euler's formula on the box gives the leaf mesh's exact edge count.
 #[test]
 fn euler_edges() {
