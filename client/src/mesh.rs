@@ -8,9 +8,11 @@
 //! Storage is arrays + u32 indices + free lists, no pointer graph:
 //! - **nodes**: one [`Node`] per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
 //!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
-//!   through a free list of blocks. A node (32 bytes) keeps its id, its 4 vertex slots (hierarchy
-//!   vertex order), its first child slot, flags, and for a leaf its green pattern (the marked-edge
-//!   mask; the midpoints are looked up when the greens are listed).
+//!   through a free list of blocks. A node (16 bytes) keeps its id, its first child slot, flags,
+//!   and for a leaf its green pattern (the marked-edge mask; the midpoints are looked up when the
+//!   greens are listed). Vertex slots are kept per block: the parent's 4 corners and 6 edge
+//!   midpoints (40 bytes for 8 children; a child's 4 vertices are 4 of these, [`BEY_CHILDREN`]),
+//!   and a base tet's are its base mesh's.
 //! - **vertices**: slot arrays (key, position, value, edge endpoints, reference count, level, number of
 //!   dependants). Base vertices are slots `0..nv` (slot = key) and never go away. A non-base vertex, the
 //!   midpoint of an edge of a level-`k` tet, is present iff some refined level-`k` tet contains that
@@ -570,11 +572,10 @@ struct Refusal {
 
 const UNKNOWN: u32 = u32::MAX - 1;
 
-/// One node of the red tree (see the module docs): 32 bytes.
+/// One node of the red tree (see the module docs): 16 bytes.
 #[derive(Debug, Clone, Copy)]
 struct Node {
     id: TetId,
-    v: [u32; 4],
     children: u32,
     /// Marked edges of a leaf (its green pattern); 0 for refined nodes.
     mask: u8,
@@ -586,7 +587,6 @@ struct Node {
 impl Node {
     const DEAD: Node = Node {
         id: 0,
-        v: [NONE; 4],
         children: NONE,
         mask: 0,
         flags: 0,
@@ -679,6 +679,10 @@ pub struct AdaptiveMesh {
     domain_volume: f64,
 
     nodes: SegVec<Node>,
+    /// Per block of 8 children (block `b` = slots `n + 8b..n + 8b + 8`, `n` base tets): the
+    /// parent's 4 corners and 6 edge midpoints ([`BEY_CHILDREN`]'s points), from which
+    /// [`Self::node_verts`] reads a child's vertices (5 bytes per node instead of 16).
+    bverts: SegVec<[u32; 10]>,
     free_blocks: Vec<u32>,
     n_leaves: usize,
 
@@ -753,8 +757,8 @@ impl Clone for MeshUid {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RedNode {
     pub id: TetId,
-    /// Vertex slots, hierarchy vertex order.
-    pub v: [u32; 4],
+    /// Its node slot ([`AdaptiveMesh::node_verts`] gives its vertices).
+    pub slot: u32,
     pub leaf: bool,
     /// Lies outside the input domain.
     pub empty: bool,
@@ -824,7 +828,6 @@ impl AdaptiveMesh {
             }
             nodes.push(Node {
                 id: t as TetId,
-                v: *tv,
                 children: NONE,
                 mask: 0,
                 flags,
@@ -840,6 +843,7 @@ impl AdaptiveMesh {
             boundary,
             domain_volume,
             nodes,
+            bverts: SegVec::new(),
             free_blocks: Vec::new(),
             n_leaves: base.tets.len(),
             vkey: SegVec::new(),
@@ -913,15 +917,35 @@ impl AdaptiveMesh {
         if !n.alive() {
             return None;
         }
-        Some(self.red_view(n))
+        Some(self.red_view(slot as u32, n))
+    }
+
+    /// Vertex slots of the live node in slot `slot`, hierarchy vertex order: a base tet's own, a
+    /// child's from its block's 10 points (the parent's corners and edge midpoints, see
+    /// [`BEY_CHILDREN`]).
+    #[inline]
+    pub fn node_verts(&self, slot: usize) -> [u32; 4] {
+        match slot.checked_sub(self.base_tets.len()) {
+            None => self.base_tets[slot],
+            Some(r) => {
+                let p = &self.bverts[r >> 3];
+                BEY_CHILDREN[r & 7].map(|q| p[q])
+            }
+        }
+    }
+
+    /// The 10 points of the block whose first slot is `block`.
+    #[inline]
+    fn block_points(&self, block: u32) -> &[u32; 10] {
+        &self.bverts[(block as usize - self.base_tets.len()) >> 3]
     }
 
     #[inline]
-    fn red_view(&self, n: &Node) -> RedNode {
+    fn red_view(&self, slot: u32, n: &Node) -> RedNode {
         let leaf = n.is_leaf();
         RedNode {
             id: n.id,
-            v: n.v,
+            slot,
             leaf,
             empty: n.flags & EMPTY != 0,
             children_leaves: !leaf && n.nref == 0,
@@ -996,7 +1020,7 @@ impl AdaptiveMesh {
     /// The node of hierarchy tet `id`, if it is in the red tree.
     pub fn red_node_of(&self, id: TetId) -> Option<RedNode> {
         self.find(id)
-            .map(|s| self.red_view(&self.nodes[s as usize]))
+            .map(|s| self.red_view(s, &self.nodes[s as usize]))
     }
 
     /// Red splits and merges done so far, closure refinements included. Each split removes one leaf
@@ -1163,33 +1187,52 @@ impl AdaptiveMesh {
 
     /// Bytes held by the node, vertex and map storage (capacities).
     pub fn bytes_held(&self) -> usize {
+        self.bytes_parts().iter().map(|p| p.1).sum()
+    }
+
+    /// [`Self::bytes_held`] by part: nodes, vertices, key table, refusal records, the rest.
+    pub fn bytes_parts(&self) -> [(&'static str, usize); 5] {
         use std::mem::size_of;
-        self.nodes.bytes()
-            + self.free_blocks.capacity() * 4
-            + self.vkey.bytes()
-            + self.vpos.capacity() * 12
-            + self.vval.capacity() * 4
-            + self.vends.bytes()
-            + self.vref.bytes()
-            + self.vlevel.bytes()
-            + self.vdeps.bytes()
-            + self.vowner.bytes()
-            + self.free_vertices.capacity() * 4
-            + self.by_key.bytes()
-            + self.work.capacity() * size_of::<(u32, TetId)>()
-            + self.held.capacity() * size_of::<(u32, [u32; 4])>()
-            + self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)
-            + self.changes.capacity() * size_of::<SlotChange>()
+        [
+            (
+                "nodes",
+                self.nodes.bytes() + self.bverts.bytes() + self.free_blocks.capacity() * 4,
+            ),
+            (
+                "vertices",
+                self.vkey.bytes()
+                    + self.vpos.capacity() * 12
+                    + self.vval.capacity() * 4
+                    + self.vends.bytes()
+                    + self.vref.bytes()
+                    + self.vlevel.bytes()
+                    + self.vdeps.bytes()
+                    + self.vowner.bytes()
+                    + self.free_vertices.capacity() * 4,
+            ),
+            ("keys", self.by_key.bytes()),
+            (
+                "refusals",
+                self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)
+                    + self.held.capacity() * size_of::<(u32, [u32; 4])>(),
+            ),
+            (
+                "work",
+                self.work.capacity() * size_of::<(u32, TetId)>()
+                    + self.changes.capacity() * size_of::<SlotChange>(),
+            ),
+        ]
     }
 
     // ---------------------------------------------------------------- leaf mesh
 
     /// Calls `f` with every tet of the leaf mesh (red leaves and green pieces), positively oriented.
     pub fn for_each_leaf_tet(&self, mut f: impl FnMut(LeafTet)) {
-        for n in self.nodes.iter() {
+        for (slot, n) in self.nodes.iter().enumerate() {
             if !n.alive() || !n.is_leaf() {
                 continue;
             }
+            let nv = self.node_verts(slot);
             let empty = n.flags & EMPTY != 0;
             let flip = n.flags & FLIP != 0;
             let mut emit = |v: [u32; 4]| {
@@ -1202,10 +1245,10 @@ impl AdaptiveMesh {
                 })
             };
             if n.mask == 0 {
-                emit(n.v);
+                emit(nv);
             } else {
                 let (mid, mkey) = self.green_mids(n);
-                green_split(n.v, n.mask, &mid, &mkey, &mut emit);
+                green_split(nv, n.mask, &mid, &mkey, &mut emit);
             }
         }
     }
@@ -1515,6 +1558,7 @@ impl AdaptiveMesh {
                 for _ in 0..8 {
                     self.nodes.push(Node::DEAD);
                 }
+                self.bverts.push([NONE; 10]);
                 b
             }
         }
@@ -1534,11 +1578,12 @@ impl AdaptiveMesh {
         if level >= self.forest.levels {
             return Err(MeshError::Finest(n.id));
         }
+        let nv = self.node_verts(slot as usize);
         let mut pts = [0u32; 10];
-        pts[..4].copy_from_slice(&n.v);
+        pts[..4].copy_from_slice(&nv);
         let mut created = [false; 6];
         for (e, &(a, b)) in EDGES.iter().enumerate() {
-            let (sa, sb) = (n.v[a], n.v[b]);
+            let (sa, sb) = (nv[a], nv[b]);
             let w = lt.edge_midpoint(e);
             let key = self.keys.key(lt.base, &w);
             let s = match self.by_key.get(key) {
@@ -1567,8 +1612,10 @@ impl AdaptiveMesh {
             }
         }
         let block = self.alloc_block();
+        let bi = (block as usize - self.base_tets.len()) >> 3;
+        self.bverts[bi] = pts;
         let maps = child_maps();
-        for (i, c) in BEY_CHILDREN.iter().enumerate() {
+        for i in 0..8 {
             let mut flags = ALIVE | (n.flags & (EMPTY | FLIP));
             if maps.flip[i] {
                 flags ^= FLIP;
@@ -1579,7 +1626,6 @@ impl AdaptiveMesh {
             let id = self.forest.child(n.id, i);
             self.nodes[(block + i as u32) as usize] = Node {
                 id,
-                v: c.map(|p| pts[p]),
                 children: NONE,
                 mask: 0,
                 flags: flags | QUEUED,
@@ -1974,9 +2020,8 @@ impl AdaptiveMesh {
     /// `T0 = [x0, x01, x02, x03]`, `T1 = [x01, x1, x12, x13]`, `T2 = [x02, x12, x2, x23]`).
     #[inline]
     fn child_mids(&self, n: &Node) -> [u32; 6] {
-        let c = n.children as usize;
-        let (c0, c1, c2) = (self.nodes[c].v, self.nodes[c + 1].v, self.nodes[c + 2].v);
-        let m = [c0[1], c0[2], c0[3], c1[2], c1[3], c2[3]];
+        let p = self.block_points(n.children);
+        let m = [p[4], p[5], p[6], p[7], p[8], p[9]];
         debug_assert_eq!(
             m,
             self.lattice_mids(&self.lattice_of(n.id), self.forest.level(n.id))
@@ -2136,7 +2181,7 @@ impl AdaptiveMesh {
             alive_nodes += 1;
             for i in 0..4 {
                 let want = self.keys.key(lt.base, &lt.v[i]);
-                let s = n.v[i];
+                let s = self.node_verts(slot as usize)[i];
                 let have = (s != NONE && self.vref[s as usize] != 0).then(|| self.vkey[s as usize]);
                 if have != Some(want) {
                     return Err(ConformityError::VertexMismatch {
@@ -2195,7 +2240,8 @@ impl AdaptiveMesh {
                 });
             }
             // pieces over (slot, lattice point)
-            let v: [(u32, Bary); 4] = std::array::from_fn(|i| (n.v[i], lt.v[i]));
+            let nv = self.node_verts(slot as usize);
+            let v: [(u32, Bary); 4] = std::array::from_fn(|i| (nv[i], lt.v[i]));
             let midp: [(u32, Bary); 6] = std::array::from_fn(|e| (mid[e], lt.edge_midpoint(e)));
             let mkey: [u64; 6] = std::array::from_fn(|e| {
                 if mid[e] != NONE {
@@ -2414,8 +2460,8 @@ mod tests {
     }
 
     #[test]
-    fn node_is_32_bytes() {
-        assert_eq!(std::mem::size_of::<Node>(), 32);
+    fn node_is_16_bytes() {
+        assert_eq!(std::mem::size_of::<Node>(), 16);
     }
 
     #[test]

@@ -844,7 +844,7 @@ impl Selector {
         view: &View,
         n: &RedNode,
     ) -> Option<f64> {
-        let (c, r) = bounding_sphere(mesh, &n.v);
+        let (c, r) = bounding_sphere(mesh, &mesh.node_verts(n.slot as usize));
         self.sphere_error(view, c, r, buf.subtree_max(n.id))
     }
 
@@ -945,7 +945,7 @@ impl Selector {
 
     /// The cached bounding sphere of node `n` in `slot` (after [`Self::info_of`]).
     #[inline(always)]
-    fn sphere_of(&mut self, mesh: &AdaptiveMesh, slot: usize, n: &RedNode) -> (DVec3, f64) {
+    fn sphere_of(&mut self, mesh: &AdaptiveMesh, slot: usize) -> (DVec3, f64) {
         let i = &mut self.info[slot];
         if !i.geo {
             if slot >= self.geo.len() {
@@ -953,7 +953,7 @@ impl Selector {
                     .resize(mesh.node_slot_len().max(slot + 1), (Vec3::ZERO, 0.0));
             }
             i.geo = true;
-            self.geo[slot] = sphere32(mesh, &n.v);
+            self.geo[slot] = sphere32(mesh, &mesh.node_verts(slot));
         }
         let (c, r) = self.geo[slot];
         (c.as_dvec3(), r as f64)
@@ -978,7 +978,7 @@ impl Selector {
         if mode == Mode::Complete {
             return (Some((levels - i.level) as f64), i);
         }
-        let (c, r) = self.sphere_of(mesh, slot, n);
+        let (c, r) = self.sphere_of(mesh, slot);
         let e = self
             .sphere_error(view, c, r, Some(i.smax))
             .filter(|&e| e > view.tol_px);
@@ -1087,7 +1087,7 @@ impl Selector {
             return (s, INF, INF);
         }
         // the criterion, as `want_split` computes it
-        let (c, r) = self.sphere_of(mesh, slot, &n);
+        let (c, r) = self.sphere_of(mesh, slot);
         // `View::sphere_visible` and `Self::weighted_error` in steps whose terms the certificate
         // below uses again
         let x = view.plane_offsets(c);
@@ -1190,7 +1190,7 @@ impl Selector {
             return Status::Keep;
         }
         let smax = i.present.then_some(i.smax);
-        let (c, r) = self.sphere_of(mesh, slot, n);
+        let (c, r) = self.sphere_of(mesh, slot);
         Status::Merge(self.sphere_error(view, c, r, smax).unwrap_or(-1.0))
     }
 

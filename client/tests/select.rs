@@ -69,7 +69,7 @@ fn frustum_outside_stays_coarse() {
         let Some(n) = mesh.red_node(slot) else {
             continue;
         };
-        let (ctr, r) = bounding_sphere(&mesh, &n.v);
+        let (ctr, r) = bounding_sphere(&mesh, &mesh.node_verts(slot));
         if !view.sphere_visible(ctr, r) && !n.leaf && n.children_leaves {
             outside_refined += 1;
             let mut m2 = mesh.clone();
