@@ -203,6 +203,29 @@ impl Forest {
 /// Barycentric lattice weights of a point with respect to a base tet, summing to `m = 2^L`.
 pub type Bary = [u32; 4];
 
+/// Per Bey child and vertex: the two parent vertices it is the midpoint of (the same twice for a
+/// corner), from [`BEY_CHILDREN`] and [`EDGES`].
+const CHILD_PAIRS: [[(u8, u8); 4]; 8] = child_pairs();
+
+const fn child_pairs() -> [[(u8, u8); 4]; 8] {
+    let mut out = [[(0u8, 0u8); 4]; 8];
+    let mut i = 0;
+    while i < 8 {
+        let mut j = 0;
+        while j < 4 {
+            let p = BEY_CHILDREN[i][j];
+            out[i][j] = if p < 4 {
+                (p as u8, p as u8)
+            } else {
+                (EDGES[p - 4].0 as u8, EDGES[p - 4].1 as u8)
+            };
+            j += 1;
+        }
+        i += 1;
+    }
+    out
+}
+
 /// Lattice of a forest's finest level: `m = 2^levels` steps along every base edge.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Lattice {
@@ -290,28 +313,23 @@ impl LatticeTet {
         p
     }
 
-    /// Split point `p` (0..4 a vertex, 4..10 the midpoint of edge `p − 4`).
-    #[inline]
-    fn split_point(&self, p: usize) -> Bary {
-        if p < 4 {
-            self.v[p]
-        } else {
-            self.edge_midpoint(p - 4)
-        }
-    }
-
-    /// Child `i` in Bey order.
+    /// Child `i` in Bey order: each vertex is `(v[a] + v[b]) / 2` for a pair of parent vertices
+    /// (`a = b` at a corner), branch-free (the mesh's closure computes one per queued leaf).
     #[inline]
     pub fn child(&self, i: usize) -> Self {
-        let c = BEY_CHILDREN[i];
+        let pairs = &CHILD_PAIRS[i];
         LatticeTet {
             base: self.base,
-            v: [
-                self.split_point(c[0]),
-                self.split_point(c[1]),
-                self.split_point(c[2]),
-                self.split_point(c[3]),
-            ],
+            v: std::array::from_fn(|j| {
+                let (a, b) = pairs[j];
+                let (x, y) = (&self.v[a as usize], &self.v[b as usize]);
+                [
+                    (x[0] + y[0]) >> 1,
+                    (x[1] + y[1]) >> 1,
+                    (x[2] + y[2]) >> 1,
+                    (x[3] + y[3]) >> 1,
+                ]
+            }),
         }
     }
 
@@ -492,6 +510,24 @@ mod tests {
                 assert_eq!(c.edge_midpoint(e), midpoint(&p[x], &p[y]));
             }
         }
+    }
+
+    #[test]
+    fn child_matches_split_points() {
+        // `child` (pair table) against `children` (the 10 split points), levels 1 to 3
+        let lat = Lattice { levels: 4 };
+        let mut todo = vec![(LatticeTet::base_tet(lat, 2), 0)];
+        let mut seen = 0;
+        while let Some((t, depth)) = todo.pop() {
+            for (i, c) in t.children().iter().enumerate() {
+                assert_eq!(t.child(i), *c);
+                seen += 1;
+                if depth + 1 < 3 {
+                    todo.push((*c, depth + 1));
+                }
+            }
+        }
+        assert_eq!(seen, 8 + 64 + 512);
     }
 
     #[test]
