@@ -195,12 +195,16 @@ fn child_weights(lam: [i64; 4]) -> ([[i64; 4]; 8], u8) {
         [-a3, c, d1, -b],
         [d0, -c, -a2, -b],
     ];
-    let mut holds = 0u8;
-    for (i, m) in mu.iter().enumerate() {
-        if m[0] >= 0 && m[1] >= 0 && m[2] >= 0 && m[3] >= 0 {
-            holds |= 1 << i;
-        }
-    }
+    // with `lam ≥ 0` every `2λ_j` is too, so only the other weights decide
+    debug_assert!(lam.iter().all(|&l| l >= 0), "{lam:?}");
+    let holds = (a0 >= 0) as u8
+        | ((a1 >= 0) as u8) << 1
+        | ((a2 >= 0) as u8) << 2
+        | ((a3 >= 0) as u8) << 3
+        | ((b >= 0 && c >= 0 && a0 <= 0) as u8) << 4
+        | ((b >= 0 && a1 <= 0 && c <= 0) as u8) << 5
+        | ((a3 <= 0 && c >= 0 && b <= 0) as u8) << 6
+        | ((c <= 0 && a2 <= 0 && b <= 0) as u8) << 7;
     (mu, holds)
 }
 
