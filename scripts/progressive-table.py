@@ -1,0 +1,60 @@
+#!/usr/bin/env python3
+"""Prints the README's Table 2 rows (level-5 runs without a budget) from out/bench-progressive.jsonl,
+next to the thesis' figures (their 2007 machine), and one line per other run.
+
+Usage: scripts/progressive-table.py [out/bench-progressive.jsonl]
+"""
+import json
+import sys
+
+# Thesis Table 2 (Harmonic, 182,819 tets): avg tets, vertices, edges, MB, refine ms per step
+THESIS = {
+    "20%": (19383, 3757, 24753, 6.39, 26),
+    "15%": (30913, 6474, 38399, 7.42, 37),
+    "12.5%": (105940, 24130, 128792, 14.15, 235),
+    "10%": (161683, 28213, 197454, 18.99, 399),
+    "6.25%": (177744, 29083, 218458, 20.15, 296),
+    "simple": (182819, 29759, 225449, 20.56, 183),
+}
+
+
+def main() -> None:
+    path = sys.argv[1] if len(sys.argv) > 1 else "out/bench-progressive.jsonl"
+    runs = [json.loads(line) for line in open(path) if line.strip()]
+    print(
+        "| tolerance | avg tets ours / thesis | vertices ours / thesis | edges ours / thesis "
+        "| MB: mesh + buffer, + selector / thesis | B per tet: mesh, selector "
+        "| refine ms per step: ours avg / max, thesis avg "
+        "| tets created+removed /s (end to end / mesh ops only) |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for r in runs:
+        if r["run"] != "l5":
+            continue
+        t = THESIS.get(r["tol"])
+        if t is None:
+            continue
+        sel_b = r["sel_mb"] * 1e6 / max(r["avg_tets"], 1.0)
+        name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+        print(
+            f"| {name} | {r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
+            f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]} "
+            f"| {r['avg_bytes_per_tet']:.1f}, {sel_b:.1f} "
+            f"| {r['avg_refine_ms']:.2f} / {r['max_refine_ms']:.2f}, {t[4]} "
+            f"| {r['tets_per_s'] / 1e6:.2f} M / {r['op_tets_per_s'] / 1e6:.2f} M |"
+        )
+    print()
+    print("run, tol: M tets/s end to end; max / avg refine ms; mesh B per tet (avg), per leaf at the end;")
+    print("          selector B per tet (avg); final = unbudgeted (settle frames)")
+    for r in runs:
+        sel_b = r["sel_mb"] * 1e6 / max(r["avg_tets"], 1.0)
+        print(
+            f"{r['run']:>11} {r['tol']:>6}: {r['tets_per_s'] / 1e6:.2f} M/s; "
+            f"{r['max_refine_ms']:.2f} / {r['avg_refine_ms']:.2f} ms; "
+            f"{r['avg_bytes_per_tet']:.1f}, {r['bytes_per_leaf']:.1f} B; {sel_b:.1f} B; "
+            f"{r['final_same']} ({r['settle_frames']})"
+        )
+
+
+if __name__ == "__main__":
+    main()
