@@ -387,7 +387,8 @@ impl<T: Ord> CandQueue<T> {
 /// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most, when a batch is cut into chunks.
 const MERGE_CHUNK: usize = 256;
 /// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
-/// and at least half of the frame is left (see `Selector::apply_merges`).
+/// and at least half of the frame is left, and the size of a chunk taken then when more wait (see
+/// `Selector::apply_merges`).
 const WHOLE_MERGES: usize = 2048;
 /// Node slots scanned between two clock reads.
 const SCAN_CHUNK: usize = 512;
@@ -1953,19 +1954,21 @@ impl Selector {
             // together, chunks only those each chunk allows, so chunking costs a consolidating
             // sweep (level 5, 10%, 8 ms: 1,688 sweeps instead of 626, 2.7 times the attempts).
             // Otherwise chunks, with a clock check between them.
+            let early = max_ops == usize::MAX && whole_until.is_some_and(|t| Instant::now() < t);
             let whole = max_ops == usize::MAX
                 && match deadline {
                     None => true,
-                    Some(_) => {
-                        self.merges.len() <= WHOLE_MERGES
-                            && whole_until.is_some_and(|t| Instant::now() < t)
-                    }
+                    Some(_) => early && self.merges.len() <= WHOLE_MERGES,
                 };
             let chunk = if whole {
                 usize::MAX
             } else {
                 self.sweep_chunked = true;
-                MERGE_CHUNK.min(max_ops - *ops)
+                if early {
+                    WHOLE_MERGES
+                } else {
+                    MERGE_CHUNK.min(max_ops - *ops)
+                }
             };
             // read what the last batch changed: the statuses of the other slots stay known
             if !self.reference {

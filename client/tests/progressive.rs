@@ -143,6 +143,34 @@ fn ample_time_budget_is_unbudgeted() {
     }
 }
 
+/// Sweeps with more merge candidates than one uncut batch takes under a time budget (2,048): the
+/// budgeted run cuts them into chunks (seen as extra, consolidating sweeps) and still settles on
+/// the unbudgeted mesh.
+#[test]
+fn large_merge_sweeps_under_a_time_budget_settle() {
+    let (base, nodes) = make_nodes(box5(5), harmonic);
+    let c = RunConfig {
+        steps: 12,
+        per_step: 20_000,
+        rotate: 0.9,
+        ..cfg(Some(4.0))
+    };
+    let free = run_progressive(&base, &nodes, [-1.0, 1.0], &c, ArrivalOrder::Level).unwrap();
+    let timed = RunConfig {
+        budget_ms: Some(60_000.0),
+        ..c
+    };
+    let r = run_progressive(&base, &nodes, [-1.0, 1.0], &timed, ArrivalOrder::Level).unwrap();
+    assert!(
+        r.sweeps > free.sweeps,
+        "no sweep was cut into chunks: {} sweeps, {} without a budget",
+        r.sweeps,
+        free.sweeps
+    );
+    assert_eq!(r.final_same, Some(true));
+    assert_eq!(r.final_tets, free.final_tets);
+}
+
 /// Euler's formula on the box gives the leaf mesh's exact edge count.
 #[test]
 fn euler_edges() {
