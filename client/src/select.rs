@@ -2006,6 +2006,10 @@ impl Selector {
                 self.merges.push(c);
             }
             self.unordered = all;
+            if chunk == usize::MAX && !self.merges.is_empty() {
+                // a whole batch the clock cut: its candidates are split across batches
+                self.sweep_chunked = true;
+            }
             if batch.is_empty() {
                 continue;
             }
