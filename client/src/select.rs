@@ -635,6 +635,9 @@ struct Kinetic {
 const LISTED: u8 = 1;
 /// [`Selector::in_list`]: parked.
 const PARKED: u8 = 2;
+/// [`Selector::in_list`]: may have slots parked on it (set whenever `Selector::waiters` has the
+/// slot, possibly left set after): lets `Selector::wake` skip the map for the others.
+const WAITED: u8 = 4;
 
 /// Bit `j` set when slot `j` is due, `ue[j] ≤ we` or `uf[j] ≤ wf`, for up to 64 slots. On x86-64
 /// four slots per vector compare (SSE2, always there); one slot at a time took 6–7 instructions, a
@@ -1277,7 +1280,7 @@ impl Selector {
             self.in_list.resize(slot + 1, 0);
         }
         if self.in_list[slot] & LISTED == 0 {
-            self.in_list[slot] = LISTED;
+            self.in_list[slot] |= LISTED;
             self.list.push(slot as u32);
         }
     }
@@ -1300,6 +1303,11 @@ impl Selector {
                 for o in owners {
                     if o != u32::MAX {
                         self.waiters.entry(o).or_default().push(slot);
+                        let o = o as usize;
+                        if o >= self.in_list.len() {
+                            self.in_list.resize(o + 1, 0);
+                        }
+                        self.in_list[o] |= WAITED;
                     }
                 }
             }
@@ -1321,7 +1329,24 @@ impl Selector {
     /// Unparks the slots parked on `owner` (it changed, or is queued to merge); with `now`, the
     /// view of a listed scan, queues them too (the scan may have passed them), and so on for
     /// the slots parked on those.
+    #[inline]
     fn wake(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>) {
+        if self
+            .in_list
+            .get(owner as usize)
+            .is_some_and(|&f| f & WAITED != 0)
+        {
+            self.wake_parked(owner, now);
+        }
+    }
+
+    /// [`Self::wake`] for an owner flagged [`WAITED`].
+    #[inline(never)]
+    fn wake_parked(
+        &mut self,
+        owner: u32,
+        now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>,
+    ) {
         if !self.waiters.contains_key(&owner) {
             return;
         }
@@ -1330,6 +1355,7 @@ impl Selector {
             let Some(parked) = self.waiters.remove(&o) else {
                 continue;
             };
+            self.in_list[o as usize] &= !WAITED;
             for &a in &parked {
                 if !self.unpark(a) {
                     continue;
@@ -1610,7 +1636,7 @@ impl Selector {
                     }
                     let s = self.eval(mesh, buf, view, mode, slot);
                     if s == Status::Keep {
-                        self.in_list[slot] = 0;
+                        self.in_list[slot] &= WAITED;
                         self.list.swap_remove(i);
                         end = end.min(self.list.len());
                         continue;
