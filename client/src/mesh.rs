@@ -132,48 +132,44 @@ pub fn green_pattern_ok(mask: u8) -> bool {
     }
 }
 
-/// Per Bey child: the integer matrix taking barycentric coordinates w.r.t. the parent to those w.r.t.
-/// the child (both scaled to the same sum), and whether the child is mirrored w.r.t. the parent.
-struct ChildMaps {
-    /// Read by the test of [`child_weights`], its closed form.
-    #[cfg_attr(not(test), allow(dead_code))]
-    to_child: [[[i64; 4]; 4]; 8],
-    flip: [bool; 8],
+/// Per Bey child: the matrix whose column `j` holds the parent barycentrics of child vertex `j`.
+fn child_matrix(c: &[usize; 4]) -> [[f64; 4]; 4] {
+    let mut m = [[0f64; 4]; 4];
+    for (j, &p) in c.iter().enumerate() {
+        if p < 4 {
+            m[p][j] = 1.0;
+        } else {
+            let (a, b) = EDGES[p - 4];
+            m[a][j] = 0.5;
+            m[b][j] = 0.5;
+        }
+    }
+    m
 }
 
-fn child_maps() -> &'static ChildMaps {
-    static CELL: OnceLock<ChildMaps> = OnceLock::new();
-    CELL.get_or_init(|| {
-        let mut to_child = [[[0i64; 4]; 4]; 8];
-        let mut flip = [false; 8];
-        for (i, c) in BEY_CHILDREN.iter().enumerate() {
-            // column j: parent barycentrics of child vertex j
-            let mut m = [[0f64; 4]; 4];
-            for (j, &p) in c.iter().enumerate() {
-                if p < 4 {
-                    m[p][j] = 1.0;
-                } else {
-                    let (a, b) = EDGES[p - 4];
-                    m[a][j] = 0.5;
-                    m[b][j] = 0.5;
-                }
-            }
-            flip[i] = det4(&m) < 0.0;
-            let inv = invert4(&m);
-            for r in 0..4 {
-                for s in 0..4 {
-                    let x = inv[r][s];
-                    assert!((x - x.round()).abs() < 1e-9, "Bey child map not integral");
-                    to_child[i][r][s] = x.round() as i64;
-                }
-            }
-        }
-        ChildMaps { to_child, flip }
+/// Per Bey child: whether it is mirrored w.r.t. its parent.
+fn child_flips() -> &'static [bool; 8] {
+    static CELL: OnceLock<[bool; 8]> = OnceLock::new();
+    CELL.get_or_init(|| std::array::from_fn(|i| det4(&child_matrix(&BEY_CHILDREN[i])) < 0.0))
+}
+
+/// Per Bey child: the integer matrix taking barycentric coordinates w.r.t. the parent to those
+/// w.r.t. the child (both scaled to the same sum); [`child_weights`] is its closed form.
+#[cfg(test)]
+fn to_child_maps() -> [[[i64; 4]; 4]; 8] {
+    std::array::from_fn(|i| {
+        let inv = invert4(&child_matrix(&BEY_CHILDREN[i]));
+        inv.map(|row| {
+            row.map(|x| {
+                assert!((x - x.round()).abs() < 1e-9, "Bey child map not integral");
+                x.round() as i64
+            })
+        })
     })
 }
 
 /// Barycentric weights of a point w.r.t. each Bey child, from its nonnegative weights `lam`
-/// w.r.t. the parent ([`ChildMaps::to_child`] applied, in closed form: every row is one of
+/// w.r.t. the parent (`to_child_maps` applied, in closed form: every row is one of
 /// `2λ_j`, `a_j = 2λ_j − Σλ`, `b = λ0 + λ1 − λ2 − λ3`, `c = λ0 − λ1 − λ2 + λ3` or a negation),
 /// and the mask of the children that hold the point (all weights ≥ 0). Point location's inner
 /// loop: 6 sums instead of up to 128 products.
@@ -234,6 +230,7 @@ fn det4(m: &[[f64; 4]; 4]) -> f64 {
     det
 }
 
+#[cfg(test)]
 #[allow(clippy::needless_range_loop)]
 fn invert4(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     let mut a = *m;
@@ -963,19 +960,23 @@ impl AdaptiveMesh {
     /// [`BEY_CHILDREN`]).
     #[inline]
     pub fn node_verts(&self, slot: usize) -> [u32; 4] {
-        match slot.checked_sub(self.base_tets.len()) {
-            None => self.base_tets[slot],
-            Some(r) => {
-                let p = &self.bverts[r >> 3];
-                BEY_CHILDREN[r & 7].map(|q| p[q])
-            }
+        if slot < self.base_tets.len() {
+            return self.base_tets[slot];
         }
+        let p = &self.bverts[self.block_of(slot)];
+        BEY_CHILDREN[(slot - self.base_tets.len()) & 7].map(|q| p[q])
+    }
+
+    /// Index in [`Self::bverts`] of the block holding non-base slot `slot`.
+    #[inline]
+    fn block_of(&self, slot: usize) -> usize {
+        (slot - self.base_tets.len()) >> 3
     }
 
     /// The 10 points of the block whose first slot is `block`.
     #[inline]
     fn block_points(&self, block: u32) -> &[u32; 10] {
-        &self.bverts[(block as usize - self.base_tets.len()) >> 3]
+        &self.bverts[self.block_of(block as usize)]
     }
 
     #[inline]
@@ -1643,12 +1644,11 @@ impl AdaptiveMesh {
             }
         }
         let block = self.alloc_block();
-        let bi = (block as usize - self.base_tets.len()) >> 3;
+        let bi = self.block_of(block as usize);
         self.bverts[bi] = pts;
-        let maps = child_maps();
-        for i in 0..8 {
+        for (i, &flip) in child_flips().iter().enumerate() {
             let mut flags = ALIVE | (n.flags & (EMPTY | FLIP));
-            if maps.flip[i] {
+            if flip {
                 flags ^= FLIP;
             }
             if buf.child_empty(n.id, i) {
@@ -2403,6 +2403,7 @@ impl AdaptiveMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::progressive::splitmix;
 
     /// The paged key table against a map, with pages emptied, recycled and refilled.
     #[test]
@@ -2410,11 +2411,8 @@ mod tests {
         let nkeys = 1000u64;
         let mut t = KeySlots::new(nkeys as usize);
         let mut want = std::collections::BTreeMap::new();
-        let mut x = 12345u64;
         for step in 0..20_000u32 {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
+            let x = splitmix(step as u64);
             // keys clustered in a window that drifts, so pages empty and come back
             let key = ((x >> 33) % 96 + (step as u64 / 50) % (nkeys - 96)) % nkeys;
             if want.remove(&key).is_some() {
@@ -2439,14 +2437,15 @@ mod tests {
 
     #[test]
     fn child_maps_invert_bey() {
-        let maps = child_maps();
+        let to_child = to_child_maps();
+        let flips = child_flips();
         let lat = Lattice { levels: 3 };
         let t = LatticeTet::base_tet(lat, 0);
         for (i, c) in t.children().iter().enumerate() {
             // the child's own vertices map to its unit corners (scaled by m)
             for j in 0..4 {
                 let lam = c.v[j].map(|x| x as i64);
-                let a = &maps.to_child[i];
+                let a = &to_child[i];
                 let mu: [i64; 4] = std::array::from_fn(|r| (0..4).map(|s| a[r][s] * lam[s]).sum());
                 let mut want = [0i64; 4];
                 want[j] = 8;
@@ -2454,7 +2453,7 @@ mod tests {
             }
         }
         // corner children keep the orientation
-        assert!(!maps.flip[0] && !maps.flip[1] && !maps.flip[2] && !maps.flip[3]);
+        assert!(!flips[0] && !flips[1] && !flips[2] && !flips[3]);
     }
 
     #[test]
@@ -2493,14 +2492,12 @@ mod tests {
     #[test]
     fn child_weights_match_child_maps() {
         // the closed form against the inverted Bey matrices, on lattice-like weights with zeros
-        let maps = child_maps();
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        for n in 0..20_000 {
+        let to_child = to_child_maps();
+        let mut x = 0u64;
+        for n in 0..20_000u64 {
             let mut lam = [0i64; 4];
-            for l in lam.iter_mut() {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
+            for (k, l) in lam.iter_mut().enumerate() {
+                x = splitmix(n * 4 + k as u64);
                 // every 4th weight 0 (points on faces and edges), others up to 64
                 *l = if x & 3 == 0 { 0 } else { (x >> 8) as i64 % 65 };
             }
@@ -2508,7 +2505,7 @@ mod tests {
                 lam[(x % 4) as usize] = 0;
             }
             let (mu, holds) = child_weights(lam);
-            for (i, (m, a)) in mu.iter().zip(&maps.to_child).enumerate() {
+            for (i, (m, a)) in mu.iter().zip(&to_child).enumerate() {
                 let want: [i64; 4] =
                     std::array::from_fn(|r| (0..4).map(|c| a[r][c] * lam[c]).sum());
                 assert_eq!(*m, want, "child {i} of {lam:?}");
