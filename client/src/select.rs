@@ -553,10 +553,11 @@ pub struct Selector {
     /// The candidate list holds every candidate of this epoch (see the type's docs).
     list_epoch: Option<u64>,
     list: Vec<u32>,
-    /// Per slot: [`LISTED`], and [`PARKED`] for a listed merge candidate the last batch settled
-    /// by owners outside it (see [`AdaptiveMesh::batch_held`]): the listed scan leaves it out
-    /// until one of those owners is queued to merge or changes, and it is refused meanwhile.
-    in_list: SegVec<u8>,
+    /// Per slot: [`LISTED`]; [`PARKED`] for a listed merge candidate the last batch settled by
+    /// owners outside it (see [`AdaptiveMesh::batch_held`]): the listed scan leaves it out until
+    /// one of those owners is queued to merge or changes, and it is refused meanwhile; [`WAITED`]
+    /// for such an owner.
+    slot_flags: SegVec<u8>,
     /// Parked slots by the owner slot that holds them.
     waiters: FxHashMap<u32, Vec<u32>>,
     info: SegVec<SlotInfo>,
@@ -631,12 +632,12 @@ struct Kinetic {
     cursor: usize,
 }
 
-/// [`Selector::in_list`]: on the candidate list.
+/// [`Selector::slot_flags`]: on the candidate list.
 const LISTED: u8 = 1;
-/// [`Selector::in_list`]: parked.
+/// [`Selector::slot_flags`]: parked.
 const PARKED: u8 = 2;
-/// [`Selector::in_list`]: may have slots parked on it (set whenever `Selector::waiters` has the
-/// slot, possibly left set after): lets `Selector::wake` skip the map for the others.
+/// [`Selector::slot_flags`]: has slots parked on it (exactly the keys of `Selector::waiters`): lets
+/// `Selector::wake` skip the map for the others.
 const WAITED: u8 = 4;
 
 /// Bit `j` set when slot `j` is due, `ue[j] ≤ we` or `uf[j] ≤ wf`, for up to 64 slots. On x86-64
@@ -715,7 +716,7 @@ impl Selector {
             scan_ok: false,
             list_epoch: None,
             list: Vec::new(),
-            in_list: SegVec::new(),
+            slot_flags: SegVec::new(),
             waiters: Default::default(),
             info: SegVec::new(),
             stat: SegVec::new(),
@@ -792,7 +793,7 @@ impl Selector {
     pub fn bytes_held(&self) -> usize {
         use std::mem::size_of;
         let k = &self.kin;
-        self.in_list.bytes()
+        self.slot_flags.bytes()
             + self.waiters.capacity() * (size_of::<(u32, Vec<u32>)>() + 1)
             + self
                 .waiters
@@ -1276,21 +1277,29 @@ impl Selector {
 
     #[inline]
     fn list_add(&mut self, slot: usize) {
-        if slot >= self.in_list.len() {
-            self.in_list.resize(slot + 1, 0);
+        if slot >= self.slot_flags.len() {
+            self.slot_flags.resize(slot + 1, 0);
         }
-        if self.in_list[slot] & LISTED == 0 {
-            self.in_list[slot] |= LISTED;
+        if self.slot_flags[slot] & LISTED == 0 {
+            self.slot_flags[slot] |= LISTED;
             self.list.push(slot as u32);
         }
     }
 
     fn list_clear(&mut self) {
         for &s in &self.list {
-            self.in_list[s as usize] = 0;
+            self.slot_flags[s as usize] = 0;
         }
         self.list.clear();
         self.list_epoch = None;
+        self.clear_waiters();
+    }
+
+    /// Forgets every parked slot's owners (the parked flags are the caller's to clear).
+    fn clear_waiters(&mut self) {
+        for &o in self.waiters.keys() {
+            self.slot_flags[o as usize] &= !WAITED;
+        }
         self.waiters.clear();
     }
 
@@ -1298,16 +1307,16 @@ impl Selector {
     fn park(&mut self, mesh: &AdaptiveMesh) {
         for &(slot, owners) in mesh.batch_held() {
             let s = slot as usize;
-            if s < self.in_list.len() && self.in_list[s] & LISTED != 0 {
-                self.in_list[s] |= PARKED;
+            if s < self.slot_flags.len() && self.slot_flags[s] & LISTED != 0 {
+                self.slot_flags[s] |= PARKED;
                 for o in owners {
                     if o != u32::MAX {
                         self.waiters.entry(o).or_default().push(slot);
                         let o = o as usize;
-                        if o >= self.in_list.len() {
-                            self.in_list.resize(o + 1, 0);
+                        if o >= self.slot_flags.len() {
+                            self.slot_flags.resize(o + 1, 0);
                         }
-                        self.in_list[o] |= WAITED;
+                        self.slot_flags[o] |= WAITED;
                     }
                 }
             }
@@ -1317,9 +1326,9 @@ impl Selector {
     /// Clears `slot`'s parked flag; whether it was parked.
     #[inline]
     fn unpark(&mut self, slot: u32) -> bool {
-        match self.in_list.get(slot as usize) {
+        match self.slot_flags.get(slot as usize) {
             Some(&f) if f & PARKED != 0 => {
-                self.in_list[slot as usize] = f & !PARKED;
+                self.slot_flags[slot as usize] = f & !PARKED;
                 true
             }
             _ => false,
@@ -1332,7 +1341,7 @@ impl Selector {
     #[inline]
     fn wake(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>) {
         if self
-            .in_list
+            .slot_flags
             .get(owner as usize)
             .is_some_and(|&f| f & WAITED != 0)
         {
@@ -1347,15 +1356,12 @@ impl Selector {
         owner: u32,
         now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>,
     ) {
-        if !self.waiters.contains_key(&owner) {
-            return;
-        }
         let mut owners = vec![owner];
         while let Some(o) = owners.pop() {
             let Some(parked) = self.waiters.remove(&o) else {
                 continue;
             };
-            self.in_list[o as usize] &= !WAITED;
+            self.slot_flags[o as usize] &= !WAITED;
             for &a in &parked {
                 if !self.unpark(a) {
                     continue;
@@ -1411,7 +1417,7 @@ impl Selector {
             for i in 0..self.list.len() {
                 self.unpark(self.list[i]);
             }
-            self.waiters.clear();
+            self.clear_waiters();
             self.stat.clear();
             self.scan_ok = false;
             self.list_epoch = None;
@@ -1630,13 +1636,13 @@ impl Selector {
                 while i < end {
                     let slot = self.list[i] as usize;
                     st.scanned += 1;
-                    if self.in_list[slot] & PARKED != 0 {
+                    if self.slot_flags[slot] & PARKED != 0 {
                         i += 1;
                         continue;
                     }
                     let s = self.eval(mesh, buf, view, mode, slot);
                     if s == Status::Keep {
-                        self.in_list[slot] &= WAITED;
+                        self.slot_flags[slot] &= WAITED;
                         self.list.swap_remove(i);
                         end = end.min(self.list.len());
                         continue;
@@ -2157,10 +2163,8 @@ mod tests {
         for len in 0..=64 {
             for _ in 0..50 {
                 let mut pick = || {
-                    x = x
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    vals[(x >> 61) as usize]
+                    x += 1;
+                    vals[(crate::progressive::splitmix(x) >> 61) as usize]
                 };
                 let ue: Vec<f32> = (0..len).map(|_| pick()).collect();
                 let uf: Vec<f32> = (0..len).map(|_| pick()).collect();
