@@ -322,13 +322,7 @@ impl LatticeTet {
             base: self.base,
             v: std::array::from_fn(|j| {
                 let (a, b) = pairs[j];
-                let (x, y) = (&self.v[a as usize], &self.v[b as usize]);
-                [
-                    (x[0] + y[0]) >> 1,
-                    (x[1] + y[1]) >> 1,
-                    (x[2] + y[2]) >> 1,
-                    (x[3] + y[3]) >> 1,
-                ]
+                midpoint(&self.v[a as usize], &self.v[b as usize])
             }),
         }
     }
