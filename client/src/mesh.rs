@@ -357,6 +357,23 @@ impl<T: Copy> SegVec<T> {
         unsafe { self.segs.get_unchecked_mut(i >> SEG_BITS) }
     }
 
+    /// Asks the CPU to bring item `i` into the cache (a hint: nothing when `i` is out of range or
+    /// on other architectures).
+    #[inline(always)]
+    pub(crate) fn prefetch(&self, i: usize) {
+        if i < self.len {
+            let p: *const T = &self.seg(i)[i & SEG_MASK];
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: a prefetch reads nothing architecturally; `p` points into a live segment
+            unsafe {
+                use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+                _mm_prefetch::<_MM_HINT_T0>(p as *const i8);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            let _ = p;
+        }
+    }
+
     /// Empties it, keeping the segments.
     pub(crate) fn clear(&mut self) {
         self.len = 0;
@@ -953,6 +970,12 @@ impl AdaptiveMesh {
             return None;
         }
         Some(self.red_view(slot as u32, n))
+    }
+
+    /// Asks the CPU to bring the node in slot `slot` into the cache (see [`SegVec::prefetch`]).
+    #[inline(always)]
+    pub fn prefetch_node(&self, slot: usize) {
+        self.nodes.prefetch(slot);
     }
 
     /// Vertex slots of the live node in slot `slot`, hierarchy vertex order: a base tet's own, a
