@@ -62,13 +62,123 @@ impl Arrivals {
     }
 }
 
+/// A value an [`IdTable`] can hold, with a bit pattern that means "absent".
+trait Cell: Copy {
+    const EMPTY: Self;
+    fn is_empty(&self) -> bool;
+}
+
+/// Coefficients are finite ([`DetailNode::validate`]): NaN marks an absent one.
+impl Cell for f32 {
+    const EMPTY: f32 = f32::NAN;
+    #[inline]
+    fn is_empty(&self) -> bool {
+        self.is_nan()
+    }
+}
+
+/// Subtree maxima are finite ([`DetailNode::validate`]): NaN marks an absent node.
+impl Cell for NodeMeta {
+    const EMPTY: NodeMeta = NodeMeta {
+        subtree_max_abs: f32::NAN,
+        empty_children: 0,
+        owned: 0,
+    };
+    #[inline]
+    fn is_empty(&self) -> bool {
+        self.subtree_max_abs.is_nan()
+    }
+}
+
+const PAGE_BITS: u32 = 9;
+const PAGE: usize = 1 << PAGE_BITS;
+const NO_PAGE: u32 = u32::MAX;
+/// Keys below this go to [`IdTable`]'s pages (a directory of at most 2^23 entries); the others
+/// (forests of more than 2^32 nodes or vertices) to its hash map.
+const DENSE_KEYS: u64 = 1 << 32;
+
+/// A map from node ids (or vertex keys) to values, in pages of [`PAGE`] consecutive keys made on
+/// first insert: ids and keys are dense (a level's ids are consecutive, and so are a node's
+/// children), so a lookup reads one line of one page. The hash maps it replaced read two lines per
+/// probe (control bytes, then the bucket), at the selection's and the refinement's hottest spots:
+/// a leaf's subtree max and usability, a new vertex's coefficient, a child's emptiness.
+#[derive(Debug, Clone)]
+struct IdTable<V> {
+    /// Page index by key / [`PAGE`] ([`NO_PAGE`]: none), grown to the largest page used.
+    dir: Vec<u32>,
+    pages: Vec<Box<[V]>>,
+    sparse: FxHashMap<u64, V>,
+    len: usize,
+}
+
+impl<V: Cell> IdTable<V> {
+    fn new() -> Self {
+        IdTable {
+            dir: Vec::new(),
+            pages: Vec::new(),
+            sparse: FxHashMap::default(),
+            len: 0,
+        }
+    }
+
+    #[inline]
+    fn get(&self, k: u64) -> Option<V> {
+        if k >= DENSE_KEYS {
+            return self.sparse.get(&k).copied();
+        }
+        match self.dir.get((k >> PAGE_BITS) as usize) {
+            Some(&p) if p != NO_PAGE => {
+                let v = self.pages[p as usize][k as usize & (PAGE - 1)];
+                (!v.is_empty()).then_some(v)
+            }
+            _ => None,
+        }
+    }
+
+    #[inline]
+    fn contains_key(&self, k: u64) -> bool {
+        self.get(k).is_some()
+    }
+
+    /// Sets absent key `k` to `v` (not [`Cell::EMPTY`]).
+    fn insert(&mut self, k: u64, v: V) {
+        debug_assert!(!v.is_empty() && !self.contains_key(k));
+        self.len += 1;
+        if k >= DENSE_KEYS {
+            self.sparse.insert(k, v);
+            return;
+        }
+        let d = (k >> PAGE_BITS) as usize;
+        if d >= self.dir.len() {
+            self.dir.resize(d + 1, NO_PAGE);
+        }
+        if self.dir[d] == NO_PAGE {
+            self.dir[d] = self.pages.len() as u32;
+            self.pages.push(vec![V::EMPTY; PAGE].into_boxed_slice());
+        }
+        self.pages[self.dir[d] as usize][k as usize & (PAGE - 1)] = v;
+    }
+
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    fn bytes(&self) -> usize {
+        use std::mem::size_of;
+        self.dir.capacity() * 4
+            + self.pages.capacity() * size_of::<Box<[V]>>()
+            + self.pages.len() * PAGE * size_of::<V>()
+            + self.sparse.capacity() * (size_of::<(u64, V)>() + 1)
+    }
+}
+
 /// All detail nodes received so far (see the module docs).
 #[derive(Debug, Clone)]
 pub struct DetailBuffer {
     forest: Forest,
     keys: VertexKeys,
-    coeffs: FxHashMap<u64, f32>,
-    meta: FxHashMap<TetId, NodeMeta>,
+    coeffs: IdTable<f32>,
+    meta: IdTable<NodeMeta>,
     duplicates: u64,
     pending: u64,
 }
@@ -78,8 +188,8 @@ impl DetailBuffer {
         DetailBuffer {
             forest,
             keys,
-            coeffs: FxHashMap::default(),
-            meta: FxHashMap::default(),
+            coeffs: IdTable::new(),
+            meta: IdTable::new(),
             duplicates: 0,
             pending: 0,
         }
@@ -105,7 +215,7 @@ impl DetailBuffer {
             return Err(BufferError::OutOfRange { id: node.id, nodes });
         }
         node.validate()?;
-        if self.meta.contains_key(&node.id) {
+        if self.meta.contains_key(node.id) {
             self.duplicates += 1;
             return Ok(Inserted::Duplicate);
         }
@@ -117,7 +227,7 @@ impl DetailBuffer {
             for e in 0..EDGES.len() {
                 if let Some(d) = node.coeff(e) {
                     let key = self.keys.key(tet.base, &tet.edge_midpoint(e));
-                    if self.coeffs.contains_key(&key) || owned[..n].iter().any(|p| p.0 == key) {
+                    if self.coeffs.contains_key(key) || owned[..n].iter().any(|p| p.0 == key) {
                         return Err(BufferError::OwnedTwice { id: node.id, key });
                     }
                     owned[n] = (key, d);
@@ -140,13 +250,13 @@ impl DetailBuffer {
         );
         // pending bookkeeping: this node waits for its parent; its children stop waiting for it
         if let Some(p) = self.forest.parent(node.id) {
-            if !self.meta.contains_key(&p) {
+            if !self.meta.contains_key(p) {
                 self.pending += 1;
             }
         }
         for i in 0..8 {
             let c = self.forest.child(node.id, i);
-            if self.meta.contains_key(&c) {
+            if self.meta.contains_key(c) {
                 self.pending -= 1;
             }
         }
@@ -156,14 +266,14 @@ impl DetailBuffer {
     /// Whether node `t` has arrived.
     #[inline]
     pub fn is_present(&self, t: TetId) -> bool {
-        self.meta.contains_key(&t)
+        self.meta.contains_key(t)
     }
 
     /// Whether `t` and all its ancestors have arrived.
     pub fn is_usable(&self, t: TetId) -> bool {
         let mut cur = Some(t);
         while let Some(c) = cur {
-            if !self.meta.contains_key(&c) {
+            if !self.meta.contains_key(c) {
                 return false;
             }
             cur = self.forest.parent(c);
@@ -174,27 +284,27 @@ impl DetailBuffer {
     /// Metadata of node `t`, if it arrived.
     #[inline]
     pub fn meta(&self, t: TetId) -> Option<NodeMeta> {
-        self.meta.get(&t).copied()
+        self.meta.get(t)
     }
 
     /// Max |detail| of `t`'s subtree, if `t` arrived.
     #[inline]
     pub fn subtree_max(&self, t: TetId) -> Option<f32> {
-        self.meta.get(&t).map(|m| m.subtree_max_abs)
+        self.meta.get(t).map(|m| m.subtree_max_abs)
     }
 
     /// Whether child `i` of `t` is known to be empty (false while `t` has not arrived).
     #[inline]
     pub fn child_empty(&self, t: TetId, i: usize) -> bool {
         self.meta
-            .get(&t)
+            .get(t)
             .is_some_and(|m| m.empty_children & (1 << i) != 0)
     }
 
     /// Coefficient of vertex `key`, if its owner node arrived.
     #[inline]
     pub fn coeff(&self, key: u64) -> Option<f32> {
-        self.coeffs.get(&key).copied()
+        self.coeffs.get(key)
     }
 
     /// Nodes held (pending ones included).
@@ -217,10 +327,9 @@ impl DetailBuffer {
         self.duplicates
     }
 
-    /// Bytes held by the two tables (capacity × entry size, plus hashbrown's control byte per slot).
+    /// Bytes held by the two tables (pages, directories and capacities).
     pub fn bytes_held(&self) -> usize {
-        self.coeffs.capacity() * (std::mem::size_of::<(u64, f32)>() + 1)
-            + self.meta.capacity() * (std::mem::size_of::<(TetId, NodeMeta)>() + 1)
+        self.coeffs.bytes() + self.meta.bytes()
     }
 }
 
@@ -243,6 +352,38 @@ mod tests {
             subtree_max_abs: 1.0,
             coeffs: (0..owned.count_ones()).map(|i| i as f32 + 0.5).collect(),
         }
+    }
+
+    /// The paged table against a hash map, over keys on shared and separate pages, beyond the
+    /// directory's end and past the dense range.
+    #[test]
+    fn id_table_matches_a_map() {
+        let mut t: IdTable<f32> = IdTable::new();
+        let mut m = std::collections::HashMap::new();
+        let keys = [
+            0u64,
+            1,
+            PAGE as u64 - 1,
+            PAGE as u64,
+            7 * PAGE as u64 + 3,
+            DENSE_KEYS - 1,
+            DENSE_KEYS,
+            u64::MAX,
+        ];
+        for (i, &k) in keys.iter().enumerate() {
+            assert_eq!(t.get(k), None);
+            t.insert(k, i as f32 - 3.5);
+            m.insert(k, i as f32 - 3.5);
+            assert_eq!(t.len(), m.len());
+            for probe in keys
+                .iter()
+                .copied()
+                .chain([2, 5 * PAGE as u64, DENSE_KEYS + 1])
+            {
+                assert_eq!(t.get(probe), m.get(&probe).copied(), "key {probe}");
+            }
+        }
+        assert!(t.bytes() >= 3 * PAGE * 4);
     }
 
     #[test]
