@@ -683,6 +683,8 @@ pub enum MeshError {
     Forced(TetId),
     #[error("green closure did not settle within {0} refinements")]
     ClosureBound(usize),
+    #[error("the hierarchy has {0} vertex keys: the adaptive mesh holds at most 2^32 - 1")]
+    TooManyKeys(u64),
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -836,10 +838,15 @@ pub fn green_piece_count(mask: u8) -> usize {
 }
 
 impl AdaptiveMesh {
-    /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`].
-    pub fn new(base: &BaseMesh) -> Self {
+    /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`]; a
+    /// hierarchy with 2^32 vertex keys or more is refused (the mesh packs keys in 32 bits).
+    pub fn new(base: &BaseMesh) -> Result<Self, MeshError> {
         let forest = base.forest();
         let keys = base.vertex_keys();
+        let nkeys = keys.vertex_count();
+        if nkeys >= NONE as u64 {
+            return Err(MeshError::TooManyKeys(nkeys));
+        }
         let nv = base.positions.len();
         let mut vertex_tets = vec![Vec::new(); nv];
         let mut face_count: FxHashMap<[u32; 3], u32> = FxHashMap::default();
@@ -930,16 +937,11 @@ impl AdaptiveMesh {
             m.vowner.push([NONE; OWNERS]);
         }
         m.n_vertices = nv;
-        let nkeys = m.keys.vertex_count();
-        assert!(
-            nkeys < NONE as u64,
-            "{nkeys} vertex keys: the mesh packs keys in 32 bits"
-        );
         m.by_key = KeySlots::new(nkeys as usize);
         for g in 0..nv {
             m.by_key.insert(g as u64, g as u32);
         }
-        m
+        Ok(m)
     }
 
     pub fn forest(&self) -> Forest {

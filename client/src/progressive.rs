@@ -243,7 +243,7 @@ pub fn run_progressive(
 ) -> Result<RunReport, MeshError> {
     let (lo, hi) = base.bounds();
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
-    let mut mesh = AdaptiveMesh::new(base);
+    let mut mesh = AdaptiveMesh::new(base)?;
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut sel = Selector::new(select_params(cfg, value_range));
     let mode = if cfg.tol.is_none() {
@@ -480,7 +480,7 @@ fn worker(
     rx: Receiver<Msg>,
     out: Arc<Mutex<Option<MeshSnapshot>>>,
 ) -> Result<(), MeshError> {
-    let mut mesh = AdaptiveMesh::new(&base);
+    let mut mesh = AdaptiveMesh::new(&base)?;
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut sel = Selector::new(params);
     let mut arr = Arrivals::default();

@@ -453,7 +453,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
                     let buf = DetailBuffer::new(b.forest(), b.vertex_keys());
-                    let mesh = AdaptiveMesh::new(&b);
+                    let mesh = AdaptiveMesh::new(&b)
+                        .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?;
                     let params =
                         SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
                     state = Some((buf, mesh, Selector::new(params), *b));

@@ -257,7 +257,7 @@ enum Order {
 fn deliver_and_refine(data: &Data, order: Order) -> (AdaptiveMesh, DetailBuffer) {
     let forest = data.base.forest();
     let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
     let mut list: Vec<&DetailNode> = data.nodes.iter().collect();
     match order {
         Order::Level => {}
@@ -379,7 +379,7 @@ fn fallback_prediction_then_correction() {
     let data = make_data(box5(3), 0);
     let forest = data.base.forest();
     let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
     let mut arr = Arrivals::default();
     // refine base tet 0 with no node at all: its midpoints are linear predictions
     mesh.refine(0, &buf).unwrap();
@@ -489,7 +489,7 @@ fn coarsen_everything_back() {
     for n in &data.nodes {
         buf.insert(n, &mut arr).unwrap();
     }
-    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
     refine_all_usable(&mut mesh, &buf);
     assert_eq!(mesh.leaf_count(), 5 * 512);
     // in a uniform mesh an interior tet cannot be coarsened alone: its neighbours keep its edges
@@ -530,7 +530,7 @@ fn empty_tets_are_not_drawn_or_refined() {
     let data = make_data(base, 0);
     let forest = data.base.forest();
     let buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
     assert_eq!(mesh.refine(2, &buf), Err(MeshError::Empty(2)));
     mesh.refine(4, &buf).unwrap();
     mesh.check_conformity().unwrap();
@@ -583,9 +583,9 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
     let data = make_data(base, if empties { seed | 1 } else { 0 });
     let forest = data.base.forest();
     let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base);
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
     // the same operations without the refusal records (they must only save work)
-    let mut twin = AdaptiveMesh::new(&data.base);
+    let mut twin = AdaptiveMesh::new(&data.base).unwrap();
     let mut order: Vec<usize> = (0..data.nodes.len()).collect();
     // some duplicates, then a random arrival order
     for i in 0..data.nodes.len() / 4 {
@@ -716,4 +716,18 @@ fn long_sequence_level4() {
     eprintln!("{s:?}");
     assert!(s.green_pieces > 0 && s.closure_refines > 0 && s.coarsened > 0 && s.refused > 0);
     assert!(s.corrected > 0);
+}
+
+/// A hierarchy deeper than the mesh's 32-bit vertex keys allow (one tet, 12 levels: about 1.2e10
+/// keys) is refused with an error, not a panic, and without allocating for its keys.
+#[test]
+fn too_many_vertex_keys_is_an_error() {
+    let positions = vec![corner(0), corner(1), corner(2), corner(4)];
+    let base = oriented(positions, vec![[0, 1, 2, 3]], 12);
+    base.validate().expect("a valid base mesh");
+    assert!(base.vertex_keys().vertex_count() >= u32::MAX as u64);
+    match AdaptiveMesh::new(&base) {
+        Err(MeshError::TooManyKeys(n)) => assert_eq!(n, base.vertex_keys().vertex_count()),
+        other => panic!("expected TooManyKeys, got {:?}", other.map(|_| ())),
+    }
 }

@@ -176,7 +176,7 @@ fn large_merge_sweeps_under_a_time_budget_settle() {
 #[test]
 fn euler_edges() {
     let (base, nodes) = make_nodes(box5(3), harmonic);
-    let mut mesh = AdaptiveMesh::new(&base);
+    let mut mesh = AdaptiveMesh::new(&base).unwrap();
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
     for n in &nodes {

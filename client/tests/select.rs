@@ -17,7 +17,7 @@ use common::{box5, harmonic, make_nodes};
 
 fn loaded(levels: u8, f: impl Fn([f64; 3]) -> f32) -> (AdaptiveMesh, DetailBuffer, BaseMesh) {
     let (base, nodes) = make_nodes(box5(levels), f);
-    let mut mesh = AdaptiveMesh::new(&base);
+    let mut mesh = AdaptiveMesh::new(&base).unwrap();
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
     for n in &nodes {
@@ -252,7 +252,7 @@ fn modes() {
 
     // complete mode with half of the nodes: exactly the usable ones are refined
     let (base, nodes) = make_nodes(box5(3), harmonic);
-    let mut m = AdaptiveMesh::new(&base);
+    let mut m = AdaptiveMesh::new(&base).unwrap();
     let mut b = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
     for nd in nodes.iter().step_by(2) {
@@ -358,8 +358,8 @@ fn incremental_equals_full_scan() {
             p.coarsen_ref = coarsen_ref;
             p.interactive = Budget::UNLIMITED;
             p.progressive = Budget::UNLIMITED;
-            let mut a = AdaptiveMesh::new(&base);
-            let mut b = AdaptiveMesh::new(&base);
+            let mut a = AdaptiveMesh::new(&base).unwrap();
+            let mut b = AdaptiveMesh::new(&base).unwrap();
             let mut ba = DetailBuffer::new(base.forest(), base.vertex_keys());
             let mut bb = DetailBuffer::new(base.forest(), base.vertex_keys());
             let mut inc = Selector::new(p.clone());
