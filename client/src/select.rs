@@ -815,6 +815,44 @@ impl Selector {
             + (self.merges.capacity() + self.unordered.capacity()) * size_of::<Reverse<Cand>>()
     }
 
+    /// Test support: compares every remembered status that is still current (its priority
+    /// included, as [`Self::eval`] would return it) with a fresh evaluation for `cam` and `mode`,
+    /// the camera and mode of the last frame. Returns how many were compared, or the first that
+    /// differs.
+    #[doc(hidden)]
+    pub fn verify_remembered(
+        &mut self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        cam: &Camera,
+        mode: Mode,
+    ) -> Result<usize, String> {
+        if self.seen != mesh.change_seq() {
+            return Err("the mesh changed since the last frame".into());
+        }
+        let view = View::new(cam, self.params.tol);
+        let levels = mesh.forest().levels;
+        let evals = self.evals;
+        let mut n = 0;
+        for slot in 0..self.info.len() {
+            let e = self.info[slot];
+            if e.epoch() != self.stat_epoch() {
+                continue;
+            }
+            let kept = self.cached_status(&view, mode, levels, slot, &e);
+            let fresh = self.eval_cert(mesh, buf, &view, mode, slot, false).0;
+            if kept != fresh {
+                self.evals = evals;
+                return Err(format!(
+                    "slot {slot}: remembered {kept:?}, evaluated {fresh:?}"
+                ));
+            }
+            n += 1;
+        }
+        self.evals = evals;
+        Ok(n)
+    }
+
     /// Whether the last frame found nothing left to do.
     pub fn is_converged(&self) -> bool {
         self.converged

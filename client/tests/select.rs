@@ -166,6 +166,8 @@ fn budget_frames_conform_and_converge() {
                 frames += 1;
                 assert!(st.splits + st.merge_attempts <= 40, "{st:?}");
                 mesh.check_conformity().unwrap();
+                sel.verify_remembered(&mesh, &buf, &c, Mode::Progressive)
+                    .unwrap();
                 if st.converged || (!rest && frames % 7 == 0) {
                     break;
                 }
@@ -310,6 +312,7 @@ fn unit(s: &mut u64) -> f64 {
 /// The incremental selector (candidate list, motion certificates, arrivals by subtree) converges
 /// to exactly the mesh of the full-scan reference, frame after frame: random arrival orders and
 /// camera paths (small turns, jumps, zooms, other lenses, other modes), each criterion variant.
+/// After every frame each status it remembers equals a fresh evaluation, priority included.
 #[test]
 fn incremental_equals_full_scan() {
     use tetwave_client::progressive::{order_nodes, ArrivalOrder};
@@ -341,7 +344,7 @@ fn incremental_equals_full_scan() {
             CoarsenRef::Grandparent,
         ),
     ];
-    let mut frames = 0;
+    let (mut frames, mut remembered) = (0, 0);
     for (vi, &(tol, frustum, data_aware, coarsen_ref)) in variants.iter().enumerate() {
         for seed in 0..5u64 {
             let mut s = splitmix(seed * 31 + vi as u64 + 1);
@@ -413,6 +416,10 @@ fn incremental_equals_full_scan() {
                 let sa = inc.converge(&mut a, &ba, &c, mode).unwrap();
                 let sb = full.converge(&mut b, &bb, &c, mode).unwrap();
                 assert!(sa.converged && sb.converged);
+                // a remembered status (its priority computed again) is what evaluating gives
+                remembered += inc
+                    .verify_remembered(&a, &ba, &c, mode)
+                    .unwrap_or_else(|e| panic!("variant {vi}, seed {seed}, step {step}: {e}"));
                 assert_eq!(
                     sorted_leaves(&a),
                     sorted_leaves(&b),
@@ -427,6 +434,10 @@ fn incremental_equals_full_scan() {
         }
     }
     assert_eq!(frames, 5 * 5 * 60);
+    assert!(
+        remembered > 10_000,
+        "{remembered} remembered statuses compared"
+    );
 }
 
 /// A selector that follows a mesh changed behind its back (refinements it did not ask for) still
