@@ -81,6 +81,9 @@ pub struct RunConfig {
     /// After the steps, keep running frames (camera at rest, progressive mode) until converged and
     /// compare with an unbudgeted convergence from the same state.
     pub settle: bool,
+    /// Select with [`Selector::full_scan`]: every node scanned with the uncached criteria at every
+    /// sweep, no per-slot caches (the memory floor of selection, and its slowest way).
+    pub full_scan: bool,
 }
 
 impl Default for RunConfig {
@@ -101,6 +104,7 @@ impl Default for RunConfig {
             budget_ms: None,
             budget_ops: None,
             settle: true,
+            full_scan: false,
         }
     }
 }
@@ -245,7 +249,11 @@ pub fn run_progressive(
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
     let mut mesh = AdaptiveMesh::new(base)?;
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut sel = Selector::new(select_params(cfg, value_range));
+    let mut sel = if cfg.full_scan {
+        Selector::full_scan(select_params(cfg, value_range))
+    } else {
+        Selector::new(select_params(cfg, value_range))
+    };
     let mode = if cfg.tol.is_none() {
         Mode::Complete
     } else {
@@ -587,6 +595,10 @@ pub struct BenchArgs {
     /// Skip the settle-and-compare phase after the steps.
     #[arg(long)]
     pub no_settle: bool,
+    /// Select with the reference selector: every node scanned with the uncached criteria at every
+    /// sweep, without the per-slot caches (less memory, much slower).
+    #[arg(long)]
+    pub full_scan: bool,
     /// One JSON object per run on stdout.
     #[arg(long)]
     pub json: bool,
@@ -629,6 +641,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             budget_ms: args.budget_ms,
             budget_ops: args.budget_ops,
             settle: !args.no_settle,
+            full_scan: args.full_scan,
         };
         let r = run_progressive(store.base(), &nodes, m.value_range, &cfg, args.order)?;
         emit(&r);

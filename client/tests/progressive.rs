@@ -201,3 +201,40 @@ fn euler_edges() {
         assert_eq!(mesh.piece_counts().0, tets.len());
     }
 }
+
+/// `--full-scan` (the reference selector, no per-slot caches) takes the same path as the cached
+/// selector: the same splits and merges step by step, the same final mesh, and a selector that
+/// holds less memory.
+#[test]
+fn full_scan_takes_the_same_path() {
+    let (base, mut nodes) = make_nodes(box5(4), harmonic);
+    order_nodes(&mut nodes, ArrivalOrder::Random, 5);
+    for tol in [Some(12.5), Some(6.0), None] {
+        let c = RunConfig {
+            steps: 40,
+            per_step: 200,
+            rotate: 0.1,
+            ..cfg(tol)
+        };
+        let fast = run_progressive(&base, &nodes, [-1.0, 1.0], &c, ArrivalOrder::Random).unwrap();
+        let reference = RunConfig {
+            full_scan: true,
+            ..c
+        };
+        let slow =
+            run_progressive(&base, &nodes, [-1.0, 1.0], &reference, ArrivalOrder::Random).unwrap();
+        assert_eq!(
+            (slow.splits, slow.merges),
+            (fast.splits, fast.merges),
+            "{tol:?}"
+        );
+        assert_eq!(slow.final_tets, fast.final_tets, "{tol:?}");
+        assert_eq!(slow.final_same, Some(true), "{tol:?}");
+        assert!(
+            slow.sel_mb < fast.sel_mb,
+            "{tol:?}: {} vs {}",
+            slow.sel_mb,
+            fast.sel_mb
+        );
+    }
+}
