@@ -249,10 +249,11 @@ pub fn run_progressive(
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
     let mut mesh = AdaptiveMesh::new(base)?;
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let params = select_params(cfg, value_range);
     let mut sel = if cfg.full_scan {
-        Selector::full_scan(select_params(cfg, value_range))
+        Selector::full_scan(params)
     } else {
-        Selector::new(select_params(cfg, value_range))
+        Selector::new(params)
     };
     let mode = if cfg.tol.is_none() {
         Mode::Complete

@@ -422,11 +422,11 @@ struct SlotEntry {
 }
 
 const _: () = assert!(std::mem::size_of::<SlotEntry>() == 16);
-const _: () = assert!(tetwave_protocol::hierarchy::MAX_LEVELS < 32);
+const _: () = assert!(tetwave_protocol::hierarchy::MAX_LEVELS as u32 <= LEVEL_MASK);
 
 /// [`SlotEntry::word`]: status kinds (the priority is computed again from the entry, see
 /// `Selector::cached_status`): keep, split, merge with the error as priority, merge outside the
-/// frustum (priority −1).
+/// frustum (priority [`OUTSIDE`]).
 const KIND_MASK: u32 = 3;
 const KIND_SPLIT: u32 = 1;
 const KIND_MERGE: u32 = 2;
@@ -436,7 +436,10 @@ const USABLE: u32 = 8;
 /// `Selector::geo` holds the node's bounding sphere.
 const GEO: u32 = 16;
 const LEVEL_SHIFT: u32 = 5;
+const LEVEL_MASK: u32 = 31;
 const EPOCH_SHIFT: u32 = 10;
+/// The bits of [`SlotEntry::word`] that describe the node (not the status).
+const FACTS_MASK: u32 = ((1 << EPOCH_SHIFT) - 1) & !KIND_MASK;
 /// Bits of an epoch a [`SlotEntry`] keeps.
 const STAT_EPOCH_MASK: u64 = (1 << (32 - EPOCH_SHIFT)) - 1;
 
@@ -450,7 +453,7 @@ const NO_ENTRY: SlotEntry = SlotEntry {
 impl SlotEntry {
     #[inline(always)]
     fn level(&self) -> u8 {
-        ((self.word >> LEVEL_SHIFT) & 31) as u8
+        ((self.word >> LEVEL_SHIFT) & LEVEL_MASK) as u8
     }
 
     #[inline(always)]
@@ -461,7 +464,7 @@ impl SlotEntry {
     /// Forgets the status.
     #[inline(always)]
     fn forget(&mut self) {
-        self.word &= (1 << EPOCH_SHIFT) - 1;
+        self.word &= FACTS_MASK;
     }
 }
 
@@ -485,6 +488,9 @@ fn info_tag(id: TetId, wide: bool) -> u32 {
         (id as u32).wrapping_add(1)
     }
 }
+
+/// The merge priority of a node outside the frustum (below every in-view error, so merged first).
+const OUTSIDE: f64 = -1.0;
 
 /// What the criteria want of one node of the red tree.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -945,7 +951,7 @@ impl Selector {
         Some(if mode == Mode::Complete {
             0.0
         } else {
-            self.error(mesh, buf, view, n).unwrap_or(-1.0)
+            self.error(mesh, buf, view, n).unwrap_or(OUTSIDE)
         })
     }
 
@@ -1079,7 +1085,7 @@ impl Selector {
             return Status::Keep;
         }
         if kind == KIND_MERGE_OUT {
-            return Status::Merge(-1.0);
+            return Status::Merge(OUTSIDE);
         }
         let prio = if mode == Mode::Complete {
             if kind == KIND_SPLIT {
@@ -1132,12 +1138,12 @@ impl Selector {
         let kind = match st {
             Status::Keep => 0,
             Status::Split(_) => KIND_SPLIT,
-            Status::Merge(-1.0) => KIND_MERGE_OUT,
+            Status::Merge(e) if e == OUTSIDE => KIND_MERGE_OUT,
             Status::Merge(_) => KIND_MERGE,
         };
         let epoch = self.stat_epoch();
         let e = &mut self.info[slot];
-        e.word = (e.word & ((1 << EPOCH_SHIFT) - 1) & !KIND_MASK) | kind | epoch << EPOCH_SHIFT;
+        e.word = (e.word & FACTS_MASK) | kind | epoch << EPOCH_SHIFT;
     }
 
     /// Forgets the status recorded for `slot`.
@@ -1211,7 +1217,7 @@ impl Selector {
         {
             Status::Keep
         } else {
-            Status::Merge(if visible { e } else { -1.0 })
+            Status::Merge(if visible { e } else { OUTSIDE })
         };
         if !cert {
             return (status, INF, INF);
@@ -1294,7 +1300,7 @@ impl Selector {
         }
         let smax = i.present.then_some(i.smax);
         let (c, r) = self.sphere_of(mesh, slot);
-        Status::Merge(self.sphere_error(view, c, r, smax).unwrap_or(-1.0))
+        Status::Merge(self.sphere_error(view, c, r, smax).unwrap_or(OUTSIDE))
     }
 
     /// The status of hierarchy tet `id` (not in the red tree: [`Status::Keep`]) and its slot;
@@ -1371,6 +1377,18 @@ impl Selector {
         mesh.prefetch_node(slot);
         self.info.prefetch(slot);
         self.geo.prefetch(slot);
+    }
+
+    /// Prefetches ([`Self::prefetch_slot`]) `slots[k..k + n]` (those that exist). A loop over
+    /// `slots` calls it with `n = PREFETCH` before its first item and with `k = j + PREFETCH`,
+    /// `n = 1` at item `j`.
+    #[inline(always)]
+    fn prefetch_slots(&self, mesh: &AdaptiveMesh, slots: &[u32], k: usize, n: usize) {
+        for i in k..k + n {
+            if let Some(&s) = slots.get(i) {
+                self.prefetch_slot(mesh, s as usize);
+            }
+        }
     }
 
     /// Queues a candidate, its priority rounded to an `f32` (as remembered statuses once kept it:
@@ -1561,15 +1579,11 @@ impl Selector {
         let kin = self.kin_active(mode);
         let run = &fl[self.fcursor..end];
         if kin {
-            for &s in run.iter().take(PREFETCH) {
-                self.prefetch_slot(mesh, s as usize);
-            }
+            self.prefetch_slots(mesh, run, 0, PREFETCH);
         }
         for (j, &s) in run.iter().enumerate() {
             if kin {
-                if let Some(&a) = run.get(j + PREFETCH) {
-                    self.prefetch_slot(mesh, a as usize);
-                }
+                self.prefetch_slots(mesh, run, j + PREFETCH, 1);
             }
             if !kin || self.eval_kin(mesh, buf, view, mode, s as usize) != Status::Keep {
                 self.list_add(s as usize);
@@ -1724,13 +1738,9 @@ impl Selector {
             // every slot is certified beyond the bounds the pass started from
             k.clean = k.pass.take().expect("a pass in progress");
         }
-        for &s in due.iter().take(PREFETCH) {
-            self.prefetch_slot(mesh, s as usize);
-        }
+        self.prefetch_slots(mesh, &due, 0, PREFETCH);
         for (j, &slot) in due.iter().enumerate() {
-            if let Some(&a) = due.get(j + PREFETCH) {
-                self.prefetch_slot(mesh, a as usize);
-            }
+            self.prefetch_slots(mesh, &due, j + PREFETCH, 1);
             if self.eval_kin(mesh, buf, view, mode, slot as usize) != Status::Keep {
                 self.list_add(slot as usize);
             }
@@ -1760,13 +1770,9 @@ impl Selector {
                 let end = (self.lcursor + SCAN_CHUNK).min(self.list.len());
                 let mut i = self.lcursor;
                 let mut end = end;
-                for &a in &self.list[i..end.min(i + PREFETCH)] {
-                    self.prefetch_slot(mesh, a as usize);
-                }
+                self.prefetch_slots(mesh, &self.list, i, PREFETCH);
                 while i < end {
-                    if let Some(&a) = self.list.get(i + PREFETCH) {
-                        self.prefetch_slot(mesh, a as usize);
-                    }
+                    self.prefetch_slots(mesh, &self.list, i + PREFETCH, 1);
                     let slot = self.list[i] as usize;
                     st.scanned += 1;
                     if self.slot_flags[slot] & PARKED != 0 {

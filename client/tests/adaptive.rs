@@ -719,7 +719,7 @@ fn long_sequence_level4() {
 }
 
 /// A hierarchy deeper than the mesh's 32-bit vertex keys allow (one tet, 12 levels: about 1.2e10
-/// keys) is refused with an error, not a panic, and without allocating for its keys.
+/// keys) is refused with an error, not a panic.
 #[test]
 fn too_many_vertex_keys_is_an_error() {
     let positions = vec![corner(0), corner(1), corner(2), corner(4)];

@@ -203,8 +203,8 @@ fn euler_edges() {
 }
 
 /// `--full-scan` (the reference selector, no per-slot caches) takes the same path as the cached
-/// selector: the same splits and merges step by step, the same final mesh, and a selector that
-/// holds less memory.
+/// selector: as many splits and merges, the same final mesh, and a selector that holds less
+/// memory.
 #[test]
 fn full_scan_takes_the_same_path() {
     let (base, mut nodes) = make_nodes(box5(4), harmonic);
