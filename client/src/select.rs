@@ -387,12 +387,15 @@ impl<T: Ord> CandQueue<T> {
 /// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most, when a batch is cut into chunks.
 const MERGE_CHUNK: usize = 256;
 /// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
-/// and at least half of the frame is left, and the size of a chunk taken then when more wait (see
-/// `Selector::apply_merges`). With 2,048, level 6 at 10% and 8 ms fell behind in half of its runs
+/// and at least half of the frame is left (or what is left covers them, see [`uncut_batch`]), and
+/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). With 2,048, level 6 at 10% and 8 ms fell behind in half of its runs
 /// (chunks refuse merges a whole batch allows; 1.84–2.13 M tets/s, 6–11 frames to settle); with
 /// 4,096 in none of 8 (2.27–2.44 M/s), its largest step at 6.25% 10.4–11.2 ms instead of about 9
 /// (8,192: 12.9–14.5 ms).
 const WHOLE_MERGES: usize = 4096;
+/// [`Selector::merge_cost`] before any uncut batch was timed: one microsecond per candidate (a
+/// level-6 run's batches take about 0.4).
+const INITIAL_MERGE_COST: f64 = 1e-6;
 /// How many slots ahead the loops over listed slots ask for their cache lines
 /// ([`Selector::prefetch_slot`]).
 const PREFETCH: usize = 8;
@@ -541,6 +544,9 @@ pub struct Selector {
     sweep_refused: usize,
     /// Whether a merge batch of this sweep was cut into chunks (see `Selector::run`'s replay).
     sweep_chunked: bool,
+    /// Seconds per candidate of the uncut merge batches so far (a running average), to tell
+    /// whether one fits in what is left of a frame (see `Self::apply_merges`).
+    merge_cost: f64,
     /// This sweep merges all its candidates in one batch, without the budget: the last sweep
     /// changed nothing but refused merges that may only hold together (a group split across
     /// batches); run once before declaring convergence, so budgeted frames reach the unbudgeted mesh.
@@ -681,6 +687,23 @@ fn due_mask(ue: &[f32], uf: &[f32], we: f32, wf: f32) -> u64 {
     mask
 }
 
+/// Whether `queued` merge candidates go in one uncut batch ([`Selector::apply_merges`], no
+/// operation budget): always without a time budget (`left`, the time left in the frame: `None`);
+/// under one, when at most [`WHOLE_MERGES`] wait and either half of the frame is left (`early`) or
+/// what is left covers their expected time at `cost` seconds per candidate. The last case stops
+/// the second half of a frame from cutting into 256-candidate chunks a batch that fits: chunks
+/// refuse the merges that hold only together (level 6, 10%, 8 ms: in one run 2,609 late chunks
+/// attempted 646 k merges and 21 k held), and a sweep whose batches were cut takes one more
+/// sweep to consolidate.
+fn uncut_batch(queued: usize, early: bool, left: Option<Duration>, cost: f64) -> bool {
+    match left {
+        None => true,
+        Some(left) => {
+            queued <= WHOLE_MERGES && (early || left.as_secs_f64() >= cost * queued as f64)
+        }
+    }
+}
+
 /// `x` rounded up to an `f32`.
 #[inline]
 fn f32_up(x: f64) -> f32 {
@@ -713,6 +736,7 @@ impl Selector {
             sweep_changes: 0,
             sweep_refused: 0,
             sweep_chunked: false,
+            merge_cost: INITIAL_MERGE_COST,
             consolidating: false,
             dirty: true,
             converged: false,
@@ -2125,11 +2149,9 @@ impl Selector {
             // sweep (level 5, 10%, 8 ms: 1,688 sweeps instead of 626, 2.7 times the attempts).
             // Otherwise chunks, with a clock check between them.
             let early = max_ops == usize::MAX && whole_until.is_some_and(|t| Instant::now() < t);
+            let left = deadline.map(|t| t.saturating_duration_since(Instant::now()));
             let whole = max_ops == usize::MAX
-                && match deadline {
-                    None => true,
-                    Some(_) => early && self.merges.len() <= WHOLE_MERGES,
-                };
+                && uncut_batch(self.merges.len(), early, left, self.merge_cost);
             let chunk = if whole {
                 usize::MAX
             } else {
@@ -2187,7 +2209,12 @@ impl Selector {
             st.merge_attempts += batch.len();
             let t = Instant::now();
             let held = mesh.coarsen_batch_at(&batch, &slots, buf);
-            st.op_time += t.elapsed();
+            let took = t.elapsed();
+            st.op_time += took;
+            if chunk == usize::MAX {
+                let per = took.as_secs_f64() / batch.len() as f64;
+                self.merge_cost += (per - self.merge_cost) / 4.0;
+            }
             let held = match held {
                 Ok(h) => h,
                 Err(e) => {
@@ -2282,6 +2309,27 @@ impl Selector {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Uncut merge batches: always without a time budget; under one only up to `WHOLE_MERGES`
+    /// candidates, taken whole early in the frame whatever their cost, and late only when the
+    /// time left covers them at the measured cost.
+    #[test]
+    fn uncut_batch_when_it_fits() {
+        let ms = Duration::from_millis;
+        assert!(uncut_batch(1 << 20, false, None, 1.0));
+        assert!(uncut_batch(WHOLE_MERGES, true, Some(ms(0)), 1.0));
+        assert!(!uncut_batch(WHOLE_MERGES + 1, true, Some(ms(100)), 0.0));
+        // 2,000 candidates at 0.5 µs each: 1 ms
+        assert!(uncut_batch(2000, false, Some(ms(1)), 5e-7));
+        assert!(!uncut_batch(
+            2000,
+            false,
+            Some(Duration::from_micros(999)),
+            5e-7
+        ));
+        assert!(!uncut_batch(2000, false, Some(ms(0)), 5e-7));
+        assert!(uncut_batch(0, false, Some(ms(0)), 5e-7));
+    }
 
     /// The vector due mask against its definition, on every length up to 64, with values at,
     /// around and beyond the bounds (infinities and NaN included).
