@@ -7,14 +7,15 @@ Usage: scripts/progressive-table.py [out/bench-progressive.jsonl]
 import json
 import sys
 
-# Thesis Table 2 (Harmonic, 182,819 tets): avg tets, vertices, edges, MB, refine ms per step
+# Thesis Table 2 (Harmonic, 182,819 tets): avg tets, vertices, edges, MB, refine ms per step,
+# render ms per frame, FPS
 THESIS = {
-    "20%": (19383, 3757, 24753, 6.39, 26),
-    "15%": (30913, 6474, 38399, 7.42, 37),
-    "12.5%": (105940, 24130, 128792, 14.15, 235),
-    "10%": (161683, 28213, 197454, 18.99, 399),
-    "6.25%": (177744, 29083, 218458, 20.15, 296),
-    "simple": (182819, 29759, 225449, 20.56, 183),
+    "20%": (19383, 3757, 24753, 6.39, 26, 79, 8.502),
+    "15%": (30913, 6474, 38399, 7.42, 37, 112, 6.108),
+    "12.5%": (105940, 24130, 128792, 14.15, 235, 288, 1.836),
+    "10%": (161683, 28213, 197454, 18.99, 399, 411, 1.193),
+    "6.25%": (177744, 29083, 218458, 20.15, 296, 510, 1.205),
+    "simple": (182819, 29759, 225449, 20.56, 183, 529, 1.365),
 }
 
 
@@ -43,6 +44,26 @@ def main() -> None:
             f"| {r['avg_refine_ms']:.2f} / {r['max_refine_ms']:.2f}, {t[4]} "
             f"| {r['tets_per_s'] / 1e6:.2f} M / {r['op_tets_per_s'] / 1e6:.2f} M |"
         )
+    rendered = [r for r in runs if r.get("render")]
+    if rendered:
+        print()
+        print(f"Rendering ({rendered[0]['render']['renderer']}; thesis: its 2007 GPU), "
+              f"{len(rendered[0]['render']['frames'])} sampled steps per run:")
+        print()
+        print(
+            "| tolerance | run | render ms per frame: ours avg (draw alone) / max, thesis avg "
+            "| FPS (refine + render) ours / thesis | PSNR dB vs full-resolution reference: avg / min / last step |"
+        )
+        print("|---|---|---|---|---|")
+        for r in rendered:
+            t = THESIS.get(r["tol"], (None,) * 7)
+            g = r["render"]
+            name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+            print(
+                f"| {name} | {r['run']} | {g['avg_ms']:.0f} ({g['avg_draw_ms']:.0f}) / {g['max_ms']:.0f}, {t[5]} "
+                f"| {r['fps']:.2f} / {t[6]} "
+                f"| {g['avg_psnr_db']:.2f} / {g['min_psnr_db']:.2f} / {g['frames'][-1]['psnr_db']:.2f} |"
+            )
     print()
     print("run, tol: M tets/s end to end; max / avg refine ms; mesh B per tet (avg), per leaf at the end;")
     print("          selector B per tet (avg); final = unbudgeted (settle frames)")

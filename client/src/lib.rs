@@ -13,6 +13,7 @@ pub mod reference;
 pub mod render;
 pub mod render_cli;
 pub mod render_mesh;
+pub mod render_probe;
 pub mod select;
 pub mod store_info;
 pub mod store_reader;

@@ -7,6 +7,7 @@
 use crate::camera::Camera;
 use crate::detail_buffer::{Arrivals, DetailBuffer};
 use crate::mesh::{AdaptiveMesh, LeafTet, MeshError};
+use crate::render_probe::{RenderProbe, RenderSummary};
 use crate::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
 use glam::DVec3;
 use serde::Serialize;
@@ -174,6 +175,11 @@ pub struct RunReport {
     pub final_same: Option<bool>,
     pub order: ArrivalOrder,
     pub budget_ms: Option<f64>,
+    /// Sampled steps drawn and compared with the full-resolution reference (`--render-every`).
+    pub render: Option<RenderSummary>,
+    /// Frames per second of refinement + rendering, `1000 / (avg_refine_ms + render.avg_ms)`:
+    /// the thesis' FPS column.
+    pub fps: Option<f64>,
 }
 
 /// The orbit camera of step `step`.
@@ -244,6 +250,19 @@ pub fn run_progressive(
     value_range: [f32; 2],
     cfg: &RunConfig,
     order: ArrivalOrder,
+) -> Result<RunReport, MeshError> {
+    run_progressive_with(base, nodes, value_range, cfg, order, &mut |_, _, _| {})
+}
+
+/// [`run_progressive`], calling `observe(step, mesh, camera)` after each step's refinement and
+/// outside its timings (`tetwave bench progressive --render-every` draws there).
+pub fn run_progressive_with(
+    base: &BaseMesh,
+    nodes: &[DetailNode],
+    value_range: [f32; 2],
+    cfg: &RunConfig,
+    order: ArrivalOrder,
+    observe: &mut dyn FnMut(usize, &AdaptiveMesh, &Camera),
 ) -> Result<RunReport, MeshError> {
     let (lo, hi) = base.bounds();
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
@@ -316,6 +335,7 @@ pub fn run_progressive(
         sum_mb += (mesh.bytes_held() + buf.bytes_held()) as f64;
         sum_sel += sel.bytes_held() as f64;
         max_leaves = max_leaves.max(mesh.leaf_count());
+        observe(step, &mesh, &cam);
     }
     let (splits, merges) = mesh.op_counts();
     let (mut settle_frames, mut final_same) = (None, None);
@@ -395,6 +415,8 @@ pub fn run_progressive(
         final_same,
         order,
         budget_ms: cfg.budget_ms,
+        render: None,
+        fps: None,
     })
 }
 
@@ -600,6 +622,18 @@ pub struct BenchArgs {
     /// sweep, without the per-slot caches (less memory, much slower).
     #[arg(long)]
     pub full_scan: bool,
+    /// Also draw the leaf mesh of every K-th step (and of the last) on the GPU (projected
+    /// tetrahedra; Mesa's lavapipe without a GPU) and report render ms, FPS (refinement +
+    /// rendering) and PSNR against the CPU reference image of the full-resolution mesh.
+    #[arg(long, value_name = "K")]
+    pub render_every: Option<usize>,
+    /// With `--render-every`: draw with the CPU reference integrator instead of the GPU.
+    #[arg(long, requires = "render_every")]
+    pub render_cpu: bool,
+    /// Transfer function for `--render-every`: a preset (default, transparent, opaque, shells) or
+    /// a .json file.
+    #[arg(long, default_value = "default")]
+    pub tf: String,
     /// One JSON object per run on stdout.
     #[arg(long)]
     pub json: bool,
@@ -620,6 +654,23 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     if args.simple || args.simple_only {
         tols.push(None);
     }
+    let mut probe = match args.render_every {
+        Some(0) => anyhow::bail!("--render-every must be at least 1"),
+        Some(every) => {
+            let tf = crate::transfer::TransferFunction::load(&args.tf)?;
+            let values = store.synthesize_all()?;
+            let mut full =
+                crate::render_mesh::RenderMesh::uniform_level(store.base(), &values, m.levels);
+            full.value_range = (m.value_range[0], m.value_range[1]);
+            let probe =
+                RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
+                    anyhow::anyhow!("--render-every: {e} (--render-cpu draws on the CPU instead)")
+                })?;
+            tracing::info!("bench progressive draws with {}", probe.renderer());
+            Some(probe)
+        }
+        None => None,
+    };
     let mut out = Vec::new();
     for tol in tols {
         let cfg = RunConfig {
@@ -644,7 +695,25 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             settle: !args.no_settle,
             full_scan: args.full_scan,
         };
-        let r = run_progressive(store.base(), &nodes, m.value_range, &cfg, args.order)?;
+        let steps = cfg.steps;
+        let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &Camera| {
+            if let Some(p) = probe.as_mut().filter(|p| p.wants(step, steps)) {
+                p.observe(step, mesh, cam);
+            }
+        };
+        let mut r = run_progressive_with(
+            store.base(),
+            &nodes,
+            m.value_range,
+            &cfg,
+            args.order,
+            &mut observe,
+        )?;
+        if let Some(p) = probe.as_mut() {
+            let summary = p.finish()?;
+            r.fps = Some(1e3 / (r.avg_refine_ms + summary.avg_ms));
+            r.render = Some(summary);
+        }
         emit(&r);
         out.push(r);
     }
@@ -652,12 +721,19 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
 }
 
 /// Header of the text table [`table_row`] fills.
-pub const TABLE_HEADER: &str = "tol      avg tets  max tets  vertices     edges      MB  B/leaf (+sel)  refine ms avg/max  arrive ms avg/max  tets/s (ops only)  sweeps  final=unbudgeted";
+pub const TABLE_HEADER: &str = "tol      avg tets  max tets  vertices     edges      MB  B/leaf (+sel)  refine ms avg/max  arrive ms avg/max  tets/s (ops only)  sweeps  final=unbudgeted  render ms avg/max  FPS  PSNR dB avg/min";
 
 /// One text row of the table.
 pub fn table_row(r: &RunReport) -> String {
+    let render = match (&r.render, r.fps) {
+        (Some(s), Some(fps)) => format!(
+            "  {:>8.1}/{:<8.1} {:>5.2}  {:.2}/{:.2}",
+            s.avg_ms, s.max_ms, fps, s.avg_psnr_db, s.min_psnr_db
+        ),
+        _ => "  -".into(),
+    };
     format!(
-        "{:<7} {:>9.0} {:>9} {:>9.0} {:>9.0} {:>7.2} {:>6.1} (+{:>5.1}) {:>9.3}/{:<8.3} {:>8.3}/{:<8.3} {:>6.2}M ({:>6.2}M) {:>7}  {}",
+        "{:<7} {:>9.0} {:>9} {:>9.0} {:>9.0} {:>7.2} {:>6.1} (+{:>5.1}) {:>9.3}/{:<8.3} {:>8.3}/{:<8.3} {:>6.2}M ({:>6.2}M) {:>7}  {}{render}",
         r.tol,
         r.avg_tets,
         r.max_tets,

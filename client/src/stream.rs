@@ -553,18 +553,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         let img = if args.no_render {
             None
         } else {
-            let leaves = mesh.drawable_leaf_tets();
-            let positions: Vec<[f64; 3]> = mesh
-                .positions()
-                .iter()
-                .map(|p| p.map(|x| x as f64))
-                .collect();
-            let mut rm = RenderMesh::new(
-                positions,
-                leaves.iter().map(|t| t.v).collect(),
-                mesh.values().to_vec(),
-            );
-            rm.value_range = (m.value_range[0], m.value_range[1]);
+            let rm = RenderMesh::of_adaptive(mesh, m.value_range);
             let img = match &gpu {
                 Some((ctx, r)) => {
                     let data = r.upload(ctx, &rm)?;

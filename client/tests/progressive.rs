@@ -238,3 +238,81 @@ fn full_scan_takes_the_same_path() {
         );
     }
 }
+
+/// Runs the experiment at level 3 (`steps` of 20 nodes, so that the first steps lack details) with
+/// a render probe drawing every 4th step at 48×48, and returns its frames.
+fn probed_run(
+    tol: Option<f64>,
+    cpu: bool,
+) -> (
+    tetwave_client::progressive::RunReport,
+    tetwave_client::render_probe::RenderSummary,
+) {
+    use tetwave_client::progressive::run_progressive_with;
+    use tetwave_client::render_mesh::RenderMesh;
+    use tetwave_client::render_probe::RenderProbe;
+    use tetwave_client::transfer::TransferFunction;
+    let (base, mut nodes) = make_nodes(box5(3), harmonic);
+    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
+    let values = tetwave_protocol::synthesis::synthesize_all(
+        &base,
+        &base.vertex_keys(),
+        nodes.iter().cloned(),
+    )
+    .unwrap();
+    let range = [-1.0, 1.0];
+    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
+    full.value_range = (range[0], range[1]);
+    let tf = TransferFunction::preset("default").unwrap();
+    let mut probe = RenderProbe::new(full, range, 4, cpu, tf)
+        .unwrap_or_else(|e| panic!("the render probe cannot run: {e}"));
+    let cfg = RunConfig {
+        steps: 30,
+        per_step: 20,
+        width: 48,
+        height: 48,
+        tol: tol.map(Tolerance::PercentOfHeight),
+        ..RunConfig::default()
+    };
+    let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &tetwave_client::camera::Camera| {
+        if probe.wants(step, cfg.steps) {
+            probe.observe(step, mesh, cam);
+        }
+    };
+    let r = run_progressive_with(
+        &base,
+        &nodes,
+        range,
+        &cfg,
+        ArrivalOrder::Level,
+        &mut observe,
+    )
+    .unwrap();
+    (r, probe.finish().unwrap())
+}
+
+/// `--render-every` on the CPU: the sampled steps are every 4th and the last; with every detail
+/// arrived, the simple run's leaf mesh is the full-resolution mesh, so its last image matches
+/// the reference (up to the f32 positions), while the first, with few details, is far from it.
+#[test]
+fn render_probe_measures_image_error() {
+    let (_, s) = probed_run(None, true);
+    let steps: Vec<usize> = s.frames.iter().map(|f| f.step).collect();
+    assert_eq!(steps, [0, 4, 8, 12, 16, 20, 24, 28, 29]);
+    assert_eq!(s.renderer, "cpu-reference");
+    let (first, last) = (&s.frames[0], s.frames.last().unwrap());
+    assert!(last.psnr_db >= 60.0, "last frame {} dB", last.psnr_db);
+    assert!(first.psnr_db < last.psnr_db - 10.0, "{first:?} vs {last:?}");
+    assert!(first.tets < last.tets);
+    assert_eq!(s.min_psnr_db, first.psnr_db);
+    // a coarse tolerance keeps fewer tets and loses accuracy against the same reference
+    let (r, coarse) = probed_run(Some(50.0), true);
+    assert!(coarse.frames.last().unwrap().tets < last.tets);
+    assert!(
+        coarse.frames.last().unwrap().psnr_db < last.psnr_db,
+        "{:?} {:?}",
+        coarse.frames,
+        last
+    );
+    assert!(r.final_same == Some(true));
+}

@@ -2,6 +2,8 @@
 //! These tests need a GPU adapter; `scripts/setup` installs Mesa's lavapipe. Without one they fail
 //! with the renderer's "no GPU adapter" message rather than skip.
 
+mod common;
+
 use glam::DVec3;
 use tetwave_client::camera::Camera;
 use tetwave_client::image_metrics::{psnr, Rgba8Image};
@@ -277,4 +279,57 @@ fn accumulation_precisions_are_ordered_and_bounded() {
         out[0] + 0.5 >= out[1] && out[1] + 0.5 >= out[2],
         "precisions out of order: {out:?}"
     );
+}
+
+/// `tetwave bench progressive --render-every` on the GPU: the simple run's last frame (every detail
+/// arrived) agrees with the CPU reference of the full-resolution mesh.
+#[test]
+fn render_probe_on_the_gpu() {
+    use tetwave_client::mesh::AdaptiveMesh;
+    use tetwave_client::progressive::{order_nodes, run_progressive_with, ArrivalOrder, RunConfig};
+    use tetwave_client::render_probe::RenderProbe;
+    let (base, mut nodes) = common::make_nodes(common::box5(3), common::harmonic);
+    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
+    let values = tetwave_protocol::synthesis::synthesize_all(
+        &base,
+        &base.vertex_keys(),
+        nodes.iter().cloned(),
+    )
+    .unwrap();
+    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
+    full.value_range = (-1.0, 1.0);
+    let tf = TransferFunction::preset("default").unwrap();
+    let mut probe = RenderProbe::new(full, [-1.0, 1.0], 10, false, tf)
+        .unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"));
+    assert!(probe.renderer().starts_with("gpu-pt"));
+    let cfg = RunConfig {
+        steps: 20,
+        per_step: 40,
+        width: 96,
+        height: 96,
+        tol: None,
+        ..RunConfig::default()
+    };
+    let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &Camera| {
+        if probe.wants(step, cfg.steps) {
+            probe.observe(step, mesh, cam);
+        }
+    };
+    run_progressive_with(
+        &base,
+        &nodes,
+        [-1.0, 1.0],
+        &cfg,
+        ArrivalOrder::Level,
+        &mut observe,
+    )
+    .unwrap();
+    let s = probe.finish().unwrap();
+    assert_eq!(
+        s.frames.iter().map(|f| f.step).collect::<Vec<_>>(),
+        [0, 10, 19]
+    );
+    let last = s.frames.last().unwrap();
+    assert!(last.psnr_db >= 40.0, "{last:?}");
+    assert!(s.frames[0].psnr_db < last.psnr_db, "{:?}", s.frames);
 }
