@@ -1,0 +1,88 @@
+//! `tetwave bench progressive --render-every` on a store the server prepared, then
+//! `scripts/charts.py` on its JSON lines: every run carries its drawn frames (render ms, PSNR
+//! against the full-resolution reference) and the chart script turns them into SVG charts.
+//! Needs `python3` (installed by `scripts/setup`); fails if it cannot run.
+
+use clap::Parser;
+use std::process::Command;
+use tetwave_client::progressive::{bench, BenchArgs};
+use tetwave_server::prepare::{prepare, PrepareOptions};
+
+#[derive(Parser)]
+struct Cli {
+    #[command(flatten)]
+    bench: BenchArgs,
+}
+
+#[test]
+fn render_every_feeds_the_charts() {
+    let d = tempfile::tempdir().unwrap();
+    let store = d.path().join("s");
+    let mut o = PrepareOptions::new("synthetic:harmonic", &store);
+    o.levels = 3;
+    prepare(&o).unwrap();
+    let cli = Cli::try_parse_from([
+        "bench",
+        "--store",
+        store.to_str().unwrap(),
+        "--steps",
+        "12",
+        "--per-step",
+        "40",
+        "--width",
+        "40",
+        "--height",
+        "40",
+        "--tol",
+        "50%,10%",
+        "--simple",
+        "--render-every",
+        "5",
+        "--render-cpu",
+    ])
+    .unwrap();
+    let mut lines = String::new();
+    let runs = bench(&cli.bench, |r| {
+        lines += &serde_json::to_string(r).unwrap();
+        lines.push('\n');
+    })
+    .unwrap();
+    assert_eq!(runs.len(), 3);
+    for r in &runs {
+        let s = r.render.as_ref().expect("drawn");
+        let steps: Vec<usize> = s.frames.iter().map(|f| f.step).collect();
+        assert_eq!(steps, [0, 5, 10, 11], "{}", r.tol);
+        assert!(s.frames.iter().all(|f| f.psnr_db.is_finite() && f.ms > 0.0));
+        let fps = r.fps.unwrap();
+        assert!((fps - 1e3 / (r.avg_refine_ms + s.avg_ms)).abs() < 1e-9);
+    }
+    // the simple run ends on the full-resolution mesh: its last image is the reference's
+    let simple = runs[2].render.as_ref().unwrap();
+    assert!(simple.frames.last().unwrap().psnr_db >= 60.0);
+    let jsonl = d.path().join("runs.jsonl");
+    std::fs::write(&jsonl, lines).unwrap();
+    let charts = d.path().join("charts");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/charts.py");
+    let out = Command::new("python3")
+        .args([script, "progressive"])
+        .arg(&jsonl)
+        .arg(&charts)
+        .output()
+        .unwrap_or_else(|e| panic!("python3 cannot run ({e}); scripts/setup installs it"));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in [
+        "progressive-psnr-vs-frame-ms.svg",
+        "progressive-psnr-by-step.svg",
+    ] {
+        let svg = std::fs::read_to_string(charts.join(name)).unwrap();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        // one point per tolerance, or per drawn frame of every run
+        let points = svg.matches("<circle").count();
+        let want = if name.contains("by-step") { 12 } else { 3 };
+        assert_eq!(points, want, "{name}");
+    }
+}
