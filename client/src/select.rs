@@ -2113,7 +2113,10 @@ impl Selector {
                 break;
             }
         }
-        if !self.reference {
+        if self.reference {
+            // it reads no changes: the log would only grow to its bound
+            mesh.trim_changes(mesh.change_seq());
+        } else {
             self.absorb_changes(mesh);
         }
         st.converged = self.converged;

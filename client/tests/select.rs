@@ -464,3 +464,30 @@ fn incremental_sees_outside_changes() {
         assert_eq!(sorted_leaves(&a), sorted_leaves(&b), "round {i}");
     }
 }
+
+/// The reference selector reads no mesh changes, so it trims the mesh's change log after every
+/// frame instead of letting it grow to its bound (memory a `--full-scan` run would hold for
+/// nothing); the cached selector trims what it has read.
+#[test]
+fn selectors_leave_the_change_log_trimmed() {
+    for reference in [true, false] {
+        let (mut mesh, buf, _) = loaded(3, harmonic);
+        let p = SelectParams::new(Tolerance::Pixels(4.0), [-1.0, 1.0]);
+        let mut sel = if reference {
+            Selector::full_scan(p)
+        } else {
+            Selector::new(p)
+        };
+        for (az, dist) in [(0.0, 60.0), (90.0, 30.0), (200.0, 22.0)] {
+            let before = mesh.change_seq();
+            sel.frame(&mut mesh, &buf, &cam(az, dist), Mode::Interactive)
+                .unwrap();
+            assert!(mesh.change_seq() > before, "frame at {az}° changed nothing");
+            assert_eq!(mesh.changes_since(mesh.change_seq()), Some(&[][..]));
+            assert!(
+                mesh.changes_since(before).is_none(),
+                "reference {reference}: the changes of the frame at {az}° are still logged"
+            );
+        }
+    }
+}
