@@ -625,7 +625,7 @@ pub struct BenchArgs {
     /// Also draw the leaf mesh of every K-th step (and of the last) on the GPU (projected
     /// tetrahedra; Mesa's lavapipe without a GPU) and report render ms, FPS (refinement +
     /// rendering) and PSNR against the CPU reference image of the full-resolution mesh.
-    #[arg(long, value_name = "K")]
+    #[arg(long, value_name = "K", value_parser = at_least_one)]
     pub render_every: Option<usize>,
     /// With `--render-every`: draw with the CPU reference integrator instead of the GPU.
     #[arg(long, requires = "render_every")]
@@ -637,6 +637,14 @@ pub struct BenchArgs {
     /// One JSON object per run on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+/// A count of at least 1 (`--render-every`).
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("expected a whole number of at least 1, got {s:?}")),
+    }
 }
 
 /// Runs `tetwave bench progressive`: one [`RunReport`] per tolerance (and the simple run).
@@ -655,7 +663,6 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
         tols.push(None);
     }
     let mut probe = match args.render_every {
-        Some(0) => anyhow::bail!("--render-every must be at least 1"),
         Some(every) => {
             let tf = crate::transfer::TransferFunction::load(&args.tf)?;
             let values = store.synthesize_all()?;

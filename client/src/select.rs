@@ -388,10 +388,10 @@ impl<T: Ord> CandQueue<T> {
 const MERGE_CHUNK: usize = 256;
 /// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
 /// and at least half of the frame is left (or what is left covers them, see [`uncut_batch`]), and
-/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). With 2,048, level 6 at 10% and 8 ms fell behind in half of its runs
-/// (chunks refuse merges a whole batch allows; 1.84–2.13 M tets/s, 6–11 frames to settle); with
-/// 4,096 in none of 8 (2.27–2.44 M/s), its largest step at 6.25% 10.4–11.2 ms instead of about 9
-/// (8,192: 12.9–14.5 ms).
+/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). With
+/// 2,048, level 6 at 10% and 8 ms fell behind in half of its runs (chunks refuse merges a whole
+/// batch allows; 1.84–2.13 M tets/s, 6–11 frames to settle); with 4,096 in none of 8 (2.27–2.44
+/// M/s), its largest step at 6.25% 10.4–11.2 ms instead of about 9 (8,192: 12.9–14.5 ms).
 const WHOLE_MERGES: usize = 4096;
 /// [`Selector::merge_cost`] before any uncut batch was timed: one microsecond per candidate (a
 /// level-6 run's batches take about 0.4).
