@@ -239,8 +239,8 @@ fn full_scan_takes_the_same_path() {
     }
 }
 
-/// Runs the experiment at level 3 (`steps` of 20 nodes, so that the first steps lack details) with
-/// a render probe drawing every 4th step at 48×48, and returns its frames.
+/// Level 3, 30 steps of 20 nodes (so that the first steps lack details), every 4th step drawn at
+/// 48×48 on the CPU.
 fn probed_run(
     tol: Option<f64>,
     cpu: bool,
@@ -248,24 +248,6 @@ fn probed_run(
     tetwave_client::progressive::RunReport,
     tetwave_client::render_probe::RenderSummary,
 ) {
-    use tetwave_client::progressive::run_progressive_with;
-    use tetwave_client::render_mesh::RenderMesh;
-    use tetwave_client::render_probe::RenderProbe;
-    use tetwave_client::transfer::TransferFunction;
-    let (base, mut nodes) = make_nodes(box5(3), harmonic);
-    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
-    let values = tetwave_protocol::synthesis::synthesize_all(
-        &base,
-        &base.vertex_keys(),
-        nodes.iter().cloned(),
-    )
-    .unwrap();
-    let range = [-1.0, 1.0];
-    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
-    full.value_range = (range[0], range[1]);
-    let tf = TransferFunction::preset("default").unwrap();
-    let mut probe = RenderProbe::new(full, range, 4, cpu, tf)
-        .unwrap_or_else(|e| panic!("the render probe cannot run: {e}"));
     let cfg = RunConfig {
         steps: 30,
         per_step: 20,
@@ -274,21 +256,7 @@ fn probed_run(
         tol: tol.map(Tolerance::PercentOfHeight),
         ..RunConfig::default()
     };
-    let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &tetwave_client::camera::Camera| {
-        if probe.wants(step, cfg.steps) {
-            probe.observe(step, mesh, cam);
-        }
-    };
-    let r = run_progressive_with(
-        &base,
-        &nodes,
-        range,
-        &cfg,
-        ArrivalOrder::Level,
-        &mut observe,
-    )
-    .unwrap();
-    (r, probe.finish().unwrap())
+    common::probed_run(3, &cfg, 4, cpu)
 }
 
 /// `--render-every` on the CPU: the sampled steps are every 4th and the last; with every detail

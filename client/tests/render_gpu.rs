@@ -285,23 +285,7 @@ fn accumulation_precisions_are_ordered_and_bounded() {
 /// arrived) agrees with the CPU reference of the full-resolution mesh.
 #[test]
 fn render_probe_on_the_gpu() {
-    use tetwave_client::mesh::AdaptiveMesh;
-    use tetwave_client::progressive::{order_nodes, run_progressive_with, ArrivalOrder, RunConfig};
-    use tetwave_client::render_probe::RenderProbe;
-    let (base, mut nodes) = common::make_nodes(common::box5(3), common::harmonic);
-    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
-    let values = tetwave_protocol::synthesis::synthesize_all(
-        &base,
-        &base.vertex_keys(),
-        nodes.iter().cloned(),
-    )
-    .unwrap();
-    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
-    full.value_range = (-1.0, 1.0);
-    let tf = TransferFunction::preset("default").unwrap();
-    let mut probe = RenderProbe::new(full, [-1.0, 1.0], 10, false, tf)
-        .unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"));
-    assert!(probe.renderer().starts_with("gpu-pt"));
+    use tetwave_client::progressive::RunConfig;
     let cfg = RunConfig {
         steps: 20,
         per_step: 40,
@@ -310,21 +294,8 @@ fn render_probe_on_the_gpu() {
         tol: None,
         ..RunConfig::default()
     };
-    let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &Camera| {
-        if probe.wants(step, cfg.steps) {
-            probe.observe(step, mesh, cam);
-        }
-    };
-    run_progressive_with(
-        &base,
-        &nodes,
-        [-1.0, 1.0],
-        &cfg,
-        ArrivalOrder::Level,
-        &mut observe,
-    )
-    .unwrap();
-    let s = probe.finish().unwrap();
+    let (_, s) = common::probed_run(3, &cfg, 10, false);
+    assert!(s.renderer.starts_with("gpu-pt"), "{}", s.renderer);
     assert_eq!(
         s.frames.iter().map(|f| f.step).collect::<Vec<_>>(),
         [0, 10, 19]

@@ -100,3 +100,45 @@ pub fn harmonic(p: [f64; 3]) -> f32 {
     let s = std::f64::consts::PI / 15.0;
     ((s * p[0]).sin() * (s * p[1]).cos() * (0.5 * s * p[2]).sin()) as f32
 }
+
+/// The progressive experiment on the level-`levels` harmonic hierarchy (nodes in level order) with
+/// a render probe drawing every `every`-th step (GPU, or the CPU reference when `cpu`) against the
+/// full-resolution mesh: the run's report and the probe's figures.
+pub fn probed_run(
+    levels: u8,
+    cfg: &tetwave_client::progressive::RunConfig,
+    every: usize,
+    cpu: bool,
+) -> (
+    tetwave_client::progressive::RunReport,
+    tetwave_client::render_probe::RenderSummary,
+) {
+    use tetwave_client::camera::Camera;
+    use tetwave_client::mesh::AdaptiveMesh;
+    use tetwave_client::progressive::{order_nodes, run_progressive_with, ArrivalOrder};
+    use tetwave_client::render_mesh::RenderMesh;
+    use tetwave_client::render_probe::RenderProbe;
+    use tetwave_client::transfer::TransferFunction;
+    let (base, mut nodes) = make_nodes(box5(levels), harmonic);
+    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
+    let values = tetwave_protocol::synthesis::synthesize_all(
+        &base,
+        &base.vertex_keys(),
+        nodes.iter().cloned(),
+    )
+    .unwrap();
+    let range = [-1.0, 1.0];
+    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
+    full.value_range = (range[0], range[1]);
+    let tf = TransferFunction::preset("default").unwrap();
+    let mut probe = RenderProbe::new(full, range, every, cpu, tf)
+        .unwrap_or_else(|e| panic!("the render probe cannot run: {e}"));
+    let mut observe = |step: usize, mesh: &AdaptiveMesh, cam: &Camera| {
+        if probe.wants(step, cfg.steps) {
+            probe.observe(step, mesh, cam);
+        }
+    };
+    let r =
+        run_progressive_with(&base, &nodes, range, cfg, ArrivalOrder::Level, &mut observe).unwrap();
+    (r, probe.finish().unwrap())
+}
