@@ -4,8 +4,10 @@
   scripts/charts.py progressive [out/bench-progressive.jsonl] [OUT_DIR]
       From the runs drawn with `--render-every` (scripts/bench-progressive's `l5-render`):
       progressive-psnr-vs-frame-ms.svg  mean PSNR against refine + render ms per frame, one point
-                                        per tolerance (the FPS column's speed/accuracy trade);
-      progressive-psnr-by-step.svg      PSNR of each drawn step, one line per tolerance.
+                                        per tolerance, one line per run (the FPS column's
+                                        speed/accuracy trade);
+      progressive-psnr-by-step[-RUN].svg  PSNR of each drawn step, one line per tolerance (one
+                                        chart per run when there are several).
   scripts/charts.py stream [out/frames/frames.jsonl] [OUT_DIR]
       From a `tetwave stream --psnr` run (scripts/demo):
       stream-psnr-vs-bytes.svg          PSNR against bytes received;
@@ -110,28 +112,29 @@ def progressive(src, outdir):
     if not runs:
         raise SystemExit(f"{src}: no run drawn with --render-every")
     renderer = runs[0]["render"]["renderer"].split(" (")[0]
-    pts = [
-        (1e3 / r["fps"], r["render"]["avg_psnr_db"], r["tol"])
-        for r in runs
-    ]
+    by_run = {}
+    for r in runs:
+        by_run.setdefault(r.get("run", "run"), []).append(r)
     chart(
         os.path.join(outdir, "progressive-psnr-vs-frame-ms.svg"),
         f"Progressive run: accuracy against frame time ({renderer})",
         "refine + render ms per frame",
         "mean PSNR dB vs full-resolution reference",
-        [("tolerance", sorted(pts))],
+        [
+            (name, sorted((1e3 / r["fps"], r["render"]["avg_psnr_db"], r["tol"]) for r in rs))
+            for name, rs in by_run.items()
+        ],
         labels=True,
     )
-    chart(
-        os.path.join(outdir, "progressive-psnr-by-step.svg"),
-        "Progressive run: PSNR of the drawn steps (1000 nodes arrive per step)",
-        "step",
-        "PSNR dB vs full-resolution reference",
-        [
-            (r["tol"], [(f["step"], f["psnr_db"], None) for f in r["render"]["frames"]])
-            for r in runs
-        ],
-    )
+    for name, rs in by_run.items():
+        suffix = "" if len(by_run) == 1 else f"-{name}"
+        chart(
+            os.path.join(outdir, f"progressive-psnr-by-step{suffix}.svg"),
+            f"Progressive run {name}: PSNR of the drawn steps",
+            "step",
+            "PSNR dB vs full-resolution reference",
+            [(r["tol"], [(f["step"], f["psnr_db"], None) for f in r["render"]["frames"]]) for r in rs],
+        )
 
 
 def stream(src, outdir):
