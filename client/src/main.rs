@@ -58,7 +58,7 @@ fn bench_progressive(args: &tetwave_client::progressive::BenchArgs) -> ExitCode 
     match res {
         Ok(_) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {e}");
             ExitCode::FAILURE
         }
     }

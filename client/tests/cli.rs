@@ -1,0 +1,41 @@
+//! `tetwave bench progressive` on bad input: a clear one-line error and a failing exit status,
+//! never a panic.
+
+use std::process::Command;
+
+fn tetwave(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .args(args)
+        .output()
+        .expect("tetwave runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bench_progressive_bad_input_fails_clearly() {
+    let (ok, err) = tetwave(&["bench", "progressive", "--store", "/nonexistent/store"]);
+    assert!(!ok);
+    let line = err.lines().find(|l| l.starts_with("error:")).expect(&err);
+    assert!(line.contains("/nonexistent/store/manifest.json"), "{err}");
+    // the cause once, not repeated by the error chain
+    assert_eq!(line.matches("os error 2").count(), 1, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    let (ok, err) = tetwave(&[
+        "bench",
+        "progressive",
+        "--store",
+        "/nonexistent/store",
+        "--render-every",
+        "0",
+    ]);
+    assert!(!ok);
+    assert!(err.contains("at least 1"), "{err}");
+
+    let (ok, err) = tetwave(&["bench", "progressive", "--store", "x", "--render-cpu"]);
+    assert!(!ok);
+    assert!(err.contains("--render-every"), "{err}");
+}
