@@ -665,9 +665,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     let mut probe = match args.render_every {
         Some(every) => {
             let tf = crate::transfer::TransferFunction::load(&args.tf)?;
-            let values = store.synthesize_all()?;
-            let mut full =
-                crate::render_mesh::RenderMesh::uniform_level(store.base(), &values, m.levels);
+            let (mut full, _) = crate::render_cli::store_mesh(&store, None)?;
             full.value_range = (m.value_range[0], m.value_range[1]);
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
