@@ -8,7 +8,7 @@
 //! Storage is arrays + u32 indices + free lists, no pointer graph:
 //! - **nodes**: one [`Node`] per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
 //!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
-//!   through a free list of blocks. A node (16 bytes) keeps its id, its first child slot, flags,
+//!   through a free list of blocks. A node (12 bytes) keeps its id, its first child slot, flags,
 //!   and for a leaf its green pattern (the marked-edge mask; the midpoints are looked up when the
 //!   greens are listed). Vertex slots are kept per block: the parent's 4 corners and 6 edge
 //!   midpoints (40 bytes for 8 children; a child's 4 vertices are 4 of these, [`BEY_CHILDREN`]),
@@ -624,11 +624,14 @@ struct Refusal {
 
 const UNKNOWN: u32 = u32::MAX - 1;
 
-/// One node of the red tree (see the module docs): 16 bytes.
+/// One node of the red tree (see the module docs): 12 bytes. Its id is split in a low word and a
+/// high byte ([`MAX_TETS`]): with a 64-bit id the node took 16 bytes, and the mesh 4 more per
+/// slot.
 #[derive(Debug, Clone, Copy)]
 struct Node {
-    id: TetId,
+    id_lo: u32,
     children: u32,
+    id_hi: u8,
     /// Marked edges of a leaf (its green pattern); 0 for refined nodes.
     mask: u8,
     flags: u8,
@@ -636,14 +639,31 @@ struct Node {
     nref: u8,
 }
 
+const _: () = assert!(std::mem::size_of::<Node>() == 12);
+
+/// Tets a hierarchy may have (all levels) for [`AdaptiveMesh::new`]: a node keeps 40 bits of id.
+pub const MAX_TETS: u64 = 1 << 40;
+
 impl Node {
-    const DEAD: Node = Node {
-        id: 0,
-        children: NONE,
-        mask: 0,
-        flags: 0,
-        nref: 0,
-    };
+    const DEAD: Node = Node::new(0, NONE, 0, 0);
+
+    #[inline(always)]
+    const fn new(id: TetId, children: u32, mask: u8, flags: u8) -> Node {
+        Node {
+            id_lo: id as u32,
+            children,
+            id_hi: (id >> 32) as u8,
+            mask,
+            flags,
+            nref: 0,
+        }
+    }
+
+    #[inline(always)]
+    fn id(&self) -> TetId {
+        self.id_lo as TetId | (self.id_hi as TetId) << 32
+    }
+
     #[inline]
     fn is_leaf(&self) -> bool {
         self.children == NONE
@@ -685,6 +705,8 @@ pub enum MeshError {
     ClosureBound(usize),
     #[error("the hierarchy has {0} vertex keys: the adaptive mesh holds at most 2^32 - 1")]
     TooManyKeys(u64),
+    #[error("the hierarchy has {0} tets: the adaptive mesh holds at most 2^40")]
+    TooManyTets(u64),
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -839,9 +861,13 @@ pub fn green_piece_count(mask: u8) -> usize {
 
 impl AdaptiveMesh {
     /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`]; a
-    /// hierarchy with 2^32 vertex keys or more is refused (the mesh packs keys in 32 bits).
+    /// hierarchy with 2^32 vertex keys or more, or [`MAX_TETS`] tets or more, is refused (the mesh
+    /// packs keys in 32 bits and ids in 40).
     pub fn new(base: &BaseMesh) -> Result<Self, MeshError> {
         let forest = base.forest();
+        if forest.total_tets() >= MAX_TETS {
+            return Err(MeshError::TooManyTets(forest.total_tets()));
+        }
         let keys = base.vertex_keys();
         let nkeys = keys.vertex_count();
         if nkeys >= NONE as u64 {
@@ -885,13 +911,7 @@ impl AdaptiveMesh {
             if base.empty[t] {
                 flags |= EMPTY;
             }
-            nodes.push(Node {
-                id: t as TetId,
-                children: NONE,
-                mask: 0,
-                flags,
-                nref: 0,
-            });
+            nodes.push(Node::new(t as TetId, NONE, 0, flags));
         }
         let mut m = AdaptiveMesh {
             forest,
@@ -1008,7 +1028,7 @@ impl AdaptiveMesh {
     fn red_view(&self, slot: u32, n: &Node) -> RedNode {
         let leaf = n.is_leaf();
         RedNode {
-            id: n.id,
+            id: n.id(),
             slot,
             leaf,
             empty: n.flags & EMPTY != 0,
@@ -1035,7 +1055,7 @@ impl AdaptiveMesh {
     pub fn slot_holds(&self, slot: usize, id: TetId) -> bool {
         self.nodes
             .get(slot)
-            .is_some_and(|n| n.alive() && n.id == id)
+            .is_some_and(|n| n.alive() && n.id() == id)
     }
 
     /// Node slot of hierarchy tet `id`, if it is in the red tree (see [`Self::red_node`]).
@@ -1170,7 +1190,7 @@ impl AdaptiveMesh {
         self.nodes
             .iter()
             .filter(|n| n.alive() && n.is_leaf())
-            .map(|n| n.id)
+            .map(|n| n.id())
             .collect()
     }
 
@@ -1179,7 +1199,7 @@ impl AdaptiveMesh {
         self.nodes
             .iter()
             .filter(|n| n.alive() && !n.is_leaf())
-            .map(|n| n.id)
+            .map(|n| n.id())
             .collect()
     }
 
@@ -1188,7 +1208,7 @@ impl AdaptiveMesh {
         self.nodes
             .iter()
             .filter(|n| n.alive() && !n.is_leaf() && self.children_leaves(n))
-            .map(|n| n.id)
+            .map(|n| n.id())
             .collect()
     }
 
@@ -1303,7 +1323,7 @@ impl AdaptiveMesh {
                 let v = if flip { [v[0], v[1], v[3], v[2]] } else { v };
                 f(LeafTet {
                     v,
-                    hier: n.id,
+                    hier: n.id(),
                     green: n.mask != 0,
                     empty,
                 })
@@ -1339,7 +1359,7 @@ impl AdaptiveMesh {
     fn green_mids(&self, n: &Node) -> ([u32; 6], [u64; 6]) {
         let mut mid = [NONE; 6];
         let mut mkey = [u64::MAX; 6];
-        let lt = self.lattice_of(n.id);
+        let lt = self.lattice_of(n.id());
         for e in 0..6 {
             if n.mask & (1 << e) != 0 {
                 let m = self.slot_at(lt.base, &lt.edge_midpoint(e));
@@ -1437,7 +1457,7 @@ impl AdaptiveMesh {
         let n = &mut self.nodes[slot as usize];
         if n.flags & QUEUED == 0 {
             n.flags |= QUEUED;
-            let id = n.id;
+            let id = n.id();
             self.work.push((slot, id));
         }
     }
@@ -1446,7 +1466,7 @@ impl AdaptiveMesh {
     fn clear_work(&mut self) {
         while let Some((slot, id)) = self.work.pop() {
             let n = &mut self.nodes[slot as usize];
-            if n.alive() && n.id == id {
+            if n.alive() && n.id() == id {
                 n.flags &= !QUEUED;
             }
         }
@@ -1498,7 +1518,7 @@ impl AdaptiveMesh {
     fn descend(&self, slot: u32, lam: [i64; 4], levels_left: u8, out: &mut Vec<(u32, TetId)>) {
         let n = &self.nodes[slot as usize];
         if n.is_leaf() {
-            out.push((slot, n.id));
+            out.push((slot, n.id()));
             return;
         }
         if levels_left == 0 {
@@ -1519,7 +1539,7 @@ impl AdaptiveMesh {
         let levels = self.forest.levels;
         while let Some((slot, id)) = self.work.pop() {
             let n = self.nodes[slot as usize];
-            if !n.alive() || n.id != id || n.flags & QUEUED == 0 {
+            if !n.alive() || n.id() != id || n.flags & QUEUED == 0 {
                 continue;
             }
             self.nodes[slot as usize].flags &= !QUEUED;
@@ -1631,9 +1651,9 @@ impl AdaptiveMesh {
     ) -> Result<(), MeshError> {
         let n = self.nodes[slot as usize];
         debug_assert!(n.is_leaf());
-        let level = self.forest.level(n.id);
+        let level = self.forest.level(n.id());
         if level >= self.forest.levels {
-            return Err(MeshError::Finest(n.id));
+            return Err(MeshError::Finest(n.id()));
         }
         let nv = self.node_verts(slot as usize);
         let mut pts = [0u32; 10];
@@ -1676,17 +1696,11 @@ impl AdaptiveMesh {
             if flip {
                 flags ^= FLIP;
             }
-            if buf.child_empty(n.id, i) {
+            if buf.child_empty(n.id(), i) {
                 flags |= EMPTY;
             }
-            let id = self.forest.child(n.id, i);
-            self.nodes[(block + i as u32) as usize] = Node {
-                id,
-                children: NONE,
-                mask: 0,
-                flags: flags | QUEUED,
-                nref: 0,
-            };
+            let id = self.forest.child(n.id(), i);
+            self.nodes[(block + i as u32) as usize] = Node::new(id, NONE, 0, flags | QUEUED);
             self.work.push((block + i as u32, id));
         }
         let node = &mut self.nodes[slot as usize];
@@ -1695,7 +1709,7 @@ impl AdaptiveMesh {
         self.n_leaves += 7;
         self.n_splits += 1;
         self.log_change(slot, block);
-        self.count_in_parent(n.id, 1);
+        self.count_in_parent(n.id(), 1);
         for (e, &c) in created.iter().enumerate() {
             if c {
                 self.locate(lt.base, &lt.edge_midpoint(e), level);
@@ -1815,7 +1829,7 @@ impl AdaptiveMesh {
             }
             cand.push(BatchCand {
                 slot,
-                id: n.id,
+                id: n.id(),
                 mids: self.child_mids(n),
                 keep: true,
                 wit: rec.map(|r| r.wit),
@@ -1910,7 +1924,7 @@ impl AdaptiveMesh {
             .filter(|&(&t, &s)| {
                 s != NONE && {
                     let n = &self.nodes[s as usize];
-                    n.alive() && n.id == t && n.is_leaf()
+                    n.alive() && n.id() == t && n.is_leaf()
                 }
             })
             .count();
@@ -2080,7 +2094,7 @@ impl AdaptiveMesh {
         let m = [p[4], p[5], p[6], p[7], p[8], p[9]];
         debug_assert_eq!(
             m,
-            self.lattice_mids(&self.lattice_of(n.id), self.forest.level(n.id))
+            self.lattice_mids(&self.lattice_of(n.id()), self.forest.level(n.id()))
         );
         m
     }
@@ -2089,7 +2103,7 @@ impl AdaptiveMesh {
     /// leaves around every vertex that went away.
     fn unrefine(&mut self, slot: u32) {
         let n = self.nodes[slot as usize];
-        let t = n.id;
+        let t = n.id();
         let all = self.child_mids(&n);
         let lt = self.lattice_of(t);
         if !self.refused.is_empty() {
@@ -2197,7 +2211,7 @@ impl AdaptiveMesh {
         }
         for i in 0..8u32 {
             let c = (n.children + i) as usize;
-            let empty = n.flags & EMPTY != 0 || buf.child_empty(n.id, i as usize);
+            let empty = n.flags & EMPTY != 0 || buf.child_empty(n.id(), i as usize);
             let old = self.nodes[c].flags & EMPTY != 0;
             if empty != old {
                 self.nodes[c].flags ^= EMPTY;
@@ -2241,7 +2255,7 @@ impl AdaptiveMesh {
                 let have = (s != NONE && self.vref[s as usize] != 0).then(|| self.vkey[s as usize]);
                 if have != Some(want) {
                     return Err(ConformityError::VertexMismatch {
-                        id: n.id,
+                        id: n.id(),
                         local: i,
                         slot: s,
                         have,
@@ -2249,14 +2263,14 @@ impl AdaptiveMesh {
                     });
                 }
             }
-            let level = self.forest.level(n.id);
+            let level = self.forest.level(n.id());
             if !n.is_leaf() {
                 let mids = self.lattice_mids(&lt, level);
                 for &m in &mids {
                     if m == NONE {
                         return Err(ConformityError::Other(format!(
                             "refined tet {} misses a midpoint",
-                            n.id
+                            n.id()
                         )));
                     }
                     want_ref[m as usize] += 1;
@@ -2267,16 +2281,18 @@ impl AdaptiveMesh {
                 if nref != n.nref as usize {
                     return Err(ConformityError::Other(format!(
                         "refined tet {} counts {} refined children, has {nref}",
-                        n.id, n.nref
+                        n.id(),
+                        n.nref
                     )));
                 }
                 for (i, c) in lt.children().into_iter().enumerate() {
                     let cs = n.children + i as u32;
                     let cn = &self.nodes[cs as usize];
-                    if cn.id != self.forest.child(n.id, i) {
+                    if cn.id() != self.forest.child(n.id(), i) {
                         return Err(ConformityError::Other(format!(
                             "child {i} of {} has id {}",
-                            n.id, cn.id
+                            n.id(),
+                            cn.id()
                         )));
                     }
                     stack.push((cs, c));
@@ -2286,11 +2302,11 @@ impl AdaptiveMesh {
             let mid = self.lattice_mids(&lt, level);
             let (mask, forced) = self.classify(&lt, level, &mid, |_| true);
             if forced {
-                return Err(ConformityError::NotClosed { id: n.id, mask });
+                return Err(ConformityError::NotClosed { id: n.id(), mask });
             }
             if mask != n.mask {
                 return Err(ConformityError::StaleGreen {
-                    id: n.id,
+                    id: n.id(),
                     mask: n.mask,
                     want: mask,
                 });
@@ -2317,7 +2333,7 @@ impl AdaptiveMesh {
                 let vol = signed_volume(x[0], x[1], x[2], x[3]);
                 if vol <= 0.0 {
                     err = Some(ConformityError::NonPositive {
-                        id: n.id,
+                        id: n.id(),
                         volume: vol,
                     });
                     return;
@@ -2540,8 +2556,14 @@ mod tests {
     }
 
     #[test]
-    fn node_is_16_bytes() {
-        assert_eq!(std::mem::size_of::<Node>(), 16);
+    fn node_ids_keep_40_bits() {
+        for id in [0, 1, u32::MAX as TetId, 1 << 32, MAX_TETS - 1] {
+            let n = Node::new(id, 7, 3, ALIVE);
+            assert_eq!(
+                (n.id(), n.children, n.mask, n.flags, n.nref),
+                (id, 7, 3, ALIVE, 0)
+            );
+        }
     }
 
     #[test]

@@ -135,6 +135,8 @@ pub struct RunReport {
     pub bytes_per_max_leaf: f64,
     /// Mesh bytes at the end of the run by part ([`AdaptiveMesh::bytes_parts`]).
     pub mesh_parts: Vec<(&'static str, usize)>,
+    /// Selector bytes at the end of the run by part ([`Selector::bytes_parts`]).
+    pub sel_parts: Vec<(&'static str, usize)>,
     /// Mesh bytes over leaf-mesh tets (the `avg_tets` column), both averaged over the steps: the
     /// thesis' MB over its tets.
     pub avg_bytes_per_tet: f64,
@@ -385,6 +387,7 @@ pub fn run_progressive_with(
         max_leaves,
         bytes_per_max_leaf: mesh.bytes_held() as f64 / max_leaves.max(leaves) as f64,
         mesh_parts: mesh.bytes_parts().to_vec(),
+        sel_parts: sel.bytes_parts().to_vec(),
         avg_bytes_per_tet: sum_b / sum_tets.max(1.0),
         sel_mb: sum_sel / n / 1e6,
         sel_bytes_per_leaf: sel.bytes_held() as f64 / leaves as f64,

@@ -825,24 +825,37 @@ impl Selector {
     /// Bytes held by the selector's per-slot caches, candidate list, heaps and certificates
     /// (capacities).
     pub fn bytes_held(&self) -> usize {
+        self.bytes_parts().iter().map(|&(_, b)| b).sum()
+    }
+
+    /// [`Self::bytes_held`] by part: per-slot entries and flags, bounding spheres, motion
+    /// certificates, candidate lists and scratch, heaps.
+    pub fn bytes_parts(&self) -> [(&'static str, usize); 5] {
         use std::mem::size_of;
         let k = &self.kin;
-        self.slot_flags.bytes()
-            + self.waiters.capacity() * (size_of::<(u32, Vec<u32>)>() + 1)
-            + self
-                .waiters
-                .values()
-                .map(|v| v.capacity() * 4)
-                .sum::<usize>()
-            + self.info.bytes()
-            + self.geo.bytes()
-            + k.until_e.bytes()
-            + k.until_f.bytes()
-            + (k.due.capacity() + self.list.capacity() + self.todo.capacity()) * 4
-            + (self.flushing.capacity() + self.batch_slots.capacity()) * 4
-            + self.batch.capacity() * size_of::<TetId>()
-            + self.splits.capacity() * size_of::<Cand>()
-            + (self.merges.capacity() + self.unordered.capacity()) * size_of::<Reverse<Cand>>()
+        [
+            ("entries", self.info.bytes() + self.slot_flags.bytes()),
+            ("spheres", self.geo.bytes()),
+            ("certificates", k.until_e.bytes() + k.until_f.bytes()),
+            (
+                "lists",
+                self.waiters.capacity() * (size_of::<(u32, Vec<u32>)>() + 1)
+                    + self
+                        .waiters
+                        .values()
+                        .map(|v| v.capacity() * 4)
+                        .sum::<usize>()
+                    + (k.due.capacity() + self.list.capacity() + self.todo.capacity()) * 4
+                    + (self.flushing.capacity() + self.batch_slots.capacity()) * 4
+                    + self.batch.capacity() * size_of::<TetId>(),
+            ),
+            (
+                "heaps",
+                self.splits.capacity() * size_of::<Cand>()
+                    + (self.merges.capacity() + self.unordered.capacity())
+                        * size_of::<Reverse<Cand>>(),
+            ),
+        ]
     }
 
     /// Test support: compares every remembered status that is still current (its priority

@@ -731,3 +731,54 @@ fn too_many_vertex_keys_is_an_error() {
         other => panic!("expected TooManyKeys, got {:?}", other.map(|_| ())),
     }
 }
+
+/// A hierarchy whose ids do not fit the mesh's 40-bit node ids (one tet, 14 levels: about 5e12
+/// tets) is refused with an error, not a panic or a wrapped id.
+#[test]
+fn too_many_tets_is_an_error() {
+    let positions = vec![corner(0), corner(1), corner(2), corner(4)];
+    let base = oriented(positions, vec![[0, 1, 2, 3]], 14);
+    base.validate().expect("a valid base mesh");
+    let total = base.forest().total_tets();
+    assert!(total >= tetwave_client::mesh::MAX_TETS);
+    match AdaptiveMesh::new(&base) {
+        Err(MeshError::TooManyTets(n)) => assert_eq!(n, total),
+        other => panic!("expected TooManyTets, got {:?}", other.map(|_| ())),
+    }
+}
+
+/// Node ids past 32 bits (one tet, 11 levels: about 9.8e9 tets) survive the mesh's packed nodes:
+/// refining the last child down to the finest level finds every node by its id, and the mesh
+/// conforms and coarsens back to the base tet.
+#[test]
+fn ids_past_32_bits_round_trip() {
+    let base = single(11);
+    base.validate().expect("a valid base mesh");
+    let forest = base.forest();
+    assert!(forest.total_tets() > u32::MAX as u64);
+    let buf = DetailBuffer::new(forest, base.vertex_keys());
+    let mut mesh = AdaptiveMesh::new(&base).expect("fits the mesh");
+    let mut path = vec![0 as TetId];
+    for _ in 0..11 {
+        let t = *path.last().unwrap();
+        mesh.refine(t, &buf).expect("refine");
+        path.push(forest.child(t, 7));
+    }
+    let deepest = *path.last().unwrap();
+    assert!(deepest > u32::MAX as u64, "id {deepest} fits 32 bits");
+    mesh.check_conformity().expect("conforming");
+    assert!(mesh.is_leaf(deepest) && mesh.slot_of(deepest).is_some());
+    let mut leaf_ids = Vec::new();
+    mesh.for_each_leaf_tet(|t| leaf_ids.push(t.hier));
+    assert!(leaf_ids.contains(&deepest));
+    // the closure refined neighbours too: coarsen every candidate, batch by batch, back to the base
+    for _ in 0..64 {
+        let ids = mesh.coarsenable_ids();
+        if ids.is_empty() {
+            break;
+        }
+        assert!(mesh.coarsen_batch(&ids, &buf).expect("coarsen") > 0);
+        mesh.check_conformity().expect("conforming");
+    }
+    assert!(mesh.is_leaf(0));
+}
