@@ -99,6 +99,30 @@ def main() -> None:
                 f"| {r['fps']:.2f} / {t[6]} "
                 f"| {g['avg_psnr_db']:.2f} / {g['min_psnr_db']:.2f} / {g['frames'][-1]['psnr_db']:.2f} |"
             )
+    memory = [r for r in runs if r["run"] in ("l5", "l6-budget8")]
+    if memory:
+        print()
+        print("Memory per average leaf tet (average bytes held over average tets, capacities), by part,")
+        print("next to the thesis' MB column over its average tets:")
+        print()
+        print(
+            "| tolerance | run | mesh B | detail buffer B | selector B | client B (all three) "
+            "| mesh + buffer B / thesis B |"
+        )
+        print("|---|---|---|---|---|---|---|")
+        for r in memory:
+            thesis = THESIS3 if r["run"].startswith("l6") else THESIS
+            t = thesis.get(r["tol"])
+            tets = max(r["avg_tets"], 1.0)
+            mesh_b = r["mesh_mb"] * 1e6 / tets
+            buf_b = (r["mb"] - r["mesh_mb"]) * 1e6 / tets
+            sel_b = r["sel_mb"] * 1e6 / tets
+            thesis_b = f"{t[3] * 1e6 / t[0]:.0f}" if t else "-"
+            name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+            print(
+                f"| {name} | {r['run']} | {mesh_b:.1f} | {buf_b:.1f} | {sel_b:.1f} "
+                f"| {mesh_b + buf_b + sel_b:.1f} | {mesh_b + buf_b:.1f} / {thesis_b} |"
+            )
     print()
     print("run, tol: M tets/s end to end; max / avg refine ms; mesh B per tet (avg), per leaf at the end;")
     print("          selector B per tet (avg); final = unbudgeted (settle frames)")

@@ -1,6 +1,7 @@
 //! `tetwave bench progressive --render-every` on a store the server prepared, then
-//! `scripts/charts.py` on its JSON lines: every run carries its drawn frames (render ms, PSNR
-//! against the full-resolution reference) and the chart script turns them into SVG charts.
+//! `scripts/charts.py` and `scripts/progressive-table.py` on its JSON lines: every run carries its
+//! drawn frames (render ms, PSNR against the full-resolution reference), the chart script turns them
+//! into SVG charts and the table script prints the memory per tet by part.
 //! Needs `python3` (installed by `scripts/setup`); fails if it cannot run.
 
 use clap::Parser;
@@ -43,7 +44,9 @@ fn render_every_feeds_the_charts() {
     .unwrap();
     let mut lines = String::new();
     let runs = bench(&cli.bench, |r| {
-        lines += &serde_json::to_string(r).unwrap();
+        // tagged as `scripts/bench-progressive` tags its runs
+        let json = serde_json::to_string(r).unwrap();
+        lines += &json.replacen('{', "{\"store\":\"s\",\"run\":\"l5\",", 1);
         lines.push('\n');
     })
     .unwrap();
@@ -84,5 +87,49 @@ fn render_every_feeds_the_charts() {
         let points = svg.matches("<circle").count();
         let want = if name.contains("by-step") { 12 } else { 3 };
         assert_eq!(points, want, "{name}");
+    }
+
+    // the memory table: mesh, buffer and selector bytes per average tet, and their sum
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scripts/progressive-table.py"
+    );
+    let out = Command::new("python3")
+        .arg(script)
+        .arg(&jsonl)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let memory = &text[text
+        .find("Memory per average leaf tet")
+        .expect("memory table")..];
+    let row = memory
+        .lines()
+        .find(|l| l.starts_with("| simple (all arrived) | l5 |"))
+        .unwrap_or_else(|| panic!("no memory row for the simple run:\n{text}"));
+    let cells: Vec<f64> = row
+        .split('|')
+        .skip(3)
+        .take(4)
+        .map(|c| c.trim().parse().unwrap())
+        .collect();
+    let r = &runs[2];
+    let per_tet = |mb: f64| mb * 1e6 / r.avg_tets;
+    let want = [
+        per_tet(r.mesh_mb),
+        per_tet(r.mb - r.mesh_mb),
+        per_tet(r.sel_mb),
+        per_tet(r.mb + r.sel_mb),
+    ];
+    for (have, want) in cells.iter().zip(want) {
+        assert!(
+            (have - want).abs() <= 0.051,
+            "{row}: {have} against {want:.2}"
+        );
     }
 }
