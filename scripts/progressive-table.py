@@ -30,24 +30,38 @@ THESIS3 = {
 }
 
 
+def header(*columns: str) -> None:
+    """Prints a Markdown table header with these columns."""
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
+
+
+def row_name(r: dict) -> str:
+    return "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+
+
+def thesis_row(r: dict):
+    """The thesis' row for run `r`: Table 3 (Head256 size) for level-6 runs, Table 2 otherwise."""
+    return (THESIS3 if r["run"].startswith("l6") else THESIS).get(r["tol"])
+
+
 def main() -> None:
     path = sys.argv[1] if len(sys.argv) > 1 else "out/bench-progressive.jsonl"
     runs = [json.loads(line) for line in open(path) if line.strip()]
-    print(
-        "| tolerance | avg tets ours / thesis | vertices ours / thesis | edges ours / thesis "
-        "| MB: mesh + buffer, + selector / thesis | B per tet: mesh, selector "
-        "| refine ms per step: ours avg / max, thesis avg "
-        "| tets created+removed /s (end to end / mesh ops only) |"
+    header(
+        "tolerance", "avg tets ours / thesis", "vertices ours / thesis", "edges ours / thesis",
+        "MB: mesh + buffer, + selector / thesis", "B per tet: mesh, selector",
+        "refine ms per step: ours avg / max, thesis avg",
+        "tets created+removed /s (end to end / mesh ops only)",
     )
-    print("|---|---|---|---|---|---|---|---|")
     for r in runs:
         if r["run"] != "l5":
             continue
-        t = THESIS.get(r["tol"])
+        t = thesis_row(r)
         if t is None:
             continue
         sel_b = r["sel_mb"] * 1e6 / max(r["avg_tets"], 1.0)
-        name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+        name = row_name(r)
         print(
             f"| {name} | {r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
             f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]} "
@@ -60,17 +74,16 @@ def main() -> None:
         print()
         print("Level 6 (Head256 size) next to the thesis' Table 3 (Head256: another field, so other counts):")
         print()
-        print(
-            "| tolerance | run | avg tets ours / thesis | vertices ours / thesis | edges ours / thesis "
-            "| MB: mesh + buffer, + selector / thesis | refine ms per step: ours avg / max, thesis avg "
-            "| tets created+removed /s |"
+        header(
+            "tolerance", "run", "avg tets ours / thesis", "vertices ours / thesis",
+            "edges ours / thesis", "MB: mesh + buffer, + selector / thesis",
+            "refine ms per step: ours avg / max, thesis avg", "tets created+removed /s",
         )
-        print("|---|---|---|---|---|---|---|---|")
         for r in level6:
-            t = THESIS3.get(r["tol"])
+            t = thesis_row(r)
             if t is None:
                 continue
-            name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+            name = row_name(r)
             print(
                 f"| {name} | {r['run']} | {r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
                 f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]} "
@@ -84,16 +97,15 @@ def main() -> None:
               f"{len(rendered[0]['render']['frames'])} sampled steps per run; "
               "level 6 next to Table 3 (Head256), level 5 next to Table 2:")
         print()
-        print(
-            "| tolerance | run | render ms per frame: ours avg (draw alone) / max, thesis avg "
-            "| FPS (refine + render) ours / thesis | PSNR dB vs full-resolution reference: avg / min / last step |"
+        header(
+            "tolerance", "run", "render ms per frame: ours avg (draw alone) / max, thesis avg",
+            "FPS (refine + render) ours / thesis",
+            "PSNR dB vs full-resolution reference: avg / min / last step",
         )
-        print("|---|---|---|---|---|")
         for r in rendered:
-            thesis = THESIS3 if r["run"].startswith("l6") else THESIS
-            t = thesis.get(r["tol"], (None,) * 7)
+            t = thesis_row(r) or (None,) * 7
             g = r["render"]
-            name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+            name = row_name(r)
             print(
                 f"| {name} | {r['run']} | {g['avg_ms']:.0f} ({g['avg_draw_ms']:.0f}) / {g['max_ms']:.0f}, {t[5]} "
                 f"| {r['fps']:.2f} / {t[6]} "
@@ -105,20 +117,18 @@ def main() -> None:
         print("Memory per average leaf tet (average bytes held over average tets, capacities), by part,")
         print("next to the thesis' MB column over its average tets:")
         print()
-        print(
-            "| tolerance | run | mesh B | detail buffer B | selector B | client B (all three) "
-            "| mesh + buffer B / thesis B |"
+        header(
+            "tolerance", "run", "mesh B", "detail buffer B", "selector B", "client B (all three)",
+            "mesh + buffer B / thesis B",
         )
-        print("|---|---|---|---|---|---|---|")
         for r in memory:
-            thesis = THESIS3 if r["run"].startswith("l6") else THESIS
-            t = thesis.get(r["tol"])
+            t = thesis_row(r)
             tets = max(r["avg_tets"], 1.0)
             mesh_b = r["mesh_mb"] * 1e6 / tets
             buf_b = (r["mb"] - r["mesh_mb"]) * 1e6 / tets
             sel_b = r["sel_mb"] * 1e6 / tets
             thesis_b = f"{t[3] * 1e6 / t[0]:.0f}" if t else "-"
-            name = "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
+            name = row_name(r)
             print(
                 f"| {name} | {r['run']} | {mesh_b:.1f} | {buf_b:.1f} | {sel_b:.1f} "
                 f"| {mesh_b + buf_b + sel_b:.1f} | {mesh_b + buf_b:.1f} / {thesis_b} |"
