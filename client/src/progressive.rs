@@ -5,7 +5,7 @@
 //! finished meshes to a renderer that never waits for it.
 
 use crate::camera::Camera;
-use crate::detail_buffer::{Arrivals, DetailBuffer};
+use crate::detail_buffer::{Arrivals, BufferError, DetailBuffer};
 use crate::mesh::{AdaptiveMesh, LeafTet, MeshError};
 use crate::render_probe::{RenderProbe, RenderSummary};
 use crate::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
@@ -245,6 +245,20 @@ fn sorted_leaves(mesh: &AdaptiveMesh) -> Vec<TetId> {
     v
 }
 
+/// Why a progressive run stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// A detail node of the run is invalid (a corrupt store): the run stops instead of dropping it.
+    #[error("detail node {id} is invalid: {source}")]
+    Node {
+        id: TetId,
+        #[source]
+        source: BufferError,
+    },
+}
+
 /// Runs the experiment on `base` with `nodes` already in arrival order (see [`RunConfig`]).
 pub fn run_progressive(
     base: &BaseMesh,
@@ -252,7 +266,7 @@ pub fn run_progressive(
     value_range: [f32; 2],
     cfg: &RunConfig,
     order: ArrivalOrder,
-) -> Result<RunReport, MeshError> {
+) -> Result<RunReport, RunError> {
     run_progressive_with(base, nodes, value_range, cfg, order, &mut |_, _, _| {})
 }
 
@@ -265,7 +279,7 @@ pub fn run_progressive_with(
     cfg: &RunConfig,
     order: ArrivalOrder,
     observe: &mut dyn FnMut(usize, &AdaptiveMesh, &Camera),
-) -> Result<RunReport, MeshError> {
+) -> Result<RunReport, RunError> {
     let (lo, hi) = base.bounds();
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
     let mut mesh = AdaptiveMesh::new(base)?;
@@ -298,7 +312,8 @@ pub fn run_progressive_with(
         let end = (next + cfg.per_step).min(nodes.len());
         arr.clear();
         for n in &nodes[next..end] {
-            buf.insert(n, &mut arr).expect("store nodes are valid");
+            buf.insert(n, &mut arr)
+                .map_err(|source| RunError::Node { id: n.id, source })?;
         }
         next = end;
         if !arr.is_empty() {
@@ -716,7 +731,11 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             &cfg,
             args.order,
             &mut observe,
-        )?;
+        )
+        .map_err(|e| match e {
+            RunError::Node { .. } => anyhow::anyhow!("store {}: {e}", args.store.display()),
+            RunError::Mesh(e) => e.into(),
+        })?;
         if let Some(p) = probe.as_mut() {
             let summary = p.finish()?;
             r.fps = Some(1e3 / (r.avg_refine_ms + summary.avg_ms));
