@@ -47,7 +47,31 @@ pub enum Encoding {
     Quantized { bits: u8, step: f32 },
 }
 
+/// Bits a quantized encoding may use (what `tetwave-server prepare --bits` accepts).
+pub const QUANTIZED_BITS: std::ops::RangeInclusive<u8> = 8..=24;
+
 impl Encoding {
+    /// Checks an encoding read from a manifest: quantized bits in [`QUANTIZED_BITS`] and a finite,
+    /// positive step (the decoders assume both).
+    pub fn check(&self) -> Result<(), String> {
+        match *self {
+            Encoding::F32 => Ok(()),
+            Encoding::Quantized { bits, step } => {
+                if !QUANTIZED_BITS.contains(&bits) {
+                    Err(format!(
+                        "quantized bits {bits} outside {}..={}",
+                        QUANTIZED_BITS.start(),
+                        QUANTIZED_BITS.end()
+                    ))
+                } else if !(step.is_finite() && step > 0.0) {
+                    Err(format!("quantization step {step} is not a positive number"))
+                } else {
+                    Ok(())
+                }
+            }
+        }
+    }
+
     /// Bytes per stored coefficient.
     pub fn width(&self) -> usize {
         match self {
@@ -178,6 +202,10 @@ impl StoreHead {
             .map_err(|e| FormatError::Base(e.to_string()))?;
         base.validate()
             .map_err(|e| FormatError::Base(e.to_string()))?;
+        manifest
+            .encoding
+            .check()
+            .map_err(|e| FormatError::Inconsistent(format!("manifest.json: {e}")))?;
         let forest = base.forest();
         if base.levels != manifest.levels || forest.nodes() != manifest.counts.nodes {
             return Err(FormatError::Inconsistent(

@@ -491,7 +491,7 @@ pub fn analyze_hierarchy(
     progress: bool,
 ) -> Result<Analysis, AnalysisError> {
     if let Some(b) = bits {
-        if !(8..=24).contains(&b) {
+        if !tetwave_protocol::store_format::QUANTIZED_BITS.contains(&b) {
             return Err(AnalysisError::BadBits(b));
         }
     }
@@ -561,7 +561,7 @@ pub fn analyze_hierarchy(
         let m = max_open_detail(forest, &r);
         // closed-loop details are at most m + q/2: the codes ±(2^(b−1)−1) cover them with q = m/(max−1)
         let step = if m > 0.0 {
-            (m / (Quantizer::max_code(b) - 1) as f64) as f32
+            ((m / (Quantizer::max_code(b) - 1) as f64) as f32).max(f32::MIN_POSITIVE)
         } else {
             1.0
         };

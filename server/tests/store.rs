@@ -100,3 +100,36 @@ fn truncated_store_files_are_refused() {
     let e = Store::open(d.path()).err().expect("refused");
     assert!(e.to_string().contains("nodes.bin"), "{e}");
 }
+
+/// A manifest whose quantized encoding the decoders cannot read (0 or more than 24 bits, a step
+/// that is not a positive number) is refused when the store opens, with the reason, instead of
+/// panicking later in a read (0 bits made a zero-width chunk, 40 bits a 5-byte code).
+#[test]
+fn unreadable_encodings_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 2, Some(12));
+    let mpath = d.path().join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).unwrap();
+    for (encoding, why) in [
+        (
+            serde_json::json!({"quantized": {"bits": 0, "step": 0.001}}),
+            "bits 0 outside 8..=24",
+        ),
+        (
+            serde_json::json!({"quantized": {"bits": 40, "step": 0.001}}),
+            "bits 40 outside 8..=24",
+        ),
+        (
+            serde_json::json!({"quantized": {"bits": 12, "step": -1.0}}),
+            "step -1 is not",
+        ),
+    ] {
+        let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+        m["encoding"] = encoding;
+        std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+        let e = Store::open(d.path()).err().expect("refused");
+        assert!(e.to_string().contains(why), "{e}");
+        let e = verify(d.path()).err().expect("refused");
+        assert!(e.to_string().contains(why), "{e}");
+    }
+}
