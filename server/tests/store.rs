@@ -129,7 +129,7 @@ fn unreadable_encodings_are_refused() {
         std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
         let e = Store::open(d.path()).err().expect("refused");
         assert!(e.to_string().contains(why), "{e}");
-        let e = verify(d.path()).err().expect("refused");
+        let e = verify(d.path()).expect_err("refused");
         assert!(e.to_string().contains(why), "{e}");
     }
 }
