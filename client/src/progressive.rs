@@ -601,9 +601,11 @@ pub struct BenchArgs {
     pub elevation: f64,
     #[arg(long, default_value_t = 45.0)]
     pub fovy: f64,
-    #[arg(long, default_value_t = 512)]
+    /// Viewport width in pixels (1..=8192).
+    #[arg(long, default_value_t = 512, value_parser = image_side)]
     pub width: u32,
-    #[arg(long, default_value_t = 512)]
+    /// Viewport height in pixels (1..=8192); `%` tolerances are of this height.
+    #[arg(long, default_value_t = 512, value_parser = image_side)]
     pub height: u32,
     /// Tolerances, comma-separated: `20%` (of the viewport height) or `12px`.
     #[arg(long, default_value = "20%,15%,12.5%,10%,6.25%", value_delimiter = ',')]
@@ -655,6 +657,21 @@ pub struct BenchArgs {
     /// One JSON object per run on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+/// An image side in pixels, within [`crate::render_cli::IMAGE_SIDES`] (`--width`, `--height`).
+fn image_side(s: &str) -> Result<u32, String> {
+    let side = crate::render_cli::IMAGE_SIDES;
+    let v: u32 = s.parse().map_err(|e| format!("{e}"))?;
+    if side.contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} pixels is outside {}..={}",
+            side.start(),
+            side.end()
+        ))
+    }
 }
 
 /// A count of at least 1 (`--render-every`).

@@ -58,6 +58,9 @@ pub struct RenderArgs {
     pub json: bool,
 }
 
+/// Image widths and heights the CLIs accept, in pixels.
+pub const IMAGE_SIDES: std::ops::RangeInclusive<u32> = 1..=8192;
+
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -70,8 +73,8 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
         .trim()
         .parse()
         .map_err(|_| format!("bad height in {s:?}"))?;
-    if !(1..=8192).contains(&w) || !(1..=8192).contains(&h) {
-        return Err(format!("size {w}x{h} outside 1..=8192"));
+    if !IMAGE_SIDES.contains(&w) || !IMAGE_SIDES.contains(&h) {
+        return Err(format!("size {w}x{h} outside 1..={}", IMAGE_SIDES.end()));
     }
     Ok((w, h))
 }

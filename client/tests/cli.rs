@@ -38,4 +38,11 @@ fn bench_progressive_bad_input_fails_clearly() {
     let (ok, err) = tetwave(&["bench", "progressive", "--store", "x", "--render-cpu"]);
     assert!(!ok);
     assert!(err.contains("--render-every"), "{err}");
+
+    // viewport sides outside 1..=8192 (0 made the renderer panic, or gave nonsense tolerances)
+    for (flag, v) in [("--width", "0"), ("--height", "0"), ("--width", "100000")] {
+        let (ok, err) = tetwave(&["bench", "progressive", "--store", "x", flag, v]);
+        assert!(!ok);
+        assert!(err.contains("outside 1..=8192"), "{flag} {v}: {err}");
+    }
 }
