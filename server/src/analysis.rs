@@ -266,6 +266,10 @@ fn store(a: &AtomicU32, x: f32) {
 /// No visitor yet (in [`Cell::owner`]).
 const UNOWNED: u32 = u32::MAX;
 
+/// Detail nodes a hierarchy may have for the analysis: owner codes are 8 × node id + edge in a
+/// u32. [`crate::resample::resample`] checks it too, before it allocates the samples.
+pub const MAX_NODES: u64 = (UNOWNED >> 3) as u64;
+
 /// The per-vertex state the level walks share.
 struct Walk<'a> {
     /// Sampled values (the samples' own memory); outside vertices are filled by prediction when
@@ -497,8 +501,7 @@ pub fn analyze_hierarchy(
     }
     let forest = r.base.forest();
     let levels = forest.levels;
-    // owner codes are 8 × node id + edge in a u32
-    if levels > 0 && forest.nodes() > (UNOWNED >> 3) as u64 {
+    if levels > 0 && forest.nodes() > MAX_NODES {
         return Err(AnalysisError::TooLarge(forest.level_len(levels - 1)));
     }
     let nodes = forest.nodes() as usize;

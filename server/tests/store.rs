@@ -133,3 +133,22 @@ fn unreadable_encodings_are_refused() {
         assert!(e.to_string().contains(why), "{e}");
     }
 }
+
+/// Hierarchies beyond what the analysis can index are refused before any sample is allocated:
+/// `--levels 11` of the 5-tet box used to abort on a 28.7 GB allocation, and `--levels 10` failed
+/// only after resampling.
+#[test]
+fn too_many_levels_fail_before_resampling() {
+    let d = tempfile::tempdir().unwrap();
+    for levels in [10u8, 11] {
+        let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
+        o.levels = levels;
+        let e = prepare(&o).expect_err("refused");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("--levels {levels}")) && msg.contains("more than the analysis"),
+            "{msg}"
+        );
+    }
+    assert!(!d.path().join("manifest.json").exists());
+}

@@ -86,6 +86,12 @@ pub enum ResampleError {
     OutOfRange { value: f64, pos: [f64; 3] },
     #[error("the finest level has {0} vertices; that is more than this build can index")]
     TooLarge(u64),
+    #[error(
+        "--levels {levels}: {tets} tets in the finest level is more than the analysis can index"
+    )]
+    TooManyNodes { levels: u8, tets: u64 },
+    #[error("cannot allocate {bytes} bytes for the samples of {vertices} vertices")]
+    NoMemory { vertices: u64, bytes: u64 },
 }
 
 /// The semi-regular mesh's samples.
@@ -154,12 +160,26 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
         values: Vec::new(),
         empty: Vec::new(),
     };
+    let forest = base.forest();
+    if levels > 0 && forest.nodes() > crate::analysis::MAX_NODES {
+        return Err(ResampleError::TooManyNodes {
+            levels,
+            tets: forest.level_len(levels),
+        });
+    }
     let keys = base.vertex_keys();
     let n = keys.vertex_count();
     if n > (usize::MAX / 8) as u64 || n > u32::MAX as u64 * 4 {
         return Err(ResampleError::TooLarge(n));
     }
-    let mut samples = vec![f32::NAN; n as usize];
+    let mut samples = Vec::new();
+    samples
+        .try_reserve_exact(n as usize)
+        .map_err(|_| ResampleError::NoMemory {
+            vertices: n,
+            bytes: n * 4,
+        })?;
+    samples.resize(n as usize, f32::NAN);
     // split the sample array into the entities' contiguous key ranges and fill them in parallel
     let entities = keys.entities();
     let mut chunks: Vec<(tetwave_protocol::vertex::Entity, u64, &mut [f32])> =
