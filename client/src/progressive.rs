@@ -592,14 +592,14 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1000)]
     pub per_step: usize,
     /// Radians per step about the vertical axis.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = crate::camera::arg::angle)]
     pub rotate: f64,
     /// Camera distance from the volume's centre (thesis: 30 for Harmonic, 269 for Head256).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::camera::arg::distance)]
     pub distance: f64,
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = crate::camera::arg::elevation)]
     pub elevation: f64,
-    #[arg(long, default_value_t = 45.0)]
+    #[arg(long, default_value_t = 45.0, value_parser = crate::camera::arg::fov)]
     pub fovy: f64,
     /// Viewport width in pixels (1..=8192).
     #[arg(long, default_value_t = 512, value_parser = image_side)]

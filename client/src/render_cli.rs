@@ -21,15 +21,15 @@ pub struct RenderArgs {
     /// Uniform level to draw (default: the store's finest).
     #[arg(long)]
     pub levels: Option<u8>,
-    #[arg(long, default_value_t = 35.0)]
+    #[arg(long, default_value_t = 35.0, value_parser = crate::camera::arg::angle)]
     pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0)]
+    #[arg(long, default_value_t = 25.0, value_parser = crate::camera::arg::elevation)]
     pub elevation: f64,
     /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::camera::arg::distance)]
     pub distance: Option<f64>,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = 40.0, value_parser = crate::camera::arg::fov)]
     pub fov: f64,
     /// Image size `WxH`.
     #[arg(long, default_value = "512x512", value_parser = parse_size)]

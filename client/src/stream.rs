@@ -46,7 +46,7 @@ pub struct StreamArgs {
     #[arg(long, default_value = "out/stream")]
     pub out: PathBuf,
     /// Camera rotation per frame, degrees (about the vertical axis).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = crate::camera::arg::angle)]
     pub orbit: f64,
     /// Screen-space tolerance (`2`, `2px` or `10%` of the height); `0`: everything that arrived.
     #[arg(long, default_value = "0")]
@@ -59,12 +59,12 @@ pub struct StreamArgs {
     pub size: (u32, u32),
     #[arg(long, default_value = "default")]
     pub tf: String,
-    #[arg(long, default_value_t = 35.0)]
+    #[arg(long, default_value_t = 35.0, value_parser = crate::camera::arg::angle)]
     pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0)]
+    #[arg(long, default_value_t = 25.0, value_parser = crate::camera::arg::elevation)]
     pub elevation: f64,
     /// Eye distance (default 1.6 × the bounding-box diagonal).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::camera::arg::distance)]
     pub distance: Option<f64>,
     #[arg(long)]
     pub token: Option<String>,

@@ -1,5 +1,5 @@
-//! `tetwave bench progressive` on bad input: a clear one-line error and a failing exit status,
-//! never a panic.
+//! The CLI on bad input (`bench progressive`, camera arguments): a clear one-line error and a
+//! failing exit status, never a panic.
 
 use std::process::Command;
 
@@ -44,5 +44,33 @@ fn bench_progressive_bad_input_fails_clearly() {
         let (ok, err) = tetwave(&["bench", "progressive", "--store", "x", flag, v]);
         assert!(!ok);
         assert!(err.contains("outside 1..=8192"), "{flag} {v}: {err}");
+    }
+}
+
+/// Camera arguments that would give a blank or meaningless image are refused by `render`,
+/// `stream` and `bench progressive` alike, before anything is read.
+#[test]
+fn camera_arguments_are_checked() {
+    let cases: [(&[&str], &str); 6] = [
+        (&["render", "x", "--azimuth", "nan"], "not finite"),
+        (&["render", "x", "--elevation", "95"], "outside -90..=90"),
+        (&["render", "x", "--distance=-5"], "not a positive distance"),
+        (&["render", "x", "--fov", "0"], "outside (0, 180)"),
+        (
+            &["stream", "http://127.0.0.1:1", "--orbit", "inf"],
+            "not finite",
+        ),
+        (
+            &["bench", "progressive", "--store", "x", "--fovy", "180"],
+            "outside (0, 180)",
+        ),
+    ];
+    for (args, why) in cases {
+        let (ok, err) = tetwave(args);
+        assert!(!ok, "{args:?}");
+        assert!(
+            err.contains(why) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
     }
 }
