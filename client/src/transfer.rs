@@ -121,10 +121,10 @@ impl TransferFunction {
             let ok = q.s.is_finite()
                 && q.extinction.is_finite()
                 && q.extinction >= 0.0
-                && q.rgb.iter().all(|c| c.is_finite() && *c >= 0.0);
+                && q.rgb.iter().all(|c| (0.0..=1.0).contains(c));
             if !ok {
                 return Err(TfError::Invalid(
-                    "values must be finite, extinction and colour ≥ 0".into(),
+                    "values must be finite, extinction ≥ 0 and colour in [0, 1]".into(),
                 ));
             }
         }
@@ -235,6 +235,25 @@ mod tests {
             TransferFunction::preset(name).unwrap().validate().unwrap();
         }
         assert!(TransferFunction::load("nope").is_err());
+    }
+
+    /// Colours outside `[0, 1]` are refused: the reference integrator refines its steps on the
+    /// colour's variation, and colours like 3e38 made it take minutes for a small image.
+    #[test]
+    fn colours_outside_the_unit_range_are_refused() {
+        for rgb in [
+            [3e38, 1.0, 1.0],
+            [0.5, 1.01, 0.0],
+            [0.0, 0.0, -0.1],
+            [f32::NAN, 0.0, 0.0],
+        ] {
+            let tf = TransferFunction {
+                name: "x".into(),
+                points: vec![p(0.0, rgb, 1.0), p(1.0, [1.0; 3], 1.0)],
+            };
+            let e = tf.validate().expect_err("refused");
+            assert!(e.to_string().contains("colour in [0, 1]"), "{rgb:?}: {e}");
+        }
     }
 
     #[test]
