@@ -442,3 +442,14 @@ fn corrupted_bytes_never_panic() {
         }
     }
 }
+
+/// A device or a pipe is not read (`/dev/zero` would be read until memory runs out): the error
+/// says why.
+#[test]
+fn devices_are_not_read() {
+    for format in [None, Some(MeshFormat::LegacyVtk)] {
+        let e = tetwave_server::resample::mesh_io::read_mesh(Path::new("/dev/zero"), format)
+            .expect_err("refused");
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+    }
+}

@@ -502,11 +502,20 @@ pub fn parse_mesh(
     mesh.map_err(|bad| malformed(path, bad))
 }
 
+/// The whole file. Only regular files: a device or a pipe (`/dev/zero`) could be read until memory
+/// runs out.
 fn read_file(path: &Path) -> Result<Vec<u8>, ImportError> {
-    std::fs::read(path).map_err(|source| ImportError::Io {
+    let io = |source| ImportError::Io {
         path: path.to_path_buf(),
         source,
-    })
+    };
+    if !std::fs::metadata(path).map_err(io)?.is_file() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file",
+        )));
+    }
+    std::fs::read(path).map_err(io)
 }
 
 fn malformed(path: &Path, bad: Bad) -> ImportError {
