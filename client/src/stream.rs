@@ -68,8 +68,8 @@ pub struct StreamArgs {
     pub distance: Option<f64>,
     #[arg(long)]
     pub token: Option<String>,
-    /// Wait at most this long per frame for new data.
-    #[arg(long, default_value_t = 30)]
+    /// Wait at most this long per frame for new data (at most 60,000 ms).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(0..=60_000))]
     pub frame_ms: u64,
     /// Render with the CPU reference instead of the GPU.
     #[arg(long)]

@@ -48,10 +48,11 @@ fn bench_progressive_bad_input_fails_clearly() {
 }
 
 /// Camera arguments that would give a blank or meaningless image are refused by `render`,
-/// `stream` and `bench progressive` alike, before anything is read.
+/// `stream` and `bench progressive` alike, before anything is read; so is an unbounded wait per
+/// frame.
 #[test]
 fn camera_arguments_are_checked() {
-    let cases: [(&[&str], &str); 6] = [
+    let cases: [(&[&str], &str); 7] = [
         (&["render", "x", "--azimuth", "nan"], "not finite"),
         (&["render", "x", "--elevation", "95"], "outside -90..=90"),
         (&["render", "x", "--distance=-5"], "not a positive distance"),
@@ -59,6 +60,10 @@ fn camera_arguments_are_checked() {
         (
             &["stream", "http://127.0.0.1:1", "--orbit", "inf"],
             "not finite",
+        ),
+        (
+            &["stream", "http://127.0.0.1:1", "--frame-ms", "60001"],
+            "not in 0..=60000",
         ),
         (
             &["bench", "progressive", "--store", "x", "--fovy", "180"],

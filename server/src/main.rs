@@ -236,8 +236,12 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             if !(1..=1024).contains(&window) {
                 return Err(format!("--window {window} outside 1..=1024").into());
             }
+            if token.as_deref() == Some("") {
+                // an unset variable in `--token "$T"` must not serve without authentication
+                return Err("--token is empty; leave it out to serve without a token".into());
+            }
             let config = ServeConfig {
-                token: token.filter(|t| !t.is_empty()),
+                token,
                 order,
                 batch,
                 window,

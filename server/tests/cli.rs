@@ -555,4 +555,9 @@ fn bad_options_are_refused() {
         &["levels"],
     );
     expect_error(&["verify", s(&d.path().join("absent"))], &["manifest.json"]);
+    // an empty token (an unset variable in `--token "$T"`) would serve without authentication
+    expect_error(
+        &["serve", s(&d.path().join("absent")), "--token", ""],
+        &["--token is empty"],
+    );
 }
