@@ -24,6 +24,15 @@ pub use tetwave_protocol::store_format::{
 };
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
+/// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
+pub const STORE_FILES: [&str; 5] = [
+    "base.bin",
+    "nodes.bin",
+    "coeffs.bin",
+    "coeff_index.bin",
+    "reference.f32",
+];
+
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("{path}: {source}")]
@@ -259,8 +268,18 @@ impl Store {
         self.base.forest()
     }
 
-    /// Recomputes every file's CRC-32 and compares it with the manifest.
+    /// Recomputes every file's CRC-32 and compares it with the manifest, which must list every
+    /// file of a store ([`STORE_FILES`]).
     pub fn check_sums(&self) -> Result<(), StoreError> {
+        if let Some(missing) = STORE_FILES
+            .iter()
+            .find(|f| !self.manifest.files.contains_key(**f))
+        {
+            return Err(StoreError::Corrupt {
+                path: self.dir.join("manifest.json"),
+                reason: format!("no checksum for {missing}"),
+            });
+        }
         for (name, sum) in &self.manifest.files {
             let p = self.dir.join(name);
             let mut f = File::open(&p).map_err(io_err(&p))?;

@@ -152,3 +152,18 @@ fn too_many_levels_fail_before_resampling() {
     }
     assert!(!d.path().join("manifest.json").exists());
 }
+
+/// `verify` needs a checksum for every store file: a manifest whose `files` map was emptied (or
+/// lost an entry) is refused instead of passing unchecked.
+#[test]
+fn verify_needs_every_checksum() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 2, None);
+    let mpath = d.path().join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["files"].as_object_mut().unwrap().remove("coeffs.bin");
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    let e = verify(d.path()).expect_err("refused");
+    assert!(e.to_string().contains("no checksum for coeffs.bin"), "{e}");
+}
