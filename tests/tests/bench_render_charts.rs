@@ -4,26 +4,15 @@
 //! into SVG charts and the table script prints the memory per tet by part.
 //! Needs `python3` (installed by `scripts/setup`); fails if it cannot run.
 
-use clap::Parser;
-use std::process::Command;
-use tetwave_client::progressive::{bench, BenchArgs};
-use tetwave_server::prepare::{prepare, PrepareOptions};
+mod common;
 
-#[derive(Parser)]
-struct Cli {
-    #[command(flatten)]
-    bench: BenchArgs,
-}
+use std::process::Command;
+use tetwave_client::progressive::bench;
 
 #[test]
 fn render_every_feeds_the_charts() {
-    let d = tempfile::tempdir().unwrap();
-    let store = d.path().join("s");
-    let mut o = PrepareOptions::new("synthetic:harmonic", &store);
-    o.levels = 3;
-    prepare(&o).unwrap();
-    let cli = Cli::try_parse_from([
-        "bench",
+    let (d, store) = common::harmonic_store(3);
+    let args = common::bench_args(&[
         "--store",
         store.to_str().unwrap(),
         "--steps",
@@ -40,10 +29,9 @@ fn render_every_feeds_the_charts() {
         "--render-every",
         "5",
         "--render-cpu",
-    ])
-    .unwrap();
+    ]);
     let mut lines = String::new();
-    let runs = bench(&cli.bench, |r| {
+    let runs = bench(&args, |r| {
         // tagged as `scripts/bench-progressive` tags its runs
         let json = serde_json::to_string(r).unwrap();
         lines += &json.replacen('{', "{\"store\":\"s\",\"run\":\"l5\",", 1);

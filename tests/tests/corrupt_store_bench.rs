@@ -3,26 +3,16 @@
 //! another, so two nodes claim one vertex. The run stops with an error that names the store and
 //! the node, instead of panicking or dropping the node.
 
-use clap::Parser;
-use tetwave_client::progressive::{bench, BenchArgs};
-use tetwave_server::prepare::{prepare, PrepareOptions};
+mod common;
 
-#[derive(Parser)]
-struct Cli {
-    #[command(flatten)]
-    bench: BenchArgs,
-}
+use tetwave_client::progressive::bench;
 
 /// `nodes.bin`: 6 bytes per node, the first the owned-edge mask.
 const NODE_BYTES: usize = 6;
 
 #[test]
 fn bench_on_a_tampered_store_is_an_error() {
-    let d = tempfile::tempdir().unwrap();
-    let store = d.path().join("s");
-    let mut o = PrepareOptions::new("synthetic:harmonic", &store);
-    o.levels = 2;
-    prepare(&o).unwrap();
+    let (_d, store) = common::harmonic_store(2);
     let path = store.join("nodes.bin");
     let mut bytes = std::fs::read(&path).unwrap();
     let masks: Vec<u8> = bytes.iter().step_by(NODE_BYTES).copied().collect();
@@ -37,8 +27,7 @@ fn bench_on_a_tampered_store_is_an_error() {
     bytes[to * NODE_BYTES] |= free & free.wrapping_neg();
     std::fs::write(&path, bytes).unwrap();
 
-    let cli = Cli::try_parse_from([
-        "bench",
+    let args = common::bench_args(&[
         "--store",
         store.to_str().unwrap(),
         "--steps",
@@ -47,9 +36,8 @@ fn bench_on_a_tampered_store_is_an_error() {
         "1000",
         "--tol",
         "20%",
-    ])
-    .unwrap();
-    let e = bench(&cli.bench, |_| {}).expect_err("a tampered store fails the run");
+    ]);
+    let e = bench(&args, |_| {}).expect_err("a tampered store fails the run");
     let msg = e.to_string();
     assert!(msg.contains(store.to_str().unwrap()), "{msg}");
     assert!(
