@@ -662,7 +662,9 @@ pub struct BenchArgs {
 /// An image side in pixels, within [`crate::render_cli::IMAGE_SIDES`] (`--width`, `--height`).
 fn image_side(s: &str) -> Result<u32, String> {
     let side = crate::render_cli::IMAGE_SIDES;
-    let v: u32 = s.parse().map_err(|e| format!("{e}"))?;
+    let v: u32 = s
+        .parse()
+        .map_err(|_| format!("expected a whole number of pixels, got {s:?}"))?;
     if side.contains(&v) {
         Ok(v)
     } else {

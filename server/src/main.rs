@@ -80,7 +80,7 @@ enum Cmd {
         #[arg(long, default_value = "127.0.0.1:7878")]
         addr: String,
         /// Require this token from every client (`Authorization: Bearer T`, `?token=T`, or the
-        /// stream's Hello); requests without it get 401.
+        /// stream's Hello); requests without it get 401. An empty token is refused.
         #[arg(long, env = "TETWAVE_TOKEN")]
         token: Option<String>,
         /// Default order of the stream (a client may pick another with `/v1/stream?order=`).
