@@ -102,9 +102,19 @@ pub struct StoreMeta {
     pub outside_vertices: u64,
 }
 
-/// Writes a store directory (created if needed) and returns its manifest.
+/// Writes a store directory (created if needed) and returns its manifest. Over an existing store,
+/// its manifest goes first and the new one is written last (renamed into place): a write that
+/// stops half way leaves a directory that does not open as a store, never an old manifest over
+/// new files.
 pub fn write(dir: &Path, a: &Analysis, meta: StoreMeta) -> Result<Manifest, StoreError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    let manifest_path = dir.join("manifest.json");
+    match std::fs::remove_file(&manifest_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(io_err(&manifest_path)(e));
+        }
+        _ => {}
+    }
     let forest = a.base.forest();
     let mut files = std::collections::BTreeMap::new();
     let encoding = match &a.quantizer {
@@ -195,9 +205,10 @@ pub fn write(dir: &Path, a: &Analysis, meta: StoreMeta) -> Result<Manifest, Stor
         max_abs_error: a.max_abs_error,
         files,
     };
-    let path = dir.join("manifest.json");
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
-    std::fs::write(&path, text).map_err(io_err(&path))?;
+    let partial = dir.join("manifest.json.partial");
+    std::fs::write(&partial, text).map_err(io_err(&partial))?;
+    std::fs::rename(&partial, &manifest_path).map_err(io_err(&manifest_path))?;
     Ok(manifest)
 }
 

@@ -167,3 +167,26 @@ fn verify_needs_every_checksum() {
     let e = verify(d.path()).expect_err("refused");
     assert!(e.to_string().contains("no checksum for coeffs.bin"), "{e}");
 }
+
+/// Preparing over an existing store that fails half way (here `coeffs.bin` cannot be written)
+/// leaves a directory that does not open as a store, instead of the old manifest over a mix of new
+/// and old files; a prepare that succeeds replaces the store whole.
+#[test]
+fn a_failed_rewrite_leaves_no_store() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 2, None);
+    let coeffs = d.path().join("coeffs.bin");
+    std::fs::remove_file(&coeffs).unwrap();
+    std::fs::create_dir(&coeffs).unwrap();
+    let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
+    o.levels = 3;
+    let e = prepare(&o).expect_err("coeffs.bin is a directory");
+    assert!(e.to_string().contains("coeffs.bin"), "{e}");
+    let e = Store::open(d.path()).err().expect("no store");
+    assert!(e.to_string().contains("manifest.json"), "{e}");
+    std::fs::remove_dir(&coeffs).unwrap();
+    let store = make_store(d.path(), 3, None);
+    assert_eq!(store.manifest.levels, 3);
+    assert!(!d.path().join("manifest.json.partial").exists());
+    verify(d.path()).unwrap();
+}
