@@ -36,6 +36,22 @@ def header(*columns: str) -> None:
     print("|" + "---|" * len(columns))
 
 
+def table(title: str, *columns: str) -> None:
+    """Prints a blank line, `title`, a blank line and the header of a table with these columns."""
+    print()
+    print(title)
+    print()
+    header(*columns)
+
+
+def counts(r: dict, t) -> str:
+    """The cells both thesis tables share: tets, vertices, edges, ours / thesis, and MB."""
+    return (
+        f"{r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
+        f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]}"
+    )
+
+
 def row_name(r: dict) -> str:
     return "simple (all arrived)" if r["tol"] == "simple" else r["tol"]
 
@@ -63,18 +79,15 @@ def main() -> None:
         sel_b = r["sel_mb"] * 1e6 / max(r["avg_tets"], 1.0)
         name = row_name(r)
         print(
-            f"| {name} | {r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
-            f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]} "
+            f"| {name} | {counts(r, t)} "
             f"| {r['avg_bytes_per_tet']:.1f}, {sel_b:.1f} "
             f"| {r['avg_refine_ms']:.2f} / {r['max_refine_ms']:.2f}, {t[4]} "
             f"| {r['tets_per_s'] / 1e6:.2f} M / {r['op_tets_per_s'] / 1e6:.2f} M |"
         )
     level6 = [r for r in runs if r["run"] in ("l6-budget8", "l6")]
     if level6:
-        print()
-        print("Level 6 (Head256 size) next to the thesis' Table 3 (Head256: another field, so other counts):")
-        print()
-        header(
+        table(
+            "Level 6 (Head256 size) next to the thesis' Table 3 (Head256: another field, so other counts):",
             "tolerance", "run", "avg tets ours / thesis", "vertices ours / thesis",
             "edges ours / thesis", "MB: mesh + buffer, + selector / thesis",
             "refine ms per step: ours avg / max, thesis avg", "tets created+removed /s",
@@ -85,19 +98,16 @@ def main() -> None:
                 continue
             name = row_name(r)
             print(
-                f"| {name} | {r['run']} | {r['avg_tets']:,.0f} / {t[0]:,} | {r['avg_vertices']:,.0f} / {t[1]:,} "
-                f"| {r['avg_edges']:,.0f} / {t[2]:,} | {r['mb']:.2f}, {r['mb'] + r['sel_mb']:.2f} / {t[3]} "
+                f"| {name} | {r['run']} | {counts(r, t)} "
                 f"| {r['avg_refine_ms']:.2f} / {r['max_refine_ms']:.2f}, {t[4]:,} "
                 f"| {r['tets_per_s'] / 1e6:.2f} M |"
             )
     rendered = [r for r in runs if r.get("render")]
     if rendered:
-        print()
-        print(f"Rendering ({rendered[0]['render']['renderer']}; thesis: its 2007 GPU), "
-              f"{len(rendered[0]['render']['frames'])} sampled steps per run; "
-              "level 6 next to Table 3 (Head256), level 5 next to Table 2:")
-        print()
-        header(
+        table(
+            f"Rendering ({rendered[0]['render']['renderer']}; thesis: its 2007 GPU), "
+            f"{len(rendered[0]['render']['frames'])} sampled steps per run; "
+            "level 6 next to Table 3 (Head256), level 5 next to Table 2:",
             "tolerance", "run", "render ms per frame: ours avg (draw alone) / max, thesis avg",
             "FPS (refine + render) ours / thesis",
             "PSNR dB vs full-resolution reference: avg / min / last step",
@@ -113,11 +123,9 @@ def main() -> None:
             )
     memory = [r for r in runs if r["run"] in ("l5", "l6-budget8")]
     if memory:
-        print()
-        print("Memory per average leaf tet (average bytes held over average tets, capacities), by part,")
-        print("next to the thesis' MB column over its average tets:")
-        print()
-        header(
+        table(
+            "Memory per average leaf tet (average bytes held over average tets, capacities), by part,\n"
+            "next to the thesis' MB column over its average tets:",
             "tolerance", "run", "mesh B", "detail buffer B", "selector B", "client B (all three)",
             "mesh + buffer B / thesis B",
         )
