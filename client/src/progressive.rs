@@ -602,10 +602,10 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 45.0, value_parser = crate::camera::arg::fov)]
     pub fovy: f64,
     /// Viewport width in pixels (1..=8192).
-    #[arg(long, default_value_t = 512, value_parser = image_side)]
+    #[arg(long, default_value_t = 512, value_parser = crate::render_cli::parse_side)]
     pub width: u32,
     /// Viewport height in pixels (1..=8192); `%` tolerances are of this height.
-    #[arg(long, default_value_t = 512, value_parser = image_side)]
+    #[arg(long, default_value_t = 512, value_parser = crate::render_cli::parse_side)]
     pub height: u32,
     /// Tolerances, comma-separated: `20%` (of the viewport height) or `12px`.
     #[arg(long, default_value = "20%,15%,12.5%,10%,6.25%", value_delimiter = ',')]
@@ -659,23 +659,6 @@ pub struct BenchArgs {
     pub json: bool,
 }
 
-/// An image side in pixels, within [`crate::render_cli::IMAGE_SIDES`] (`--width`, `--height`).
-fn image_side(s: &str) -> Result<u32, String> {
-    let side = crate::render_cli::IMAGE_SIDES;
-    let v: u32 = s
-        .parse()
-        .map_err(|_| format!("expected a whole number of pixels, got {s:?}"))?;
-    if side.contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!(
-            "{v} pixels is outside {}..={}",
-            side.start(),
-            side.end()
-        ))
-    }
-}
-
 /// A count of at least 1 (`--render-every`).
 fn at_least_one(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
@@ -702,8 +685,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     let mut probe = match args.render_every {
         Some(every) => {
             let tf = crate::transfer::TransferFunction::load(&args.tf)?;
-            let (mut full, _) = crate::render_cli::store_mesh(&store, None)?;
-            full.value_range = (m.value_range[0], m.value_range[1]);
+            let (full, _) = crate::render_cli::store_mesh(&store, None)?;
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
                     anyhow::anyhow!("--render-every: {e} (--render-cpu draws on the CPU instead)")

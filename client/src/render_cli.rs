@@ -61,6 +61,22 @@ pub struct RenderArgs {
 /// Image widths and heights the CLIs accept, in pixels.
 pub const IMAGE_SIDES: std::ops::RangeInclusive<u32> = 1..=8192;
 
+/// One image side in pixels (`--width`, `--height`), within [`IMAGE_SIDES`].
+pub fn parse_side(s: &str) -> Result<u32, String> {
+    let v: u32 = s
+        .parse()
+        .map_err(|_| format!("expected a whole number of pixels, got {s:?}"))?;
+    if IMAGE_SIDES.contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} pixels is outside {}..={}",
+            IMAGE_SIDES.start(),
+            IMAGE_SIDES.end()
+        ))
+    }
+}
+
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])

@@ -65,14 +65,16 @@ pub struct RenderProbe {
 
 impl RenderProbe {
     /// A probe drawing every `every`-th step (at least 1) on the GPU, or with the CPU reference
-    /// integrator when `cpu`. Fails when a GPU is asked for and none can be opened.
+    /// integrator when `cpu`; every image, `full`'s included, maps `value_range` (the dataset's)
+    /// through the transfer function. Fails when a GPU is asked for and none can be opened.
     pub fn new(
-        full: RenderMesh,
+        mut full: RenderMesh,
         value_range: [f32; 2],
         every: usize,
         cpu: bool,
         tf: TransferFunction,
     ) -> Result<Self, RenderError> {
+        full.value_range = (value_range[0], value_range[1]);
         let drawer = if cpu {
             Drawer::Cpu
         } else {

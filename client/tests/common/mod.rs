@@ -128,8 +128,7 @@ pub fn probed_run(
     )
     .unwrap();
     let range = [-1.0, 1.0];
-    let mut full = RenderMesh::uniform_level(&base, &values, base.levels);
-    full.value_range = (range[0], range[1]);
+    let full = RenderMesh::uniform_level(&base, &values, base.levels);
     let tf = TransferFunction::preset("default").unwrap();
     let mut probe = RenderProbe::new(full, range, every, cpu, tf)
         .unwrap_or_else(|e| panic!("the render probe cannot run: {e}"));
