@@ -29,6 +29,9 @@ pub fn render_reference_f64(
     tf: &TransferFunction,
 ) -> Vec<[f64; 4]> {
     let (w, h) = (cam.width as usize, cam.height as usize);
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
     let origin = mesh.center();
     let eye = cam.eye - origin;
     let ext_scale = 1.0 / mesh.diagonal();

@@ -304,3 +304,26 @@ fn render_probe_on_the_gpu() {
     assert!(last.psnr_db >= 40.0, "{last:?}");
     assert!(s.frames[0].psnr_db < last.psnr_db, "{:?}", s.frames);
 }
+
+/// An image side of 0 or beyond the adapter's limit is an error from the renderer itself (wgpu
+/// panicked creating such a target); the CPU reference draws an empty image.
+#[test]
+fn image_sizes_outside_the_limit_are_errors() {
+    let ctx = ctx();
+    let r = PtRenderer::new(&ctx);
+    let mesh = RenderMesh::kuhn_cube(2, 1.0, harmonic);
+    let data = r.upload(&ctx, &mesh).unwrap();
+    let tf = TransferFunction::preset("default").unwrap();
+    let limit = ctx.device.limits().max_texture_dimension_2d;
+    for (w, h) in [(0, 16), (16, 0), (limit + 1, 1)] {
+        let cam = Camera::orbit(mesh.center(), 3.0, 30.0, 20.0, 40.0, w, h);
+        let e = r.render(&ctx, &data, &cam, &tf).expect_err("refused");
+        assert!(
+            e.to_string().contains("each side must be 1..="),
+            "{w}x{h}: {e}"
+        );
+    }
+    let cam = Camera::orbit(mesh.center(), 3.0, 30.0, 20.0, 40.0, 0, 16);
+    let img = render_reference(&mesh, &cam, &tf);
+    assert_eq!((img.width, img.height, img.pixels.len()), (0, 16, 0));
+}

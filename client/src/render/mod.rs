@@ -15,6 +15,8 @@ pub enum RenderError {
     Readback(String),
     #[error("the mesh needs {needed} bytes in one GPU buffer; this adapter allows {limit}")]
     TooLarge { needed: u64, limit: u64 },
+    #[error("a {width}x{height} image: each side must be 1..={limit} on this adapter")]
+    ImageSize { width: u32, height: u32, limit: u32 },
 }
 
 /// Instance, adapter, device and queue, created once and shared.

@@ -393,7 +393,8 @@ impl PtRenderer {
     }
 
     /// Renders one frame with the given visibility order ([`VisibilityOrder::Mpvo`] needs data
-    /// uploaded with adjacency, else it falls back to centroid order).
+    /// uploaded with adjacency, else it falls back to centroid order). An image side of 0 or
+    /// beyond the adapter's texture limit is an error.
     pub fn render_ordered(
         &self,
         ctx: &GpuContext,
@@ -402,6 +403,14 @@ impl PtRenderer {
         tf: &TransferFunction,
         visibility: VisibilityOrder,
     ) -> Result<(Rgba8Image, FrameTimes), RenderError> {
+        let limit = ctx.device.limits().max_texture_dimension_2d;
+        if !(1..=limit).contains(&cam.width) || !(1..=limit).contains(&cam.height) {
+            return Err(RenderError::ImageSize {
+                width: cam.width,
+                height: cam.height,
+                limit,
+            });
+        }
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
