@@ -10,13 +10,13 @@
 
 use std::io::Write;
 use std::time::Instant;
-use tetwave_client::camera::Camera;
-use tetwave_client::image_metrics::psnr;
-use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::{Accumulation, PtRenderer, VisibilityOrder};
-use tetwave_client::render::GpuContext;
-use tetwave_client::render_mesh::RenderMesh;
-use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::psnr;
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 
 fn env(name: &str, default: usize) -> usize {
     std::env::var(name)
@@ -155,7 +155,7 @@ fn main() {
             format!("ours-{order_name}-{acc_name}.png")
         };
         img.save_png(&out.join(&name)).unwrap();
-        let mean = |f: &dyn Fn(&tetwave_client::render::pt::FrameTimes) -> f64| {
+        let mean = |f: &dyn Fn(&tetwave_render::gpu::pt::FrameTimes) -> f64| {
             times.iter().map(f).sum::<f64>() / times.len() as f64
         };
         println!(

@@ -1,21 +1,17 @@
 //! # tetwave-client
 //!
-//! The client side of tetwave, one module per stage: [`camera`], [`transfer`] functions,
-//! [`render_mesh`] (the leaf mesh renderers draw), the CPU [`reference`] integrator (ground truth for
-//! image error), [`image_metrics`], and [`store_info`] (checks a store against the protocol contract).
+//! The client side of tetwave: the [`detail_buffer`] (every node that has arrived), the adaptive
+//! red/green [`mesh`], view-dependent [`select`]ion, the leaf mesh as renderers [`draw`] it, the
+//! stream client ([`stream`]), the progressive benchmark ([`progressive`]) and the CLI's render and
+//! store commands. Rendering itself is `tetwave-render`'s; stores are read through `tetwave-store`.
 
-pub mod camera;
+pub mod camera_arg;
 pub mod detail_buffer;
-pub mod image_metrics;
+pub mod draw;
 pub mod mesh;
 pub mod progressive;
-pub mod reference;
-pub mod render;
 pub mod render_cli;
-pub mod render_mesh;
 pub mod render_probe;
 pub mod select;
 pub mod store_info;
-pub mod store_reader;
 pub mod stream;
-pub mod transfer;

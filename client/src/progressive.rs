@@ -4,7 +4,6 @@
 //! progressive` prints its rows. [`BackgroundRefiner`] runs the same loop on a thread and hands
 //! finished meshes to a renderer that never waits for it.
 
-use crate::camera::Camera;
 use crate::detail_buffer::{Arrivals, BufferError, DetailBuffer};
 use crate::mesh::{AdaptiveMesh, LeafTet, MeshError};
 use crate::render_probe::{RenderProbe, RenderSummary};
@@ -15,6 +14,7 @@ use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 
 /// Order in which the detail nodes arrive.
@@ -592,14 +592,14 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1000)]
     pub per_step: usize,
     /// Radians per step about the vertical axis.
-    #[arg(long, default_value_t = 0.05, value_parser = crate::camera::arg::angle)]
+    #[arg(long, default_value_t = 0.05, value_parser = crate::camera_arg::angle)]
     pub rotate: f64,
     /// Camera distance from the volume's centre (thesis: 30 for Harmonic, 269 for Head256).
-    #[arg(long, default_value_t = 30.0, value_parser = crate::camera::arg::distance)]
+    #[arg(long, default_value_t = 30.0, value_parser = crate::camera_arg::distance)]
     pub distance: f64,
-    #[arg(long, default_value_t = 0.0, value_parser = crate::camera::arg::elevation)]
+    #[arg(long, default_value_t = 0.0, value_parser = crate::camera_arg::elevation)]
     pub elevation: f64,
-    #[arg(long, default_value_t = 45.0, value_parser = crate::camera::arg::fov)]
+    #[arg(long, default_value_t = 45.0, value_parser = crate::camera_arg::fov)]
     pub fovy: f64,
     /// Viewport width in pixels (1..=8192).
     #[arg(long, default_value_t = 512, value_parser = crate::render_cli::parse_side)]
@@ -669,8 +669,8 @@ fn at_least_one(s: &str) -> Result<usize, String> {
 
 /// Runs `tetwave bench progressive`: one [`RunReport`] per tolerance (and the simple run).
 pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Result<Vec<RunReport>> {
-    let store = crate::store_reader::LocalStore::open(&args.store)?;
-    let m = store.manifest();
+    let store = tetwave_store::Store::open(&args.store)?;
+    let m = &store.manifest;
     let mut nodes = store.read_nodes(0, m.counts.nodes)?;
     order_nodes(&mut nodes, args.order, args.seed);
     let mut tols: Vec<Option<Tolerance>> = Vec::new();
@@ -684,7 +684,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     }
     let mut probe = match args.render_every {
         Some(every) => {
-            let tf = crate::transfer::TransferFunction::load(&args.tf)?;
+            let tf = tetwave_render::transfer::TransferFunction::load(&args.tf)?;
             let (full, _) = crate::render_cli::store_mesh(&store, None)?;
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
@@ -726,7 +726,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             }
         };
         let mut r = run_progressive_with(
-            store.base(),
+            &store.base,
             &nodes,
             m.value_range,
             &cfg,

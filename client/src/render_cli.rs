@@ -1,17 +1,17 @@
 //! `tetwave render`: one image of a store's uniform level, on the GPU (projected tetrahedra) or with
 //! the CPU reference integrator, with its time and, on request, its PSNR against the reference.
 
-use crate::camera::Camera;
-use crate::image_metrics::{psnr, Rgba8Image};
-use crate::reference::render_reference;
-use crate::render::pt::{Accumulation, PtRenderer, VisibilityOrder};
-use crate::render::{GpuContext, RenderError};
-use crate::render_mesh::RenderMesh;
-use crate::store_reader::{LocalStore, StoreReadError};
-use crate::transfer::{TfError, TransferFunction};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::{TfError, TransferFunction};
+use tetwave_store::{Store, StoreError};
 
 /// What to render and how.
 #[derive(Debug, Clone, clap::Args)]
@@ -21,15 +21,15 @@ pub struct RenderArgs {
     /// Uniform level to draw (default: the store's finest).
     #[arg(long)]
     pub levels: Option<u8>,
-    #[arg(long, default_value_t = 35.0, value_parser = crate::camera::arg::angle)]
+    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
     pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = crate::camera::arg::elevation)]
+    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
     pub elevation: f64,
     /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
-    #[arg(long, value_parser = crate::camera::arg::distance)]
+    #[arg(long, value_parser = crate::camera_arg::distance)]
     pub distance: Option<f64>,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = crate::camera::arg::fov)]
+    #[arg(long, default_value_t = 40.0, value_parser = crate::camera_arg::fov)]
     pub fov: f64,
     /// Image size `WxH`.
     #[arg(long, default_value = "512x512", value_parser = parse_size)]
@@ -98,7 +98,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 #[derive(Debug, thiserror::Error)]
 pub enum RenderCliError {
     #[error(transparent)]
-    Store(#[from] StoreReadError),
+    Store(#[from] StoreError),
     #[error(transparent)]
     Tf(#[from] TfError),
     #[error(transparent)]
@@ -124,11 +124,8 @@ pub struct RenderReport {
 }
 
 /// The level-`level` mesh of a store (finest when `None`).
-pub fn store_mesh(
-    store: &LocalStore,
-    level: Option<u8>,
-) -> Result<(RenderMesh, u8), RenderCliError> {
-    let levels = store.base().levels;
+pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), RenderCliError> {
+    let levels = store.base.levels;
     let level = level.unwrap_or(levels);
     if level > levels {
         return Err(RenderCliError::Level {
@@ -138,14 +135,14 @@ pub fn store_mesh(
     }
     let values = store.synthesize_all()?;
     Ok((
-        RenderMesh::uniform_level(store.base(), &values, level),
+        RenderMesh::uniform_level(&store.base, &values, level),
         level,
     ))
 }
 
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     let tf = TransferFunction::load(&a.tf)?;
-    let store = LocalStore::open(&a.store)?;
+    let store = Store::open(&a.store)?;
     let (mesh, level) = store_mesh(&store, a.levels)?;
     let distance = a.distance.unwrap_or(1.6 * mesh.diagonal());
     let cam = Camera::orbit(

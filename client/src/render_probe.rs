@@ -4,17 +4,17 @@
 //! image error. The reference images depend on the step's camera only, so one set serves every
 //! tolerance of a bench run.
 
-use crate::camera::Camera;
-use crate::image_metrics::{psnr, Rgba8Image};
 use crate::mesh::AdaptiveMesh;
-use crate::reference::render_reference;
-use crate::render::pt::PtRenderer;
-use crate::render::{GpuContext, RenderError};
-use crate::render_mesh::RenderMesh;
-use crate::transfer::TransferFunction;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::time::Instant;
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::PtRenderer;
+use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 
 /// What draws the sampled frames.
 enum Drawer {
@@ -121,7 +121,7 @@ impl RenderProbe {
 
     fn draw(&mut self, step: usize, mesh: &AdaptiveMesh, cam: &Camera) -> Result<(), RenderError> {
         let t = Instant::now();
-        let rm = RenderMesh::of_adaptive(mesh, self.value_range);
+        let rm = crate::draw::leaf_mesh(mesh, self.value_range);
         let (img, draw_ms) = match &self.drawer {
             Drawer::Gpu(g) => {
                 let (ctx, pt) = &**g;

@@ -37,60 +37,16 @@
 //! that changed nothing and left the mesh untouched is not replayed as a consolidating sweep (it
 //! would do exactly the same).
 
-use crate::camera::Camera;
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError, RedNode, SegVec};
 use glam::{DVec3, Vec3};
 use rustc_hash::FxHashMap;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
-use std::fmt;
 use std::time::{Duration, Instant};
+pub use tetwave_protocol::view::{data_weight, Tolerance, View};
+use tetwave_protocol::view::{f32_down, f32_up, tet_sphere, Camera};
 use tetwave_protocol::TetId;
-
-/// Refinement tolerance of the screen-space error.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Tolerance {
-    Pixels(f64),
-    /// Percent of the viewport height `H` (the thesis' 20%, 15%, 12.5%, 10%, 6.25%).
-    PercentOfHeight(f64),
-}
-
-impl Tolerance {
-    /// The tolerance in pixels for a viewport `height` pixels tall.
-    pub fn pixels(&self, height: u32) -> f64 {
-        match *self {
-            Tolerance::Pixels(p) => p,
-            Tolerance::PercentOfHeight(p) => p / 100.0 * height as f64,
-        }
-    }
-
-    /// `"20%"` → 20 % of `H`; `"12"` or `"12px"` → 12 pixels.
-    pub fn parse(s: &str) -> Result<Self, String> {
-        let s = s.trim();
-        let num = |t: &str| {
-            t.trim()
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite() && *v >= 0.0)
-                .ok_or_else(|| format!("bad tolerance {s:?}: give 20% or 12px"))
-        };
-        if let Some(p) = s.strip_suffix('%') {
-            Ok(Tolerance::PercentOfHeight(num(p)?))
-        } else {
-            Ok(Tolerance::Pixels(num(s.strip_suffix("px").unwrap_or(s))?))
-        }
-    }
-}
-
-impl fmt::Display for Tolerance {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Tolerance::Pixels(p) => write!(f, "{p}px"),
-            Tolerance::PercentOfHeight(p) => write!(f, "{p}%"),
-        }
-    }
-}
 
 /// Whose error decides a merge (thesis: parent; grandparent "adds tolerance to over-refinement").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -171,84 +127,6 @@ impl SelectParams {
     }
 }
 
-/// The camera as the criteria use it: eye, frustum planes, pixels per unit of `diam/dist`.
-#[derive(Debug, Clone, Copy)]
-pub struct View {
-    pub eye: DVec3,
-    /// Inward unit normals `n` and offsets `d`: inside iff `n·p + d ≥ 0` (near + 4 sides).
-    pub planes: [(DVec3, f64); 5],
-    /// `H / (2·tan(fovy/2))`.
-    pub pixels_per_unit: f64,
-    pub tol_px: f64,
-    /// The camera's right, up and forward unit vectors.
-    pub basis: [DVec3; 3],
-}
-
-impl View {
-    pub fn new(cam: &Camera, tol: Tolerance) -> Self {
-        let (r, u, f) = cam.basis();
-        let ty = (cam.fovy_deg.to_radians() * 0.5).tan();
-        let tx = ty * cam.width as f64 / cam.height as f64;
-        let side = |n: DVec3| {
-            let n = n.normalize();
-            (n, -n.dot(cam.eye))
-        };
-        View {
-            eye: cam.eye,
-            planes: [
-                (f, -(f.dot(cam.eye) + cam.near)),
-                side(f * tx - r),
-                side(f * tx + r),
-                side(f * ty - u),
-                side(f * ty + u),
-            ],
-            pixels_per_unit: cam.height as f64 / (2.0 * ty),
-            tol_px: tol.pixels(cam.height),
-            basis: [r, u, f],
-        }
-    }
-
-    /// Whether a sphere is at least partly inside the frustum.
-    #[inline]
-    pub fn sphere_visible(&self, c: DVec3, r: f64) -> bool {
-        Self::offsets_visible(&self.plane_offsets(c), r)
-    }
-
-    /// Signed distances `n·c + d` of point `c` to the frustum's planes (positive inside).
-    #[inline]
-    pub fn plane_offsets(&self, c: DVec3) -> [f64; 5] {
-        self.planes.map(|(n, d)| n.dot(c) + d)
-    }
-
-    /// [`Self::sphere_visible`] of a sphere of radius `r` whose centre has plane offsets `x`.
-    #[inline]
-    pub fn offsets_visible(x: &[f64; 5], r: f64) -> bool {
-        x.iter().all(|&v| v >= -r)
-    }
-
-    /// Thesis eq. 43: vertical pixels of a sphere of diameter `diam` centred at `c`.
-    #[inline]
-    pub fn error_px(&self, c: DVec3, diam: f64) -> f64 {
-        self.error_px_at((c - self.eye).length(), diam)
-    }
-
-    /// [`Self::error_px`] of a sphere at distance `dist` from the eye.
-    #[inline]
-    pub fn error_px_at(&self, dist: f64, diam: f64) -> f64 {
-        self.pixels_per_unit * diam / dist.max(1e-12)
-    }
-}
-
-/// The data-aware weight (see the module docs): `min(1, smax / (δ · value range))` for a subtree
-/// whose details are at most `smax` in magnitude. Selection scales the screen-space error by it;
-/// the server's view order ranks nodes with the same product.
-#[inline]
-pub fn data_weight(smax: f32, value_range: [f32; 2], delta: f32) -> f64 {
-    let [lo, hi] = value_range;
-    let range = ((hi - lo) as f64).max(1e-30);
-    (smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0)
-}
-
 /// Bounding sphere of mesh vertices `v`: the centroid rounded to `f32`, and the distance from it to
 /// the farthest vertex rounded up to `f32` (so that selection caches it in 16 bytes, exactly).
 #[inline]
@@ -260,17 +138,10 @@ pub fn bounding_sphere(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (DVec3, f64) {
 #[inline]
 fn sphere32(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (Vec3, f32) {
     let pos = mesh.positions();
-    let p = v.map(|s| {
+    tet_sphere(v.map(|s| {
         let q = pos[s as usize];
         DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64)
-    });
-    let c = ((p[0] + p[1] + p[2] + p[3]) * 0.25).as_vec3();
-    let cd = c.as_dvec3();
-    let r2 = p
-        .iter()
-        .map(|q| q.distance_squared(cd))
-        .fold(0.0f64, f64::max);
-    (c, f32_up(r2.sqrt()))
+    }))
 }
 
 /// What one [`Selector::frame`] did.
@@ -701,28 +572,6 @@ fn uncut_batch(queued: usize, early: bool, left: Option<Duration>, cost: f64) ->
         Some(left) => {
             queued <= WHOLE_MERGES && (early || left.as_secs_f64() >= cost * queued as f64)
         }
-    }
-}
-
-/// `x` rounded up to an `f32`.
-#[inline]
-fn f32_up(x: f64) -> f32 {
-    let y = x as f32;
-    if (y as f64) < x {
-        y.next_up()
-    } else {
-        y
-    }
-}
-
-/// `x` rounded down to an `f32`.
-#[inline]
-fn f32_down(x: f64) -> f32 {
-    let y = x as f32;
-    if (y as f64) > x {
-        y.next_down()
-    } else {
-        y
     }
 }
 

@@ -1,14 +1,14 @@
 //! Recomputes, from the protocol alone, the counts a store's manifest declares: a client-side check
 //! that both sides agree on the contract.
 
-use crate::store_reader::{LocalStore, StoreReadError};
 use serde::Serialize;
 use std::path::Path;
+use tetwave_store::{Store, StoreError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum InfoError {
     #[error(transparent)]
-    Read(#[from] StoreReadError),
+    Read(#[from] StoreError),
     #[error("{what}: manifest says {manifest}, the protocol computes {computed}")]
     Disagree {
         what: &'static str,
@@ -32,11 +32,11 @@ pub struct StoreInfo {
 
 /// Opens the store in `dir` and checks the manifest's counts against the protocol's.
 pub fn store_info(dir: &Path) -> Result<StoreInfo, InfoError> {
-    let store = LocalStore::open(dir)?;
-    let base = store.base();
+    let store = Store::open(dir)?;
+    let base = &store.base;
     let f = base.forest();
     let info = StoreInfo {
-        dataset: store.manifest().dataset.clone(),
+        dataset: store.manifest.dataset.clone(),
         base_tets: f.n_base,
         levels: f.levels,
         tets_total: f.total_tets(),
@@ -45,7 +45,7 @@ pub fn store_info(dir: &Path) -> Result<StoreInfo, InfoError> {
         vertices: base.vertex_keys().vertex_count(),
         empty_base_tets: base.empty.iter().filter(|&&e| e).count() as u64,
     };
-    let c = &store.manifest().counts;
+    let c = &store.manifest.counts;
     for (what, manifest, computed) in [
         ("tets_total", c.tets_total, info.tets_total),
         ("leaves", c.leaves, info.leaves),

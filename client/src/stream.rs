@@ -5,16 +5,9 @@
 //!
 //! The network runs on a tokio task; the frame loop never waits on it longer than its frame period.
 
-use crate::camera::Camera;
 use crate::detail_buffer::{Arrivals, DetailBuffer, Inserted};
-use crate::image_metrics::{psnr, Rgba8Image};
 use crate::mesh::AdaptiveMesh;
-use crate::reference::render_reference;
-use crate::render::pt::PtRenderer;
-use crate::render::{GpuContext, RenderError};
-use crate::render_mesh::RenderMesh;
 use crate::select::{Mode, SelectParams, Selector, Tolerance};
-use crate::transfer::{TfError, TransferFunction};
 use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use std::collections::BTreeSet;
@@ -24,10 +17,17 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{
     decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+use tetwave_render::gpu::pt::PtRenderer;
+use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::{TfError, TransferFunction};
 use tokio::sync::mpsc;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -46,7 +46,7 @@ pub struct StreamArgs {
     #[arg(long, default_value = "out/stream")]
     pub out: PathBuf,
     /// Camera rotation per frame, degrees (about the vertical axis).
-    #[arg(long, default_value_t = 0.0, value_parser = crate::camera::arg::angle)]
+    #[arg(long, default_value_t = 0.0, value_parser = crate::camera_arg::angle)]
     pub orbit: f64,
     /// Screen-space tolerance (`2`, `2px` or `10%` of the height); `0`: everything that arrived.
     #[arg(long, default_value = "0")]
@@ -59,12 +59,12 @@ pub struct StreamArgs {
     pub size: (u32, u32),
     #[arg(long, default_value = "default")]
     pub tf: String,
-    #[arg(long, default_value_t = 35.0, value_parser = crate::camera::arg::angle)]
+    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
     pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = crate::camera::arg::elevation)]
+    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
     pub elevation: f64,
     /// Eye distance (default 1.6 × the bounding-box diagonal).
-    #[arg(long, value_parser = crate::camera::arg::distance)]
+    #[arg(long, value_parser = crate::camera_arg::distance)]
     pub distance: Option<f64>,
     #[arg(long)]
     pub token: Option<String>,
@@ -553,7 +553,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         let img = if args.no_render {
             None
         } else {
-            let rm = RenderMesh::of_adaptive(mesh, m.value_range);
+            let rm = crate::draw::leaf_mesh(mesh, m.value_range);
             let img = match &gpu {
                 Some((ctx, r)) => {
                     let data = r.upload(ctx, &rm)?;

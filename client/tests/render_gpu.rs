@@ -5,13 +5,13 @@
 mod common;
 
 use glam::DVec3;
-use tetwave_client::camera::Camera;
-use tetwave_client::image_metrics::{psnr, Rgba8Image};
-use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::{PtRenderer, VisibilityOrder};
-use tetwave_client::render::GpuContext;
-use tetwave_client::render_mesh::RenderMesh;
-use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::{PtRenderer, VisibilityOrder};
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 
 fn ctx() -> GpuContext {
     GpuContext::new().unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"))
@@ -241,7 +241,7 @@ fn refinement_converges() {
 /// ~100 layers per ray), and never below the 32-bit target.
 #[test]
 fn accumulation_precisions_are_ordered_and_bounded() {
-    use tetwave_client::render::pt::Accumulation;
+    use tetwave_render::gpu::pt::Accumulation;
     let ctx = ctx();
     let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic);
     let cam = Camera::orbit(

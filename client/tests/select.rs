@@ -3,13 +3,13 @@
 
 use glam::DVec3;
 use std::time::{Duration, Instant};
-use tetwave_client::camera::Camera;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
 use tetwave_client::mesh::AdaptiveMesh;
 use tetwave_client::progressive::{splitmix, BackgroundRefiner};
 use tetwave_client::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, TetId};
 
 mod common;

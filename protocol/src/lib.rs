@@ -2,7 +2,8 @@
 //!
 //! The contract both the server and the client compile: ids and child order of the semi-regular
 //! hierarchy ([`hierarchy`]), global vertex keys ([`vertex`]), the lifting steps ([`wavelet`]), detail
-//! nodes ([`node`]), the base mesh ([`base`]) and whole-hierarchy synthesis ([`synthesis`]).
+//! nodes ([`node`]), the base mesh ([`base`]), whole-hierarchy synthesis ([`synthesis`]), the wire
+//! frames ([`wire`]), the store format ([`store_format`]) and the refinement criterion ([`view`]).
 //! This crate does no I/O.
 
 pub mod base;
@@ -11,6 +12,7 @@ pub mod node;
 pub mod store_format;
 pub mod synthesis;
 pub mod vertex;
+pub mod view;
 pub mod wavelet;
 pub mod wire;
 

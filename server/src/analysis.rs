@@ -47,6 +47,22 @@ pub struct Analysis {
 }
 
 impl Analysis {
+    /// What the store writes.
+    pub fn content(&self) -> tetwave_store::StoreContent<'_> {
+        tetwave_store::StoreContent {
+            base: &self.base,
+            owned: &self.owned,
+            empty_children: &self.empty_children,
+            subtree_max_abs: &self.subtree_max_abs,
+            coeffs: &self.coeffs,
+            quantizer: self.quantizer,
+            reference: &self.reference,
+            value_range: self.value_range,
+            max_abs_error: self.max_abs_error,
+            error_bound: self.error_bound,
+        }
+    }
+
     /// The detail nodes in id order, as the store holds them.
     pub fn nodes(&self) -> Vec<tetwave_protocol::DetailNode> {
         let mut at = 0;

@@ -1,8 +1,8 @@
 //! # tetwave-server
 //!
 //! The server side of tetwave, one module per pipeline stage:
-//! [`resample`] (volume → semi-regular mesh samples), [`analysis`] (lifting → detail nodes),
-//! [`store`] (coefficients on disk, random access by node id) and [`prepare`] (the three in a row, as
+//! [`resample`] (volume → semi-regular mesh samples), [`analysis`] (lifting → detail nodes) and
+//! [`prepare`] (the two in a row, then the store written through `tetwave-store`, as
 //! `tetwave-server prepare` runs them), [`stream`] (`tetwave-server serve`: HTTP endpoints and the
 //! progressive WebSocket stream) and [`render_service`] (fallback images and the viewer page).
 
@@ -10,5 +10,4 @@ pub mod analysis;
 pub mod prepare;
 pub mod render_service;
 pub mod resample;
-pub mod store;
 pub mod stream;

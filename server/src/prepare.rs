@@ -6,12 +6,12 @@ use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
 use crate::resample::{resample, BaseSpec, ResampleError, Source};
-use crate::store::{self, Store, StoreError, StoreMeta};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_protocol::synthesis::apply_node;
 use tetwave_protocol::LatticeTet;
+use tetwave_store::{self as store, Store, StoreError, StoreMeta};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
@@ -200,7 +200,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         base: base_name.clone(),
         outside_vertices: outside,
     };
-    let m = store::write(&o.out, &a, meta)?;
+    let m = store::write(&o.out, &a.content(), meta)?;
     let bytes = m
         .files
         .iter()

@@ -19,15 +19,15 @@ use axum::response::{Html, IntoResponse, Response};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
-use tetwave_client::camera::Camera;
-use tetwave_client::image_metrics::Rgba8Image;
-use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::{PtRenderer, TetDrawData};
-use tetwave_client::render::GpuContext;
-use tetwave_client::render_mesh::RenderMesh;
-use tetwave_client::store_reader::LocalStore;
-use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::BaseMesh;
+use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::Rgba8Image;
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
+use tetwave_store::Store;
 
 /// Largest image side.
 pub const MAX_SIDE: u32 = 4096;
@@ -239,7 +239,7 @@ struct RenderState {
 }
 
 /// The store and its synthesized finest-level values.
-type StoreData = (LocalStore, Arc<Vec<f32>>);
+type StoreData = (Store, Arc<Vec<f32>>);
 
 /// Renders a store's uniform levels on request: synthesis once, meshes and GPU uploads of the last
 /// level kept, one render at a time.
@@ -272,7 +272,7 @@ impl RenderService {
     fn data(&self) -> Result<&StoreData, String> {
         self.data
             .get_or_init(|| {
-                let s = LocalStore::open(&self.dir).map_err(|e| e.to_string())?;
+                let s = Store::open(&self.dir).map_err(|e| e.to_string())?;
                 let v = s.synthesize_all().map_err(|e| e.to_string())?;
                 Ok((s, Arc::new(v)))
             })
@@ -284,7 +284,7 @@ impl RenderService {
     pub fn render(&self, p: &RenderParams) -> Result<Rendered, (StatusCode, String)> {
         let internal = |e: String| (StatusCode::INTERNAL_SERVER_ERROR, e);
         let (store, values) = self.data().map_err(internal)?;
-        let base = store.base();
+        let base = &store.base;
         let level = p.level_for(base);
         let tf = TransferFunction::preset(&p.tf)
             .ok_or_else(|| (StatusCode::BAD_REQUEST, format!("unknown tf {:?}", p.tf)))?;

@@ -23,7 +23,6 @@
 //! ids) and at most one encoded batch: never a queue of frames. A slow client slows only itself.
 
 use crate::render_service::{self, RenderService};
-use crate::store::{Store, StoreError};
 use axum::body::Bytes;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Query, Request, State};
@@ -38,12 +37,12 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
-use tetwave_client::camera::Camera;
-use tetwave_client::select::{data_weight, Tolerance, View};
+use tetwave_protocol::view::{data_weight, screen_error, tet_sphere, Camera, Tolerance, View};
 use tetwave_protocol::wire::{
     decode_client, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
 };
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
+use tetwave_store::{Store, StoreError};
 use tokio::sync::mpsc;
 
 /// The order detail nodes are streamed in.
@@ -108,10 +107,11 @@ impl Default for ServeConfig {
     }
 }
 
-/// Per-node geometry for view-dependent order: centre and diameter, in world units.
+/// Per-node geometry for view-dependent order: bounding spheres, in world units.
 struct Geometry {
     centre: Vec<[f32; 3]>,
-    diam: Vec<f32>,
+    /// Bounding-sphere radius ([`tet_sphere`]).
+    radius: Vec<f32>,
 }
 
 /// What every connection shares: the store, encoded frames that never change, per-node metadata.
@@ -248,27 +248,15 @@ impl Shared {
                 let base = &self.store.base;
                 let n = self.nodes as usize;
                 let mut centre = Vec::with_capacity(n);
-                let mut diam = Vec::with_capacity(n);
+                let mut radius = Vec::with_capacity(n);
                 for id in 0..self.nodes {
                     let t = LatticeTet::from_id(&self.forest, id);
-                    let p: Vec<[f64; 3]> = t.v.iter().map(|w| base.position(t.base, w)).collect();
-                    let mut c = [0.0f64; 3];
-                    for q in &p {
-                        for a in 0..3 {
-                            c[a] += 0.25 * q[a];
-                        }
-                    }
-                    let mut d2 = 0.0f64;
-                    for i in 0..4 {
-                        for j in i + 1..4 {
-                            let e: f64 = (0..3).map(|a| (p[i][a] - p[j][a]).powi(2)).sum();
-                            d2 = d2.max(e);
-                        }
-                    }
-                    centre.push([c[0] as f32, c[1] as f32, c[2] as f32]);
-                    diam.push(d2.sqrt() as f32);
+                    let (c, r) =
+                        tet_sphere(t.v.map(|w| DVec3::from_array(base.position(t.base, &w))));
+                    centre.push(c.to_array());
+                    radius.push(r);
                 }
-                Arc::new(Geometry { centre, diam })
+                Arc::new(Geometry { centre, radius })
             })
             .clone()
     }
@@ -780,8 +768,8 @@ impl Schedule {
 pub const DATA_DELTA: f32 = 0.01;
 
 /// Screen-space error × data term of node `i` for a view: the priority of view order, with the
-/// client's own criteria ([`View`], [`data_weight`]) so that the order follows what selection will
-/// want.
+/// criterion selection uses ([`tetwave_protocol::view`]) so that the order follows what the client
+/// will want.
 struct ViewPriority {
     view: View,
     value_range: [f32; 2],
@@ -789,37 +777,21 @@ struct ViewPriority {
 
 impl ViewPriority {
     fn new(v: &ViewParams, value_range: [f32; 2]) -> Self {
-        let eye = DVec3::from_array(v.eye);
-        let target = DVec3::from_array(v.target);
-        let fwd = (target - eye).try_normalize().unwrap_or(DVec3::NEG_Z);
-        // a view from a client: any up vector (degenerate ones replaced), a near plane at the eye
-        let up = [DVec3::from_array(v.up), DVec3::Y, DVec3::X]
-            .into_iter()
-            .find(|u| fwd.cross(*u).try_normalize().is_some())
-            .unwrap_or(DVec3::Y);
-        let cam = Camera {
-            eye,
-            target: eye + fwd,
-            up,
-            fovy_deg: v.fovy_deg,
-            near: 0.0,
-            width: v.width.max(1),
-            height: v.height.max(1),
-        };
         ViewPriority {
-            view: View::new(&cam, Tolerance::Pixels(v.tol_px)),
+            view: View::new(&Camera::from_view_params(v), Tolerance::Pixels(v.tol_px)),
             value_range,
         }
     }
 
-    /// `H/(2 tan(fovy/2)) · diam/dist · max(data weight, 10⁻³)`, × 10⁻⁶ outside the view frustum
-    /// (data weight with δ = [`DATA_DELTA`]: flat subtrees last, but still sent).
+    /// [`screen_error`] with the data weight (δ = [`DATA_DELTA`]) floored at 10⁻³, × 10⁻⁶ outside
+    /// the view frustum: flat or hidden subtrees last, but still sent.
     #[inline]
-    fn eval(&self, centre: [f32; 3], diam: f32, smax: f32) -> f32 {
+    fn eval(&self, centre: [f32; 3], radius: f32, smax: f32) -> f32 {
         let c = DVec3::from_array(centre.map(f64::from));
+        let r = radius as f64;
         let data = data_weight(smax, self.value_range, DATA_DELTA).max(1e-3);
-        let mut e = self.view.error_px(c, diam as f64) * data;
-        if !self.view.sphere_visible(c, 0.5 * diam as f64) {
+        let mut e = screen_error(&self.view, c, r, data);
+        if !self.view.sphere_visible(c, r) {
             e *= 1e-6;
         }
         if e.is_finite() {
@@ -848,7 +820,10 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
             continue;
         }
         let u = i as usize;
-        let e = p.eval(g.centre[u], g.diam[u], s.smax[u]).max(0.0).to_bits();
+        let e = p
+            .eval(g.centre[u], g.radius[u], s.smax[u])
+            .max(0.0)
+            .to_bits();
         let item = Reverse((e, Reverse(i)));
         if heap.len() < m {
             heap.push(item);

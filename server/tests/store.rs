@@ -3,7 +3,7 @@
 
 use proptest::prelude::*;
 use tetwave_server::prepare::{prepare, verify, PrepareError, PrepareOptions};
-use tetwave_server::store::{FormatError, Store, StoreError, BLOCK};
+use tetwave_store::{FormatError, Store, StoreError, BLOCK};
 
 fn make_store(dir: &std::path::Path, levels: u8, bits: Option<u8>) -> Store {
     let mut o = PrepareOptions::new("synthetic:harmonic", dir);

@@ -5,17 +5,16 @@
 mod stream_common;
 
 use stream_common::*;
-use tetwave_client::camera::Camera;
-use tetwave_client::image_metrics::{psnr, Rgba8Image};
-use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::PtRenderer;
-use tetwave_client::render::GpuContext;
-use tetwave_client::render_cli::store_mesh;
-use tetwave_client::store_reader::LocalStore;
-use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{decode_server, ServerMsg};
-use tetwave_server::store::{Manifest, Store};
+use tetwave_render::gpu::pt::PtRenderer;
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 use tetwave_server::stream::ServeConfig;
+use tetwave_store::{Manifest, Store};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn manifest_base_and_node_ranges_match_the_store() {
@@ -196,8 +195,8 @@ async fn render_matches_a_local_render_of_the_same_camera() {
     let (_d, dir) = make_store(3);
     let (addr, _) = start(&dir, ServeConfig::default()).await;
     let (w, h, az, el, dist, level) = (64u32, 48u32, 30.0, 20.0, 3.5, 2u8);
-    let local = LocalStore::open(&dir).unwrap();
-    let (mesh, _) = store_mesh(&local, Some(level)).unwrap();
+    let local = Store::open(&dir).unwrap();
+    let mesh = RenderMesh::uniform_level(&local.base, &local.synthesize_all().unwrap(), level);
     let dist = dist * mesh.diagonal();
     let cam = Camera::orbit(mesh.center(), dist, az, el, 40.0, w, h);
     let tf = TransferFunction::load("default").unwrap();

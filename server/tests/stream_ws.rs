@@ -11,8 +11,8 @@ use stream_common::*;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::wire::{encode, ClientMsg, IdRange, ServerMsg};
 use tetwave_protocol::{DetailNode, LatticeTet};
-use tetwave_server::store::Store;
 use tetwave_server::stream::ServeConfig;
+use tetwave_store::Store;
 use tokio_tungstenite::tungstenite::Message;
 
 use futures_util::SinkExt;

@@ -3,16 +3,15 @@
 //! function, camera outside, inside and grazing. Needs a GPU adapter (lavapipe in CI).
 
 use glam::DVec3;
-use tetwave_client::camera::Camera;
-use tetwave_client::image_metrics::psnr;
-use tetwave_client::reference::render_reference;
-use tetwave_client::render::pt::PtRenderer;
-use tetwave_client::render::GpuContext;
 use tetwave_client::render_cli::store_mesh;
-use tetwave_client::store_reader::LocalStore;
-use tetwave_client::transfer::TransferFunction;
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::PtRenderer;
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::psnr;
+use tetwave_render::reference::render_reference;
+use tetwave_render::transfer::TransferFunction;
 use tetwave_server::prepare::{prepare, PrepareOptions};
-use tetwave_server::store::Store;
+use tetwave_store::Store;
 
 #[test]
 fn client_reads_the_servers_store_identically() {
@@ -22,13 +21,13 @@ fn client_reads_the_servers_store_identically() {
     o.bits = Some(12);
     prepare(&o).unwrap();
     let server = Store::open(d.path()).unwrap();
-    let client = LocalStore::open(d.path()).unwrap();
+    let client = Store::open(d.path()).unwrap();
     let n = server.manifest.counts.nodes;
     assert_eq!(
         server.read_nodes(0, n).unwrap(),
         client.read_nodes(0, n).unwrap()
     );
-    assert_eq!(&server.base, client.base());
+    assert_eq!(&server.base, &client.base);
     // the client's synthesis equals the stored samples within the manifest's bound
     let values = client.synthesize_all().unwrap();
     let reference = server.read_reference().unwrap();
@@ -46,7 +45,7 @@ fn harmonic_level3_gpu_matches_reference() {
     let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
     o.levels = 3;
     prepare(&o).unwrap();
-    let store = LocalStore::open(d.path()).unwrap();
+    let store = Store::open(d.path()).unwrap();
     let (mesh, level) = store_mesh(&store, None).unwrap();
     assert_eq!((level, mesh.tets.len()), (3, 2560));
     let ctx = GpuContext::new().unwrap_or_else(|e| panic!("GPU test cannot run: {e}"));

@@ -113,12 +113,12 @@ pub fn probed_run(
     tetwave_client::progressive::RunReport,
     tetwave_client::render_probe::RenderSummary,
 ) {
-    use tetwave_client::camera::Camera;
     use tetwave_client::mesh::AdaptiveMesh;
     use tetwave_client::progressive::{order_nodes, run_progressive_with, ArrivalOrder};
-    use tetwave_client::render_mesh::RenderMesh;
     use tetwave_client::render_probe::RenderProbe;
-    use tetwave_client::transfer::TransferFunction;
+    use tetwave_protocol::view::Camera;
+    use tetwave_render::render_mesh::RenderMesh;
+    use tetwave_render::transfer::TransferFunction;
     let (base, mut nodes) = make_nodes(box5(levels), harmonic);
     order_nodes(&mut nodes, ArrivalOrder::Level, 1);
     let values = tetwave_protocol::synthesis::synthesize_all(

@@ -13,8 +13,8 @@ use tetwave_protocol::wire::{
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_server::prepare::{prepare, PrepareOptions};
-use tetwave_server::store::Manifest;
 use tetwave_server::stream::{serve_on, ServeConfig, Shared};
+use tetwave_store::Manifest;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_tungstenite::tungstenite::Message;
 

@@ -11,17 +11,18 @@
 
 use super::order::{centroid_order, face_neighbors, mpvo_order};
 use super::{GpuContext, RenderError};
-use crate::camera::Camera;
 use crate::image_metrics::Rgba8Image;
 use crate::render_mesh::RenderMesh;
 use crate::transfer::TransferFunction;
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use rayon::prelude::*;
+use tetwave_protocol::view::Camera;
 use wgpu::util::DeviceExt;
 
 /// How tets are ordered back to front each frame (see [`super::order`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum VisibilityOrder {
     /// Sort by eye-to-centroid distance (approximate).
     #[default]
@@ -75,7 +76,8 @@ const FACES_POS: [u32; 12] = [1, 2, 3, 0, 3, 2, 0, 1, 3, 0, 2, 1];
 const FACES_NEG: [u32; 12] = [1, 3, 2, 0, 2, 3, 0, 3, 1, 0, 1, 2];
 
 /// Precision of the colour accumulation target (blending happens in this format).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Accumulation {
     /// 32-bit float per channel where the adapter can blend it, else 16-bit (the default: exact
     /// enough for the ≥ 45 dB image tests).

@@ -1,56 +1,53 @@
-//! End to end on loopback: `tetwave-server serve` (the binary) and the streaming client library.
-//! Every server binds 127.0.0.1 on a free port and is killed at the end of its test; every wait is
+//! End to end on loopback: the server's stream (in process) and the streaming client library.
+//! Every server binds 127.0.0.1 on a free port and stops at the end of its test; every wait is
 //! bounded.
 
-use std::net::TcpStream;
 use std::path::Path;
-use std::process::{Child, Command};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tetwave_client::stream::{run_session, Faults, Session, StreamArgs};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_server::prepare::{prepare, PrepareOptions};
-use tetwave_server::store::Store;
+use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
+use tetwave_store::Store;
 
-struct Server(Child, String);
+/// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
+struct Server(Option<tokio::sync::oneshot::Sender<()>>, String);
 
 impl Drop for Server {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        if let Some(stop) = self.0.take() {
+            let _ = stop.send(());
+        }
     }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 fn serve(store: &Path, order: &str) -> Server {
-    let port = free_port();
-    let addr = format!("127.0.0.1:{port}");
-    let child = Command::new(env!("CARGO_BIN_EXE_tetwave-server"))
-        .args([
-            "serve",
-            store.to_str().unwrap(),
-            "--addr",
-            &addr,
-            "--order",
-            order,
-        ])
-        .spawn()
-        .expect("server starts");
-    let t0 = Instant::now();
-    while TcpStream::connect(&addr).is_err() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "server did not listen on {addr}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    Server(child, format!("http://{addr}"))
+    let config = ServeConfig {
+        order: Order::parse(order).expect("known order"),
+        ..Default::default()
+    };
+    let shared = Shared::open(store, config).expect("store opens");
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+            addr_tx.send(listener.local_addr().unwrap()).unwrap();
+            tokio::select! {
+                _ = serve_on(listener, shared) => {}
+                _ = stop_rx => {}
+            }
+        });
+    });
+    let addr = addr_rx
+        .recv_timeout(Duration::from_secs(20))
+        .expect("server listens");
+    Server(Some(stop_tx), format!("http://{addr}"))
 }
 
 fn store(levels: u8) -> (tempfile::TempDir, Vec<f32>, u64) {

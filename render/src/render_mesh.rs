@@ -67,20 +67,6 @@ impl RenderMesh {
         m
     }
 
-    /// The drawable leaf mesh of an adaptive mesh (red leaves and green pieces), its scalar
-    /// range set to `value_range` (the dataset's, so that colours agree from frame to frame).
-    pub fn of_adaptive(mesh: &crate::mesh::AdaptiveMesh, value_range: [f32; 2]) -> Self {
-        let positions = mesh
-            .positions()
-            .iter()
-            .map(|p| p.map(|x| x as f64))
-            .collect();
-        let tets = mesh.drawable_leaf_tets().iter().map(|t| t.v).collect();
-        let mut m = RenderMesh::new(positions, tets, mesh.values().to_vec());
-        m.value_range = (value_range[0], value_range[1]);
-        m
-    }
-
     /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each, with the scalar `f` at the points.
     pub fn kuhn_cube(n: usize, size: f64, f: impl Fn([f64; 3]) -> f64) -> Self {
         let (mut positions, tets) = tetwave_protocol::base::kuhn_grid(n, |_, _, _| true);

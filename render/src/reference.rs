@@ -6,12 +6,12 @@
 //! non-convex meshes and gaps are exact) and each is integrated with sub-steps doubled until the
 //! result changes by less than `1e-7`. Rays start at the camera's near plane.
 
-use crate::camera::Camera;
 use crate::image_metrics::Rgba8Image;
 use crate::render_mesh::RenderMesh;
 use crate::transfer::{integrate_segment_converged, TransferFunction};
 use glam::DVec3;
 use rayon::prelude::*;
+use tetwave_protocol::view::Camera;
 
 /// Convergence tolerance of each segment's integral.
 pub const SEGMENT_TOL: f64 = 1e-7;

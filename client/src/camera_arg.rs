@@ -1,0 +1,54 @@
+//! Command-line parsers for camera arguments: a clear error for values that would give a blank or
+//! meaningless image (NaN, a negative distance, a field of view of 0).
+
+fn number(s: &str) -> Result<f64, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("not a number: {s:?}"))?;
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(format!("{x} is not finite"))
+    }
+}
+
+/// An angle or a rotation in degrees or radians: finite, magnitude at most 10^6.
+pub fn angle(s: &str) -> Result<f64, String> {
+    let x = number(s)?;
+    if x.abs() <= 1e6 {
+        Ok(x)
+    } else {
+        Err(format!("{x} is out of range (magnitude at most 1e6)"))
+    }
+}
+
+/// An elevation in degrees, within ±90.
+pub fn elevation(s: &str) -> Result<f64, String> {
+    let x = number(s)?;
+    if (-90.0..=90.0).contains(&x) {
+        Ok(x)
+    } else {
+        Err(format!("{x} is outside -90..=90 degrees"))
+    }
+}
+
+/// An eye distance: finite and positive.
+pub fn distance(s: &str) -> Result<f64, String> {
+    let x = number(s)?;
+    if x > 0.0 {
+        Ok(x)
+    } else {
+        Err(format!("{x} is not a positive distance"))
+    }
+}
+
+/// A vertical field of view in degrees, strictly between 0 and 180.
+pub fn fov(s: &str) -> Result<f64, String> {
+    let x = number(s)?;
+    if x > 0.0 && x < 180.0 {
+        Ok(x)
+    } else {
+        Err(format!("{x} is outside (0, 180) degrees"))
+    }
+}

@@ -1,0 +1,299 @@
+//! The view-dependent refinement criterion, defined once for both sides: the camera, the
+//! screen-space error of a tet's bounding sphere (thesis eq. 43), frustum tests, tolerances and the
+//! data-aware weight. The client's selection and the server's view order both call these functions,
+//! so the order in which the server sends nodes follows what the client will want.
+
+use crate::wire::ViewParams;
+use glam::{DMat4, DVec3, Vec3};
+use std::fmt;
+
+/// A pinhole camera shared by the criteria, the GPU renderer and the CPU reference: the same
+/// pixel → ray mapping everywhere (pixel centres, row 0 at the top).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    pub eye: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
+    /// Vertical field of view, degrees.
+    pub fovy_deg: f64,
+    /// Near-plane distance along the view direction; rays start there.
+    pub near: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Camera {
+    /// Orbit camera around `center`: azimuth about the vertical (z) axis, elevation above the xy plane.
+    pub fn orbit(
+        center: DVec3,
+        distance: f64,
+        azimuth_deg: f64,
+        elevation_deg: f64,
+        fovy_deg: f64,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+        let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+        let up = if el.cos().abs() < 1e-6 {
+            DVec3::Y
+        } else {
+            DVec3::Z
+        };
+        Camera {
+            eye: center + dir * distance,
+            target: center,
+            up,
+            fovy_deg,
+            near: (distance * 1e-3).max(1e-6),
+            width,
+            height,
+        }
+    }
+
+    /// The camera of a client's `View` message: any up vector (a degenerate one is replaced), the
+    /// near plane at the eye, a viewport of at least 1×1 pixels.
+    pub fn from_view_params(v: &ViewParams) -> Self {
+        let eye = DVec3::from_array(v.eye);
+        let target = DVec3::from_array(v.target);
+        let fwd = (target - eye).try_normalize().unwrap_or(DVec3::NEG_Z);
+        let up = [DVec3::from_array(v.up), DVec3::Y, DVec3::X]
+            .into_iter()
+            .find(|u| fwd.cross(*u).try_normalize().is_some())
+            .unwrap_or(DVec3::Y);
+        Camera {
+            eye,
+            target: eye + fwd,
+            up,
+            fovy_deg: v.fovy_deg,
+            near: 0.0,
+            width: v.width.max(1),
+            height: v.height.max(1),
+        }
+    }
+
+    /// Unit view direction.
+    pub fn forward(&self) -> DVec3 {
+        (self.target - self.eye).normalize()
+    }
+
+    /// Orthonormal (right, up, forward).
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        let f = self.forward();
+        let r = f.cross(self.up).normalize();
+        let u = r.cross(f);
+        (r, u, f)
+    }
+
+    /// Unit direction of the ray through the centre of pixel `(x, y)`.
+    pub fn ray_dir(&self, x: u32, y: u32) -> DVec3 {
+        let (r, u, f) = self.basis();
+        let th = (self.fovy_deg.to_radians() * 0.5).tan();
+        let aspect = self.width as f64 / self.height as f64;
+        let nx = 2.0 * (x as f64 + 0.5) / self.width as f64 - 1.0;
+        let ny = 1.0 - 2.0 * (y as f64 + 0.5) / self.height as f64;
+        (f + r * (nx * th * aspect) + u * (ny * th)).normalize()
+    }
+
+    /// Ray parameter where a unit ray `dir` crosses the near plane.
+    pub fn near_t(&self, dir: DVec3) -> f64 {
+        self.near / dir.dot(self.forward()).max(1e-12)
+    }
+
+    /// View-projection matrix (wgpu depth range) for world coordinates expressed relative to `origin`.
+    pub fn view_proj(&self, origin: DVec3, far: f64) -> DMat4 {
+        let view = DMat4::look_at_rh(self.eye - origin, self.target - origin, self.basis().1);
+        let proj = DMat4::perspective_rh(
+            self.fovy_deg.to_radians(),
+            self.width as f64 / self.height as f64,
+            self.near,
+            far,
+        );
+        proj * view
+    }
+}
+
+/// Refinement tolerance of the screen-space error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Tolerance {
+    Pixels(f64),
+    /// Percent of the viewport height `H` (the thesis' 20%, 15%, 12.5%, 10%, 6.25%).
+    PercentOfHeight(f64),
+}
+
+impl Tolerance {
+    /// The tolerance in pixels for a viewport `height` pixels tall.
+    pub fn pixels(&self, height: u32) -> f64 {
+        match *self {
+            Tolerance::Pixels(p) => p,
+            Tolerance::PercentOfHeight(p) => p / 100.0 * height as f64,
+        }
+    }
+
+    /// `"20%"` → 20 % of `H`; `"12"` or `"12px"` → 12 pixels.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let s = s.trim();
+        let num = |t: &str| {
+            t.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite() && *v >= 0.0)
+                .ok_or_else(|| format!("bad tolerance {s:?}: give 20% or 12px"))
+        };
+        if let Some(p) = s.strip_suffix('%') {
+            Ok(Tolerance::PercentOfHeight(num(p)?))
+        } else {
+            Ok(Tolerance::Pixels(num(s.strip_suffix("px").unwrap_or(s))?))
+        }
+    }
+}
+
+impl fmt::Display for Tolerance {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Tolerance::Pixels(p) => write!(f, "{p}px"),
+            Tolerance::PercentOfHeight(p) => write!(f, "{p}%"),
+        }
+    }
+}
+
+/// The camera as the criteria use it: eye, frustum planes, pixels per unit of `diam/dist`.
+#[derive(Debug, Clone, Copy)]
+pub struct View {
+    pub eye: DVec3,
+    /// Inward unit normals `n` and offsets `d`: inside iff `n·p + d ≥ 0` (near + 4 sides).
+    pub planes: [(DVec3, f64); 5],
+    /// `H / (2·tan(fovy/2))`.
+    pub pixels_per_unit: f64,
+    pub tol_px: f64,
+    /// The camera's right, up and forward unit vectors.
+    pub basis: [DVec3; 3],
+}
+
+impl View {
+    pub fn new(cam: &Camera, tol: Tolerance) -> Self {
+        let (r, u, f) = cam.basis();
+        let ty = (cam.fovy_deg.to_radians() * 0.5).tan();
+        let tx = ty * cam.width as f64 / cam.height as f64;
+        let side = |n: DVec3| {
+            let n = n.normalize();
+            (n, -n.dot(cam.eye))
+        };
+        View {
+            eye: cam.eye,
+            planes: [
+                (f, -(f.dot(cam.eye) + cam.near)),
+                side(f * tx - r),
+                side(f * tx + r),
+                side(f * ty - u),
+                side(f * ty + u),
+            ],
+            pixels_per_unit: cam.height as f64 / (2.0 * ty),
+            tol_px: tol.pixels(cam.height),
+            basis: [r, u, f],
+        }
+    }
+
+    /// Whether a sphere is at least partly inside the frustum.
+    #[inline]
+    pub fn sphere_visible(&self, c: DVec3, r: f64) -> bool {
+        Self::offsets_visible(&self.plane_offsets(c), r)
+    }
+
+    /// Signed distances `n·c + d` of point `c` to the frustum's planes (positive inside).
+    #[inline]
+    pub fn plane_offsets(&self, c: DVec3) -> [f64; 5] {
+        self.planes.map(|(n, d)| n.dot(c) + d)
+    }
+
+    /// [`Self::sphere_visible`] of a sphere of radius `r` whose centre has plane offsets `x`.
+    #[inline]
+    pub fn offsets_visible(x: &[f64; 5], r: f64) -> bool {
+        x.iter().all(|&v| v >= -r)
+    }
+
+    /// Thesis eq. 43: vertical pixels of a sphere of diameter `diam` centred at `c`.
+    #[inline]
+    pub fn error_px(&self, c: DVec3, diam: f64) -> f64 {
+        self.error_px_at((c - self.eye).length(), diam)
+    }
+
+    /// [`Self::error_px`] of a sphere at distance `dist` from the eye.
+    #[inline]
+    pub fn error_px_at(&self, dist: f64, diam: f64) -> f64 {
+        self.pixels_per_unit * diam / dist.max(1e-12)
+    }
+}
+
+/// The data-aware weight : `min(1, smax / (δ · value range))` for a subtree
+/// whose details are at most `smax` in magnitude. Selection scales the screen-space error by it;
+/// the server's view order ranks nodes with the same product.
+#[inline]
+pub fn data_weight(smax: f32, value_range: [f32; 2], delta: f32) -> f64 {
+    let [lo, hi] = value_range;
+    let range = ((hi - lo) as f64).max(1e-30);
+    (smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0)
+}
+
+/// Bounding sphere of a tet with vertices `p`: the centroid rounded to `f32`, and the distance from
+/// it to the farthest vertex rounded up to `f32` (so that the client caches it in 16 bytes, exactly).
+/// A node's size in the criterion is this sphere's diameter.
+#[inline]
+pub fn tet_sphere(p: [DVec3; 4]) -> (Vec3, f32) {
+    let c = ((p[0] + p[1] + p[2] + p[3]) * 0.25).as_vec3();
+    let cd = c.as_dvec3();
+    let r2 = p
+        .iter()
+        .map(|q| q.distance_squared(cd))
+        .fold(0.0f64, f64::max);
+    (c, f32_up(r2.sqrt()))
+}
+
+/// The screen-space error in pixels of a tet with bounding sphere `(c, r)` and data weight
+/// `weight` (1 for the geometric criterion): `View::error_px(c, 2r) · weight`.
+#[inline]
+pub fn screen_error(view: &View, c: DVec3, r: f64, weight: f64) -> f64 {
+    view.error_px(c, 2.0 * r) * weight
+}
+
+/// `x` rounded up to an `f32`.
+#[inline]
+pub fn f32_up(x: f64) -> f32 {
+    let y = x as f32;
+    if (y as f64) < x {
+        y.next_up()
+    } else {
+        y
+    }
+}
+
+/// `x` rounded down to an `f32`.
+#[inline]
+pub fn f32_down(x: f64) -> f32 {
+    let y = x as f32;
+    if (y as f64) > x {
+        y.next_down()
+    } else {
+        y
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The projection maps each pixel's ray back onto that pixel's centre.
+    #[test]
+    fn rays_and_projection_agree() {
+        let cam = Camera::orbit(DVec3::new(1.0, 2.0, 3.0), 10.0, 30.0, 20.0, 40.0, 64, 48);
+        let vp = cam.view_proj(DVec3::ZERO, 100.0);
+        for (x, y) in [(0, 0), (63, 47), (10, 30), (32, 24)] {
+            let p = cam.eye + cam.ray_dir(x, y) * 7.0;
+            let c = vp * p.extend(1.0);
+            let ndc = c.truncate() / c.w;
+            let px = (ndc.x + 1.0) * 0.5 * 64.0;
+            let py = (1.0 - ndc.y) * 0.5 * 48.0;
+            assert!((px - (x as f64 + 0.5)).abs() < 1e-9 && (py - (y as f64 + 0.5)).abs() < 1e-9);
+        }
+    }
+}

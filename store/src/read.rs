@@ -1,0 +1,152 @@
+//! Reading a store: the manifest, base mesh and block index at open, node records and coefficients
+//! on demand.
+
+use crate::{io_err, StoreError, STORE_FILES};
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use tetwave_protocol::store_format::{Manifest, StoreFiles, StoreHead};
+use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
+
+/// A store directory as a [`StoreFiles`] source.
+struct DirFiles(PathBuf);
+
+impl StoreFiles for DirFiles {
+    type Error = StoreError;
+    fn read_at(&self, file: &str, offset: u64, buf: &mut [u8]) -> Result<(), StoreError> {
+        let path = self.0.join(file);
+        let mut f = File::open(&path).map_err(io_err(&path))?;
+        f.seek(SeekFrom::Start(offset)).map_err(io_err(&path))?;
+        f.read_exact(buf).map_err(io_err(&path))
+    }
+}
+
+/// An open store: manifest, base mesh and block index in memory, node records and coefficients read
+/// on demand.
+pub struct Store {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub base: BaseMesh,
+    head: StoreHead,
+    files: DirFiles,
+}
+
+impl Store {
+    /// Opens a store, checking the manifest, the base mesh and every file's size (not checksums: see
+    /// [`Store::check_sums`]).
+    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        let mpath = dir.join("manifest.json");
+        let text = std::fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
+        let manifest: Manifest =
+            serde_json::from_str(&text).map_err(|e| StoreError::BadManifest {
+                path: mpath.clone(),
+                reason: e.to_string(),
+            })?;
+        for (name, sum) in &manifest.files {
+            let p = dir.join(name);
+            let len = std::fs::metadata(&p).map_err(io_err(&p))?.len();
+            if len != sum.bytes {
+                return Err(StoreError::Corrupt {
+                    path: p,
+                    reason: format!("{len} bytes, manifest says {}", sum.bytes),
+                });
+            }
+        }
+        let bpath = dir.join("base.bin");
+        let base_bytes = std::fs::read(&bpath).map_err(io_err(&bpath))?;
+        let ipath = dir.join("coeff_index.bin");
+        let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
+        let head = StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(|source| {
+            StoreError::Format {
+                path: dir.to_path_buf(),
+                source,
+            }
+        })?;
+        Ok(Store {
+            dir: dir.to_path_buf(),
+            manifest: head.manifest.clone(),
+            base: head.base.clone(),
+            head,
+            files: DirFiles(dir.to_path_buf()),
+        })
+    }
+
+    pub fn forest(&self) -> Forest {
+        self.base.forest()
+    }
+
+    /// Recomputes every file's CRC-32 and compares it with the manifest, which must list every
+    /// file of a store ([`STORE_FILES`]).
+    pub fn check_sums(&self) -> Result<(), StoreError> {
+        if let Some(missing) = STORE_FILES
+            .iter()
+            .find(|f| !self.manifest.files.contains_key(**f))
+        {
+            return Err(StoreError::Corrupt {
+                path: self.dir.join("manifest.json"),
+                reason: format!("no checksum for {missing}"),
+            });
+        }
+        for (name, sum) in &self.manifest.files {
+            let p = self.dir.join(name);
+            let mut f = File::open(&p).map_err(io_err(&p))?;
+            let mut h = crc32fast::Hasher::new();
+            let mut buf = vec![0u8; 1 << 20];
+            loop {
+                let n = f.read(&mut buf).map_err(io_err(&p))?;
+                if n == 0 {
+                    break;
+                }
+                h.update(&buf[..n]);
+            }
+            let got = h.finalize();
+            if got != sum.crc32 {
+                return Err(StoreError::Corrupt {
+                    path: p,
+                    reason: format!("checksum {got:08x}, manifest says {:08x}", sum.crc32),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Nodes `from..to` (random access: reads only what the range needs).
+    pub fn read_nodes(&self, from: TetId, to: TetId) -> Result<Vec<DetailNode>, StoreError> {
+        self.head
+            .read_nodes(&self.files, from, to)
+            .map_err(|e| match e {
+                StoreError::Format { source, .. } => StoreError::Format {
+                    path: self.dir.clone(),
+                    source,
+                },
+                other => other,
+            })
+    }
+
+    /// The sampled values `verify` compares synthesis with.
+    pub fn read_reference(&self) -> Result<Vec<f32>, StoreError> {
+        let p = self.dir.join("reference.f32");
+        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        if b.len() as u64 != self.manifest.counts.vertices * 4 {
+            return Err(StoreError::Corrupt {
+                path: p,
+                reason: "size disagrees with the vertex count".into(),
+            });
+        }
+        Ok(b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    }
+
+    /// Every finest-level vertex value (by vertex key), synthesized from all nodes.
+    pub fn synthesize_all(&self) -> Result<Vec<f32>, StoreError> {
+        let nodes = self.read_nodes(0, self.manifest.counts.nodes)?;
+        synthesize_all(&self.base, &self.base.vertex_keys(), nodes).map_err(|source| {
+            StoreError::Synthesis {
+                path: self.dir.clone(),
+                source,
+            }
+        })
+    }
+}

@@ -1,0 +1,180 @@
+//! Writing a store: every file with its size and CRC-32, the manifest last.
+
+use crate::{io_err, StoreError, BLOCK, STORE_FORMAT, STORE_VERSION};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+use tetwave_protocol::store_format::{encode_node_record, Counts, Encoding, FileSum, Manifest};
+use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::BaseMesh;
+
+/// Writes files while computing their checksums.
+struct SumWriter {
+    inner: BufWriter<File>,
+    hasher: crc32fast::Hasher,
+    bytes: u64,
+}
+
+impl SumWriter {
+    fn create(path: &Path) -> Result<Self, StoreError> {
+        let f = File::create(path).map_err(io_err(path))?;
+        Ok(SumWriter {
+            inner: BufWriter::with_capacity(1 << 20, f),
+            hasher: crc32fast::Hasher::new(),
+            bytes: 0,
+        })
+    }
+    fn put(&mut self, b: &[u8]) -> std::io::Result<()> {
+        self.hasher.update(b);
+        self.bytes += b.len() as u64;
+        self.inner.write_all(b)
+    }
+    fn finish(mut self) -> std::io::Result<FileSum> {
+        self.inner.flush()?;
+        Ok(FileSum {
+            bytes: self.bytes,
+            crc32: self.hasher.finalize(),
+        })
+    }
+}
+
+/// What a store holds, in node-id order: the analysis' output.
+pub struct StoreContent<'a> {
+    /// Base mesh with reconstructed base values and empty flags.
+    pub base: &'a BaseMesh,
+    /// Per node: owned-edge mask.
+    pub owned: &'a [u8],
+    /// Per node: bit `i` set when child `i` is empty.
+    pub empty_children: &'a [u8],
+    /// Per node: max |detail| of all vertices created by refining it and its descendants.
+    pub subtree_max_abs: &'a [f32],
+    /// Owned details in node order, then edge order (dequantized when quantized).
+    pub coeffs: &'a [f32],
+    pub quantizer: Option<Quantizer>,
+    /// The sampled value of every vertex: what `verify` compares synthesis with.
+    pub reference: &'a [f32],
+    /// Inside samples' range.
+    pub value_range: (f32, f32),
+    /// Measured max |synthesis − sample|.
+    pub max_abs_error: f64,
+    /// The bound the store promises.
+    pub error_bound: f64,
+}
+
+/// What [`write`] needs besides the content.
+pub struct StoreMeta {
+    pub dataset: String,
+    pub source: String,
+    pub base: String,
+    pub outside_vertices: u64,
+}
+
+/// Writes a store directory (created if needed) and returns its manifest. Over an existing store,
+/// its manifest goes first and the new one is written last (renamed into place): a write that
+/// stops half way leaves a directory that does not open as a store, never an old manifest over
+/// new files.
+pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manifest, StoreError> {
+    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    let manifest_path = dir.join("manifest.json");
+    match std::fs::remove_file(&manifest_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(io_err(&manifest_path)(e));
+        }
+        _ => {}
+    }
+    let forest = a.base.forest();
+    let mut files = std::collections::BTreeMap::new();
+    let encoding = match &a.quantizer {
+        None => Encoding::F32,
+        Some(q) => Encoding::Quantized {
+            bits: q.bits,
+            step: q.step,
+        },
+    };
+
+    let path = dir.join("base.bin");
+    let mut w = SumWriter::create(&path)?;
+    let bytes =
+        bincode::serde::encode_to_vec(a.base, bincode::config::standard()).map_err(|e| {
+            StoreError::Corrupt {
+                path: path.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+    w.put(&bytes).map_err(io_err(&path))?;
+    files.insert("base.bin".into(), w.finish().map_err(io_err(&path))?);
+
+    let path = dir.join("nodes.bin");
+    let mut w = SumWriter::create(&path)?;
+    for i in 0..a.owned.len() {
+        w.put(&encode_node_record(
+            a.owned[i],
+            a.empty_children[i],
+            a.subtree_max_abs[i],
+        ))
+        .map_err(io_err(&path))?;
+    }
+    files.insert("nodes.bin".into(), w.finish().map_err(io_err(&path))?);
+
+    let path = dir.join("coeffs.bin");
+    let mut w = SumWriter::create(&path)?;
+    let mut buf = Vec::with_capacity(1 << 16);
+    for chunk in a.coeffs.chunks(1 << 14) {
+        buf.clear();
+        for &d in chunk {
+            encoding.encode(d, &mut buf);
+        }
+        w.put(&buf).map_err(io_err(&path))?;
+    }
+    files.insert("coeffs.bin".into(), w.finish().map_err(io_err(&path))?);
+
+    let path = dir.join("coeff_index.bin");
+    let mut w = SumWriter::create(&path)?;
+    let mut before = 0u64;
+    for (i, m) in a.owned.iter().enumerate() {
+        if (i as u64).is_multiple_of(BLOCK) {
+            w.put(&before.to_le_bytes()).map_err(io_err(&path))?;
+        }
+        before += m.count_ones() as u64;
+    }
+    files.insert("coeff_index.bin".into(), w.finish().map_err(io_err(&path))?);
+
+    let path = dir.join("reference.f32");
+    let mut w = SumWriter::create(&path)?;
+    for &x in a.reference {
+        w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
+    }
+    files.insert("reference.f32".into(), w.finish().map_err(io_err(&path))?);
+
+    let (lo, hi) = a.base.bounds();
+    let manifest = Manifest {
+        format: STORE_FORMAT.into(),
+        version: STORE_VERSION,
+        dataset: meta.dataset,
+        source: meta.source,
+        bounds: [lo, hi],
+        base: meta.base,
+        base_tets: a.base.tets.len() as u64,
+        base_vertices: a.base.positions.len() as u64,
+        levels: a.base.levels,
+        value_range: [a.value_range.0, a.value_range.1],
+        counts: Counts {
+            tets_total: forest.total_tets(),
+            leaves: forest.leaves(),
+            nodes: forest.nodes(),
+            vertices: a.reference.len() as u64,
+            coefficients: a.coeffs.len() as u64,
+            outside_vertices: meta.outside_vertices,
+            empty_base_tets: a.base.empty.iter().filter(|&&e| e).count() as u64,
+        },
+        encoding,
+        max_error_bound: a.error_bound,
+        max_abs_error: a.max_abs_error,
+        files,
+    };
+    let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
+    let partial = dir.join("manifest.json.partial");
+    std::fs::write(&partial, text).map_err(io_err(&partial))?;
+    std::fs::rename(&partial, &manifest_path).map_err(io_err(&manifest_path))?;
+    Ok(manifest)
+}
