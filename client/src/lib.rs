@@ -13,5 +13,6 @@ pub mod progressive;
 pub mod render_cli;
 pub mod render_probe;
 pub mod select;
+pub mod session;
 pub mod store_info;
 pub mod stream;

@@ -1,18 +1,14 @@
 //! The progressive client loop without a network: detail nodes arrive in batches, the camera moves,
 //! selective refinement runs under a budget. [`run_progressive`] is the thesis' experiment (§6.4,
 //! Tables 2–3: 312 steps of +1000 nodes and a 0.05 rad turn about the vertical axis); `tetwave bench
-//! progressive` prints its rows. [`BackgroundRefiner`] runs the same loop on a thread and hands
-//! finished meshes to a renderer that never waits for it.
+//! progressive` prints its rows. The buffer, mesh and selector are a [`Session`]'s.
 
-use crate::detail_buffer::{Arrivals, BufferError, DetailBuffer};
-use crate::mesh::{AdaptiveMesh, LeafTet, MeshError};
+use crate::mesh::{AdaptiveMesh, MeshError};
 use crate::render_probe::{RenderProbe, RenderSummary};
 use crate::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
+use crate::session::{NodeRejected, Session};
 use glam::DVec3;
 use serde::Serialize;
-use std::sync::mpsc::{self, Receiver, Sender};
-use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
@@ -251,12 +247,8 @@ pub enum RunError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
     /// A detail node of the run is invalid (a corrupt store): the run stops instead of dropping it.
-    #[error("detail node {id} is invalid: {source}")]
-    Node {
-        id: TetId,
-        #[source]
-        source: BufferError,
-    },
+    #[error(transparent)]
+    Node(#[from] NodeRejected),
 }
 
 /// Runs the experiment on `base` with `nodes` already in arrival order (see [`RunConfig`]).
@@ -282,21 +274,21 @@ pub fn run_progressive_with(
 ) -> Result<RunReport, RunError> {
     let (lo, hi) = base.bounds();
     let center = DVec3::from(lo).lerp(DVec3::from(hi), 0.5);
-    let mut mesh = AdaptiveMesh::new(base)?;
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let params = select_params(cfg, value_range);
-    let mut sel = if cfg.full_scan {
-        Selector::full_scan(params)
-    } else {
-        Selector::new(params)
-    };
+    let mut session = Session::with_selector(
+        base.clone(),
+        if cfg.full_scan {
+            Selector::full_scan(params)
+        } else {
+            Selector::new(params)
+        },
+    )?;
     let mode = if cfg.tol.is_none() {
         Mode::Complete
     } else {
         Mode::Interactive
     };
     let budgeted = cfg.budget_ms.is_some() || cfg.budget_ops.is_some();
-    let mut arr = Arrivals::default();
     let (mut sum_tets, mut sum_leaves, mut sum_v, mut sum_e, mut sum_b, mut sum_mb) =
         (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
     let (mut sum_sel, mut max_leaves) = (0f64, 0usize);
@@ -310,23 +302,15 @@ pub fn run_progressive_with(
     for step in 0..cfg.steps {
         let t0 = Instant::now();
         let end = (next + cfg.per_step).min(nodes.len());
-        arr.clear();
-        for n in &nodes[next..end] {
-            buf.insert(n, &mut arr)
-                .map_err(|source| RunError::Node { id: n.id, source })?;
-        }
+        session.insert(&nodes[next..end])?;
         next = end;
-        if !arr.is_empty() {
-            mesh.apply_arrivals(&buf, &arr);
-            sel.notify_arrived(&mesh, &arr.nodes);
-        }
         let arrive = t0.elapsed().as_secs_f64() * 1e3;
         let cam = step_camera(cfg, center, step);
         let t1 = Instant::now();
         let st = if budgeted {
-            sel.frame(&mut mesh, &buf, &cam, mode)?
+            session.frame(&cam, mode)?
         } else {
-            sel.converge(&mut mesh, &buf, &cam, mode)?
+            session.converge(&cam, mode)?
         };
         let refine = t1.elapsed().as_secs_f64() * 1e3;
         if !st.converged {
@@ -341,20 +325,21 @@ pub fn run_progressive_with(
         arrive_max = f64::max(arrive_max, arrive);
         refine_total += refine;
         refine_max = f64::max(refine_max, refine);
+        let (mesh, buf, sel) = (session.mesh(), session.buffer(), session.selector());
         let (all, drawable) = mesh.piece_counts();
         last_tets = drawable;
         max_tets = max_tets.max(drawable);
         sum_tets += drawable as f64;
         sum_leaves += mesh.leaf_count() as f64;
         sum_v += mesh.vertex_count() as f64;
-        sum_e += edges_on_box(&mesh, all) as f64;
+        sum_e += edges_on_box(mesh, all) as f64;
         sum_b += mesh.bytes_held() as f64;
         sum_mb += (mesh.bytes_held() + buf.bytes_held()) as f64;
         sum_sel += sel.bytes_held() as f64;
         max_leaves = max_leaves.max(mesh.leaf_count());
-        observe(step, &mesh, &cam);
+        observe(step, mesh, &cam);
     }
-    let (splits, merges) = mesh.op_counts();
+    let (splits, merges) = session.mesh().op_counts();
     let (mut settle_frames, mut final_same) = (None, None);
     if cfg.settle {
         let cam = step_camera(cfg, center, cfg.steps.saturating_sub(1));
@@ -365,7 +350,7 @@ pub fn run_progressive_with(
         };
         let mut frames = 0;
         loop {
-            let st = sel.frame(&mut mesh, &buf, &cam, rest)?;
+            let st = session.frame(&cam, rest)?;
             frames += 1;
             if st.converged || frames > 100_000 {
                 break;
@@ -373,14 +358,15 @@ pub fn run_progressive_with(
         }
         settle_frames = Some(frames);
         // the reference: unbudgeted convergence from the same state
-        let mut reference = mesh.clone();
-        let mut params = sel.params.clone();
+        let mut reference = session.mesh().clone();
+        let mut params = session.selector().params.clone();
         params.interactive = Budget::UNLIMITED;
         params.progressive = Budget::UNLIMITED;
         let mut unb = Selector::new(params);
-        unb.converge(&mut reference, &buf, &cam, rest)?;
-        final_same = Some(sorted_leaves(&reference) == sorted_leaves(&mesh));
+        unb.converge(&mut reference, session.buffer(), &cam, rest)?;
+        final_same = Some(sorted_leaves(&reference) == sorted_leaves(session.mesh()));
     }
+    let (mesh, sel) = (session.mesh(), session.selector());
     let n = cfg.steps.max(1) as f64;
     let leaves = mesh.leaf_count().max(1);
     Ok(RunReport {
@@ -436,146 +422,6 @@ pub fn run_progressive_with(
         render: None,
         fps: None,
     })
-}
-
-// ------------------------------------------------------------------ background refinement
-
-/// A finished leaf mesh, ready to upload: drawable tets and the vertex arrays they index.
-#[derive(Debug, Clone)]
-pub struct MeshSnapshot {
-    pub tets: Vec<LeafTet>,
-    pub positions: Vec<[f32; 3]>,
-    pub values: Vec<f32>,
-    /// Frames the refiner has run when it took this snapshot.
-    pub frame: u64,
-    pub converged: bool,
-}
-
-impl MeshSnapshot {
-    pub fn of(mesh: &AdaptiveMesh, frame: u64, converged: bool) -> Self {
-        MeshSnapshot {
-            tets: mesh.drawable_leaf_tets(),
-            positions: mesh.positions().to_vec(),
-            values: mesh.values().to_vec(),
-            frame,
-            converged,
-        }
-    }
-}
-
-enum Msg {
-    Nodes(Vec<DetailNode>),
-    Camera(Camera, Mode),
-    Stop,
-}
-
-/// Selective refinement on a background thread. The renderer feeds it nodes and cameras and polls
-/// [`Self::latest`], which never blocks: it takes the newest finished mesh, if any.
-pub struct BackgroundRefiner {
-    tx: Sender<Msg>,
-    slot: Arc<Mutex<Option<MeshSnapshot>>>,
-    handle: Option<JoinHandle<Result<(), MeshError>>>,
-}
-
-impl BackgroundRefiner {
-    pub fn spawn(base: BaseMesh, params: SelectParams) -> Self {
-        let (tx, rx) = mpsc::channel::<Msg>();
-        let slot = Arc::new(Mutex::new(None));
-        let out = Arc::clone(&slot);
-        let handle = std::thread::spawn(move || worker(base, params, rx, out));
-        BackgroundRefiner {
-            tx,
-            slot,
-            handle: Some(handle),
-        }
-    }
-
-    pub fn send_nodes(&self, nodes: Vec<DetailNode>) {
-        let _ = self.tx.send(Msg::Nodes(nodes));
-    }
-
-    pub fn set_camera(&self, cam: Camera, mode: Mode) {
-        let _ = self.tx.send(Msg::Camera(cam, mode));
-    }
-
-    /// The newest finished mesh since the last call; `None` if there is none or the refiner is
-    /// handing one over at this instant (never waits).
-    pub fn latest(&self) -> Option<MeshSnapshot> {
-        self.slot.try_lock().ok().and_then(|mut s| s.take())
-    }
-
-    /// Stops the thread and returns its result.
-    pub fn stop(mut self) -> Result<(), MeshError> {
-        let _ = self.tx.send(Msg::Stop);
-        self.handle
-            .take()
-            .map(|h| h.join().expect("refiner thread panicked"))
-            .unwrap_or(Ok(()))
-    }
-}
-
-impl Drop for BackgroundRefiner {
-    fn drop(&mut self) {
-        let _ = self.tx.send(Msg::Stop);
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-fn worker(
-    base: BaseMesh,
-    params: SelectParams,
-    rx: Receiver<Msg>,
-    out: Arc<Mutex<Option<MeshSnapshot>>>,
-) -> Result<(), MeshError> {
-    let mut mesh = AdaptiveMesh::new(&base)?;
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut sel = Selector::new(params);
-    let mut arr = Arrivals::default();
-    let mut cam: Option<(Camera, Mode)> = None;
-    let mut frame = 0u64;
-    let mut published_converged = false;
-    loop {
-        // wait only when there is nothing to do
-        let idle = cam.is_none() || sel.is_converged();
-        let first = if idle {
-            match rx.recv() {
-                Ok(m) => Some(m),
-                Err(_) => return Ok(()),
-            }
-        } else {
-            None
-        };
-        for m in first.into_iter().chain(rx.try_iter()) {
-            match m {
-                Msg::Stop => return Ok(()),
-                Msg::Camera(c, mode) => cam = Some((c, mode)),
-                Msg::Nodes(nodes) => {
-                    arr.clear();
-                    for n in &nodes {
-                        // invalid nodes are dropped, as a network client would
-                        let _ = buf.insert(n, &mut arr);
-                    }
-                    if !arr.is_empty() {
-                        mesh.apply_arrivals(&buf, &arr);
-                        sel.notify_arrived(&mesh, &arr.nodes);
-                        published_converged = false;
-                    }
-                }
-            }
-        }
-        let Some((c, mode)) = cam else {
-            continue;
-        };
-        let st = sel.frame(&mut mesh, &buf, &c, mode)?;
-        frame += 1;
-        if st.splits + st.merges > 0 || (st.converged && !published_converged) {
-            published_converged = st.converged;
-            let snap = MeshSnapshot::of(&mesh, frame, st.converged);
-            *out.lock().expect("snapshot slot") = Some(snap);
-        }
-    }
 }
 
 // ------------------------------------------------------------------ `tetwave bench progressive`
@@ -734,7 +580,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             &mut observe,
         )
         .map_err(|e| match e {
-            RunError::Node { .. } => anyhow::anyhow!("store {}: {e}", args.store.display()),
+            RunError::Node(_) => anyhow::anyhow!("store {}: {e}", args.store.display()),
             RunError::Mesh(e) => e.into(),
         })?;
         if let Some(p) = probe.as_mut() {

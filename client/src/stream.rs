@@ -5,9 +5,10 @@
 //!
 //! The network runs on a tokio task; the frame loop never waits on it longer than its frame period.
 
-use crate::detail_buffer::{Arrivals, DetailBuffer, Inserted};
+use crate::detail_buffer::DetailBuffer;
 use crate::mesh::AdaptiveMesh;
-use crate::select::{Mode, SelectParams, Selector, Tolerance};
+use crate::select::{Mode, SelectParams, Tolerance};
+use crate::session::Session;
 use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use std::collections::BTreeSet;
@@ -337,14 +338,14 @@ pub fn run(args: &StreamArgs) -> Result<StreamReport, StreamError> {
 }
 
 /// A finished session: the report and the client's final state.
-pub struct Session {
+pub struct Streamed {
     pub report: StreamReport,
     pub base: Option<BaseMesh>,
     pub mesh: Option<AdaptiveMesh>,
 }
 
 /// [`run`] with injected transport faults, returning the final mesh (tests).
-pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamError> {
+pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, StreamError> {
     let tf = TransferFunction::load(&args.tf)?;
     let tol_spec = args.tol.trim();
     let tol = if tol_spec == "0" || tol_spec == "0px" {
@@ -390,7 +391,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
     ));
 
     let mut manifest: Option<Manifest> = None;
-    let mut state: Option<(DetailBuffer, AdaptiveMesh, Selector, BaseMesh)> = None;
+    let mut state: Option<Session> = None;
     let mut received_nodes: Vec<DetailNode> = Vec::new();
     let mut frames = Vec::new();
     let mut cams = Vec::new();
@@ -398,7 +399,6 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
     let mut ended = false;
     let mut want_rounds = 0u32;
     let mut duplicates = 0u64;
-    let mut arrivals = Arrivals::default();
     let mut first_frame_ms = None;
     // wire bytes of the messages the client has applied (what its frames show)
     let mut bytes_applied = 0u64;
@@ -447,42 +447,36 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             match msg {
                 ServerMsg::Manifest(m) => manifest = Some(*m),
                 // a resumed connection sends the base mesh again: keep what is already built
-                ServerMsg::Base(b) if state.as_ref().is_some_and(|st| st.3 == *b) => {}
+                ServerMsg::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
                 ServerMsg::Base(b) => {
                     let m = manifest
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-                    let buf = DetailBuffer::new(b.forest(), b.vertex_keys());
-                    let mesh = AdaptiveMesh::new(&b)
-                        .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?;
                     let params =
                         SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
-                    state = Some((buf, mesh, Selector::new(params), *b));
+                    state = Some(
+                        Session::new(*b, params)
+                            .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?,
+                    );
                 }
                 ServerMsg::Nodes { seq, nodes } => {
-                    let (buf, mesh, sel, _) = state.as_mut().ok_or_else(|| {
+                    let session = state.as_mut().ok_or_else(|| {
                         StreamError::Protocol("nodes before the base mesh".into())
                     })?;
-                    arrivals.clear();
-                    for n in &nodes {
-                        match buf.insert(n, &mut arrivals) {
-                            Ok(Inserted::New) => {
-                                if args.psnr {
-                                    received_nodes.push(n.clone());
-                                }
-                            }
-                            Ok(_) => duplicates += 1,
-                            Err(e) => return Err(StreamError::Protocol(e.to_string())),
-                        }
+                    let done = session
+                        .insert(&nodes)
+                        .map_err(|e| StreamError::Protocol(e.source.to_string()))?;
+                    duplicates += done.duplicates as u64;
+                    if args.psnr {
+                        received_nodes.extend(nodes.iter().cloned());
                     }
                     applied += nodes.len();
-                    mesh.apply_arrivals(buf, &arrivals);
-                    sel.notify_arrived(mesh, &arrivals.nodes);
                     let _ = out_tx.send(ClientMsg::Ack { seq });
                 }
                 ServerMsg::End { .. } => {
                     // re-request whatever was lost on the way (bounded rounds)
-                    if let Some((buf, ..)) = &state {
+                    if let Some(session) = &state {
+                        let buf = session.buffer();
                         let missing: BTreeSet<TetId> = (0..buf_forest_nodes(buf))
                             .filter(|&t| !buf.is_present(t))
                             .collect();
@@ -503,12 +497,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
                 break;
             }
         }
-        let Some((buf, mesh, sel, base)) = state.as_mut() else {
+        let Some(session) = state.as_mut() else {
             continue;
         };
         let m = manifest.as_ref().expect("manifest precedes base");
         // 2. camera and view
-        let (lo, hi) = base.bounds();
+        let (lo, hi) = session.base().bounds();
         let center = glam::DVec3::from_array([
             0.5 * (lo[0] + hi[0]),
             0.5 * (lo[1] + hi[1]),
@@ -544,16 +538,17 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             (Some(_), true) => Mode::Interactive,
             (Some(_), false) => Mode::Progressive,
         };
-        sel.frame(mesh, buf, &cam, mode)
+        session
+            .frame(&cam, mode)
             .map_err(|e| StreamError::Protocol(e.to_string()))?;
         let refine_ms = tr.elapsed().as_secs_f64() * 1e3;
         // 4. render
         let trn = Instant::now();
-        let tets = mesh.piece_counts().1;
+        let tets = session.mesh().piece_counts().1;
         let img = if args.no_render {
             None
         } else {
-            let rm = crate::draw::leaf_mesh(mesh, m.value_range);
+            let rm = session.leaf_mesh(m.value_range);
             let img = match &gpu {
                 Some((ctx, r)) => {
                     let data = r.upload(ctx, &rm)?;
@@ -575,7 +570,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         frames.push(FrameRecord {
             frame,
             bytes_received: bytes_applied,
-            nodes: buf.nodes_held(),
+            nodes: session.progress().0,
             tets: tets as u64,
             refine_ms,
             render_ms,
@@ -587,20 +582,19 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
             images.push(img);
         }
         frame += 1;
-        if args.until_complete && ended && sel.is_converged() {
+        if args.until_complete && ended && session.is_converged() {
             break;
         }
     }
     drop(out_tx);
-    let (nodes_total, nodes_received) = match &state {
-        Some((buf, _, _, base)) => (base.forest().nodes(), buf.nodes_held()),
-        None => (0, 0),
-    };
+    let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     let complete = nodes_total > 0 && nodes_received == nodes_total;
     // 5. accuracy against the full-resolution reference, once everything has arrived
     if args.psnr {
-        if let (true, Some((_, _, _, base)), Some(m)) = (complete, &state, &manifest) {
+        if let (true, Some(session), Some(m)) = (complete, &state, &manifest) {
+            let base = session.base();
             received_nodes.sort_by_key(|n| n.id);
+            received_nodes.dedup_by_key(|n| n.id);
             let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
                 .map_err(|e| StreamError::Protocol(e.to_string()))?;
             let mut full = RenderMesh::uniform_level(base, &values, base.levels);
@@ -621,8 +615,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         reason: e.to_string(),
     })?;
     task.abort();
-    let (base, mesh) = match state {
-        Some((_, mesh, _, base)) => (Some(base), Some(mesh)),
+    let (base, mesh) = match state.map(Session::into_parts) {
+        Some((base, _, mesh, _)) => (Some(base), Some(mesh)),
         None => (None, None),
     };
     let report = StreamReport {
@@ -635,5 +629,5 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Session, StreamE
         complete,
         first_frame_ms,
     };
-    Ok(Session { report, base, mesh })
+    Ok(Streamed { report, base, mesh })
 }

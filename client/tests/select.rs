@@ -1,14 +1,14 @@
 //! Selective refinement: frustum culling, data-aware error, budgets (conforming frames, same fixed
-//! point as an unbudgeted run), modes and the background refiner.
+//! point as an unbudgeted run), modes and the client session.
 
 use glam::DVec3;
-use std::time::{Duration, Instant};
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
 use tetwave_client::mesh::AdaptiveMesh;
-use tetwave_client::progressive::{splitmix, BackgroundRefiner};
+use tetwave_client::progressive::splitmix;
 use tetwave_client::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
+use tetwave_client::session::Session;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, TetId};
 
@@ -272,35 +272,46 @@ fn modes() {
     }
 }
 
-/// The background refiner hands over finished meshes; polling never blocks.
+/// A session takes nodes in chunks, in any order and with duplicates, and refines frame by frame
+/// under its budget to the uniform finest level in complete mode; an invalid node is refused with
+/// its id, the nodes before it still held.
 #[test]
-fn background_refiner() {
-    let (base, nodes) = make_nodes(box5(3), harmonic);
+fn session_takes_chunks_and_settles() {
+    let (base, mut nodes) = make_nodes(box5(3), harmonic);
     let leaves = base.forest().leaves() as usize;
+    let total = nodes.len();
+    nodes.reverse();
     let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
-    let r = BackgroundRefiner::spawn(base, p);
-    r.set_camera(cam(0.0, 45.0), Mode::Complete);
+    let mut s = Session::new(base, p).unwrap();
+    let c = cam(0.0, 45.0);
+    let mut dup = 0;
     for chunk in nodes.chunks(50) {
-        r.send_nodes(chunk.to_vec());
-        let t = Instant::now();
-        let _ = r.latest();
-        assert!(t.elapsed() < Duration::from_millis(50));
+        let done = s.insert(chunk.iter().chain(&chunk[..1])).unwrap();
+        dup += done.duplicates;
+        s.frame(&c, Mode::Complete).unwrap();
+        s.mesh().check_conformity().unwrap();
     }
-    let start = Instant::now();
-    let s = loop {
-        if let Some(s) = r.latest() {
-            if s.converged && s.tets.len() == leaves {
-                break s;
-            }
-        }
-        assert!(start.elapsed() < Duration::from_secs(60), "no final mesh");
-        std::thread::sleep(Duration::from_millis(2));
-    };
-    assert!(s
-        .tets
-        .iter()
-        .all(|t| t.v.iter().all(|&v| (v as usize) < s.positions.len())));
-    r.stop().unwrap();
+    assert_eq!(dup, nodes.chunks(50).count());
+    assert_eq!(s.progress(), (total as u64, total as u64));
+    let mut frames = 0;
+    while !s.is_converged() {
+        s.frame(&c, Mode::Complete).unwrap();
+        frames += 1;
+        assert!(frames < 10_000, "no final mesh");
+    }
+    assert_eq!(s.mesh().leaf_count(), leaves);
+    let rm = s.leaf_mesh([-1.0, 1.0]);
+    assert_eq!(rm.tets.len(), leaves);
+
+    let (base, nodes) = make_nodes(box5(2), harmonic);
+    let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(1.0), [-1.0, 1.0])).unwrap();
+    let mut bad = nodes[3].clone();
+    bad.id = u64::MAX;
+    let err = s
+        .insert(nodes[..3].iter().chain([&bad]).chain(&nodes[3..]))
+        .unwrap_err();
+    assert_eq!(err.id, u64::MAX);
+    assert_eq!(s.progress().0, 3);
 }
 
 /// A uniform draw in `[0, 1)` from the state `s`.

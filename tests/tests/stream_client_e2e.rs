@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::time::Duration;
-use tetwave_client::stream::{run_session, Faults, Session, StreamArgs};
+use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
@@ -62,11 +62,11 @@ fn store(levels: u8) -> (tempfile::TempDir, Vec<f32>, u64) {
     (d, values, n)
 }
 
-fn session(url: &str, out: &Path, faults: Faults) -> Session {
+fn session(url: &str, out: &Path, faults: Faults) -> Streamed {
     session_with(url, out, faults, true)
 }
 
-fn session_with(url: &str, out: &Path, faults: Faults, render: bool) -> Session {
+fn session_with(url: &str, out: &Path, faults: Faults, render: bool) -> Streamed {
     let mut a = StreamArgs::new(url, out);
     a.no_render = !render;
     a.frames = 400;
@@ -78,7 +78,7 @@ fn session_with(url: &str, out: &Path, faults: Faults, render: bool) -> Session 
 }
 
 /// The client's final mesh is the uniform finest level with the server's synthesized values.
-fn assert_identical(s: &Session, values: &[f32]) {
+fn assert_identical(s: &Streamed, values: &[f32]) {
     assert!(
         s.report.complete,
         "not all nodes arrived: {}/{}",

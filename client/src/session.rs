@@ -1,0 +1,136 @@
+//! A client session: the detail buffer, the adaptive mesh and the selector, wired once.
+//!
+//! Everything that consumes a stream (the network client, the progressive benchmark, a viewer) goes
+//! through a [`Session`]: arrived nodes go into the buffer, their vertices and metadata into the
+//! mesh, their ids to the selector; a frame refines the mesh for a camera under the selector's
+//! budget. The mesh always reflects exactly the nodes the buffer holds, so every frame draws a
+//! conforming mesh of what has arrived.
+
+use crate::detail_buffer::{Arrivals, BufferError, DetailBuffer, Inserted};
+use crate::mesh::{AdaptiveMesh, MeshError};
+use crate::select::{FrameStats, Mode, SelectParams, Selector};
+use tetwave_protocol::view::Camera;
+use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+use tetwave_render::render_mesh::RenderMesh;
+
+/// A node the buffer refused (out of range, malformed, or claiming another node's vertex).
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("detail node {id} is invalid: {source}")]
+pub struct NodeRejected {
+    pub id: TetId,
+    #[source]
+    pub source: BufferError,
+}
+
+/// What one [`Session::insert`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Inserts {
+    /// Nodes not held before.
+    pub new: usize,
+    /// Nodes already held (ignored).
+    pub duplicates: usize,
+}
+
+/// The buffer, mesh and selector of one dataset.
+pub struct Session {
+    base: BaseMesh,
+    buf: DetailBuffer,
+    mesh: AdaptiveMesh,
+    sel: Selector,
+    arrivals: Arrivals,
+}
+
+impl Session {
+    /// A session on `base` with a selector of `params`.
+    pub fn new(base: BaseMesh, params: SelectParams) -> Result<Self, MeshError> {
+        Self::with_selector(base, Selector::new(params))
+    }
+
+    /// A session with a given selector (e.g. [`Selector::full_scan`]).
+    pub fn with_selector(base: BaseMesh, sel: Selector) -> Result<Self, MeshError> {
+        let mesh = AdaptiveMesh::new(&base)?;
+        let buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+        Ok(Session {
+            base,
+            buf,
+            mesh,
+            sel,
+            arrivals: Arrivals::default(),
+        })
+    }
+
+    /// Takes arrived nodes, in any order and with duplicates. Stops at the first invalid node: the
+    /// nodes before it are held and applied, it and the ones after it are not.
+    pub fn insert<'a>(
+        &mut self,
+        nodes: impl IntoIterator<Item = &'a DetailNode>,
+    ) -> Result<Inserts, NodeRejected> {
+        self.arrivals.clear();
+        let mut done = Inserts::default();
+        let mut rejected = None;
+        for n in nodes {
+            match self.buf.insert(n, &mut self.arrivals) {
+                Ok(Inserted::New) => done.new += 1,
+                Ok(Inserted::Duplicate) => done.duplicates += 1,
+                Err(source) => {
+                    rejected = Some(NodeRejected { id: n.id, source });
+                    break;
+                }
+            }
+        }
+        if !self.arrivals.is_empty() {
+            self.mesh.apply_arrivals(&self.buf, &self.arrivals);
+            self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
+        }
+        match rejected {
+            Some(r) => Err(r),
+            None => Ok(done),
+        }
+    }
+
+    /// One frame of selective refinement for `cam`, within the selector's budget for `mode`.
+    pub fn frame(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
+        self.sel.frame(&mut self.mesh, &self.buf, cam, mode)
+    }
+
+    /// Refines until the selector is satisfied for `cam`, whatever the budget.
+    pub fn converge(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
+        self.sel.converge(&mut self.mesh, &self.buf, cam, mode)
+    }
+
+    /// Whether the last frame left nothing to do for its camera and the nodes held.
+    pub fn is_converged(&self) -> bool {
+        self.sel.is_converged()
+    }
+
+    pub fn base(&self) -> &BaseMesh {
+        &self.base
+    }
+
+    pub fn mesh(&self) -> &AdaptiveMesh {
+        &self.mesh
+    }
+
+    pub fn buffer(&self) -> &DetailBuffer {
+        &self.buf
+    }
+
+    pub fn selector(&self) -> &Selector {
+        &self.sel
+    }
+
+    /// Nodes held, of the hierarchy's total.
+    pub fn progress(&self) -> (u64, u64) {
+        (self.buf.nodes_held(), self.base.forest().nodes())
+    }
+
+    /// The drawable leaf mesh, its colours mapped over `value_range`.
+    pub fn leaf_mesh(&self, value_range: [f32; 2]) -> RenderMesh {
+        crate::draw::leaf_mesh(&self.mesh, value_range)
+    }
+
+    /// The session's parts, for a caller that ends it (e.g. to check the final mesh).
+    pub fn into_parts(self) -> (BaseMesh, DetailBuffer, AdaptiveMesh, Selector) {
+        (self.base, self.buf, self.mesh, self.sel)
+    }
+}
