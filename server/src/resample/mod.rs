@@ -2,7 +2,7 @@
 //! samples the scalar at every vertex of the finest level.
 //!
 //! Inputs: an analytic field ([`synthetic`]), a raw grid ([`raw`], trilinear) or an unstructured tet
-//! mesh ([`mesh_io`] readers, [`unstructured`] location and barycentric interpolation).
+//! mesh (read by [`crate::import`]; [`unstructured`] location and barycentric interpolation).
 //!
 //! **Outside rule.** A vertex where the input has no data (outside a non-convex mesh) is marked outside
 //! (`NaN` in [`Resampled::samples`]). Analysis gives it a zero detail, i.e. the linear prediction from
@@ -11,11 +11,11 @@
 //! parent's node (or the base mesh), never refined by the client and never drawn.
 
 pub mod base;
-pub mod mesh_io;
 pub mod raw;
 pub mod synthetic;
 pub mod unstructured;
 
+use crate::import;
 use rayon::prelude::*;
 use std::path::PathBuf;
 use tetwave_protocol::hierarchy::MAX_LEVELS;
@@ -77,7 +77,7 @@ pub enum ResampleError {
     #[error("the input's bounding box is degenerate: {lo:?} .. {hi:?}")]
     DegenerateBounds { lo: [f64; 3], hi: [f64; 3] },
     #[error("base mesh: {0}")]
-    BaseFile(#[from] mesh_io::ImportError),
+    BaseFile(#[from] import::ImportError),
     #[error("base mesh: {0}")]
     BaseInvalid(String),
     #[error("no vertex of the semi-regular mesh falls inside the input's domain")]
@@ -120,7 +120,7 @@ pub fn base_mesh(
         BaseSpec::Box5 => Ok(base::box5(lo, hi)),
         BaseSpec::Box6 => Ok(base::box6(lo, hi)),
         BaseSpec::File(path) => {
-            let mesh = mesh_io::read_tet_mesh(path)?;
+            let mesh = import::read_tet_mesh(path)?;
             if mesh.tets.is_empty() {
                 return Err(ResampleError::BaseInvalid(format!(
                     "{}: no tetrahedra",
