@@ -32,10 +32,9 @@ use std::io::Read;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::{
-    capacity, check_nodes, find, point_index, show, vtk_cell, Bad, Cell, Endian, FieldArray,
-    ImportedMesh, Lex, Res, ScalarArray,
-};
+use super::cells::{check_nodes, vtk_cell, Cell};
+use super::lex::{capacity, find, point_index, show, Bad, Endian, Lex, Res};
+use super::mesh::{FieldArray, ImportedMesh, ScalarArray};
 
 // ------------------------------------------------------------------------------------------------
 // Scalars shared by both formats.
