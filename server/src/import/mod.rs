@@ -7,8 +7,8 @@
 //!
 //! | format | variants read | code |
 //! | --- | --- | --- |
-//! | `.vtu` (VTK XML `UnstructuredGrid`) | ascii, inline binary (base64), appended raw and base64, zlib or none, `UInt32`/`UInt64` headers, either byte order, several pieces; point and cell arrays | `vtk.rs`: `quick-xml` tokenizer, `flate2` inflate, the rest ours |
-//! | `.vtk` (legacy `UNSTRUCTURED_GRID`) | versions 2.0 to 5.1, ascii and binary; `POINT_DATA`/`CELL_DATA` `SCALARS`, `VECTORS`, `NORMALS` and `FIELD` arrays | `vtk.rs`: ours |
+//! | `.vtu` (VTK XML `UnstructuredGrid`) | ascii, inline binary (base64), appended raw and base64, zlib or none, `UInt32`/`UInt64` headers, either byte order, several pieces; point and cell arrays | `vtk/`: `quick-xml` tokenizer, `flate2` inflate, the rest ours |
+//! | `.vtk` (legacy `UNSTRUCTURED_GRID`) | versions 2.0 to 5.1, ascii and binary; `POINT_DATA`/`CELL_DATA` `SCALARS`, `VECTORS`, `NORMALS` and `FIELD` arrays | `vtk/legacy.rs`: ours |
 //! | `.msh` (gmsh) | 1.0, 2.2 and 4.1, ascii and binary (2.2, 4.1); `$NodeData`, `$ElementData` | `msh.rs`: ours |
 //! | `.mesh` (Medit) | ascii; element references as the cell array `ref` | `medit.rs`: ours |
 //!
@@ -35,7 +35,7 @@
 //!
 //! This file: format detection and the entry points. What the readers return is in `mesh.rs`,
 //! the cell kinds and their split into tets in `cells.rs`, the error and byte cursor they share in
-//! `lex.rs`; each format has its own file.
+//! `lex.rs`; each format has its own file (VTK a folder, `vtk/`).
 
 mod cells;
 mod lex;
