@@ -22,6 +22,11 @@ use tetwave_protocol::hierarchy::MAX_LEVELS;
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::BaseMesh;
 
+/// Detail nodes a hierarchy may have: the analysis codes a vertex's owner as 8 × node id + edge in
+/// a u32 (below `u32::MAX`, its "no owner"). [`resample`] refuses more before it allocates the
+/// samples, and the analysis checks it again.
+pub const MAX_NODES: u64 = (u32::MAX >> 3) as u64;
+
 /// Where the scalar comes from.
 pub enum Source {
     Synthetic(synthetic::Synthetic),
@@ -161,7 +166,7 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
         empty: Vec::new(),
     };
     let forest = base.forest();
-    if levels > 0 && forest.nodes() > crate::analysis::MAX_NODES {
+    if levels > 0 && forest.nodes() > MAX_NODES {
         return Err(ResampleError::TooManyNodes {
             levels,
             tets: forest.level_len(levels),
