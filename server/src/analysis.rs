@@ -10,7 +10,7 @@
 //! Per node the analysis also records the max |detail| of every vertex created in its subtree and which
 //! children are empty (outside the input's domain, see [`crate::resample`]).
 
-use crate::resample::Resampled;
+use crate::resample::{Resampled, MAX_NODES};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
@@ -282,9 +282,9 @@ fn store(a: &AtomicU32, x: f32) {
 /// No visitor yet (in [`Cell::owner`]).
 const UNOWNED: u32 = u32::MAX;
 
-/// Detail nodes a hierarchy may have for the analysis: owner codes are 8 × node id + edge in a
-/// u32. [`crate::resample::resample`] checks it too, before it allocates the samples.
-pub const MAX_NODES: u64 = (UNOWNED >> 3) as u64;
+// Owner codes are 8 × node id + edge in a u32 below `UNOWNED`: every hierarchy within
+// `MAX_NODES` (the limit resample owns and checks first) must fit.
+const _: () = assert!(MAX_NODES <= (UNOWNED >> 3) as u64);
 
 /// The per-vertex state the level walks share.
 struct Walk<'a> {

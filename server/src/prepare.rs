@@ -1,7 +1,7 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
 use crate::analysis::{analyze_hierarchy, AnalysisError};
-use crate::resample::mesh_io::{self, ImportError, MeshFormat};
+use crate::import::{self, ImportError, MeshFormat};
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
@@ -152,8 +152,8 @@ fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport
         }
         return Ok((Source::Raw(grid), stem, None));
     }
-    if o.format.is_some() || mesh_io::format_of(&path).is_some() || path.exists() {
-        let mesh = mesh_io::read_mesh(&path, o.format)?;
+    if o.format.is_some() || import::format_of(&path).is_some() || path.exists() {
+        let mesh = import::read_mesh(&path, o.format)?;
         let options = ImportOptions {
             scalar: o.scalar.as_deref(),
             field: o.field.as_deref(),

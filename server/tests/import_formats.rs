@@ -9,7 +9,7 @@ use std::path::Path;
 mod fixture_mesh;
 use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
 
-use tetwave_server::resample::mesh_io::{read_mesh, ImportError, ImportedMesh, MeshFormat};
+use tetwave_server::import::{read_mesh, ImportError, ImportedMesh, MeshFormat};
 use tetwave_server::resample::unstructured::{
     boundary_distance, clean_import, min_dihedral_deg, CleanError, ImportOptions,
 };
@@ -427,12 +427,10 @@ fn new_fixtures_survive_truncation() {
         "quadratic_22.msh",
     ] {
         let bytes = std::fs::read(fixture(name)).unwrap();
-        let fmt = tetwave_server::resample::mesh_io::format_of(Path::new(name)).unwrap();
-        let full =
-            tetwave_server::resample::mesh_io::parse_mesh(Path::new(name), &bytes, fmt).unwrap();
+        let fmt = tetwave_server::import::format_of(Path::new(name)).unwrap();
+        let full = tetwave_server::import::parse_mesh(Path::new(name), &bytes, fmt).unwrap();
         for len in 0..bytes.len() {
-            match tetwave_server::resample::mesh_io::parse_mesh(Path::new(name), &bytes[..len], fmt)
-            {
+            match tetwave_server::import::parse_mesh(Path::new(name), &bytes[..len], fmt) {
                 Err(ImportError::Malformed { .. }) => {}
                 Err(e) => panic!("{name}[..{len}]: {e:?}"),
                 Ok(m) => {
@@ -460,10 +458,10 @@ fn new_fixtures_corrupted_never_panic() {
         "quadratic.vtu",
     ] {
         let bytes = std::fs::read(fixture(name)).unwrap();
-        let fmt = tetwave_server::resample::mesh_io::format_of(Path::new(name)).unwrap();
+        let fmt = tetwave_server::import::format_of(Path::new(name)).unwrap();
         for round in 0..300 {
             let b = rng.corrupt(&bytes, round);
-            match tetwave_server::resample::mesh_io::parse_mesh(Path::new(name), &b, fmt) {
+            match tetwave_server::import::parse_mesh(Path::new(name), &b, fmt) {
                 Ok(m) => {
                     let n = m.mesh.points.len();
                     assert!(m.mesh.tets.iter().flatten().all(|&v| (v as usize) < n));

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 mod fixture_mesh;
 use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
 
-use tetwave_server::resample::mesh_io::{
+use tetwave_server::import::{
     format_of_content, parse_tet_mesh, read_tet_mesh, read_tet_mesh_as, ImportError, MeshFormat,
     TetMesh,
 };
@@ -448,8 +448,8 @@ fn corrupted_bytes_never_panic() {
 #[test]
 fn devices_are_not_read() {
     for format in [None, Some(MeshFormat::LegacyVtk)] {
-        let e = tetwave_server::resample::mesh_io::read_mesh(Path::new("/dev/zero"), format)
-            .expect_err("refused");
+        let e =
+            tetwave_server::import::read_mesh(Path::new("/dev/zero"), format).expect_err("refused");
         assert!(e.to_string().contains("not a regular file"), "{e}");
     }
 }

@@ -2,7 +2,7 @@
 //! samples the scalar at every vertex of the finest level.
 //!
 //! Inputs: an analytic field ([`synthetic`]), a raw grid ([`raw`], trilinear) or an unstructured tet
-//! mesh ([`mesh_io`] readers, [`unstructured`] location and barycentric interpolation).
+//! mesh (read by [`crate::import`]; [`unstructured`] location and barycentric interpolation).
 //!
 //! **Outside rule.** A vertex where the input has no data (outside a non-convex mesh) is marked outside
 //! (`NaN` in [`Resampled::samples`]). Analysis gives it a zero detail, i.e. the linear prediction from
@@ -11,16 +11,21 @@
 //! parent's node (or the base mesh), never refined by the client and never drawn.
 
 pub mod base;
-pub mod mesh_io;
 pub mod raw;
 pub mod synthetic;
 pub mod unstructured;
 
+use crate::import;
 use rayon::prelude::*;
 use std::path::PathBuf;
 use tetwave_protocol::hierarchy::MAX_LEVELS;
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::BaseMesh;
+
+/// Detail nodes a hierarchy may have: the analysis codes a vertex's owner as 8 × node id + edge in
+/// a u32 (below `u32::MAX`, its "no owner"). [`resample`] refuses more before it allocates the
+/// samples, and the analysis checks it again.
+pub const MAX_NODES: u64 = (u32::MAX >> 3) as u64;
 
 /// Where the scalar comes from.
 pub enum Source {
@@ -77,7 +82,7 @@ pub enum ResampleError {
     #[error("the input's bounding box is degenerate: {lo:?} .. {hi:?}")]
     DegenerateBounds { lo: [f64; 3], hi: [f64; 3] },
     #[error("base mesh: {0}")]
-    BaseFile(#[from] mesh_io::ImportError),
+    BaseFile(#[from] import::ImportError),
     #[error("base mesh: {0}")]
     BaseInvalid(String),
     #[error("no vertex of the semi-regular mesh falls inside the input's domain")]
@@ -120,7 +125,7 @@ pub fn base_mesh(
         BaseSpec::Box5 => Ok(base::box5(lo, hi)),
         BaseSpec::Box6 => Ok(base::box6(lo, hi)),
         BaseSpec::File(path) => {
-            let mesh = mesh_io::read_tet_mesh(path)?;
+            let mesh = import::read_tet_mesh(path)?;
             if mesh.tets.is_empty() {
                 return Err(ResampleError::BaseInvalid(format!(
                     "{}: no tetrahedra",
@@ -161,7 +166,7 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
         empty: Vec::new(),
     };
     let forest = base.forest();
-    if levels > 0 && forest.nodes() > crate::analysis::MAX_NODES {
+    if levels > 0 && forest.nodes() > MAX_NODES {
         return Err(ResampleError::TooManyNodes {
             levels,
             tets: forest.level_len(levels),

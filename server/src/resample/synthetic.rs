@@ -77,7 +77,7 @@ pub fn kuhn_cube_mesh(
     jitter: f64,
     keep: impl Fn(usize, usize, usize) -> bool,
     f: impl Fn([f64; 3]) -> f64,
-) -> super::mesh_io::TetMesh {
+) -> crate::import::TetMesh {
     let (mut points, tets) = tetwave_protocol::base::kuhn_grid(n, keep);
     for (idx, p) in points.iter_mut().enumerate() {
         let c = [
@@ -92,10 +92,10 @@ pub fn kuhn_cube_mesh(
         }
     }
     let values = points.iter().map(|&p| f(p)).collect();
-    super::mesh_io::TetMesh {
+    crate::import::TetMesh {
         points,
         tets,
-        point_data: vec![super::mesh_io::ScalarArray {
+        point_data: vec![crate::import::ScalarArray {
             name: "f".into(),
             values,
         }],

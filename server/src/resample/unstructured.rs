@@ -5,7 +5,7 @@
 //! reported as `None`: the resampler marks those vertices outside, and they never invent material
 //! (see `resample` for the rule).
 
-use super::mesh_io::{FieldArray, ImportedMesh, TetMesh};
+use crate::import::{FieldArray, ImportedMesh, TetMesh};
 use std::collections::{HashMap, HashSet};
 use tetwave_protocol::base::signed_volume;
 

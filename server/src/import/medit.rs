@@ -2,15 +2,15 @@
 //!
 //! `Vertices` (x y z ref), then element sections whose records are 1-based vertex numbers and a
 //! reference: `Tetrahedra`, `TetrahedraP2` (the corner tet is kept), `Hexahedra`, `Prisms` and
-//! `Pyramids` become tets (the last three split, see the parent module); `Edges`, `Triangles`,
+//! `Pyramids` become tets (the last three split, see `split_cell`); `Edges`, `Triangles`,
 //! `Quadrilaterals` (and their P2 variants) are counted as lower-dimensional cells. The element
 //! references become the cell array `ref`. Other known sections (`Corners`, `Ridges`, `Normals`,
 //! ...) are read past; an unknown keyword is an error, since its size is not known. `#` starts a
 //! comment. The binary `.meshb` is not read.
 
-use super::{
-    capacity, check_nodes, point_index, show, Bad, Cell, FieldArray, ImportedMesh, Lex, Res, Shape,
-};
+use super::cells::{check_nodes, Cell, Shape};
+use super::lex::{capacity, point_index, show, Bad, Lex, Res};
+use super::mesh::{FieldArray, ImportedMesh};
 
 const C4: &[usize] = &[0, 1, 2, 3];
 const C5: &[usize] = &[0, 1, 2, 3, 4];

@@ -18,10 +18,9 @@
 
 use std::collections::HashMap;
 
-use super::{
-    capacity, check_nodes, gmsh_cell, show, Bad, Cell, Endian, FieldArray, ImportedMesh, Lex, Res,
-    ScalarArray,
-};
+use super::cells::{check_nodes, gmsh_cell, Cell};
+use super::lex::{capacity, show, Bad, Endian, Lex, Res};
+use super::mesh::{FieldArray, ImportedMesh, ScalarArray};
 
 /// Nodes of a gmsh element type (needed to read past elements in binary files).
 fn nodes_per_element(t: i64) -> Option<usize> {
