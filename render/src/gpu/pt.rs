@@ -136,6 +136,18 @@ pub struct TetDrawData {
     pub tet_count: u32,
 }
 
+/// One frame's draw data ([`PtRenderer::prepare`]): the exit faces of the tets in visibility
+/// order and the bindings to draw them with. Valid for the frame it was prepared for, until the
+/// renderer prepares another.
+pub struct FrameDraw {
+    indices: wgpu::Buffer,
+    triangles: u32,
+    /// Runs of (adaptive shader, triangle count) in drawing order.
+    runs: Vec<(bool, u32)>,
+    bind: wgpu::BindGroup,
+    sort_ms: f64,
+}
+
 /// Timings of one frame, in milliseconds.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct FrameTimes {
@@ -153,12 +165,18 @@ impl PtRenderer {
 
     /// The renderer accumulating in the given precision.
     pub fn with_accumulation(ctx: &GpuContext, acc: Accumulation) -> Self {
-        let device = &ctx.device;
         let format = match acc {
             Accumulation::Best if ctx.float32_blend => wgpu::TextureFormat::Rgba32Float,
             Accumulation::U8 => wgpu::TextureFormat::Rgba8Unorm,
             _ => wgpu::TextureFormat::Rgba16Float,
         };
+        Self::with_format(ctx, format)
+    }
+
+    /// The renderer for colour targets of `format` (a blendable colour format, e.g. a window
+    /// surface's): what [`Self::draw_into`] and [`Self::draw`] need their target to be.
+    pub fn with_format(ctx: &GpuContext, format: wgpu::TextureFormat) -> Self {
+        let device = &ctx.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("pt.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADER.into()),
@@ -394,25 +412,23 @@ impl PtRenderer {
         self.render_ordered(ctx, data, cam, tf, VisibilityOrder::Centroid)
     }
 
-    /// Renders one frame with the given visibility order ([`VisibilityOrder::Mpvo`] needs data
-    /// uploaded with adjacency, else it falls back to centroid order). An image side of 0 or
-    /// beyond the adapter's texture limit is an error.
-    pub fn render_ordered(
+    /// The colour format every target of this renderer must have.
+    pub fn format(&self) -> wgpu::TextureFormat {
+        self.format
+    }
+
+    /// Builds one frame's draw data: the tets sorted for `cam`'s eye ([`VisibilityOrder::Mpvo`]
+    /// needs data uploaded with adjacency, else centroid order is used), their exit faces, and the
+    /// camera and transfer function written to the renderer's uniforms. Valid until the next
+    /// `prepare` on this renderer: draw it before preparing another frame.
+    pub fn prepare(
         &self,
         ctx: &GpuContext,
         data: &TetDrawData,
         cam: &Camera,
         tf: &TransferFunction,
         visibility: VisibilityOrder,
-    ) -> Result<(Rgba8Image, FrameTimes), RenderError> {
-        let limit = ctx.device.limits().max_texture_dimension_2d;
-        if !(1..=limit).contains(&cam.width) || !(1..=limit).contains(&cam.height) {
-            return Err(RenderError::ImageSize {
-                width: cam.width,
-                height: cam.height,
-                limit,
-            });
-        }
+    ) -> FrameDraw {
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
@@ -423,7 +439,6 @@ impl PtRenderer {
             _ => centroid_order(&data.centroids, eye32),
         };
         let sort_ms = t0.elapsed().as_secs_f64() * 1e3;
-
         let device = &ctx.device;
         let far = (eye.length() + data.diagonal) * 2.0 + data.far;
         let vp = cam.view_proj(data.origin, far).as_mat4();
@@ -452,7 +467,6 @@ impl PtRenderer {
             ],
         };
         let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
-        let cache = &mut *cache;
         let (gbuf, tfbuf) = (&self.globals, &self.tf_table);
         ctx.queue
             .write_buffer(gbuf, 0, bytemuck::bytes_of(&globals));
@@ -550,6 +564,116 @@ impl PtRenderer {
                 },
             ],
         });
+        FrameDraw {
+            indices: ibuf,
+            triangles: indices.len() as u32,
+            runs,
+            bind,
+            sort_ms,
+        }
+    }
+
+    /// Records `frame` into a render pass of the caller's (e.g. a window's), whose colour target
+    /// has [`Self::format`] and holds premultiplied colour: the tets blend over what is there.
+    pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, frame: &FrameDraw) {
+        if frame.triangles == 0 {
+            return;
+        }
+        pass.set_bind_group(0, &frame.bind, &[]);
+        pass.set_index_buffer(frame.indices.slice(..), wgpu::IndexFormat::Uint32);
+        let mut first = 0;
+        for &(slow, n) in &frame.runs {
+            pass.set_pipeline(if slow {
+                &self.pipeline_steps
+            } else {
+                &self.pipeline
+            });
+            pass.draw_indexed(3 * first..3 * (first + n), 0, 0..1);
+            first += n;
+        }
+    }
+
+    /// Draws one frame into a texture view of the caller's (of [`Self::format`]), cleared to
+    /// transparent black first when `clear`, and submits it. The image is the one
+    /// [`Self::render_ordered`] reads back for the same arguments.
+    #[allow(clippy::too_many_arguments)]
+    pub fn draw_into(
+        &self,
+        ctx: &GpuContext,
+        data: &TetDrawData,
+        cam: &Camera,
+        tf: &TransferFunction,
+        visibility: VisibilityOrder,
+        target: &wgpu::TextureView,
+        clear: bool,
+    ) -> FrameTimes {
+        let t0 = std::time::Instant::now();
+        let frame = self.prepare(ctx, data, cam, tf, visibility);
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        self.encode_pass(&mut enc, target, clear, &frame);
+        let t1 = std::time::Instant::now();
+        ctx.queue.submit([enc.finish()]);
+        FrameTimes {
+            sort_ms: frame.sort_ms,
+            gpu_ms: t1.elapsed().as_secs_f64() * 1e3,
+            readback_ms: 0.0,
+            total_ms: t0.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+
+    fn encode_pass(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        view: &wgpu::TextureView,
+        clear: bool,
+        frame: &FrameDraw,
+    ) {
+        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("pt"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: if clear {
+                        wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT)
+                    } else {
+                        wgpu::LoadOp::Load
+                    },
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        self.draw(&mut pass, frame);
+    }
+
+    /// Renders one frame to an image (premultiplied colour over black) with the given visibility
+    /// order, in a target the renderer keeps for the image size. An image side of 0 or beyond
+    /// the adapter's texture limit is an error.
+    pub fn render_ordered(
+        &self,
+        ctx: &GpuContext,
+        data: &TetDrawData,
+        cam: &Camera,
+        tf: &TransferFunction,
+        visibility: VisibilityOrder,
+    ) -> Result<(Rgba8Image, FrameTimes), RenderError> {
+        let limit = ctx.device.limits().max_texture_dimension_2d;
+        if !(1..=limit).contains(&cam.width) || !(1..=limit).contains(&cam.height) {
+            return Err(RenderError::ImageSize {
+                width: cam.width,
+                height: cam.height,
+                limit,
+            });
+        }
+        let t0 = std::time::Instant::now();
+        let frame = self.prepare(ctx, data, cam, tf, visibility);
+        let device = &ctx.device;
+        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         let (w, h) = (cam.width, cam.height);
         let texel = match self.format {
             wgpu::TextureFormat::Rgba32Float => 16,
@@ -589,38 +713,7 @@ impl PtRenderer {
         });
         let (_, _, texture, view, readback) = &target;
         let mut enc = device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("pt"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            if !indices.is_empty() {
-                pass.set_bind_group(0, &bind, &[]);
-                pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
-                let mut first = 0;
-                for (slow, n) in runs {
-                    pass.set_pipeline(if slow {
-                        &self.pipeline_steps
-                    } else {
-                        &self.pipeline
-                    });
-                    pass.draw_indexed(3 * first..3 * (first + n), 0, 0..1);
-                    first += n;
-                }
-            }
-        }
+        self.encode_pass(&mut enc, view, true, &frame);
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {
                 texture,
@@ -700,7 +793,7 @@ impl PtRenderer {
         Ok((
             img,
             FrameTimes {
-                sort_ms,
+                sort_ms: frame.sort_ms,
                 gpu_ms,
                 readback_ms,
                 total_ms: t0.elapsed().as_secs_f64() * 1e3,
