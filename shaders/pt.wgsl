@@ -10,8 +10,7 @@
 // Two fragment entry points (two pipelines; the CPU draws each tet with one of them):
 // - `fs_main`: exactly two sub-steps, straight-line code, for tets whose scalar range is at most four
 //   sub-step resolutions (`FAST_MAX_STEPS` in pt.rs; all tets of a fine mesh). A loop in a lavapipe
-//   fragment shader is expensive even when few pixels run it (measured on the 196,608-tet benchmark:
-//   the adaptive loop behind a rarely taken branch made the frame ~45% slower), so this has none.
+//   fragment shader is expensive even when few pixels run it, so this has none.
 // - `fs_steps`: as many sub-steps as the scalar change needs (2 to 64), for tets with a larger range.
 //
 // Spaces: every position is world space relative to `origin` (chosen by the CPU near the mesh's
@@ -41,8 +40,7 @@ struct TetGeo {
 @group(0) @binding(1) var<storage, read> positions: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> tets: array<vec4<u32>>;
 @group(0) @binding(3) var<storage, read> geo: array<TetGeo>;
-// (A uniform array: lavapipe reads storage buffers at per-pixel indices one lane at a time, several
-// times slower.) 4096 entries fill the 64 KiB that every adapter allows for a uniform binding.
+// (A uniform array: lavapipe reads storage buffers at per-pixel indices one lane at a time.) 4096 entries fill the 64 KiB that every adapter allows for a uniform binding.
 @group(0) @binding(5) var<uniform> tf: array<vec4<f32>, 4096>;
 
 struct VsOut {
@@ -83,9 +81,9 @@ fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
 }
 
 fn tf_eval(s: f32) -> vec4<f32> {
-    // returns (r, g, b, extinction per diagonal), clamped at the ends (a nearest-entry lookup would
-    // save one of the two reads, ~10% of the frame on lavapipe, but costs up to ~30 dB where the
-    // scalar sits between entries on a steep part of the function, e.g. a constant field)
+    // returns (r, g, b, extinction per diagonal), clamped at the ends; interpolated, not the nearest
+    // entry, which is visibly wrong where the scalar sits between entries on a steep part of the
+    // function (e.g. a constant field)
     let n = globals.tf_info.x;
     let x = clamp(s, 0.0, 1.0) * f32(n);
     let k = min(u32(x), n - 1u);

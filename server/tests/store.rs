@@ -134,9 +134,8 @@ fn unreadable_encodings_are_refused() {
     }
 }
 
-/// Hierarchies beyond what the analysis can index are refused before any sample is allocated:
-/// `--levels 11` of the 5-tet box used to abort on a 28.7 GB allocation, and `--levels 10` failed
-/// only after resampling.
+/// Hierarchies beyond what the analysis can index are refused before any sample is allocated (not
+/// by an allocation failure, nor after resampling).
 #[test]
 fn too_many_levels_fail_before_resampling() {
     let d = tempfile::tempdir().unwrap();
