@@ -92,7 +92,15 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
         view_formats: &[],
     });
     let view = texture.create_view(&Default::default());
-    r.draw_into(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid, &view, true);
+    r.draw_into(
+        &ctx,
+        &data,
+        &cam,
+        &tf,
+        VisibilityOrder::Centroid,
+        &view,
+        true,
+    );
     let drawn = read_rgba8(&ctx, &texture, w, h);
     assert!(
         drawn == offscreen,
@@ -100,7 +108,18 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     );
 
     // drawn without clearing over what the caller had: the same frame blends over it
-    r.draw_into(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid, &view, false);
+    r.draw_into(
+        &ctx,
+        &data,
+        &cam,
+        &tf,
+        VisibilityOrder::Centroid,
+        &view,
+        false,
+    );
     let twice = read_rgba8(&ctx, &texture, w, h);
-    assert!(twice != drawn, "a second frame without clear blends over the first");
+    assert!(
+        twice != drawn,
+        "a second frame without clear blends over the first"
+    );
 }

@@ -1,0 +1,223 @@
+//! Wavelet analysis: predict-only lifting over the semi-regular hierarchy (thesis §4.3, design.md).
+//!
+//! For every new vertex `m` (midpoint of an edge `(u,v)` of a level-`k−1` tet) one detail
+//! `d_m = f(m) − (f(u)+f(v))/2`, owned by the lowest-id level-`k−1` tet containing the edge.
+//! The details are computed against the values *synthesis will reconstruct* (closed loop, coarse to
+//! fine): in exact arithmetic this is the same as lifting from the finest level up, and in f32 it makes
+//! the lossless round trip bit-exact (see [`tetwave_protocol::wavelet::analyze`]) and keeps quantization
+//! error from accumulating across levels: with step `q` every vertex is within `q/2` of its sample.
+//!
+//! Per node the analysis also records the max |detail| of every vertex created in its subtree and which
+//! children are empty (outside the input's domain, see [`crate::resample`]).
+
+mod gather;
+mod keys;
+mod par;
+mod samples;
+mod walk;
+
+use crate::resample::{Resampled, MAX_NODES};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use samples::SampleStats;
+use std::sync::atomic::{AtomicU32, Ordering};
+use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::BaseMesh;
+use walk::{load, Cell, Walk, UNOWNED};
+
+/// Everything the store needs, in node-id order.
+pub struct Analysis {
+    /// Base mesh with reconstructed base values and empty flags.
+    pub base: BaseMesh,
+    /// Per node: owned-edge mask.
+    pub owned: Vec<u8>,
+    /// Per node: bit `i` set when child `i` is empty.
+    pub empty_children: Vec<u8>,
+    /// Per node: max |detail| of all vertices created by refining it and its descendants.
+    pub subtree_max_abs: Vec<f32>,
+    /// Owned details in node order, then edge order (dequantized when quantized).
+    pub coeffs: Vec<f32>,
+    pub quantizer: Option<Quantizer>,
+    /// The sampled value of every vertex (outside vertices filled by the outside rule): what
+    /// synthesis is compared against.
+    pub reference: Vec<f32>,
+    /// Inside samples' range.
+    pub value_range: (f32, f32),
+    /// Measured max |synthesis − sample|.
+    pub max_abs_error: f64,
+    /// The bound the store promises (`q/2` plus f32 rounding when quantized, `1e-6 × range` lossless).
+    pub error_bound: f64,
+}
+
+impl Analysis {
+    /// What the store writes.
+    pub fn content(&self) -> tetwave_store::StoreContent<'_> {
+        tetwave_store::StoreContent {
+            base: &self.base,
+            owned: &self.owned,
+            empty_children: &self.empty_children,
+            subtree_max_abs: &self.subtree_max_abs,
+            coeffs: &self.coeffs,
+            quantizer: self.quantizer,
+            reference: &self.reference,
+            value_range: self.value_range,
+            max_abs_error: self.max_abs_error,
+            error_bound: self.error_bound,
+        }
+    }
+
+    /// The detail nodes in id order, as the store holds them.
+    pub fn nodes(&self) -> Vec<tetwave_protocol::DetailNode> {
+        let mut at = 0;
+        (0..self.owned.len())
+            .map(|i| {
+                let n = self.owned[i].count_ones() as usize;
+                let node = tetwave_protocol::DetailNode {
+                    id: i as u64,
+                    owned: self.owned[i],
+                    empty_children: self.empty_children[i],
+                    subtree_max_abs: self.subtree_max_abs[i],
+                    coeffs: self.coeffs[at..at + n].to_vec(),
+                };
+                at += n;
+                node
+            })
+            .collect()
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError {
+    #[error("--bits must be in 8..=24, got {0}")]
+    BadBits(u8),
+    #[error("{0} tets in one level is more than this build can index")]
+    TooLarge(u64),
+}
+
+fn bar(len: u64, msg: &str, show: bool) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({eta})")
+            .unwrap_or(ProgressStyle::default_bar()),
+    );
+    pb.set_message(msg.to_string());
+    pb
+}
+
+/// Level-`k−1` parents per parallel task (their 8 children each are the level-`k` tets it visits).
+const PARENTS_PER_TASK: usize = 64;
+/// Base tets per parallel task at level 0.
+const BASE_PER_TASK: usize = 4096;
+/// Below this many items a pass runs on the calling thread (waking the pool costs more).
+const SEQUENTIAL_BELOW: usize = 1 << 13;
+/// From this many vertices the per-vertex setup passes run in parallel (below, waking the pool
+/// costs more than it saves).
+const PARALLEL_PASS_FROM: usize = 1 << 19;
+/// From this many vertices the owned masks and coefficients are gathered in parallel.
+const SCATTER_PARALLEL_FROM: usize = 1 << 16;
+/// Levels of at least this many tets are walked in parallel.
+const PARALLEL_WALK_FROM: usize = 1 << 11;
+
+/// Runs the analysis. `bits`: uniform quantization of the details (8..=24), or lossless f32.
+pub fn analyze_hierarchy(
+    r: Resampled,
+    bits: Option<u8>,
+    progress: bool,
+) -> Result<Analysis, AnalysisError> {
+    if let Some(b) = bits {
+        if !tetwave_protocol::store_format::QUANTIZED_BITS.contains(&b) {
+            return Err(AnalysisError::BadBits(b));
+        }
+    }
+    let forest = r.base.forest();
+    let levels = forest.levels;
+    if levels > 0 && forest.nodes() > MAX_NODES {
+        return Err(AnalysisError::TooLarge(forest.level_len(levels - 1)));
+    }
+    let nodes = forest.nodes() as usize;
+    let nv = r.base.positions.len();
+    let n = r.samples.len();
+    let stats = SampleStats::of(&r.samples);
+    let (lo, hi) = (stats.lo, stats.hi);
+    let quantizer = samples::size_quantizer(bits, &r);
+    let Resampled {
+        mut base,
+        keys,
+        samples,
+        ..
+    } = r;
+    let reference = samples::reference_values(samples, &stats, nv);
+    let cell = |r: &AtomicU32| Cell {
+        rec: AtomicU32::new(r.load(Ordering::Relaxed)),
+        owner: AtomicU32::new(UNOWNED),
+    };
+    let zero = |_| AtomicU32::new(0);
+    let (cells, detail): (Vec<Cell>, Vec<AtomicU32>) = if n >= PARALLEL_PASS_FROM {
+        (
+            reference.par_iter().map(cell).collect(),
+            (0..n).into_par_iter().map(zero).collect(),
+        )
+    } else {
+        (
+            reference.iter().map(cell).collect(),
+            (0..n).map(zero).collect(),
+        )
+    };
+    let mut empty_children = vec![0u8; nodes];
+    let mut subtree_max_abs = vec![0f32; nodes];
+    let walk = Walk {
+        reference: &reference,
+        cells: &cells,
+        detail: &detail,
+        outside: stats.any_outside().then_some(&stats.outside_bits[..]),
+        quantizer,
+    };
+    let max_err = walk.levels(
+        forest,
+        &keys,
+        &mut subtree_max_abs,
+        &mut empty_children,
+        progress,
+    );
+    let (owned, coeffs) = gather::owned_coefficients(&cells, &detail, nodes, nv);
+    drop(detail);
+    gather::fold_subtrees(forest, &mut empty_children, &mut subtree_max_abs);
+    base.empty = (0..base.tets.len())
+        .map(|b| {
+            if levels == 0 {
+                base.tets[b].iter().all(|&v| stats.is_outside(v as usize))
+            } else {
+                empty_children[b] == 0xff
+            }
+        })
+        .collect();
+    base.values = cells[..nv].iter().map(|c| load(&c.rec)).collect();
+    drop(cells);
+    // in place again
+    let reference: Vec<f32> = reference
+        .into_iter()
+        .map(|a| f32::from_bits(a.into_inner()))
+        .collect();
+    let error_bound = match &quantizer {
+        Some(q) => {
+            q.step as f64 / 2.0 * (1.0 + 1e-6)
+                + 4.0 * f32::EPSILON as f64 * (lo.abs().max(hi.abs()) as f64 + q.step as f64)
+        }
+        None => 1e-6 * ((hi - lo) as f64).max(f32::MIN_POSITIVE as f64),
+    };
+    Ok(Analysis {
+        base,
+        owned,
+        empty_children,
+        subtree_max_abs,
+        coeffs,
+        quantizer,
+        reference,
+        value_range: (lo, hi),
+        max_abs_error: max_err,
+        error_bound,
+    })
+}

@@ -1,0 +1,159 @@
+//! What the walks need from the samples before they start: the inside range, which vertices lie
+//! outside the input's domain, the quantizer's step, and the reference values (outside base
+//! vertices filled).
+
+use super::keys::{for_each_tet_keys, parent_chunks};
+use super::PARALLEL_PASS_FROM;
+use crate::resample::Resampled;
+use rayon::prelude::*;
+use std::sync::atomic::AtomicU32;
+use tetwave_protocol::hierarchy::EDGES;
+use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::Forest;
+
+/// The inside samples' range and the outside vertices (NaN samples).
+pub(super) struct SampleStats {
+    pub(super) lo: f32,
+    pub(super) hi: f32,
+    /// Bitset of the outside vertices; empty when there are none.
+    pub(super) outside_bits: Vec<u64>,
+}
+
+impl SampleStats {
+    pub(super) fn of(samples: &[f32]) -> Self {
+        let big = samples.len() >= PARALLEL_PASS_FROM;
+        // range of the inside samples (`min`/`max` skip NaN) and the outside (NaN) count
+        let block = 1 << 16; // a multiple of 64: blocks' bitsets concatenate
+        let range_of = |xs: &[f32]| {
+            // 8 independent lanes (vectorizable); a comparison with NaN is false, so NaN never wins
+            const L: usize = 8;
+            let (mut lo, mut hi, mut nan) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L], [0u32; L]);
+            let mut chunks = xs.chunks_exact(L);
+            for c in &mut chunks {
+                for l in 0..L {
+                    let x = c[l];
+                    lo[l] = if x < lo[l] { x } else { lo[l] };
+                    hi[l] = if x > hi[l] { x } else { hi[l] };
+                    nan[l] += x.is_nan() as u32;
+                }
+            }
+            let tail = chunks.remainder().iter().fold(
+                (f32::INFINITY, f32::NEG_INFINITY, 0usize),
+                |(lo, hi, c), &x| (lo.min(x), hi.max(x), c + x.is_nan() as usize),
+            );
+            (0..L).fold(tail, |(a, b, c), l| {
+                (a.min(lo[l]), b.max(hi[l]), c + nan[l] as usize)
+            })
+        };
+        let merge =
+            |a: (f32, f32, usize), b: (f32, f32, usize)| (a.0.min(b.0), a.1.max(b.1), a.2 + b.2);
+        let (lo, hi, n_outside) = if big {
+            samples
+                .par_chunks(block)
+                .map(range_of)
+                .reduce(|| (f32::INFINITY, f32::NEG_INFINITY, 0), merge)
+        } else {
+            range_of(samples)
+        };
+        let any_outside = n_outside > 0;
+        let outside_bits: Vec<u64> = if any_outside {
+            let bits_of = |xs: &[f32]| {
+                let mut bits = vec![0u64; xs.len().div_ceil(64)];
+                for (j, x) in xs.iter().enumerate() {
+                    bits[j >> 6] |= (x.is_nan() as u64) << (j & 63);
+                }
+                bits
+            };
+            if big {
+                samples.par_chunks(block).flat_map_iter(bits_of).collect()
+            } else {
+                bits_of(samples)
+            }
+        } else {
+            Vec::new()
+        };
+        SampleStats {
+            lo,
+            hi,
+            outside_bits,
+        }
+    }
+
+    #[inline]
+    pub(super) fn any_outside(&self) -> bool {
+        !self.outside_bits.is_empty()
+    }
+
+    #[inline]
+    pub(super) fn is_outside(&self, v: usize) -> bool {
+        self.any_outside() && (self.outside_bits[v >> 6] >> (v & 63)) & 1 != 0
+    }
+}
+
+/// The quantizer for `bits` (none: lossless), its step sized so that the codes cover every
+/// closed-loop detail.
+pub(super) fn size_quantizer(bits: Option<u8>, r: &Resampled) -> Option<Quantizer> {
+    let forest = r.base.forest();
+    bits.map(|b| {
+        let m = max_open_detail(forest, r);
+        // closed-loop details are at most m + q/2: the codes ±(2^(b−1)−1) cover them with q = m/(max−1)
+        let step = if m > 0.0 {
+            ((m / (Quantizer::max_code(b) - 1) as f64) as f32).max(f32::MIN_POSITIVE)
+        } else {
+            1.0
+        };
+        Quantizer { bits: b, step }
+    })
+}
+
+/// The reference values (the samples' own memory, in place), outside base vertices set to the
+/// mean of the inside samples.
+pub(super) fn reference_values(
+    samples: Vec<f32>,
+    stats: &SampleStats,
+    nv: usize,
+) -> Vec<AtomicU32> {
+    // outside base vertices take the mean of the inside samples
+    let inside_mean = if (0..nv).any(|v| stats.is_outside(v)) {
+        let (s, c) = samples
+            .iter()
+            .filter(|x| !x.is_nan())
+            .fold((0f64, 0u64), |(s, c), &x| (s + x as f64, c + 1));
+        (s / c.max(1) as f64) as f32
+    } else {
+        0.0
+    };
+    // in place (same layout): the samples' memory holds the reference values
+    let reference: Vec<AtomicU32> = samples
+        .into_iter()
+        .map(|x| AtomicU32::new(x.to_bits()))
+        .collect();
+    for v in (0..nv).filter(|&v| stats.is_outside(v)) {
+        super::walk::store(&reference[v], inside_mean);
+    }
+    reference
+}
+
+/// Max |open-loop detail| over all new vertices (sizes the quantizer).
+fn max_open_detail(forest: Forest, r: &Resampled) -> f64 {
+    (0..forest.levels)
+        .map(|k| {
+            parent_chunks(forest, k)
+                .into_par_iter()
+                .map(|range| {
+                    let mut m = 0f64;
+                    for_each_tet_keys(forest, &r.keys, k, range, |_, sk| {
+                        for (e, &(a, b)) in EDGES.iter().enumerate() {
+                            let f = |i: usize| r.samples[sk[i]] as f64;
+                            let d = f(4 + e) - 0.5 * (f(a) + f(b));
+                            if d.is_finite() {
+                                m = m.max(d.abs());
+                            }
+                        }
+                    });
+                    m
+                })
+                .reduce(|| 0.0, f64::max)
+        })
+        .fold(0.0, f64::max)
+}
