@@ -14,6 +14,7 @@ pub mod render;
 pub mod render_cli;
 pub mod render_mesh;
 pub mod render_probe;
+mod seg_vec;
 pub mod select;
 pub mod store_info;
 pub mod store_reader;
