@@ -1,6 +1,6 @@
 //! Applying arrived coefficients and node metadata to the mesh in place.
 
-use super::node::EMPTY;
+use super::node::NodeFlags;
 use super::AdaptiveMesh;
 use crate::detail_buffer::{Arrivals, DetailBuffer};
 
@@ -66,10 +66,10 @@ impl AdaptiveMesh {
         }
         for i in 0..8u32 {
             let c = (n.children + i) as usize;
-            let empty = n.flags & EMPTY != 0 || buf.child_empty(n.id(), i as usize);
-            let old = self.nodes[c].flags & EMPTY != 0;
+            let empty = n.flags.contains(NodeFlags::EMPTY) || buf.child_empty(n.id(), i as usize);
+            let old = self.nodes[c].flags.contains(NodeFlags::EMPTY);
             if empty != old {
-                self.nodes[c].flags ^= EMPTY;
+                self.nodes[c].flags.toggle(NodeFlags::EMPTY);
                 let block = self.nodes[c].children;
                 self.log_change(c as u32, block);
                 self.refresh_empty(c as u32, buf);

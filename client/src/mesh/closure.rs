@@ -19,7 +19,7 @@
 
 use super::green::{green_pattern_ok, FACE_MASK};
 use super::lattice::child_weights;
-use super::node::QUEUED;
+use super::node::NodeFlags;
 use super::{AdaptiveMesh, MeshError, NONE};
 use crate::detail_buffer::DetailBuffer;
 use tetwave_protocol::hierarchy::{midpoint, Bary, EDGES};
@@ -108,8 +108,8 @@ impl AdaptiveMesh {
     #[inline]
     pub(super) fn queue(&mut self, slot: u32) {
         let n = &mut self.nodes[slot as usize];
-        if n.flags & QUEUED == 0 {
-            n.flags |= QUEUED;
+        if !n.flags.contains(NodeFlags::QUEUED) {
+            n.flags.insert(NodeFlags::QUEUED);
             let id = n.id();
             self.work.push((slot, id));
         }
@@ -120,7 +120,7 @@ impl AdaptiveMesh {
         while let Some((slot, id)) = self.work.pop() {
             let n = &mut self.nodes[slot as usize];
             if n.alive() && n.id() == id {
-                n.flags &= !QUEUED;
+                n.flags.remove(NodeFlags::QUEUED);
             }
         }
     }
@@ -156,8 +156,8 @@ impl AdaptiveMesh {
                 for i in from..work.len() {
                     let (s, _) = work[i];
                     let f = &mut self.nodes[s as usize].flags;
-                    if *f & QUEUED == 0 {
-                        *f |= QUEUED;
+                    if !f.contains(NodeFlags::QUEUED) {
+                        f.insert(NodeFlags::QUEUED);
                         work[j] = work[i];
                         j += 1;
                     }
@@ -192,10 +192,10 @@ impl AdaptiveMesh {
         let levels = self.forest.levels;
         while let Some((slot, id)) = self.work.pop() {
             let n = self.nodes[slot as usize];
-            if !n.alive() || n.id() != id || n.flags & QUEUED == 0 {
+            if !n.alive() || n.id() != id || !n.flags.contains(NodeFlags::QUEUED) {
                 continue;
             }
-            self.nodes[slot as usize].flags &= !QUEUED;
+            self.nodes[slot as usize].flags.remove(NodeFlags::QUEUED);
             if !n.is_leaf() {
                 continue;
             }

@@ -2,7 +2,7 @@
 //! anything is unrefined, and refusal witnesses settle repeated attempts cheaply.
 
 use super::green::{green_pattern_ok, FACE_MASK};
-use super::node::BATCHED;
+use super::node::NodeFlags;
 use super::{AdaptiveMesh, MeshError, NONE};
 use crate::detail_buffer::DetailBuffer;
 use rustc_hash::FxHashMap;
@@ -90,10 +90,10 @@ impl AdaptiveMesh {
                 _ => self.find(t).unwrap_or(NONE),
             };
             slots.push(slot);
-            if slot == NONE || self.nodes[slot as usize].flags & BATCHED != 0 {
+            if slot == NONE || self.nodes[slot as usize].flags.contains(NodeFlags::BATCHED) {
                 continue;
             }
-            self.nodes[slot as usize].flags |= BATCHED;
+            self.nodes[slot as usize].flags.insert(NodeFlags::BATCHED);
             let n = &self.nodes[slot as usize];
             if !n.is_leaf() && self.children_leaves(n) {
                 gathered.push(slot);
@@ -123,7 +123,7 @@ impl AdaptiveMesh {
         }
         for &s in &slots {
             if s != NONE {
-                self.nodes[s as usize].flags &= !BATCHED;
+                self.nodes[s as usize].flags.remove(NodeFlags::BATCHED);
             }
         }
         for c in &cand {
@@ -230,7 +230,7 @@ impl AdaptiveMesh {
     }
 
     /// When every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not a
-    /// candidate of the batch being gathered (not flagged [`BATCHED`]): those owners.
+    /// candidate of the batch being gathered (not flagged [`NodeFlags::BATCHED`]): those owners.
     #[inline]
     fn witness_held(&self, w: &Witness) -> Option<[u32; 4]> {
         let mut owners = [NONE; 4];
@@ -241,9 +241,9 @@ impl AdaptiveMesh {
             if !self.holds_vertex(s, k) {
                 return None;
             }
-            *o = *self.vowner[s as usize]
-                .iter()
-                .find(|&&o| o != NONE && self.nodes[o as usize].flags & BATCHED == 0)?;
+            *o = *self.vowner[s as usize].iter().find(|&&o| {
+                o != NONE && !self.nodes[o as usize].flags.contains(NodeFlags::BATCHED)
+            })?;
         }
         Some(owners)
     }

@@ -1,7 +1,7 @@
 //! The check of every invariant of the leaf mesh (for tests and debugging).
 
 use super::green::green_split;
-use super::node::FLIP;
+use super::node::NodeFlags;
 use super::{AdaptiveMesh, NONE};
 use rustc_hash::FxHashMap;
 use tetwave_protocol::base::signed_volume;
@@ -139,7 +139,7 @@ impl AdaptiveMesh {
                     u64::MAX
                 }
             });
-            let flip = n.flags & FLIP != 0;
+            let flip = n.flags.contains(NodeFlags::FLIP);
             let mut err = None;
             green_split(v, mask, &midp, &mkey, &mut |p: [(u32, Bary); 4]| {
                 if err.is_some() {

@@ -1,7 +1,7 @@
 //! The leaf mesh: red leaves and green pieces, listed or counted.
 
 use super::green::{green_piece_count, green_split};
-use super::node::{Node, EMPTY, FLIP};
+use super::node::{Node, NodeFlags};
 use super::{AdaptiveMesh, NONE};
 use tetwave_protocol::TetId;
 
@@ -25,7 +25,7 @@ impl AdaptiveMesh {
             if n.alive() && n.is_leaf() {
                 let k = green_piece_count(n.mask);
                 all += k;
-                if n.flags & EMPTY == 0 {
+                if !n.flags.contains(NodeFlags::EMPTY) {
                     drawable += k;
                 }
             }
@@ -40,8 +40,8 @@ impl AdaptiveMesh {
                 continue;
             }
             let nv = self.node_verts(slot);
-            let empty = n.flags & EMPTY != 0;
-            let flip = n.flags & FLIP != 0;
+            let empty = n.flags.contains(NodeFlags::EMPTY);
+            let flip = n.flags.contains(NodeFlags::FLIP);
             let mut emit = |v: [u32; 4]| {
                 let v = if flip { [v[0], v[1], v[3], v[2]] } else { v };
                 f(LeafTet {

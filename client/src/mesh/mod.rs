@@ -70,7 +70,7 @@ pub use red_tree::RedNode;
 use changes::MeshUid;
 use coarsen_batch::Refusal;
 use keys::KeySlots;
-use node::{Node, ALIVE, EMPTY, FLIP};
+use node::{Node, NodeFlags};
 use rustc_hash::FxHashMap;
 use tetwave_protocol::base::signed_volume;
 use tetwave_protocol::hierarchy::FACES;
@@ -183,12 +183,12 @@ impl AdaptiveMesh {
             let p = tv.map(|g| base.positions[g as usize]);
             let vol = signed_volume(p[0], p[1], p[2], p[3]);
             domain_volume += vol.abs();
-            let mut flags = ALIVE;
+            let mut flags = NodeFlags::ALIVE;
             if vol < 0.0 {
-                flags |= FLIP;
+                flags |= NodeFlags::FLIP;
             }
             if base.empty[t] {
-                flags |= EMPTY;
+                flags |= NodeFlags::EMPTY;
             }
             nodes.push(Node::new(t as TetId, NONE, 0, flags));
         }

@@ -1,7 +1,7 @@
 //! The red tree's nodes: slots, lookup by hierarchy id, and the view of a node the selector reads
 //! ([`RedNode`]).
 
-use super::node::{Node, EMPTY};
+use super::node::{Node, NodeFlags};
 use super::AdaptiveMesh;
 use tetwave_protocol::hierarchy::{Lattice, BEY_CHILDREN};
 use tetwave_protocol::{LatticeTet, TetId};
@@ -72,7 +72,7 @@ impl AdaptiveMesh {
             id: n.id(),
             slot,
             leaf,
-            empty: n.flags & EMPTY != 0,
+            empty: n.flags.contains(NodeFlags::EMPTY),
             children_leaves: !leaf && n.nref == 0,
         }
     }
@@ -162,7 +162,7 @@ impl AdaptiveMesh {
     /// Whether hierarchy tet `id` is known to be empty (outside the input domain).
     pub fn is_empty_tet(&self, id: TetId) -> bool {
         self.find(id)
-            .is_some_and(|s| self.nodes[s as usize].flags & EMPTY != 0)
+            .is_some_and(|s| self.nodes[s as usize].flags.contains(NodeFlags::EMPTY))
     }
 
     /// Ids of the hierarchy leaves.

@@ -1,7 +1,7 @@
 //! Red refinement of a leaf.
 
 use super::lattice::child_flips;
-use super::node::{Node, ALIVE, EMPTY, FLIP, QUEUED};
+use super::node::{Node, NodeFlags};
 use super::{AdaptiveMesh, MeshError, NONE};
 use crate::detail_buffer::DetailBuffer;
 use tetwave_protocol::hierarchy::EDGES;
@@ -73,15 +73,16 @@ impl AdaptiveMesh {
         let bi = self.block_of(block as usize);
         self.bverts[bi] = pts;
         for (i, &flip) in child_flips().iter().enumerate() {
-            let mut flags = ALIVE | (n.flags & (EMPTY | FLIP));
+            let mut flags = NodeFlags::ALIVE | (n.flags & (NodeFlags::EMPTY | NodeFlags::FLIP));
             if flip {
-                flags ^= FLIP;
+                flags.toggle(NodeFlags::FLIP);
             }
             if buf.child_empty(n.id(), i) {
-                flags |= EMPTY;
+                flags |= NodeFlags::EMPTY;
             }
             let id = self.forest.child(n.id(), i);
-            self.nodes[(block + i as u32) as usize] = Node::new(id, NONE, 0, flags | QUEUED);
+            self.nodes[(block + i as u32) as usize] =
+                Node::new(id, NONE, 0, flags | NodeFlags::QUEUED);
             self.work.push((block + i as u32, id));
         }
         let node = &mut self.nodes[slot as usize];
@@ -107,7 +108,7 @@ impl AdaptiveMesh {
         if !n.is_leaf() {
             return Err(MeshError::NotLeaf(t));
         }
-        if n.flags & EMPTY != 0 {
+        if n.flags.contains(NodeFlags::EMPTY) {
             return Err(MeshError::Empty(t));
         }
         if self.forest.level(t) >= self.forest.levels {
