@@ -37,7 +37,7 @@ impl Clone for MeshUid {
 
 impl AdaptiveMesh {
     /// Identity of this mesh object: unique per process, a clone gets a new one.
-    pub fn uid(&self) -> u64 {
+    pub(crate) fn uid(&self) -> u64 {
         self.uid.0
     }
 
@@ -47,14 +47,14 @@ impl AdaptiveMesh {
     }
 
     /// The structural changes since sequence number `seq` (from [`Self::change_seq`]); `None` when
-    /// some of them were dropped (the log is bounded: read and [`Self::trim_changes`] it often).
+    /// some of them were dropped (the log is bounded; the selector trims what it has read).
     pub fn changes_since(&self, seq: u64) -> Option<&[SlotChange]> {
         let i = seq.checked_sub(self.changes_start)? as usize;
         self.changes.get(i..)
     }
 
     /// Forgets the changes before sequence number `seq`.
-    pub fn trim_changes(&mut self, seq: u64) {
+    pub(crate) fn trim_changes(&mut self, seq: u64) {
         if seq >= self.change_seq() {
             self.changes_start = self.change_seq();
             self.changes.clear();

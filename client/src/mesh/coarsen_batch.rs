@@ -68,14 +68,14 @@ impl AdaptiveMesh {
     /// only save work ([`Self::clear_refusal_records`]). Before any of that, a recorded candidate
     /// whose witness vertices each have a remembered owner (a refined tet splitting that vertex's
     /// edge) outside the batch is left out: forced whatever the batch releases, and leaving out a
-    /// candidate that is forced anyway changes no other outcome. [`Self::batch_held`] lists those
-    /// with their owners.
+    /// candidate that is forced anyway changes no other outcome. The selector reads
+    /// those, with their owners, through `batch_held`.
     pub fn coarsen_batch(&mut self, ts: &[TetId], buf: &DetailBuffer) -> Result<usize, MeshError> {
         self.coarsen_batch_at(ts, &[], buf)
     }
 
     /// [`Self::coarsen_batch`] with `hints[i]`: the node slot `ts[i]` probably is in (checked).
-    pub fn coarsen_batch_at(
+    pub(crate) fn coarsen_batch_at(
         &mut self,
         ts: &[TetId],
         hints: &[u32],
@@ -252,7 +252,7 @@ impl AdaptiveMesh {
     /// with the refined tets outside the batch whose midpoints make the witness (slots, `NONE`
     /// padding). Such a candidate stays refused in any batch that leaves all of them out, until
     /// one of them changes.
-    pub fn batch_held(&self) -> &[(u32, [u32; 4])] {
+    pub(crate) fn batch_held(&self) -> &[(u32, [u32; 4])] {
         &self.held
     }
 
@@ -342,7 +342,7 @@ impl AdaptiveMesh {
         None
     }
 
-    /// Forgets why earlier merges were refused (see [`Self::coarsen_batch_at`]). The records only
+    /// Forgets why earlier merges were refused (see [`Self::coarsen_batch`]). The records only
     /// save work: every operation gives the same result with or without them.
     pub fn clear_refusal_records(&mut self) {
         self.refused.clear();

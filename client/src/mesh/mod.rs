@@ -6,7 +6,7 @@
 //! either as itself or, when some of its edges carry a present midpoint, as its *green closure*.
 //!
 //! Storage is arrays + u32 indices + free lists, no pointer graph:
-//! - **nodes**: one [`Node`] per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
+//! - **nodes**: one `Node` per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
 //!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
 //!   through a free list of blocks. A node (12 bytes) keeps its id, its first child slot, flags,
 //!   and for a leaf its green pattern (the marked-edge mask; the midpoints are looked up when the

@@ -37,7 +37,7 @@ impl AdaptiveMesh {
 
     /// Asks the CPU to bring the node in slot `slot` into the cache (see [`SegVec::prefetch`]).
     #[inline(always)]
-    pub fn prefetch_node(&self, slot: usize) {
+    pub(crate) fn prefetch_node(&self, slot: usize) {
         self.nodes.prefetch(slot);
     }
 
