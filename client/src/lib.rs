@@ -12,6 +12,7 @@ pub mod mesh;
 pub mod progressive;
 pub mod render_cli;
 pub mod render_probe;
+mod seg_vec;
 pub mod select;
 pub mod session;
 pub mod store_info;

@@ -1,0 +1,79 @@
+//! Applying arrived coefficients and node metadata to the mesh in place.
+
+use super::node::NodeFlags;
+use super::AdaptiveMesh;
+use crate::detail_buffer::{Arrivals, DetailBuffer};
+
+impl AdaptiveMesh {
+    /// Applies coefficients and node metadata that arrived in `buf` (as recorded in `arrivals`):
+    /// present vertices owning a new coefficient are recomputed in place, then every present vertex
+    /// predicted from a changed one (level by level); children of arrived nodes get their `empty`
+    /// flags. Returns the number of vertex values recomputed.
+    pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
+        let mut dirty: Vec<u32> = Vec::new();
+        let nbase = self.keys.base_vertex_count();
+        for &key in &arrivals.keys {
+            if let Some(s) = self.slot_of_key(key).filter(|&s| s as u64 >= nbase) {
+                let v = self.synth_value(buf, key, self.vends[s as usize]);
+                self.vval[s as usize] = v;
+                dirty.push(s);
+            }
+        }
+        let mut count = dirty.len();
+        if dirty.iter().any(|&s| self.vdeps[s as usize] > 0) {
+            let lo = dirty
+                .iter()
+                .map(|&s| self.vlevel[s as usize])
+                .min()
+                .unwrap_or(0);
+            let mut mark = vec![false; self.vkey.len()];
+            for &s in &dirty {
+                mark[s as usize] = true;
+            }
+            let mut by_level: Vec<Vec<u32>> = vec![Vec::new(); self.forest.levels as usize + 1];
+            for s in 0..self.vkey.len() {
+                if self.vref[s] != 0 && self.vlevel[s] > lo {
+                    by_level[self.vlevel[s] as usize].push(s as u32);
+                }
+            }
+            for lv in by_level {
+                for s in lv {
+                    let ends = self.vends[s as usize];
+                    if mark[ends[0] as usize] || mark[ends[1] as usize] {
+                        self.vval[s as usize] = self.synth_value(buf, self.vkey[s as usize], ends);
+                        if !mark[s as usize] {
+                            mark[s as usize] = true;
+                            count += 1;
+                        }
+                    }
+                }
+            }
+        }
+        for &id in &arrivals.nodes {
+            if let Some(slot) = self.find(id) {
+                if !self.nodes[slot as usize].is_leaf() {
+                    self.refresh_empty(slot, buf);
+                }
+            }
+        }
+        count
+    }
+
+    fn refresh_empty(&mut self, slot: u32, buf: &DetailBuffer) {
+        let n = self.nodes[slot as usize];
+        if n.is_leaf() {
+            return;
+        }
+        for i in 0..8u32 {
+            let c = (n.children + i) as usize;
+            let empty = n.flags.contains(NodeFlags::EMPTY) || buf.child_empty(n.id(), i as usize);
+            let old = self.nodes[c].flags.contains(NodeFlags::EMPTY);
+            if empty != old {
+                self.nodes[c].flags.toggle(NodeFlags::EMPTY);
+                let block = self.nodes[c].children;
+                self.log_change(c as u32, block);
+                self.refresh_empty(c as u32, buf);
+            }
+        }
+    }
+}

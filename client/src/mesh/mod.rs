@@ -1,0 +1,303 @@
+//! The adaptive mesh: red/green refinement over the semi-regular hierarchy, always conforming.
+//!
+//! # State
+//! The state is the set `R` of red-refined hierarchy tets, closed under parent. Hierarchy *leaves* are
+//! the base tets not in `R` and the children of tets in `R` that are not in `R`. Each leaf is drawn
+//! either as itself or, when some of its edges carry a present midpoint, as its *green closure*.
+//!
+//! Storage is arrays + u32 indices + free lists, no pointer graph:
+//! - **nodes**: one `Node` per tet of `R` ∪ leaves. Base tets occupy slots `0..n`; the 8 children
+//!   of a refined tet occupy one contiguous block of 8 slots (`children` = first slot), recycled
+//!   through a free list of blocks. A node (12 bytes) keeps its id, its first child slot, flags,
+//!   and for a leaf its green pattern (the marked-edge mask; the midpoints are looked up when the
+//!   greens are listed). Vertex slots are kept per block: the parent's 4 corners and 6 edge
+//!   midpoints (40 bytes for 8 children; a child's 4 vertices are 4 of these,
+//!   [`BEY_CHILDREN`](tetwave_protocol::hierarchy::BEY_CHILDREN)),
+//!   and a base tet's are its base mesh's.
+//! - **vertices**: slot arrays (key, position, value, edge endpoints, reference count, level, number of
+//!   dependants). Base vertices are slots `0..nv` (slot = key) and never go away. A non-base vertex, the
+//!   midpoint of an edge of a level-`k` tet, is present iff some refined level-`k` tet contains that
+//!   edge; its reference count is the number of such refined tets. One array, dense over the key space
+//!   and allocated once, finds a vertex's slot by key: for arriving coefficients, and for the
+//!   closure, which computes the keys of a tet's edge midpoints and level-`k+2` points from its
+//!   lattice tet (integer barycentric weights, [`AdaptiveMesh::lattice_of`]).
+//! - The node and vertex arrays (except positions and values, which renderers read as slices) are
+//!   `SegVec`s: they grow by segments and never copy what they hold, so no operation pays for
+//!   moving a large array (a frame budget could not absorb it).
+//!
+//! # Values
+//! A midpoint's value is `synthesize(d, predict(f(u), f(v)))` with `d` its coefficient from the
+//! [`DetailBuffer`](crate::detail_buffer::DetailBuffer), or 0 (linear prediction, the thesis'
+//! fallback) while it has not arrived. When coefficients arrive ([`AdaptiveMesh::apply_arrivals`])
+//! the present vertices that own them are recomputed in place; if any of those has dependants
+//! (present vertices predicted from it), the present vertices are re-synthesized level by level
+//! from the lowest changed level up, each one whose edge endpoint changed being recomputed (one pass
+//! over the present vertices per batch).
+//!
+//! # Files
+//! One concern per file: `node` (the packed node and its flags), `lattice` (Bey's children as
+//! barycentric arithmetic), `keys` (the key → slot table), `green` (green patterns and splits),
+//! `closure` (the closure's worklist), `vertices`, `red_tree` (slots, lookups, the selector's
+//! view), `leaves` (the leaf mesh), `refine`, `coarsen`, `coarsen_batch` (batches and refusal
+//! witnesses), `arrivals`, `changes` (the change log) and `conformity` (the invariant check).
+
+mod arrivals;
+mod changes;
+mod closure;
+mod coarsen;
+mod coarsen_batch;
+mod conformity;
+mod error;
+mod green;
+mod keys;
+mod lattice;
+mod leaves;
+mod node;
+mod red_tree;
+mod refine;
+mod vertices;
+
+/// Re-exported for the selector's per-slot arrays (its home is [`crate::seg_vec`]).
+pub(crate) use crate::seg_vec::SegVec;
+pub use changes::SlotChange;
+pub use conformity::ConformityError;
+pub use error::MeshError;
+pub use green::{green_pattern_ok, green_piece_count, green_split};
+pub use leaves::LeafTet;
+pub use node::MAX_TETS;
+pub use red_tree::RedNode;
+
+use changes::MeshUid;
+use coarsen_batch::Refusal;
+use keys::KeySlots;
+use node::{Node, NodeFlags};
+use rustc_hash::FxHashMap;
+use tetwave_protocol::base::signed_volume;
+use tetwave_protocol::hierarchy::FACES;
+use tetwave_protocol::{BaseMesh, Forest, TetId, VertexKeys};
+
+const NONE: u32 = u32::MAX;
+
+/// Owners remembered per vertex ([`AdaptiveMesh::vowner`]).
+const OWNERS: usize = 2;
+
+/// Red/green adaptive mesh (see the module docs).
+#[derive(Debug, Clone)]
+pub struct AdaptiveMesh {
+    forest: Forest,
+    keys: VertexKeys,
+    base_positions: Vec<[f64; 3]>,
+    base_tets: Vec<[u32; 4]>,
+    /// Per base vertex: the base tets that use it.
+    vertex_tets: Vec<Vec<u32>>,
+    /// Per base tet and local face: lies on the domain boundary.
+    boundary: Vec<[bool; 4]>,
+    domain_volume: f64,
+
+    nodes: SegVec<Node>,
+    /// Per block of 8 children (block `b` = slots `n + 8b..n + 8b + 8`, `n` base tets): the
+    /// parent's 4 corners and 6 edge midpoints (`BEY_CHILDREN`'s points), from which
+    /// [`Self::node_verts`] reads a child's vertices (5 bytes per node instead of 16).
+    bverts: SegVec<[u32; 10]>,
+    free_blocks: Vec<u32>,
+    n_leaves: usize,
+
+    vkey: SegVec<u64>,
+    vpos: Vec<[f32; 3]>,
+    vval: Vec<f32>,
+    vends: SegVec<[u32; 2]>,
+    vref: SegVec<u32>,
+    vlevel: SegVec<u8>,
+    vdeps: SegVec<u32>,
+    /// Per vertex: up to [`OWNERS`] of the refined tets that have it as an edge midpoint (`NONE`: not
+    /// known), kept while they stay refined. A refusal witness whose every vertex has such an
+    /// owner outside a merge batch is present whatever the batch releases, which settles its
+    /// candidate before it is gathered.
+    vowner: SegVec<[u32; OWNERS]>,
+    free_vertices: Vec<u32>,
+    n_vertices: usize,
+    /// Slot by vertex key; base keys map to themselves.
+    by_key: KeySlots,
+
+    work: Vec<(u32, TetId)>,
+    /// The candidates the last merge batch settled by their witness alone, each with the owners
+    /// (one per witness vertex, `NONE` padding) outside the batch that keep the witness present:
+    /// while those owners stay refined and out of a batch, so does the candidate.
+    held: Vec<(u32, [u32; 4])>,
+    /// Refined tets (by slot) whose last merge attempt in a batch was refused, and why.
+    refused: FxHashMap<u32, Refusal>,
+    /// Red splits and merges done so far (closure refinements included).
+    n_splits: u64,
+    n_merges: u64,
+
+    /// Identity of this mesh (a clone gets a new one), for incremental consumers of [`Self::changes`].
+    uid: MeshUid,
+    /// Structural changes since [`Self::changes_start`] (see [`SlotChange`]); bounded, see
+    /// [`Self::trim_changes`].
+    changes: Vec<SlotChange>,
+    changes_start: u64,
+}
+
+impl AdaptiveMesh {
+    /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`]; a
+    /// hierarchy with 2^32 vertex keys or more, or [`MAX_TETS`] tets or more, is refused (the mesh
+    /// packs keys in 32 bits and ids in 40).
+    pub fn new(base: &BaseMesh) -> Result<Self, MeshError> {
+        let forest = base.forest();
+        if forest.total_tets() >= MAX_TETS {
+            return Err(MeshError::TooManyTets(forest.total_tets()));
+        }
+        let keys = base.vertex_keys();
+        let nkeys = keys.vertex_count();
+        if nkeys >= NONE as u64 {
+            return Err(MeshError::TooManyKeys(nkeys));
+        }
+        let nv = base.positions.len();
+        let mut vertex_tets = vec![Vec::new(); nv];
+        let mut face_count: FxHashMap<[u32; 3], u32> = FxHashMap::default();
+        for (t, tv) in base.tets.iter().enumerate() {
+            for &g in tv {
+                vertex_tets[g as usize].push(t as u32);
+            }
+            for f in &FACES {
+                let mut k = [tv[f[0]], tv[f[1]], tv[f[2]]];
+                k.sort_unstable();
+                *face_count.entry(k).or_insert(0) += 1;
+            }
+        }
+        let boundary = base
+            .tets
+            .iter()
+            .map(|tv| {
+                std::array::from_fn(|d| {
+                    let f = FACES[d];
+                    let mut k = [tv[f[0]], tv[f[1]], tv[f[2]]];
+                    k.sort_unstable();
+                    face_count[&k] == 1
+                })
+            })
+            .collect();
+        let mut nodes = SegVec::new();
+        let mut domain_volume = 0.0;
+        for (t, tv) in base.tets.iter().enumerate() {
+            let p = tv.map(|g| base.positions[g as usize]);
+            let vol = signed_volume(p[0], p[1], p[2], p[3]);
+            domain_volume += vol.abs();
+            let mut flags = NodeFlags::ALIVE;
+            if vol < 0.0 {
+                flags |= NodeFlags::FLIP;
+            }
+            if base.empty[t] {
+                flags |= NodeFlags::EMPTY;
+            }
+            nodes.push(Node::new(t as TetId, NONE, 0, flags));
+        }
+        let mut m = AdaptiveMesh {
+            forest,
+            keys,
+            base_positions: base.positions.clone(),
+            base_tets: base.tets.clone(),
+            vertex_tets,
+            boundary,
+            domain_volume,
+            nodes,
+            bverts: SegVec::new(),
+            free_blocks: Vec::new(),
+            n_leaves: base.tets.len(),
+            vkey: SegVec::new(),
+            vpos: Vec::new(),
+            vval: Vec::new(),
+            vends: SegVec::new(),
+            vref: SegVec::new(),
+            vlevel: SegVec::new(),
+            vdeps: SegVec::new(),
+            vowner: SegVec::new(),
+            free_vertices: Vec::new(),
+            n_vertices: 0,
+            by_key: KeySlots::new(0),
+            work: Vec::new(),
+            held: Vec::new(),
+            refused: FxHashMap::default(),
+            n_splits: 0,
+            n_merges: 0,
+            uid: MeshUid::new(),
+            changes: Vec::new(),
+            changes_start: 0,
+        };
+        for g in 0..nv {
+            let p = base.positions[g];
+            m.vkey.push(g as u64);
+            m.vpos.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+            m.vval.push(base.values[g]);
+            m.vends.push([NONE; 2]);
+            m.vref.push(u32::MAX);
+            m.vlevel.push(0);
+            m.vdeps.push(0);
+            m.vowner.push([NONE; OWNERS]);
+        }
+        m.n_vertices = nv;
+        m.by_key = KeySlots::new(nkeys as usize);
+        for g in 0..nv {
+            m.by_key.insert(g as u64, g as u32);
+        }
+        Ok(m)
+    }
+
+    pub fn forest(&self) -> Forest {
+        self.forest
+    }
+
+    pub fn vertex_keys(&self) -> &VertexKeys {
+        &self.keys
+    }
+
+    /// Sum of the base tets' volumes.
+    pub fn domain_volume(&self) -> f64 {
+        self.domain_volume
+    }
+
+    /// Red splits and merges done so far, closure refinements included. Each split removes one leaf
+    /// and creates 8; each merge the reverse.
+    pub fn op_counts(&self) -> (u64, u64) {
+        (self.n_splits, self.n_merges)
+    }
+
+    /// Bytes held by the node, vertex and map storage (capacities).
+    pub fn bytes_held(&self) -> usize {
+        self.bytes_parts().iter().map(|p| p.1).sum()
+    }
+
+    /// [`Self::bytes_held`] by part: nodes, vertices, key table, refusal records, the rest.
+    pub fn bytes_parts(&self) -> [(&'static str, usize); 5] {
+        use std::mem::size_of;
+        [
+            (
+                "nodes",
+                self.nodes.bytes() + self.bverts.bytes() + self.free_blocks.capacity() * 4,
+            ),
+            (
+                "vertices",
+                self.vkey.bytes()
+                    + self.vpos.capacity() * 12
+                    + self.vval.capacity() * 4
+                    + self.vends.bytes()
+                    + self.vref.bytes()
+                    + self.vlevel.bytes()
+                    + self.vdeps.bytes()
+                    + self.vowner.bytes()
+                    + self.free_vertices.capacity() * 4,
+            ),
+            ("keys", self.by_key.bytes()),
+            (
+                "refusals",
+                self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)
+                    + self.held.capacity() * size_of::<(u32, [u32; 4])>(),
+            ),
+            (
+                "work",
+                self.work.capacity() * size_of::<(u32, TetId)>()
+                    + self.changes.capacity() * size_of::<SlotChange>(),
+            ),
+        ]
+    }
+}
