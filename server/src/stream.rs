@@ -37,6 +37,7 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
+use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::{data_weight, screen_error, tet_sphere, Camera, Tolerance, View};
 use tetwave_protocol::wire::{
     decode_client, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
@@ -54,7 +55,7 @@ pub enum Order {
     Magnitude,
     /// Largest screen-space (× data) error for the client's last `View` first.
     View,
-    /// A seeded shuffle (testing).
+    /// A seeded shuffle ([`tetwave_protocol::order::shuffle`] of the ids; testing).
     Random,
 }
 
@@ -228,15 +229,7 @@ impl Shared {
         self.random_perm
             .get_or_init(|| {
                 let mut p: Vec<TetId> = (0..self.nodes).collect();
-                let mut s = self.config.seed | 1;
-                for i in (1..p.len()).rev() {
-                    // xorshift64*
-                    s ^= s >> 12;
-                    s ^= s << 25;
-                    s ^= s >> 27;
-                    let r = s.wrapping_mul(0x2545_f491_4f6c_dd1d);
-                    p.swap(i, (r % (i as u64 + 1)) as usize);
-                }
+                shuffle(&mut p, self.config.seed);
                 Arc::new(p)
             })
             .clone()
