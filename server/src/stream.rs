@@ -22,13 +22,13 @@
 //! schedule (two bitsets over node ids, the queued `Want` ranges, and for view order one chunk of
 //! ids) and at most one encoded batch: never a queue of frames. A slow client slows only itself.
 
-use crate::render_service::{self, RenderService};
+use crate::render_service::{self, RenderParams, RenderService};
 use axum::body::Bytes;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Query, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::middleware::{self, Next};
-use axum::response::{IntoResponse, Response};
+use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 use futures_util::{SinkExt, StreamExt};
@@ -323,11 +323,11 @@ pub enum ServeError {
 /// The application: every route, with token enforcement.
 pub fn app(shared: Arc<Shared>) -> Router {
     let protected = Router::new()
-        .route("/", get(render_service::page))
+        .route("/", get(page))
         .route("/v1/manifest", get(manifest))
         .route("/v1/base", get(base))
         .route("/v1/nodes", get(nodes))
-        .route("/v1/render", get(render_service::render))
+        .route("/v1/render", get(render))
         .route_layer(middleware::from_fn_with_state(
             shared.clone(),
             require_token,
@@ -402,7 +402,7 @@ fn unauthorized() -> Response {
         .into_response()
 }
 
-pub(crate) fn bad_request(msg: impl Into<String>) -> Response {
+fn bad_request(msg: impl Into<String>) -> Response {
     let mut m = msg.into();
     m.push('\n');
     (StatusCode::BAD_REQUEST, m).into_response()
@@ -497,6 +497,58 @@ async fn nodes(State(s): State<Arc<Shared>>, Query(q): Query<HashMap<String, Str
         Ok(Err(e)) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
         Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
     }
+}
+
+/// `GET /v1/render`.
+async fn render(
+    State(s): State<Arc<Shared>>,
+    Query(q): Query<HashMap<String, String>>,
+) -> Response {
+    let p = match RenderParams::parse(&q, s.store.manifest.levels) {
+        Ok(p) => p,
+        Err(m) => return bad_request(m),
+    };
+    let s2 = s.clone();
+    let r = tokio::task::spawn_blocking(move || {
+        let r = s2.render.render(&p)?;
+        let png = r
+            .image
+            .png_bytes()
+            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+        Ok::<_, (StatusCode, String)>((r, png))
+    })
+    .await;
+    match r {
+        Ok(Ok((r, png))) => (
+            [
+                (header::CONTENT_TYPE, "image/png".to_string()),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+                (
+                    header::HeaderName::from_static("x-tetwave-renderer"),
+                    r.renderer
+                        .replace(|c: char| !c.is_ascii_graphic() && c != ' ', "?"),
+                ),
+                (
+                    header::HeaderName::from_static("x-tetwave-level"),
+                    r.level.to_string(),
+                ),
+                (
+                    header::HeaderName::from_static("x-tetwave-tets"),
+                    r.tets.to_string(),
+                ),
+            ],
+            png,
+        )
+            .into_response(),
+        Ok(Err((code, m))) => (code, m).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+/// `GET /`: the fallback viewer page.
+async fn page(State(s): State<Arc<Shared>>) -> Response {
+    let html = render_service::page_html(&s.store.manifest.dataset);
+    ([(header::CACHE_CONTROL, "no-store")], Html(html)).into_response()
 }
 
 /// Largest client frame accepted on the stream (a `Hello` or `Want` of `MAX_RANGES` ranges fits).
