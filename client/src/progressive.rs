@@ -10,6 +10,9 @@ use crate::session::{NodeRejected, Session};
 use glam::DVec3;
 use serde::Serialize;
 use std::time::{Duration, Instant};
+use tetwave_protocol::order::shuffle;
+/// The seeded mixing behind [`order_nodes`]'s random order, re-exported for the client's tests.
+pub use tetwave_protocol::order::splitmix;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 
@@ -36,22 +39,9 @@ pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64) {
         }),
         ArrivalOrder::Random => {
             nodes.sort_by_key(|n| n.id);
-            let mut s = seed;
-            for i in (1..nodes.len()).rev() {
-                s = splitmix(s);
-                nodes.swap(i, (s % (i as u64 + 1)) as usize);
-            }
+            shuffle(nodes, seed);
         }
     }
-}
-
-/// SplitMix64: the seeded mixing behind [`order_nodes`]'s random order (also used by tests).
-pub fn splitmix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    let mut z = x;
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
 }
 
 /// One run of the experiment.

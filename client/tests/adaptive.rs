@@ -5,9 +5,9 @@ use proptest::prelude::*;
 use std::time::Instant;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
 use tetwave_client::mesh::{AdaptiveMesh, MeshError};
-use tetwave_client::progressive::splitmix;
 use tetwave_protocol::base::signed_volume;
 use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
+use tetwave_protocol::order::{shuffle, splitmix};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::wavelet::{analyze, predict, synthesize};
 use tetwave_protocol::{BaseMesh, DetailNode, TetId, VertexKeys};
@@ -152,13 +152,6 @@ fn make_data(mut base: BaseMesh, empty_seed: u64) -> Data {
         keys,
         nodes,
         reference,
-    }
-}
-
-fn shuffle<T>(v: &mut [T], mut seed: u64) {
-    for i in (1..v.len()).rev() {
-        seed = splitmix(seed);
-        v.swap(i, (seed % (i as u64 + 1)) as usize);
     }
 }
 

@@ -3,12 +3,14 @@
 //! The contract both the server and the client compile: ids and child order of the semi-regular
 //! hierarchy ([`hierarchy`]), global vertex keys ([`vertex`]), the lifting steps ([`wavelet`]), detail
 //! nodes ([`node`]), the base mesh ([`base`]), whole-hierarchy synthesis ([`synthesis`]), the wire
-//! frames ([`wire`]), the store format ([`store_format`]) and the refinement criterion ([`view`]).
+//! frames ([`wire`]), the store format ([`store_format`]), the refinement criterion ([`view`]) and the
+//! seeded shuffle both sides' test orders use ([`order`]).
 //! This crate does no I/O.
 
 pub mod base;
 pub mod hierarchy;
 pub mod node;
+pub mod order;
 pub mod store_format;
 pub mod synthesis;
 pub mod vertex;

@@ -1,7 +1,8 @@
-//! Fallback images for clients that cannot render: `GET /v1/render` (a PNG of the store's uniform
-//! level, drawn with the client library's renderer: projected tetrahedra on the GPU when an adapter
-//! exists, the CPU reference integrator otherwise) and `GET /` (a small page that shows them, with
-//! orbit by mouse drag and a tolerance slider; no external resources).
+//! Fallback images for clients that cannot render: what `GET /v1/render` answers (a PNG of the
+//! store's uniform level, drawn with the client library's renderer: projected tetrahedra on the GPU
+//! when an adapter exists, the CPU reference integrator otherwise) and `GET /` shows (a small page
+//! that shows them, with orbit by mouse drag and a tolerance slider; no external resources). The
+//! routes themselves are [`crate::stream`]'s; this module knows nothing of them.
 //!
 //! Query parameters of `/v1/render` (all optional): `width`, `height` (1..=4096, default 512),
 //! `azimuth`, `elevation` (degrees, finite, default 35 / 25; elevation within ±90), `distance`
@@ -12,10 +13,7 @@
 //! out of range, is a 400 with a message. The answer carries `X-Tetwave-Renderer`,
 //! `X-Tetwave-Level` and `X-Tetwave-Tets` headers.
 
-use crate::stream::{bad_request, Shared};
-use axum::extract::{Query, State};
-use axum::http::{header, StatusCode};
-use axum::response::{Html, IntoResponse, Response};
+use axum::http::StatusCode;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -357,56 +355,9 @@ impl RenderService {
     }
 }
 
-/// `GET /v1/render`.
-pub async fn render(
-    State(s): State<Arc<Shared>>,
-    Query(q): Query<HashMap<String, String>>,
-) -> Response {
-    let p = match RenderParams::parse(&q, s.store.manifest.levels) {
-        Ok(p) => p,
-        Err(m) => return bad_request(m),
-    };
-    let s2 = s.clone();
-    let r = tokio::task::spawn_blocking(move || {
-        let r = s2.render.render(&p)?;
-        let png = r
-            .image
-            .png_bytes()
-            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
-        Ok::<_, (StatusCode, String)>((r, png))
-    })
-    .await;
-    match r {
-        Ok(Ok((r, png))) => (
-            [
-                (header::CONTENT_TYPE, "image/png".to_string()),
-                (header::CACHE_CONTROL, "no-store".to_string()),
-                (
-                    header::HeaderName::from_static("x-tetwave-renderer"),
-                    r.renderer
-                        .replace(|c: char| !c.is_ascii_graphic() && c != ' ', "?"),
-                ),
-                (
-                    header::HeaderName::from_static("x-tetwave-level"),
-                    r.level.to_string(),
-                ),
-                (
-                    header::HeaderName::from_static("x-tetwave-tets"),
-                    r.tets.to_string(),
-                ),
-            ],
-            png,
-        )
-            .into_response(),
-        Ok(Err((code, m))) => (code, m).into_response(),
-        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
-    }
-}
-
-/// `GET /`: the fallback viewer page.
-pub async fn page(State(s): State<Arc<Shared>>) -> Response {
-    let html = PAGE.replace("{{DATASET}}", &html_escape(&s.store.manifest.dataset));
-    ([(header::CACHE_CONTROL, "no-store")], Html(html)).into_response()
+/// The fallback viewer page (`GET /`) for `dataset`: one self-contained HTML document.
+pub fn page_html(dataset: &str) -> String {
+    PAGE.replace("{{DATASET}}", &html_escape(dataset))
 }
 
 fn html_escape(s: &str) -> String {

@@ -1,0 +1,64 @@
+//! `tetwave-server serve`: the HTTP + WebSocket front of a store (axum on tokio).
+//!
+//! | route                      | answer                                                            |
+//! |----------------------------|-------------------------------------------------------------------|
+//! | `GET /healthz`             | JSON `{status, connections, rss_kib, peak_rss_kib}` (never needs the token) |
+//! | `GET /v1/manifest`         | the store's manifest, JSON                                        |
+//! | `GET /v1/base`             | one wire frame: `ServerMsg::Base`                                 |
+//! | `GET /v1/nodes?from=&to=`  | one wire frame: `ServerMsg::Nodes { seq: 0, nodes: from..to }`    |
+//! | `GET /v1/stream[?order=]`  | WebSocket: the progressive stream (below)                         |
+//! | `GET /v1/render?…`         | fallback PNG ([`crate::render_service`])                          |
+//! | `GET /`                    | a small page showing fallback images ([`crate::render_service`])  |
+//!
+//! **Stream.** The client sends `Hello` first (version must match; with a token configured it must
+//! carry it, else `Error { code: 401 }` and close). The server answers `Manifest`, `Base`, then
+//! `Nodes` batches (`seq` 0, 1, 2, …) in the configured [`Order`], skipping what `Hello.have` covers,
+//! then `End { nodes_sent }`. Client messages are read concurrently: `View` re-prioritises what is not
+//! sent yet (view order), `Want` queues ranges to (re)send ahead of the order (followed by another
+//! `End`), `Cancel` drops ranges, `Ack { seq }` acknowledges every batch up to `seq`.
+//!
+//! **Backpressure.** At most [`ServeConfig::window`] batches may be un-acknowledged; beyond that the
+//! connection waits for an `Ack` (and each send waits for the socket). A connection holds its
+//! schedule (two bitsets over node ids, the queued `Want` ranges, and for view order one chunk of
+//! ids) and at most one encoded batch: never a queue of frames. A slow client slows only itself.
+//!
+//! One concern per file: `config` (order, parameters), `error`, `state` (what connections share),
+//! `routes` (the axum application and HTTP handlers), `auth` (the token), `schedule` (what a
+//! connection sends next) and `connection` (one WebSocket stream). Dependencies point one way:
+//! routes → connection → schedule → state → config; `render_service` knows nothing of this module.
+
+mod auth;
+mod config;
+mod connection;
+mod error;
+mod routes;
+mod schedule;
+mod state;
+
+pub use config::{Order, ServeConfig};
+pub use error::ServeError;
+pub use routes::{app, rss_kib};
+pub use schedule::DATA_DELTA;
+pub use state::Shared;
+
+use std::sync::Arc;
+
+/// Binds `addr` and serves until the process ends.
+pub async fn serve(addr: &str, shared: Arc<Shared>) -> Result<(), ServeError> {
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| ServeError::Bind {
+            addr: addr.into(),
+            source,
+        })?;
+    serve_on(listener, shared).await
+}
+
+/// Serves on a bound listener (tests bind `127.0.0.1:0`).
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    shared: Arc<Shared>,
+) -> Result<(), ServeError> {
+    axum::serve(listener, app(shared)).await?;
+    Ok(())
+}

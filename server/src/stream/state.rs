@@ -1,0 +1,185 @@
+//! [`Shared`]: what every connection and request shares: the store, the frames that never change
+//! (manifest, base), per-node metadata (subtree maxima, the magnitude and random orders, bounding
+//! spheres) and, when small enough, every node.
+
+use super::config::ServeConfig;
+use super::error::ServeError;
+use crate::render_service::RenderService;
+use axum::body::Bytes;
+use glam::DVec3;
+use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
+use std::sync::{Arc, OnceLock};
+use tetwave_protocol::order::shuffle;
+use tetwave_protocol::view::tet_sphere;
+use tetwave_protocol::wire::{encode, ServerMsg};
+use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
+use tetwave_store::{Store, StoreError};
+
+/// Per-node geometry for view-dependent order: bounding spheres, in world units.
+pub(super) struct Geometry {
+    pub(super) centre: Vec<[f32; 3]>,
+    /// Bounding-sphere radius ([`tet_sphere`]).
+    pub(super) radius: Vec<f32>,
+}
+
+/// What every connection shares: the store, encoded frames that never change, per-node metadata.
+pub struct Shared {
+    pub store: Store,
+    pub config: ServeConfig,
+    forest: Forest,
+    pub(super) nodes: u64,
+    pub(super) manifest_json: Bytes,
+    pub(super) manifest_frame: Bytes,
+    pub(super) base_frame: Bytes,
+    /// Every node, when the store is small enough ([`ServeConfig::cache_limit_bytes`]).
+    cache: Option<Vec<DetailNode>>,
+    /// `subtree_max_abs` of every node.
+    pub(super) smax: Vec<f32>,
+    magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
+    random_perm: OnceLock<Arc<Vec<TetId>>>,
+    geometry: OnceLock<Arc<Geometry>>,
+    pub(super) connections: AtomicU64,
+    pub render: RenderService,
+}
+
+/// Nodes read per step while loading metadata.
+const LOAD_CHUNK: u64 = 1 << 16;
+
+impl Shared {
+    /// Opens the store and prepares what connections share.
+    pub fn open(dir: &std::path::Path, config: ServeConfig) -> Result<Arc<Shared>, ServeError> {
+        let store = Store::open(dir)?;
+        let forest = store.forest();
+        let nodes = store.manifest.counts.nodes;
+        if nodes > u32::MAX as u64 {
+            return Err(ServeError::TooLarge(nodes));
+        }
+        let manifest_json = Bytes::from(
+            serde_json::to_vec_pretty(&store.manifest)
+                .map_err(|e| ServeError::Encode(e.to_string()))?,
+        );
+        let manifest_frame = Bytes::from(
+            encode(&ServerMsg::Manifest(Box::new(store.manifest.clone())))
+                .map_err(|e| ServeError::Encode(e.to_string()))?,
+        );
+        let base_frame = Bytes::from(
+            encode(&ServerMsg::Base(Box::new(store.base.clone())))
+                .map_err(|e| ServeError::Encode(e.to_string()))?,
+        );
+        // rough in-memory size of every node: the struct, its allocation and its coefficients
+        let est = nodes * (std::mem::size_of::<DetailNode>() as u64 + 16)
+            + store.manifest.counts.coefficients * 4;
+        let keep = est <= config.cache_limit_bytes;
+        let mut cache = keep.then(|| Vec::with_capacity(nodes as usize));
+        let mut smax = Vec::with_capacity(nodes as usize);
+        let mut from = 0;
+        while from < nodes {
+            let to = (from + LOAD_CHUNK).min(nodes);
+            let part = store.read_nodes(from, to)?;
+            smax.extend(part.iter().map(|n| n.subtree_max_abs));
+            if let Some(c) = cache.as_mut() {
+                c.extend(part);
+            }
+            from = to;
+        }
+        tracing::info!(
+            nodes,
+            cached = keep,
+            "store {} opened for serving",
+            dir.display()
+        );
+        let render = RenderService::new(dir);
+        Ok(Arc::new(Shared {
+            store,
+            config,
+            forest,
+            nodes,
+            manifest_json,
+            manifest_frame,
+            base_frame,
+            cache,
+            smax,
+            magnitude_perm: OnceLock::new(),
+            random_perm: OnceLock::new(),
+            geometry: OnceLock::new(),
+            connections: AtomicU64::new(0),
+            render,
+        }))
+    }
+
+    /// Number of detail nodes.
+    pub fn nodes(&self) -> u64 {
+        self.nodes
+    }
+
+    /// Open WebSocket connections.
+    pub fn connections(&self) -> u64 {
+        self.connections.load(AtomicOrdering::Relaxed)
+    }
+
+    /// Every id, largest subtree max |detail| first, ties by id; computed once.
+    pub(super) fn magnitude_perm(&self) -> Arc<Vec<TetId>> {
+        self.magnitude_perm
+            .get_or_init(|| {
+                let mut p: Vec<TetId> = (0..self.nodes).collect();
+                // largest first; ties by id (coarse before fine)
+                p.sort_by(|&a, &b| {
+                    self.smax[b as usize]
+                        .total_cmp(&self.smax[a as usize])
+                        .then(a.cmp(&b))
+                });
+                Arc::new(p)
+            })
+            .clone()
+    }
+
+    /// Every id, shuffled with [`ServeConfig::seed`]; computed once.
+    pub(super) fn random_perm(&self) -> Arc<Vec<TetId>> {
+        self.random_perm
+            .get_or_init(|| {
+                let mut p: Vec<TetId> = (0..self.nodes).collect();
+                shuffle(&mut p, self.config.seed);
+                Arc::new(p)
+            })
+            .clone()
+    }
+
+    /// Every node's bounding sphere; computed when view order first asks.
+    pub(super) fn geometry(&self) -> Arc<Geometry> {
+        self.geometry
+            .get_or_init(|| {
+                let base = &self.store.base;
+                let n = self.nodes as usize;
+                let mut centre = Vec::with_capacity(n);
+                let mut radius = Vec::with_capacity(n);
+                for id in 0..self.nodes {
+                    let t = LatticeTet::from_id(&self.forest, id);
+                    let (c, r) =
+                        tet_sphere(t.v.map(|w| DVec3::from_array(base.position(t.base, &w))));
+                    centre.push(c.to_array());
+                    radius.push(r);
+                }
+                Arc::new(Geometry { centre, radius })
+            })
+            .clone()
+    }
+
+    /// The nodes `ids` (in that order when cached, else in increasing id order).
+    pub(super) fn fetch(&self, ids: &mut [TetId]) -> Result<Vec<DetailNode>, StoreError> {
+        if let Some(c) = &self.cache {
+            return Ok(ids.iter().map(|&i| c[i as usize].clone()).collect());
+        }
+        ids.sort_unstable();
+        let mut out = Vec::with_capacity(ids.len());
+        let mut i = 0;
+        while i < ids.len() {
+            let mut j = i + 1;
+            while j < ids.len() && ids[j] == ids[j - 1] + 1 {
+                j += 1;
+            }
+            out.extend(self.store.read_nodes(ids[i], ids[j - 1] + 1)?);
+            i = j;
+        }
+        Ok(out)
+    }
+}
