@@ -254,6 +254,18 @@ impl ViewPriority {
     }
 }
 
+impl Shared {
+    /// Every node's view-order priority for `view` (larger is sent first): what
+    /// [`Order::View`](super::Order::View) ranks by.
+    pub fn view_priorities(&self, view: &ViewParams) -> Vec<f32> {
+        let g = self.geometry();
+        let p = ViewPriority::new(view, self.store.manifest.value_range);
+        (0..self.nodes as usize)
+            .map(|u| p.eval(g.centre[u], g.radius[u], self.smax[u]))
+            .collect()
+    }
+}
+
 /// The best not-yet-done ids for `view`, best last. Takes at most `max(4096, n/16)` of them, so a
 /// connection recomputes at most ~16 times over the whole stream plus once per `View`.
 fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> Vec<TetId> {

@@ -1,4 +1,5 @@
 //! Helpers shared by the cross-crate tests that run `tetwave bench progressive` on a store.
+#![allow(dead_code)] // each test binary uses some of the helpers
 
 use clap::Parser;
 use std::path::PathBuf;

@@ -1,0 +1,96 @@
+//! One refinement criterion for both sides: the server's view order and the client's selection
+//! rank the nodes of a store identically for one view (both call `tetwave_protocol::view`).
+
+use tetwave_client::select::{Mode, SelectParams, Selector};
+use tetwave_client::session::Session;
+use tetwave_protocol::view::{Camera, Tolerance, View};
+use tetwave_protocol::wire::ViewParams;
+use tetwave_server::stream::{ServeConfig, Shared, DATA_DELTA};
+use tetwave_store::Store;
+
+mod common;
+
+#[test]
+fn server_view_order_and_client_selection_rank_nodes_alike() {
+    let (_d, dir) = common::harmonic_store(3);
+    let store = Store::open(&dir).unwrap();
+    let nodes = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
+    let value_range = store.manifest.value_range;
+    let (lo, hi) = store.base.bounds();
+    let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
+    // close enough that part of the volume is outside the frustum
+    let cam = Camera::orbit(centre, 1.2, 30.0, 20.0, 40.0, 320, 240);
+    let vp = ViewParams {
+        eye: cam.eye.to_array(),
+        target: cam.target.to_array(),
+        up: cam.basis().1.to_array(),
+        fovy_deg: cam.fovy_deg,
+        width: cam.width,
+        height: cam.height,
+        tol_px: 0.0,
+    };
+
+    let server = Shared::open(&dir, ServeConfig::default())
+        .unwrap()
+        .view_priorities(&vp);
+
+    // the client: every node held and refined (complete mode), then each node's split priority
+    // under the data-aware criterion with the server's δ and a zero tolerance
+    let mut params = SelectParams::new(Tolerance::Pixels(0.0), value_range);
+    params.data_aware = Some(DATA_DELTA);
+    let mut session = Session::new(store.base.clone(), params.clone()).unwrap();
+    session.insert(&nodes).unwrap();
+    session.converge(&cam, Mode::Complete).unwrap();
+    let (mesh, buf) = (session.mesh(), session.buffer());
+    let sel = Selector::new(params);
+    let view = View::new(&Camera::from_view_params(&vp), Tolerance::Pixels(0.0));
+    let (mut visible, mut hidden) = (Vec::new(), Vec::new());
+    for (id, &s) in server.iter().enumerate() {
+        let slot = mesh.slot_of(id as u64).expect("every node is in the mesh");
+        let n = mesh.red_node(slot).unwrap();
+        match sel.want_split(mesh, buf, &view, Mode::Interactive, &n) {
+            Some(c) => visible.push((id, s as f64, c)),
+            None => hidden.push((id, s as f64)),
+        }
+    }
+    assert!(
+        visible.len() > 10 && !hidden.is_empty(),
+        "{} visible, {} hidden",
+        visible.len(),
+        hidden.len()
+    );
+    // where the client sees a node, the server gives it the same error (its data weight is floored
+    // at 10⁻³ so that flat subtrees are still sent: compare above the floor)
+    let mut compared = 0;
+    for &(id, s, c) in &visible {
+        let n = &nodes[id];
+        let w = tetwave_protocol::view::data_weight(n.subtree_max_abs, value_range, DATA_DELTA);
+        if w >= 1e-3 {
+            assert!(
+                (s - c).abs() <= 1e-5 * c.abs(),
+                "node {id}: server {s}, client {c}"
+            );
+            compared += 1;
+        }
+    }
+    assert!(compared > 10);
+    // ranked by the server, the client's priorities come in the same order
+    let mut ranked: Vec<_> = visible.iter().filter(|v| v.2 > 0.0).collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1));
+    for w in ranked.windows(2) {
+        assert!(
+            w[1].2 <= w[0].2 * (1.0 + 1e-5),
+            "nodes {} and {} ranked apart",
+            w[0].0,
+            w[1].0
+        );
+    }
+    // what the client culls, the server sends after everything the client sees
+    let min_visible = visible.iter().map(|v| v.1).fold(f64::INFINITY, f64::min);
+    for &(id, s) in &hidden {
+        assert!(
+            s < min_visible,
+            "hidden node {id} ({s}) before a visible one ({min_visible})"
+        );
+    }
+}
