@@ -1,0 +1,252 @@
+//! Applying the queued candidates: merges in batches, then splits, within a frame's budget.
+
+use super::candidates::Cand;
+use super::criteria::Status;
+use super::{FrameStats, Mode, Selector};
+use crate::detail_buffer::DetailBuffer;
+use crate::mesh::{AdaptiveMesh, MeshError};
+use std::cmp::Reverse;
+use std::time::{Duration, Instant};
+use tetwave_protocol::view::View;
+
+/// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most, when a batch is cut into chunks.
+const MERGE_CHUNK: usize = 256;
+/// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
+/// and at least half of the frame is left (or what is left covers them, see [`uncut_batch`]), and
+/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). With
+/// 2,048, level 6 at 10% and 8 ms fell behind in half of its runs (chunks refuse merges a whole
+/// batch allows; 1.84–2.13 M tets/s, 6–11 frames to settle); with 4,096 in none of 8 (2.27–2.44
+/// M/s), its largest step at 6.25% 10.4–11.2 ms instead of about 9 (8,192: 12.9–14.5 ms).
+const WHOLE_MERGES: usize = 4096;
+/// [`Selector::merge_cost`] before any uncut batch was timed: one microsecond per candidate (a
+/// level-6 run's batches take about 0.4).
+pub(super) const INITIAL_MERGE_COST: f64 = 1e-6;
+
+/// Whether `queued` merge candidates go in one uncut batch ([`Selector::apply_merges`], no
+/// operation budget): always without a time budget (`left`, the time left in the frame: `None`);
+/// under one, when at most [`WHOLE_MERGES`] wait and either half of the frame is left (`early`) or
+/// what is left covers their expected time at `cost` seconds per candidate. The last case stops
+/// the second half of a frame from cutting into 256-candidate chunks a batch that fits: chunks
+/// refuse the merges that hold only together (level 6, 10%, 8 ms: in one run 2,609 late chunks
+/// attempted 646 k merges and 21 k held), and a sweep whose batches were cut takes one more
+/// sweep to consolidate.
+fn uncut_batch(queued: usize, early: bool, left: Option<Duration>, cost: f64) -> bool {
+    match left {
+        None => true,
+        Some(left) => {
+            queued <= WHOLE_MERGES && (early || left.as_secs_f64() >= cost * queued as f64)
+        }
+    }
+}
+
+impl Selector {
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn apply_merges(
+        &mut self,
+        mesh: &mut AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        ops: &mut usize,
+        max_ops: usize,
+        deadline: Option<Instant>,
+        whole_until: Option<Instant>,
+        st: &mut FrameStats,
+    ) -> Result<(), MeshError> {
+        let mut batch = std::mem::take(&mut self.batch);
+        let mut slots = std::mem::take(&mut self.batch_slots);
+        while *ops < max_ops && !self.merges.is_empty() {
+            if deadline.is_some_and(|t| Instant::now() >= t) {
+                break;
+            }
+            batch.clear();
+            slots.clear();
+            // One batch without a budget, and under a time budget alone when few candidates wait
+            // and half of the frame is left: a batch finds every merge its candidates allow
+            // together, chunks only those each chunk allows, so chunking costs a consolidating
+            // sweep (level 5, 10%, 8 ms: 1,688 sweeps instead of 626, 2.7 times the attempts).
+            // Otherwise chunks, with a clock check between them.
+            let early = max_ops == usize::MAX && whole_until.is_some_and(|t| Instant::now() < t);
+            let left = deadline.map(|t| t.saturating_duration_since(Instant::now()));
+            let whole = max_ops == usize::MAX
+                && uncut_batch(self.merges.len(), early, left, self.merge_cost);
+            let chunk = if whole {
+                usize::MAX
+            } else {
+                self.sweep_chunked = true;
+                if early {
+                    WHOLE_MERGES
+                } else {
+                    MERGE_CHUNK.min(max_ops - *ops)
+                }
+            };
+            // read what the last batch changed: the statuses of the other slots stay known
+            if !self.reference {
+                self.absorb_changes(mesh);
+            }
+            // one batch takes them all, in any order: no need to sort them
+            let mut all = std::mem::take(&mut self.unordered);
+            if chunk == usize::MAX {
+                self.merges.drain_into(&mut all);
+            }
+            let mut next = all.drain(..);
+            let mut popped = 0usize;
+            while batch.len() < chunk {
+                popped += 1;
+                if popped.is_multiple_of(64) && deadline.is_some_and(|t| Instant::now() >= t) {
+                    break;
+                }
+                let Some(Reverse(Cand(_, id, hint, tag))) =
+                    next.next().or_else(|| self.merges.pop())
+                else {
+                    break;
+                };
+                if self.trusted(mesh, tag, hint) {
+                    batch.push(id);
+                    slots.push(hint);
+                } else if let (Status::Merge(_), s) =
+                    self.status_of(mesh, buf, view, mode, id, hint)
+                {
+                    batch.push(id);
+                    slots.push(s);
+                }
+            }
+            // (all taken unless cut short: the rest wait in the queue)
+            for c in next {
+                self.merges.push(c);
+            }
+            self.unordered = all;
+            if chunk == usize::MAX && !self.merges.is_empty() {
+                // a whole batch the clock cut: its candidates are split across batches
+                self.sweep_chunked = true;
+            }
+            if batch.is_empty() {
+                continue;
+            }
+            *ops += batch.len();
+            st.merge_attempts += batch.len();
+            let t = Instant::now();
+            let held = mesh.coarsen_batch_at(&batch, &slots, buf);
+            let took = t.elapsed();
+            st.op_time += took;
+            if chunk == usize::MAX {
+                let per = took.as_secs_f64() / batch.len() as f64;
+                self.merge_cost += (per - self.merge_cost) / 4.0;
+            }
+            let held = match held {
+                Ok(h) => h,
+                Err(e) => {
+                    self.batch = batch;
+                    self.batch_slots = slots;
+                    return Err(e);
+                }
+            };
+            // Parking needs every merge candidate of the sweep in this batch or an earlier one:
+            // a candidate still queued for a later chunk could be an owner that holds one here.
+            if !self.reference && self.merges.is_empty() {
+                self.park(mesh);
+            }
+            st.merges += held;
+            self.sweep_changes += held;
+            self.sweep_refused += batch.len() - held;
+            // parents whose children are now all leaves may merge next (ROAM-style)
+            let forest = mesh.forest();
+            for (&id, &slot) in batch.iter().zip(&slots) {
+                if let Some(p) = forest.parent(id) {
+                    let leaf = if mesh.slot_holds(slot as usize, id) {
+                        mesh.red_node(slot as usize).is_some_and(|n| n.leaf)
+                    } else {
+                        mesh.is_leaf(id)
+                    };
+                    if leaf {
+                        let (s, ps) = self.status_of(mesh, buf, view, mode, p, u32::MAX);
+                        if let Status::Merge(_) = s {
+                            self.push(p, ps, s);
+                            self.wake(ps, None);
+                        }
+                    }
+                }
+            }
+        }
+        self.batch = batch;
+        self.batch_slots = slots;
+        Ok(())
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn apply_splits(
+        &mut self,
+        mesh: &mut AdaptiveMesh,
+        buf: &DetailBuffer,
+        view: &View,
+        mode: Mode,
+        ops: &mut usize,
+        max_ops: usize,
+        deadline: Option<Instant>,
+        st: &mut FrameStats,
+    ) -> Result<(), MeshError> {
+        while *ops < max_ops {
+            // one split (with its closure) can take tens of µs: the clock is read before each
+            if deadline.is_some_and(|t| Instant::now() >= t) {
+                break;
+            }
+            let Some(Cand(_, id, hint, tag)) = self.splits.pop() else {
+                break;
+            };
+            if !self.reference {
+                self.absorb_changes(mesh);
+            }
+            if !self.trusted(mesh, tag, hint)
+                && !matches!(
+                    self.status_of(mesh, buf, view, mode, id, hint).0,
+                    Status::Split(_)
+                )
+            {
+                continue;
+            }
+            *ops += 1;
+            let t = Instant::now();
+            mesh.refine(id, buf)?;
+            st.op_time += t.elapsed();
+            st.splits += 1;
+            self.sweep_changes += 1;
+            // its children may want splitting too (ROAM-style), without waiting for the next sweep
+            let forest = mesh.forest();
+            for i in 0..8 {
+                let c = forest.child(id, i);
+                let (s, cs) = self.status_of(mesh, buf, view, mode, c, u32::MAX);
+                if let Status::Split(_) = s {
+                    self.push(c, cs, s);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    /// Uncut merge batches: always without a time budget; under one only up to `WHOLE_MERGES`
+    /// candidates, taken whole early in the frame whatever their cost, and late only when the
+    /// time left covers them at the measured cost.
+    #[test]
+    fn uncut_batch_when_it_fits() {
+        let ms = Duration::from_millis;
+        assert!(uncut_batch(1 << 20, false, None, 1.0));
+        assert!(uncut_batch(WHOLE_MERGES, true, Some(ms(0)), 1.0));
+        assert!(!uncut_batch(WHOLE_MERGES + 1, true, Some(ms(100)), 0.0));
+        // 2,000 candidates at 0.5 µs each: 1 ms
+        assert!(uncut_batch(2000, false, Some(ms(1)), 5e-7));
+        assert!(!uncut_batch(
+            2000,
+            false,
+            Some(Duration::from_micros(999)),
+            5e-7
+        ));
+        assert!(!uncut_batch(2000, false, Some(ms(0)), 5e-7));
+        assert!(uncut_batch(0, false, Some(ms(0)), 5e-7));
+    }
+}
