@@ -2,12 +2,10 @@
 
 use super::candidates::Cand;
 use super::criteria::Status;
-use super::{FrameStats, Mode, Selector};
-use crate::detail_buffer::DetailBuffer;
+use super::{FrameCtx, FrameStats, Selector};
 use crate::mesh::{AdaptiveMesh, MeshError};
 use std::cmp::Reverse;
 use std::time::{Duration, Instant};
-use tetwave_protocol::view::View;
 
 /// Merges handed to one [`AdaptiveMesh::coarsen_batch`] at most, when a batch is cut into chunks.
 const MERGE_CHUNK: usize = 256;
@@ -39,20 +37,35 @@ fn uncut_batch(queued: usize, early: bool, left: Option<Duration>, cost: f64) ->
     }
 }
 
+/// How far one call of [`Selector::apply_merges`] or [`Selector::apply_splits`] may go.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Limits {
+    /// Stop once the frame's operations reach this.
+    pub(super) max_ops: usize,
+    /// Stop at this time; `None`: no time budget.
+    pub(super) deadline: Option<Instant>,
+    /// Merges: until this time a batch may be taken uncut (or a large chunk) however long it
+    /// takes (see [`uncut_batch`]).
+    pub(super) whole_until: Option<Instant>,
+}
+
 impl Selector {
-    #[allow(clippy::too_many_arguments)]
+    /// Merges the queued merge candidates (smallest error first when cut into chunks) in batches
+    /// through [`AdaptiveMesh::coarsen_batch_at`], within `lim`; `ops` counts the frame's
+    /// operations. The parents of held merges are queued in turn.
     pub(super) fn apply_merges(
         &mut self,
         mesh: &mut AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
+        lim: Limits,
         ops: &mut usize,
-        max_ops: usize,
-        deadline: Option<Instant>,
-        whole_until: Option<Instant>,
         st: &mut FrameStats,
     ) -> Result<(), MeshError> {
+        let Limits {
+            max_ops,
+            deadline,
+            whole_until,
+        } = lim;
         let mut batch = std::mem::take(&mut self.batch);
         let mut slots = std::mem::take(&mut self.batch_slots);
         while *ops < max_ops && !self.merges.is_empty() {
@@ -104,9 +117,7 @@ impl Selector {
                 if self.trusted(mesh, tag, hint) {
                     batch.push(id);
                     slots.push(hint);
-                } else if let (Status::Merge(_), s) =
-                    self.status_of(mesh, buf, view, mode, id, hint)
-                {
+                } else if let (Status::Merge(_), s) = self.status_of(mesh, cx, id, hint) {
                     batch.push(id);
                     slots.push(s);
                 }
@@ -126,7 +137,7 @@ impl Selector {
             *ops += batch.len();
             st.merge_attempts += batch.len();
             let t = Instant::now();
-            let held = mesh.coarsen_batch_at(&batch, &slots, buf);
+            let held = mesh.coarsen_batch_at(&batch, &slots, cx.buf);
             let took = t.elapsed();
             st.op_time += took;
             if chunk == usize::MAX {
@@ -159,7 +170,7 @@ impl Selector {
                         mesh.is_leaf(id)
                     };
                     if leaf {
-                        let (s, ps) = self.status_of(mesh, buf, view, mode, p, u32::MAX);
+                        let (s, ps) = self.status_of(mesh, cx, p, u32::MAX);
                         if let Status::Merge(_) = s {
                             self.push(p, ps, s);
                             self.wake(ps, None);
@@ -173,18 +184,19 @@ impl Selector {
         Ok(())
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// Splits the queued split candidates, largest error first, within `lim` (`whole_until` is not
+    /// used); `ops` counts the frame's operations. The children of a split are queued in turn.
     pub(super) fn apply_splits(
         &mut self,
         mesh: &mut AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
+        lim: Limits,
         ops: &mut usize,
-        max_ops: usize,
-        deadline: Option<Instant>,
         st: &mut FrameStats,
     ) -> Result<(), MeshError> {
+        let Limits {
+            max_ops, deadline, ..
+        } = lim;
         while *ops < max_ops {
             // one split (with its closure) can take tens of µs: the clock is read before each
             if deadline.is_some_and(|t| Instant::now() >= t) {
@@ -197,16 +209,13 @@ impl Selector {
                 self.absorb_changes(mesh);
             }
             if !self.trusted(mesh, tag, hint)
-                && !matches!(
-                    self.status_of(mesh, buf, view, mode, id, hint).0,
-                    Status::Split(_)
-                )
+                && !matches!(self.status_of(mesh, cx, id, hint).0, Status::Split(_))
             {
                 continue;
             }
             *ops += 1;
             let t = Instant::now();
-            mesh.refine(id, buf)?;
+            mesh.refine(id, cx.buf)?;
             st.op_time += t.elapsed();
             st.splits += 1;
             self.sweep_changes += 1;
@@ -214,7 +223,7 @@ impl Selector {
             let forest = mesh.forest();
             for i in 0..8 {
                 let c = forest.child(id, i);
-                let (s, cs) = self.status_of(mesh, buf, view, mode, c, u32::MAX);
+                let (s, cs) = self.status_of(mesh, cx, c, u32::MAX);
                 if let Status::Split(_) = s {
                     self.push(c, cs, s);
                 }

@@ -2,11 +2,10 @@
 //! and its bounding sphere.
 
 use super::criteria::{sphere32, Status, OUTSIDE};
-use super::{Mode, Selector};
+use super::{FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
 use glam::{DVec3, Vec3};
-use tetwave_protocol::view::View;
 use tetwave_protocol::TetId;
 
 /// How many slots ahead the loops over listed slots ask for their cache lines
@@ -185,8 +184,7 @@ impl Selector {
     #[inline]
     pub(super) fn cached_status(
         &self,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         levels: u8,
         slot: usize,
         e: &SlotEntry,
@@ -198,7 +196,7 @@ impl Selector {
         if kind == KIND_MERGE_OUT {
             return Status::Merge(OUTSIDE);
         }
-        let prio = if mode == Mode::Complete {
+        let prio = if cx.mode == Mode::Complete {
             if kind == KIND_SPLIT {
                 (levels - e.level()) as f64
             } else {
@@ -208,7 +206,7 @@ impl Selector {
             debug_assert!(e.word & GEO != 0, "a split or merge status has its sphere");
             let (c, r) = self.geo[slot];
             let smax = (e.word & PRESENT != 0).then_some(e.smax);
-            self.weighted_error(view, c.as_dvec3(), r as f64, smax).0
+            self.weighted_error(cx.view, c.as_dvec3(), r as f64, smax).0
         };
         if kind == KIND_SPLIT {
             Status::Split(prio)

@@ -1,12 +1,10 @@
 //! Candidates: the queues a sweep fills, the candidate list kept across sweeps, and parking.
 
 use super::criteria::Status;
-use super::{Mode, Selector};
-use crate::detail_buffer::DetailBuffer;
+use super::{FrameCtx, Selector};
 use crate::mesh::AdaptiveMesh;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
-use tetwave_protocol::view::View;
 use tetwave_protocol::TetId;
 
 /// A candidate: priority, tet id, the node slot it had when pushed (a hint) and the selector's tag
@@ -206,11 +204,7 @@ impl Selector {
     /// view of a listed scan, queues them too (the scan may have passed them), and so on for
     /// the slots parked on those.
     #[inline]
-    pub(super) fn wake(
-        &mut self,
-        owner: u32,
-        now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>,
-    ) {
+    pub(super) fn wake(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &FrameCtx)>) {
         if self
             .slot_flags
             .get(owner as usize)
@@ -222,11 +216,7 @@ impl Selector {
 
     /// [`Self::wake`] for an owner flagged [`WAITED`].
     #[inline(never)]
-    fn wake_parked(
-        &mut self,
-        owner: u32,
-        now: Option<(&AdaptiveMesh, &DetailBuffer, &View, Mode)>,
-    ) {
+    fn wake_parked(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &FrameCtx)>) {
         let mut owners = vec![owner];
         while let Some(o) = owners.pop() {
             let Some(parked) = self.waiters.remove(&o) else {
@@ -237,8 +227,8 @@ impl Selector {
                 if !self.unpark(a) {
                     continue;
                 }
-                if let Some((mesh, buf, view, mode)) = now {
-                    let s = self.eval(mesh, buf, view, mode, a as usize);
+                if let Some((mesh, cx)) = now {
+                    let s = self.eval(mesh, cx, a as usize);
                     if let (Status::Merge(_), Some(n)) = (s, mesh.red_node(a as usize)) {
                         self.push(n.id, a, s);
                         owners.push(a);

@@ -4,8 +4,7 @@
 use super::cache::PREFETCH;
 use super::criteria::{Status, Terms};
 use super::sweep::SCAN_CHUNK;
-use super::{CoarsenRef, Mode, SegVec, Selector};
-use crate::detail_buffer::DetailBuffer;
+use super::{CoarsenRef, FrameCtx, Mode, SegVec, Selector};
 use crate::mesh::AdaptiveMesh;
 use glam::DVec3;
 use tetwave_protocol::view::{f32_down, f32_up, View};
@@ -187,15 +186,8 @@ impl Selector {
     }
 
     /// [`Self::eval`], recording the slot's certificate for later motions.
-    pub(super) fn eval_kin(
-        &mut self,
-        mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
-        slot: usize,
-    ) -> Status {
-        let (s, ue, uf) = self.eval_cert(mesh, buf, view, mode, slot, true);
+    pub(super) fn eval_kin(&mut self, mesh: &AdaptiveMesh, cx: &FrameCtx, slot: usize) -> Status {
+        let (s, ue, uf) = self.eval_cert(mesh, cx, slot, true);
         if slot >= self.kin.until_e.len() {
             let len = mesh.node_slot_len().max(slot + 1);
             self.kin.until_e.resize(len, f32::NEG_INFINITY);
@@ -257,14 +249,7 @@ impl Selector {
 
     /// Evaluates the due slots (certificates used up) among the next `n` slots of the due pass,
     /// listing the candidates; returns the slots looked at. Ends the pass at the last slot.
-    pub(super) fn due_pass_step(
-        &mut self,
-        mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
-        n: usize,
-    ) -> usize {
+    pub(super) fn due_pass_step(&mut self, mesh: &AdaptiveMesh, cx: &FrameCtx, n: usize) -> usize {
         let k = &mut self.kin;
         let len = k.until_e.len().min(mesh.node_slot_len());
         let start = k.cursor.min(len);
@@ -299,7 +284,7 @@ impl Selector {
         self.prefetch_slots(mesh, &due, 0, PREFETCH);
         for (j, &slot) in due.iter().enumerate() {
             self.prefetch_slots(mesh, &due, j + PREFETCH, 1);
-            if self.eval_kin(mesh, buf, view, mode, slot as usize) != Status::Keep {
+            if self.eval_kin(mesh, cx, slot as usize) != Status::Keep {
                 self.list_add(slot as usize);
             }
         }

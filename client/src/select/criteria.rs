@@ -2,7 +2,7 @@
 //! ([`Selector::want_split`], [`Selector::want_merge`]) and through the per-slot caches.
 
 use super::cache::SlotInfo;
-use super::{CoarsenRef, Mode, Selector};
+use super::{CoarsenRef, FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
 use glam::{DVec3, Vec3};
@@ -162,17 +162,15 @@ impl Selector {
     pub(super) fn status_uncached(
         &self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         n: &RedNode,
     ) -> Status {
         if n.leaf {
-            if let Some(e) = self.want_split(mesh, buf, view, mode, n) {
+            if let Some(e) = self.want_split(mesh, cx.buf, cx.view, cx.mode, n) {
                 return Status::Split(e);
             }
         } else if n.children_leaves {
-            if let Some(e) = self.want_merge(mesh, buf, view, mode, n) {
+            if let Some(e) = self.want_merge(mesh, cx.buf, cx.view, cx.mode, n) {
                 return Status::Merge(e);
             }
         }
@@ -186,48 +184,39 @@ impl Selector {
     fn split_cached(
         &mut self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         slot: usize,
         n: &RedNode,
     ) -> (Option<f64>, SlotInfo) {
         let levels = mesh.forest().levels;
-        let i = self.info_of(mesh, buf, slot, n);
+        let i = self.info_of(mesh, cx.buf, slot, n);
         if n.empty || !i.usable || i.level >= levels {
             return (None, i);
         }
-        if mode == Mode::Complete {
+        if cx.mode == Mode::Complete {
             return (Some((levels - i.level) as f64), i);
         }
         let (c, r) = self.sphere_of(mesh, slot);
         let e = self
-            .sphere_error(view, c, r, Some(i.smax))
-            .filter(|&e| e > view.tol_px);
+            .sphere_error(cx.view, c, r, Some(i.smax))
+            .filter(|&e| e > cx.view.tol_px);
         (e, i)
     }
 
     /// The status of the live node in `slot` (the cached [`Self::want_split`] /
     /// [`Self::want_merge`]).
     #[inline]
-    pub(super) fn eval(
-        &mut self,
-        mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
-        slot: usize,
-    ) -> Status {
+    pub(super) fn eval(&mut self, mesh: &AdaptiveMesh, cx: &FrameCtx, slot: usize) -> Status {
         // the status is a function of the node for one epoch: reused unless the slot changed
         // since (changes not yet read from the mesh could concern it)
         if self.seen == mesh.change_seq() && !self.reference {
             if let Some(&e) = self.info.get(slot) {
                 if e.epoch() == self.stat_epoch() {
-                    return self.cached_status(view, mode, mesh.forest().levels, slot, &e);
+                    return self.cached_status(cx, mesh.forest().levels, slot, &e);
                 }
             }
         }
-        let st = self.eval_cert(mesh, buf, view, mode, slot, false).0;
+        let st = self.eval_cert(mesh, cx, slot, false).0;
         self.remember(slot, st);
         st
     }
@@ -238,9 +227,7 @@ impl Selector {
     pub(super) fn eval_cert(
         &mut self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         slot: usize,
         cert: bool,
     ) -> (Status, f32, f32) {
@@ -253,19 +240,15 @@ impl Selector {
             return (Status::Keep, INF, INF);
         }
         let levels = mesh.forest().levels;
-        let i = self.info_of(mesh, buf, slot, &n);
+        let i = self.info_of(mesh, cx.buf, slot, &n);
         if n.empty || !i.usable || i.level >= levels {
             // not wanted split, whatever the view
             if n.leaf {
                 return (Status::Keep, INF, INF);
             }
-            return (
-                self.merge_status(mesh, buf, view, mode, slot, &n, i),
-                INF,
-                INF,
-            );
+            return (self.merge_status(mesh, cx, slot, &n, i), INF, INF);
         }
-        if mode == Mode::Complete {
+        if cx.mode == Mode::Complete {
             let s = if n.leaf {
                 Status::Split((levels - i.level) as f64)
             } else {
@@ -277,12 +260,12 @@ impl Selector {
         let (c, r) = self.sphere_of(mesh, slot);
         // `View::sphere_visible` and `Self::weighted_error` in steps whose terms the certificate
         // uses again
-        let x = view.plane_offsets(c);
+        let x = cx.view.plane_offsets(c);
         let visible = !self.params.frustum || View::offsets_visible(&x, r);
-        let d = (c - view.eye).length();
+        let d = (c - cx.view.eye).length();
         let fac = self.weight(Some(i.smax));
-        let e = view.error_px_at(d, 2.0 * r) * fac;
-        let err = e > view.tol_px;
+        let e = cx.view.error_px_at(d, 2.0 * r) * fac;
+        let err = e > cx.view.tol_px;
         let status = if n.leaf {
             if visible && err {
                 Status::Split(e)
@@ -291,7 +274,7 @@ impl Selector {
             }
         } else if (visible && err)
             || (self.params.coarsen_ref == CoarsenRef::Grandparent
-                && self.parent_wants_split(mesh, buf, view, mode, &n))
+                && self.parent_wants_split(mesh, cx, &n))
         {
             Status::Keep
         } else {
@@ -310,54 +293,41 @@ impl Selector {
             visible,
             over: err,
         };
-        let (ue, uf) = self.kin.certificate(view, self.params.frustum, &terms);
+        let (ue, uf) = self.kin.certificate(cx.view, self.params.frustum, &terms);
         (status, ue, uf)
     }
 
     /// Grandparent rule: whether the parent of refined node `n` is wanted split.
-    fn parent_wants_split(
-        &mut self,
-        mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
-        n: &RedNode,
-    ) -> bool {
+    fn parent_wants_split(&mut self, mesh: &AdaptiveMesh, cx: &FrameCtx, n: &RedNode) -> bool {
         if let Some(p) = mesh.forest().parent(n.id) {
             if let Some(ps) = mesh.slot_of(p) {
                 let pn = mesh.red_node(ps).expect("slot_of gives live slots");
-                return self
-                    .split_cached(mesh, buf, view, mode, ps, &pn)
-                    .0
-                    .is_some();
+                return self.split_cached(mesh, cx, ps, &pn).0.is_some();
             }
         }
         false
     }
 
     /// Merge status of refined node `n` (8 leaf children) that is not wanted split.
-    #[allow(clippy::too_many_arguments)]
     fn merge_status(
         &mut self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         slot: usize,
         n: &RedNode,
         i: SlotInfo,
     ) -> Status {
-        if mode == Mode::Complete {
+        if cx.mode == Mode::Complete {
             return Status::Merge(0.0);
         }
         if self.params.coarsen_ref == CoarsenRef::Grandparent
-            && self.parent_wants_split(mesh, buf, view, mode, n)
+            && self.parent_wants_split(mesh, cx, n)
         {
             return Status::Keep;
         }
         let smax = i.present.then_some(i.smax);
         let (c, r) = self.sphere_of(mesh, slot);
-        Status::Merge(self.sphere_error(view, c, r, smax).unwrap_or(OUTSIDE))
+        Status::Merge(self.sphere_error(cx.view, c, r, smax).unwrap_or(OUTSIDE))
     }
 
     /// The status of hierarchy tet `id` (not in the red tree: [`Status::Keep`]) and its slot;
@@ -365,9 +335,7 @@ impl Selector {
     pub(super) fn status_of(
         &mut self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         id: TetId,
         hint: u32,
     ) -> (Status, u32) {
@@ -375,7 +343,7 @@ impl Selector {
             let Some(n) = mesh.red_node_of(id) else {
                 return (Status::Keep, u32::MAX);
             };
-            return (self.status_uncached(mesh, buf, view, mode, &n), u32::MAX);
+            return (self.status_uncached(mesh, cx, &n), u32::MAX);
         }
         let slot = if mesh.slot_holds(hint as usize, id) {
             Some(hint as usize)
@@ -383,7 +351,7 @@ impl Selector {
             mesh.slot_of(id)
         };
         match slot {
-            Some(s) => (self.eval(mesh, buf, view, mode, s), s as u32),
+            Some(s) => (self.eval(mesh, cx, s), s as u32),
             None => (Status::Keep, u32::MAX),
         }
     }

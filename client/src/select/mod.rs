@@ -165,6 +165,15 @@ pub struct FrameStats {
     pub op_time: Duration,
 }
 
+/// What one frame's evaluations read besides the mesh: the buffer, the view and the mode. The mesh
+/// is passed apart, since a frame refines and coarsens it between evaluations.
+#[derive(Debug, Clone, Copy)]
+struct FrameCtx<'a> {
+    buf: &'a DetailBuffer,
+    view: &'a View,
+    mode: Mode,
+}
+
 /// Frame-by-frame selective refinement (see the module docs).
 ///
 /// # Incremental sweeps
@@ -421,6 +430,11 @@ impl Selector {
             return Err("the mesh changed since the last frame".into());
         }
         let view = View::new(cam, self.params.tol);
+        let cx = FrameCtx {
+            buf,
+            view: &view,
+            mode,
+        };
         let levels = mesh.forest().levels;
         let evals = self.evals;
         let mut n = 0;
@@ -429,8 +443,8 @@ impl Selector {
             if e.epoch() != self.stat_epoch() {
                 continue;
             }
-            let kept = self.cached_status(&view, mode, levels, slot, &e);
-            let fresh = self.eval_cert(mesh, buf, &view, mode, slot, false).0;
+            let kept = self.cached_status(&cx, levels, slot, &e);
+            let fresh = self.eval_cert(mesh, &cx, slot, false).0;
             if kept != fresh {
                 self.evals = evals;
                 return Err(format!(

@@ -1,10 +1,11 @@
 //! Sweeps: the frame loop, the full scan and the listed (incremental) scans.
 
+use super::apply::Limits;
 use super::cache::PREFETCH;
 use super::candidates::{PARKED, WAITED};
 use super::certificates::Kinetic;
 use super::criteria::Status;
-use super::{Budget, FrameStats, Mode, Selector};
+use super::{Budget, FrameCtx, FrameStats, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError};
 use std::time::Instant;
@@ -87,6 +88,11 @@ impl Selector {
             return Ok(st);
         }
         let view = View::new(cam, self.params.tol);
+        let cx = FrameCtx {
+            buf,
+            view: &view,
+            mode,
+        };
         if self.moved {
             self.moved = false;
             if self.kin_active(mode) {
@@ -143,7 +149,7 @@ impl Selector {
             let scan_until = if have_work { scan_deadline } else { deadline };
             self.retag(mesh);
             if self.sweep_listed {
-                self.scan_listed(mesh, buf, &view, mode, scan_until, &mut st);
+                self.scan_listed(mesh, &cx, scan_until, &mut st);
             }
             while self.cursor < len {
                 let end = (self.cursor + SCAN_CHUNK).min(len);
@@ -152,13 +158,13 @@ impl Selector {
                         let Some(n) = mesh.red_node(slot) else {
                             continue;
                         };
-                        let s = self.status_uncached(mesh, buf, &view, mode, &n);
+                        let s = self.status_uncached(mesh, &cx, &n);
                         self.push(n.id, u32::MAX, s);
                     } else {
                         let s = if self.kin_active(mode) {
-                            self.eval_kin(mesh, buf, &view, mode, slot)
+                            self.eval_kin(mesh, &cx, slot)
                         } else {
-                            self.eval(mesh, buf, &view, mode, slot)
+                            self.eval(mesh, &cx, slot)
                         };
                         if s != Status::Keep {
                             let id = mesh.red_node(slot).expect("a candidate is live").id;
@@ -205,40 +211,26 @@ impl Selector {
             };
             let merge_deadline = if consolidating { None } else { deadline };
             if !consolidating || sweep_done {
-                self.apply_merges(
-                    mesh,
-                    buf,
-                    &view,
-                    mode,
-                    &mut ops,
-                    half,
-                    merge_deadline,
-                    scan_deadline,
-                    &mut st,
-                )?;
+                let lim = Limits {
+                    max_ops: half,
+                    deadline: merge_deadline,
+                    whole_until: scan_deadline,
+                };
+                self.apply_merges(mesh, &cx, lim, &mut ops, &mut st)?;
             }
-            self.apply_splits(
-                mesh,
-                buf,
-                &view,
-                mode,
-                &mut ops,
-                budget.max_ops,
+            let lim = Limits {
+                max_ops: budget.max_ops,
                 deadline,
-                &mut st,
-            )?;
+                whole_until: None,
+            };
+            self.apply_splits(mesh, &cx, lim, &mut ops, &mut st)?;
             if !consolidating || sweep_done {
-                self.apply_merges(
-                    mesh,
-                    buf,
-                    &view,
-                    mode,
-                    &mut ops,
-                    merge_ops,
-                    merge_deadline,
-                    scan_deadline,
-                    &mut st,
-                )?;
+                let lim = Limits {
+                    max_ops: merge_ops,
+                    deadline: merge_deadline,
+                    whole_until: scan_deadline,
+                };
+                self.apply_merges(mesh, &cx, lim, &mut ops, &mut st)?;
             }
             let out_of_budget = ops >= budget.max_ops || past(deadline);
             if sweep_done && self.splits.is_empty() && self.merges.is_empty() {
@@ -338,17 +330,10 @@ impl Selector {
     /// Looks again at the next `n` slots queued for this sweep (`Self::flushing`): with
     /// certificates, evaluates them (listing candidates); otherwise lists them all. Returns the
     /// slots looked at.
-    fn flush_step(
-        &mut self,
-        mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
-        n: usize,
-    ) -> usize {
+    fn flush_step(&mut self, mesh: &AdaptiveMesh, cx: &FrameCtx, n: usize) -> usize {
         let fl = std::mem::take(&mut self.flushing);
         let end = (self.fcursor + n).min(fl.len());
-        let kin = self.kin_active(mode);
+        let kin = self.kin_active(cx.mode);
         let run = &fl[self.fcursor..end];
         if kin {
             self.prefetch_slots(mesh, run, 0, PREFETCH);
@@ -357,7 +342,7 @@ impl Selector {
             if kin {
                 self.prefetch_slots(mesh, run, j + PREFETCH, 1);
             }
-            if !kin || self.eval_kin(mesh, buf, view, mode, s as usize) != Status::Keep {
+            if !kin || self.eval_kin(mesh, cx, s as usize) != Status::Keep {
                 self.list_add(s as usize);
             }
         }
@@ -377,17 +362,15 @@ impl Selector {
     fn scan_listed(
         &mut self,
         mesh: &AdaptiveMesh,
-        buf: &DetailBuffer,
-        view: &View,
-        mode: Mode,
+        cx: &FrameCtx,
         until: Option<Instant>,
         st: &mut FrameStats,
     ) {
         loop {
             if !self.flushing.is_empty() {
-                st.scanned += self.flush_step(mesh, buf, view, mode, SCAN_CHUNK);
+                st.scanned += self.flush_step(mesh, cx, SCAN_CHUNK);
             } else if self.kin.in_pass() {
-                st.scanned += self.due_pass_step(mesh, buf, view, mode, 8 * SCAN_CHUNK);
+                st.scanned += self.due_pass_step(mesh, cx, 8 * SCAN_CHUNK);
             } else if self.lcursor < self.list.len() {
                 let end = (self.lcursor + SCAN_CHUNK).min(self.list.len());
                 let mut i = self.lcursor;
@@ -401,7 +384,7 @@ impl Selector {
                         i += 1;
                         continue;
                     }
-                    let s = self.eval(mesh, buf, view, mode, slot);
+                    let s = self.eval(mesh, cx, slot);
                     if s == Status::Keep {
                         self.slot_flags[slot] &= WAITED;
                         self.list.swap_remove(i);
@@ -411,7 +394,7 @@ impl Selector {
                     let id = mesh.red_node(slot).expect("a candidate is live").id;
                     self.push(id, slot as u32, s);
                     if let Status::Merge(_) = s {
-                        self.wake(slot as u32, Some((mesh, buf, view, mode)));
+                        self.wake(slot as u32, Some((mesh, cx)));
                     }
                     i += 1;
                 }
