@@ -5,6 +5,7 @@ use super::criteria::{sphere32, Status, OUTSIDE};
 use super::{FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
+use bitflags::bitflags;
 use glam::{DVec3, Vec3};
 use tetwave_protocol::TetId;
 
@@ -26,33 +27,51 @@ pub(super) struct SlotEntry {
     /// [`DetailBuffer::nodes_held`] (low 32 bits) when presence and usability were looked up.
     checked: u32,
     smax: f32,
-    /// Bits: the status's kind (2: [`KIND_SPLIT`]..), [`PRESENT`], [`USABLE`], [`GEO`], the level
-    /// (5 bits from [`LEVEL_SHIFT`]) and the status's epoch (from [`EPOCH_SHIFT`]: the low bits of
-    /// `epoch + 1` when it was evaluated; 0: none).
+    /// From the low bits: the status's [`Kind`] (2 bits), the node's [`Facts`] (3 bits), its
+    /// level (5 bits from [`LEVEL_SHIFT`]) and the status's epoch (from [`EPOCH_SHIFT`]: the low
+    /// bits of `epoch + 1` when it was evaluated; 0: none).
     word: u32,
 }
 
 const _: () = assert!(std::mem::size_of::<SlotEntry>() == 16);
 const _: () = assert!(tetwave_protocol::hierarchy::MAX_LEVELS as u32 <= LEVEL_MASK);
 
-/// [`SlotEntry::word`]: status kinds (the priority is computed again from the entry, see
-/// `Selector::cached_status`): keep, split, merge with the error as priority, merge outside the
-/// frustum (priority [`OUTSIDE`]).
+bitflags! {
+    /// What a [`SlotEntry`] knows of its node besides the level: bits 2 to 4 of its word.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    struct Facts: u32 {
+        /// The buffer holds the node: `SlotEntry::smax` is its subtree max.
+        const PRESENT = 1 << 2;
+        /// The node and its ancestors have arrived: it may be split.
+        const USABLE = 1 << 3;
+        /// `Selector::geo` holds the node's bounding sphere.
+        const GEO = 1 << 4;
+    }
+}
+
+/// The kind of a remembered status, in the low bits of [`SlotEntry::word`] (the priority is
+/// computed again from the entry, see `Selector::cached_status`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Keep = 0,
+    Split = 1,
+    /// A merge with the error as priority.
+    Merge = 2,
+    /// A merge outside the frustum (priority [`OUTSIDE`]).
+    MergeOut = 3,
+}
+
 const KIND_MASK: u32 = 3;
-const KIND_SPLIT: u32 = 1;
-const KIND_MERGE: u32 = 2;
-const KIND_MERGE_OUT: u32 = 3;
-const PRESENT: u32 = 4;
-const USABLE: u32 = 8;
-/// `Selector::geo` holds the node's bounding sphere.
-const GEO: u32 = 16;
 const LEVEL_SHIFT: u32 = 5;
 const LEVEL_MASK: u32 = 31;
 const EPOCH_SHIFT: u32 = 10;
-/// The bits of [`SlotEntry::word`] that describe the node (not the status).
+/// The bits of [`SlotEntry::word`] that describe the node (not the status): facts and level.
 const FACTS_MASK: u32 = ((1 << EPOCH_SHIFT) - 1) & !KIND_MASK;
 /// Bits of an epoch a [`SlotEntry`] keeps.
 const STAT_EPOCH_MASK: u64 = (1 << (32 - EPOCH_SHIFT)) - 1;
+
+const _: () = assert!(FACTS_MASK == Facts::all().bits() | LEVEL_MASK << LEVEL_SHIFT);
+const _: () = assert!(Facts::all().bits() & KIND_MASK == 0);
 
 pub(super) const NO_ENTRY: SlotEntry = SlotEntry {
     tag: 0,
@@ -62,6 +81,42 @@ pub(super) const NO_ENTRY: SlotEntry = SlotEntry {
 };
 
 impl SlotEntry {
+    /// The entry of node `tag` (see [`info_tag`]) at `level`, with no facts and no status.
+    #[inline(always)]
+    fn new(tag: u32, level: u8) -> SlotEntry {
+        SlotEntry {
+            tag,
+            word: (level as u32) << LEVEL_SHIFT,
+            ..NO_ENTRY
+        }
+    }
+
+    #[inline(always)]
+    fn facts(&self) -> Facts {
+        Facts::from_bits_truncate(self.word)
+    }
+
+    #[inline(always)]
+    fn insert(&mut self, f: Facts) {
+        self.word |= f.bits();
+    }
+
+    #[inline(always)]
+    fn kind(&self) -> Kind {
+        match self.word & KIND_MASK {
+            0 => Kind::Keep,
+            1 => Kind::Split,
+            2 => Kind::Merge,
+            _ => Kind::MergeOut,
+        }
+    }
+
+    /// Records a status of `kind` evaluated in the epoch whose low bits are `epoch`.
+    #[inline(always)]
+    fn set_status(&mut self, kind: Kind, epoch: u32) {
+        self.word = (self.word & FACTS_MASK) | kind as u32 | epoch << EPOCH_SHIFT;
+    }
+
     #[inline(always)]
     pub(super) fn level(&self) -> u8 {
         ((self.word >> LEVEL_SHIFT) & LEVEL_MASK) as u8
@@ -118,31 +173,28 @@ impl Selector {
         let tag = info_tag(n.id, forest.total_tets() > u32::MAX as u64);
         let e = &mut self.info[slot];
         if e.tag != tag || tag == 0 {
-            *e = SlotEntry {
-                tag,
-                word: (forest.level(n.id) as u32) << LEVEL_SHIFT,
-                ..NO_ENTRY
-            };
+            *e = SlotEntry::new(tag, forest.level(n.id));
         }
         // the finest level has no detail nodes: nothing to look up (such leaves are never split)
-        if e.word & USABLE == 0 && e.level() < forest.levels {
+        if !e.facts().contains(Facts::USABLE) && e.level() < forest.levels {
             let held = buf.nodes_held() as u32;
             if e.checked != held {
                 e.checked = held;
                 if let Some(m) = buf.subtree_max(n.id) {
                     e.smax = m;
-                    e.word |= PRESENT;
+                    e.insert(Facts::PRESENT);
                     if buf.is_usable(n.id) {
-                        e.word |= USABLE;
+                        e.insert(Facts::USABLE);
                     }
                 }
             }
         }
+        let facts = e.facts();
         SlotInfo {
             smax: e.smax,
             level: e.level(),
-            present: e.word & PRESENT != 0,
-            usable: e.word & USABLE != 0,
+            present: facts.contains(Facts::PRESENT),
+            usable: facts.contains(Facts::USABLE),
         }
     }
 
@@ -150,8 +202,8 @@ impl Selector {
     #[inline(always)]
     pub(super) fn sphere_of(&mut self, mesh: &AdaptiveMesh, slot: usize) -> (DVec3, f64) {
         let e = &mut self.info[slot];
-        if e.word & GEO == 0 {
-            e.word |= GEO;
+        if !e.facts().contains(Facts::GEO) {
+            e.insert(Facts::GEO);
             if slot >= self.geo.len() {
                 self.geo
                     .resize(mesh.node_slot_len().max(slot + 1), (Vec3::ZERO, 0.0));
@@ -169,14 +221,13 @@ impl Selector {
             self.info.resize(slot + 1, NO_ENTRY);
         }
         let kind = match st {
-            Status::Keep => 0,
-            Status::Split(_) => KIND_SPLIT,
-            Status::Merge(e) if e == OUTSIDE => KIND_MERGE_OUT,
-            Status::Merge(_) => KIND_MERGE,
+            Status::Keep => Kind::Keep,
+            Status::Split(_) => Kind::Split,
+            Status::Merge(e) if e == OUTSIDE => Kind::MergeOut,
+            Status::Merge(_) => Kind::Merge,
         };
         let epoch = self.stat_epoch();
-        let e = &mut self.info[slot];
-        e.word = (e.word & FACTS_MASK) | kind | epoch << EPOCH_SHIFT;
+        self.info[slot].set_status(kind, epoch);
     }
 
     /// The status an entry with a current epoch keeps, its priority computed again from the
@@ -189,26 +240,28 @@ impl Selector {
         slot: usize,
         e: &SlotEntry,
     ) -> Status {
-        let kind = e.word & KIND_MASK;
-        if kind == 0 {
-            return Status::Keep;
-        }
-        if kind == KIND_MERGE_OUT {
-            return Status::Merge(OUTSIDE);
+        let kind = e.kind();
+        match kind {
+            Kind::Keep => return Status::Keep,
+            Kind::MergeOut => return Status::Merge(OUTSIDE),
+            Kind::Split | Kind::Merge => {}
         }
         let prio = if cx.mode == Mode::Complete {
-            if kind == KIND_SPLIT {
+            if kind == Kind::Split {
                 (levels - e.level()) as f64
             } else {
                 0.0
             }
         } else {
-            debug_assert!(e.word & GEO != 0, "a split or merge status has its sphere");
+            debug_assert!(
+                e.facts().contains(Facts::GEO),
+                "a split or merge status has its sphere"
+            );
             let (c, r) = self.geo[slot];
-            let smax = (e.word & PRESENT != 0).then_some(e.smax);
+            let smax = e.facts().contains(Facts::PRESENT).then_some(e.smax);
             self.weighted_error(cx.view, c.as_dvec3(), r as f64, smax).0
         };
-        if kind == KIND_SPLIT {
+        if kind == Kind::Split {
             Status::Split(prio)
         } else {
             Status::Merge(prio)

@@ -3,6 +3,7 @@
 use super::criteria::Status;
 use super::{FrameCtx, Selector};
 use crate::mesh::AdaptiveMesh;
+use bitflags::bitflags;
 use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
 use tetwave_protocol::TetId;
@@ -103,13 +104,24 @@ impl<T: Ord> CandQueue<T> {
     }
 }
 
-/// [`Selector::slot_flags`]: on the candidate list.
-pub(super) const LISTED: u8 = 1;
-/// [`Selector::slot_flags`]: parked.
-pub(super) const PARKED: u8 = 2;
-/// [`Selector::slot_flags`]: has slots parked on it (exactly the keys of `Selector::waiters`): lets
-/// `Selector::wake` skip the map for the others.
-pub(super) const WAITED: u8 = 4;
+bitflags! {
+    /// What the candidate list knows of one slot (`Selector::slot_flags`).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub(super) struct SlotFlags: u8 {
+        /// On the candidate list.
+        const LISTED = 1;
+        /// A listed merge candidate the last batch settled by owners outside it (see
+        /// [`AdaptiveMesh::batch_held`]): the listed scan leaves it out until one of those owners
+        /// is queued to merge or changes, and it is refused meanwhile.
+        const PARKED = 2;
+        /// Has slots parked on it (exactly the keys of `Selector::waiters`): lets
+        /// `Selector::wake` skip the map for the others.
+        const WAITED = 4;
+    }
+}
+
+/// One byte per slot, as the selector's memory figures count it.
+const _: () = assert!(std::mem::size_of::<SlotFlags>() == 1);
 
 impl Selector {
     /// Queues a candidate, its priority rounded to an `f32` (as remembered statuses once kept it:
@@ -143,17 +155,17 @@ impl Selector {
     #[inline]
     pub(super) fn list_add(&mut self, slot: usize) {
         if slot >= self.slot_flags.len() {
-            self.slot_flags.resize(slot + 1, 0);
+            self.slot_flags.resize(slot + 1, SlotFlags::empty());
         }
-        if self.slot_flags[slot] & LISTED == 0 {
-            self.slot_flags[slot] |= LISTED;
+        if !self.slot_flags[slot].contains(SlotFlags::LISTED) {
+            self.slot_flags[slot] |= SlotFlags::LISTED;
             self.list.push(slot as u32);
         }
     }
 
     pub(super) fn list_clear(&mut self) {
         for &s in &self.list {
-            self.slot_flags[s as usize] = 0;
+            self.slot_flags[s as usize] = SlotFlags::empty();
         }
         self.list.clear();
         self.list_epoch = None;
@@ -163,7 +175,7 @@ impl Selector {
     /// Forgets every parked slot's owners (the parked flags are the caller's to clear).
     pub(super) fn clear_waiters(&mut self) {
         for &o in self.waiters.keys() {
-            self.slot_flags[o as usize] &= !WAITED;
+            self.slot_flags[o as usize].remove(SlotFlags::WAITED);
         }
         self.waiters.clear();
     }
@@ -172,16 +184,16 @@ impl Selector {
     pub(super) fn park(&mut self, mesh: &AdaptiveMesh) {
         for &(slot, owners) in mesh.batch_held() {
             let s = slot as usize;
-            if s < self.slot_flags.len() && self.slot_flags[s] & LISTED != 0 {
-                self.slot_flags[s] |= PARKED;
+            if s < self.slot_flags.len() && self.slot_flags[s].contains(SlotFlags::LISTED) {
+                self.slot_flags[s] |= SlotFlags::PARKED;
                 for o in owners {
                     if o != u32::MAX {
                         self.waiters.entry(o).or_default().push(slot);
                         let o = o as usize;
                         if o >= self.slot_flags.len() {
-                            self.slot_flags.resize(o + 1, 0);
+                            self.slot_flags.resize(o + 1, SlotFlags::empty());
                         }
-                        self.slot_flags[o] |= WAITED;
+                        self.slot_flags[o] |= SlotFlags::WAITED;
                     }
                 }
             }
@@ -192,8 +204,8 @@ impl Selector {
     #[inline]
     pub(super) fn unpark(&mut self, slot: u32) -> bool {
         match self.slot_flags.get(slot as usize) {
-            Some(&f) if f & PARKED != 0 => {
-                self.slot_flags[slot as usize] = f & !PARKED;
+            Some(&f) if f.contains(SlotFlags::PARKED) => {
+                self.slot_flags[slot as usize] = f - SlotFlags::PARKED;
                 true
             }
             _ => false,
@@ -208,13 +220,13 @@ impl Selector {
         if self
             .slot_flags
             .get(owner as usize)
-            .is_some_and(|&f| f & WAITED != 0)
+            .is_some_and(|&f| f.contains(SlotFlags::WAITED))
         {
             self.wake_parked(owner, now);
         }
     }
 
-    /// [`Self::wake`] for an owner flagged [`WAITED`].
+    /// [`Self::wake`] for an owner flagged [`SlotFlags::WAITED`].
     #[inline(never)]
     fn wake_parked(&mut self, owner: u32, now: Option<(&AdaptiveMesh, &FrameCtx)>) {
         let mut owners = vec![owner];
@@ -222,7 +234,7 @@ impl Selector {
             let Some(parked) = self.waiters.remove(&o) else {
                 continue;
             };
-            self.slot_flags[o as usize] &= !WAITED;
+            self.slot_flags[o as usize].remove(SlotFlags::WAITED);
             for &a in &parked {
                 if !self.unpark(a) {
                     continue;

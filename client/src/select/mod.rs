@@ -54,7 +54,7 @@ use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError, SegVec};
 use apply::INITIAL_MERGE_COST;
 use cache::SlotEntry;
-use candidates::{Cand, CandQueue};
+use candidates::{Cand, CandQueue, SlotFlags};
 use certificates::Kinetic;
 use glam::Vec3;
 use rustc_hash::FxHashMap;
@@ -241,11 +241,8 @@ pub struct Selector {
     /// The candidate list holds every candidate of this epoch (see the type's docs).
     list_epoch: Option<u64>,
     list: Vec<u32>,
-    /// Per slot: [`LISTED`]; [`PARKED`] for a listed merge candidate the last batch settled by
-    /// owners outside it (see [`AdaptiveMesh::batch_held`]): the listed scan leaves it out until
-    /// one of those owners is queued to merge or changes, and it is refused meanwhile; [`WAITED`]
-    /// for such an owner.
-    slot_flags: SegVec<u8>,
+    /// Per slot: on the candidate list, parked, an owner others are parked on.
+    slot_flags: SegVec<SlotFlags>,
     /// Parked slots by the owner slot that holds them.
     waiters: FxHashMap<u32, Vec<u32>>,
     /// Per slot: what selection keeps of its node.

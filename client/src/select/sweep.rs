@@ -2,7 +2,7 @@
 
 use super::apply::Limits;
 use super::cache::PREFETCH;
-use super::candidates::{PARKED, WAITED};
+use super::candidates::SlotFlags;
 use super::certificates::Kinetic;
 use super::criteria::Status;
 use super::{Budget, FrameCtx, FrameStats, Mode, Selector};
@@ -380,13 +380,13 @@ impl Selector {
                     self.prefetch_slots(mesh, &self.list, i + PREFETCH, 1);
                     let slot = self.list[i] as usize;
                     st.scanned += 1;
-                    if self.slot_flags[slot] & PARKED != 0 {
+                    if self.slot_flags[slot].contains(SlotFlags::PARKED) {
                         i += 1;
                         continue;
                     }
                     let s = self.eval(mesh, cx, slot);
                     if s == Status::Keep {
-                        self.slot_flags[slot] &= WAITED;
+                        self.slot_flags[slot] &= SlotFlags::WAITED;
                         self.list.swap_remove(i);
                         end = end.min(self.list.len());
                         continue;
