@@ -11,23 +11,21 @@ use std::time::{Duration, Instant};
 const MERGE_CHUNK: usize = 256;
 /// Under a time budget only, merge candidates taken in one uncut batch when at most this many wait
 /// and at least half of the frame is left (or what is left covers them, see [`uncut_batch`]), and
-/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). With
-/// 2,048, level 6 at 10% and 8 ms fell behind in half of its runs (chunks refuse merges a whole
-/// batch allows; 1.84–2.13 M tets/s, 6–11 frames to settle); with 4,096 in none of 8 (2.27–2.44
-/// M/s), its largest step at 6.25% 10.4–11.2 ms instead of about 9 (8,192: 12.9–14.5 ms).
+/// the size of a chunk taken early in a frame when more wait (see `Selector::apply_merges`). Large
+/// enough that a deep mesh keeps up under an interactive budget (chunks refuse merges a whole batch
+/// allows), small enough to cap how far one batch can overrun a frame.
 const WHOLE_MERGES: usize = 4096;
-/// [`Selector::merge_cost`] before any uncut batch was timed: one microsecond per candidate (a
-/// level-6 run's batches take about 0.4).
+/// [`Selector::merge_cost`] before any uncut batch was timed: one microsecond per candidate, a
+/// pessimistic guess, so that late in a frame an untimed batch is cut rather than let run over.
 pub(super) const INITIAL_MERGE_COST: f64 = 1e-6;
 
 /// Whether `queued` merge candidates go in one uncut batch ([`Selector::apply_merges`], no
 /// operation budget): always without a time budget (`left`, the time left in the frame: `None`);
 /// under one, when at most [`WHOLE_MERGES`] wait and either half of the frame is left (`early`) or
 /// what is left covers their expected time at `cost` seconds per candidate. The last case stops
-/// the second half of a frame from cutting into 256-candidate chunks a batch that fits: chunks
-/// refuse the merges that hold only together (level 6, 10%, 8 ms: in one run 2,609 late chunks
-/// attempted 646 k merges and 21 k held), and a sweep whose batches were cut takes one more
-/// sweep to consolidate.
+/// the second half of a frame from cutting into [`MERGE_CHUNK`]-candidate chunks a batch that
+/// fits: chunks refuse the merges that hold only together, and a sweep whose batches were cut
+/// takes one more sweep to consolidate.
 fn uncut_batch(queued: usize, early: bool, left: Option<Duration>, cost: f64) -> bool {
     match left {
         None => true,
@@ -77,8 +75,7 @@ impl Selector {
             // One batch without a budget, and under a time budget alone when few candidates wait
             // and half of the frame is left: a batch finds every merge its candidates allow
             // together, chunks only those each chunk allows, so chunking costs a consolidating
-            // sweep (level 5, 10%, 8 ms: 1,688 sweeps instead of 626, 2.7 times the attempts).
-            // Otherwise chunks, with a clock check between them.
+            // sweep and attempts repeated there. Otherwise chunks, with a clock check between them.
             let early = max_ops == usize::MAX && whole_until.is_some_and(|t| Instant::now() < t);
             let left = deadline.map(|t| t.saturating_duration_since(Instant::now()));
             let whole = max_ops == usize::MAX
@@ -198,7 +195,7 @@ impl Selector {
             max_ops, deadline, ..
         } = lim;
         while *ops < max_ops {
-            // one split (with its closure) can take tens of µs: the clock is read before each
+            // a split (with its closure) costs far more than a clock read: read before each
             if deadline.is_some_and(|t| Instant::now() >= t) {
                 break;
             }

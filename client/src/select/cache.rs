@@ -16,10 +16,9 @@ pub(super) const PREFETCH: usize = 8;
 /// What selection keeps of one node slot (16 bytes): pure functions of the node's id (level; the
 /// bounding sphere, kept apart in `Selector::geo` since complete mode needs none), what the buffer
 /// said of it (presence, subtree max, usability: these only grow) and the status last evaluated
-/// (reused while the epoch lasts and the slot does not change, see `Selector::eval`; its priority
-/// is computed again from the entry). The status had an 8-byte array of its own, with the
-/// priority: folded in here, the selector's bytes per average tet fell from 63.5 to 54.4 (level 6,
-/// 10%) and from 28.9 to 19.8 (level 6, simple; 20.9 at level 5), with the same counts.
+/// (reused while the epoch lasts and the slot does not change, see `Selector::eval`). The status
+/// takes spare bits of the word and its priority is computed again from the entry rather than
+/// stored, since these entries are most of the selector's memory.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct SlotEntry {
     /// The node the entry describes, as [`info_tag`] names it; 0: none.
@@ -301,9 +300,8 @@ impl Selector {
 
     /// Asks the CPU for the cache lines an evaluation of `slot` reads first: its node, entry and
     /// sphere. The loops over listed slots (scattered over the arrays) issue it a few slots ahead,
-    /// so that the misses overlap. Prefetching the two certificate arrays too cost level 5 6 % of
-    /// its time (0 of 8 alternating runs faster) for no clearer gain at level 6; these three cost
-    /// level 5 about 3 % and save level 6 4–7 % (12.5%, 10%; 7 and 8 of 8 runs faster).
+    /// so that the misses overlap. The certificate arrays are left out: prefetching them too cost
+    /// more than it saved.
     #[inline(always)]
     fn prefetch_slot(&self, mesh: &AdaptiveMesh, slot: usize) {
         mesh.prefetch_node(slot);

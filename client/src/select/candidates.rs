@@ -124,8 +124,8 @@ bitflags! {
 const _: () = assert!(std::mem::size_of::<SlotFlags>() == 1);
 
 impl Selector {
-    /// Queues a candidate, its priority rounded to an `f32` (as remembered statuses once kept it:
-    /// the order the README's figures were measured with).
+    /// Queues a candidate, its priority rounded to an `f32`: the order remembered statuses gave
+    /// when they kept the priority, kept so that runs reproduce the documented results.
     #[inline]
     pub(super) fn push(&mut self, id: TetId, slot: u32, s: Status) {
         let q = |e: f64| e as f32 as f64;
