@@ -17,6 +17,7 @@ pub fn bounding_sphere(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (DVec3, f64) {
     (c.as_dvec3(), r as f64)
 }
 
+/// [`bounding_sphere`] as selection caches it, in `f32`.
 #[inline]
 pub(super) fn sphere32(mesh: &AdaptiveMesh, v: &[u32; 4]) -> (Vec3, f32) {
     let pos = mesh.positions();
@@ -221,8 +222,9 @@ impl Selector {
         st
     }
 
-    /// [`Self::eval`], and with `cert` the slot's certificate (see [`Kinetic`]): the values of
-    /// `we` and `wf` up to which its status cannot change without a change of its node.
+    /// [`Self::eval`], and with `cert` the slot's certificate (see
+    /// [`super::certificates::Kinetic`]): the values of `we` and `wf` up to which its status cannot
+    /// change without a change of its node.
     #[inline(always)]
     pub(super) fn eval_cert(
         &mut self,
