@@ -12,7 +12,6 @@ use serde::Serialize;
 use std::time::{Duration, Instant};
 use tetwave_protocol::order::shuffle;
 /// The seeded mixing behind [`order_nodes`]'s random order, re-exported for the client's tests.
-pub use tetwave_protocol::order::splitmix;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 

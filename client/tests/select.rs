@@ -4,11 +4,11 @@
 use glam::DVec3;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
 use tetwave_client::mesh::AdaptiveMesh;
-use tetwave_client::progressive::splitmix;
 use tetwave_client::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
 use tetwave_client::session::Session;
+use tetwave_protocol::order::splitmix;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, TetId};
 

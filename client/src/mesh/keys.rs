@@ -92,7 +92,7 @@ impl KeySlots {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::progressive::splitmix;
+    use tetwave_protocol::order::splitmix;
 
     /// The paged key table against a map, with pages emptied, recycled and refilled.
     #[test]

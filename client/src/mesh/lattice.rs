@@ -138,8 +138,8 @@ fn invert4(m: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::progressive::splitmix;
     use tetwave_protocol::hierarchy::Lattice;
+    use tetwave_protocol::order::splitmix;
     use tetwave_protocol::LatticeTet;
 
     #[test]

@@ -58,7 +58,6 @@ mod refine;
 mod vertices;
 
 /// Re-exported for the selector's per-slot arrays (its home is [`crate::seg_vec`]).
-pub(crate) use crate::seg_vec::SegVec;
 pub use changes::SlotChange;
 pub use conformity::ConformityError;
 pub use error::MeshError;
@@ -67,6 +66,7 @@ pub use leaves::LeafTet;
 pub use node::MAX_TETS;
 pub use red_tree::RedNode;
 
+use crate::seg_vec::SegVec;
 use changes::MeshUid;
 use coarsen_batch::Refusal;
 use keys::KeySlots;

@@ -316,7 +316,7 @@ mod tests {
             for _ in 0..50 {
                 let mut pick = || {
                     x += 1;
-                    vals[(crate::progressive::splitmix(x) >> 61) as usize]
+                    vals[(tetwave_protocol::order::splitmix(x) >> 61) as usize]
                 };
                 let ue: Vec<f32> = (0..len).map(|_| pick()).collect();
                 let uf: Vec<f32> = (0..len).map(|_| pick()).collect();

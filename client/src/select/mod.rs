@@ -51,7 +51,8 @@ mod criteria;
 mod sweep;
 
 use crate::detail_buffer::DetailBuffer;
-use crate::mesh::{AdaptiveMesh, MeshError, SegVec};
+use crate::mesh::{AdaptiveMesh, MeshError};
+use crate::seg_vec::SegVec;
 use apply::INITIAL_MERGE_COST;
 use cache::SlotEntry;
 use candidates::{Cand, CandQueue, SlotFlags};
