@@ -69,7 +69,7 @@ impl RenderMesh {
 
     /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each, with the scalar `f` at the points.
     pub fn kuhn_cube(n: usize, size: f64, f: impl Fn([f64; 3]) -> f64) -> Self {
-        let (mut positions, tets) = tetwave_protocol::base::kuhn_grid(n, |_, _, _| true);
+        let (mut positions, tets) = tetwave_protocol::shapes::kuhn_grid(n, |_, _, _| true);
         for p in &mut positions {
             *p = p.map(|c| c * size);
         }

@@ -78,7 +78,7 @@ pub fn kuhn_cube_mesh(
     keep: impl Fn(usize, usize, usize) -> bool,
     f: impl Fn([f64; 3]) -> f64,
 ) -> super::mesh_io::TetMesh {
-    let (mut points, tets) = tetwave_protocol::base::kuhn_grid(n, keep);
+    let (mut points, tets) = tetwave_protocol::shapes::kuhn_grid(n, keep);
     for (idx, p) in points.iter_mut().enumerate() {
         let c = [
             idx % (n + 1),
