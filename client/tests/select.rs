@@ -13,10 +13,10 @@ use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, TetId};
 
 mod common;
-use common::{box5, harmonic, make_nodes};
+use common::{box5, detail_nodes, wave};
 
 fn loaded(levels: u8, f: impl Fn([f64; 3]) -> f32) -> (AdaptiveMesh, DetailBuffer, BaseMesh) {
-    let (base, nodes) = make_nodes(box5(levels), f);
+    let (base, nodes) = detail_nodes(box5(levels), f);
     let mut mesh = AdaptiveMesh::new(&base).unwrap();
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
@@ -53,7 +53,7 @@ fn tolerance_parse() {
 /// there for conformity (coarsening it alone is refused), and culling removes most of the mesh.
 #[test]
 fn frustum_outside_stays_coarse() {
-    let (mut mesh, buf, _) = loaded(4, harmonic);
+    let (mut mesh, buf, _) = loaded(4, wave);
     // close to one face, looking at it: most of the box is behind or beside the view
     let c = Camera::orbit(DVec3::new(15.0, 15.0, 15.0), 20.0, 0.0, 0.0, 30.0, 256, 256);
     let mut p = SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0]);
@@ -82,7 +82,7 @@ fn frustum_outside_stays_coarse() {
     }
     let with = mesh.leaf_count();
     p.frustum = false;
-    let (mut all, buf2, _) = loaded(4, harmonic);
+    let (mut all, buf2, _) = loaded(4, wave);
     Selector::new(p)
         .converge(&mut all, &buf2, &c, Mode::Progressive)
         .unwrap();
@@ -102,7 +102,7 @@ fn data_aware_keeps_flat_half_coarse() {
         if p[0] <= 15.0 {
             0.5
         } else {
-            0.5 + harmonic(p) * ((p[0] - 15.0) / 15.0) as f32
+            0.5 + wave(p) * ((p[0] - 15.0) / 15.0) as f32
         }
     };
     let (mut mesh, buf, _) = loaded(4, f);
@@ -152,7 +152,7 @@ fn data_aware_keeps_flat_half_coarse() {
 #[test]
 fn budget_frames_conform_and_converge() {
     for coarsen_ref in [CoarsenRef::Parent, CoarsenRef::Grandparent] {
-        let (mut mesh, buf, _) = loaded(4, harmonic);
+        let (mut mesh, buf, _) = loaded(4, wave);
         let mut p = SelectParams::new(Tolerance::PercentOfHeight(5.0), [-1.0, 1.0]);
         p.coarsen_ref = coarsen_ref;
         p.interactive = Budget::ops(40);
@@ -175,7 +175,7 @@ fn budget_frames_conform_and_converge() {
             }
         }
         let c = cam(90.0, 40.0);
-        let (mut reference, buf2, _) = loaded(4, harmonic);
+        let (mut reference, buf2, _) = loaded(4, wave);
         p.progressive = Budget::UNLIMITED;
         Selector::new(p)
             .converge(&mut reference, &buf2, &c, Mode::Progressive)
@@ -188,7 +188,7 @@ fn budget_frames_conform_and_converge() {
 /// A time budget cuts frames short and the carried work still converges.
 #[test]
 fn time_budget_carries_over() {
-    let (mut mesh, buf, _) = loaded(4, harmonic);
+    let (mut mesh, buf, _) = loaded(4, wave);
     let mut p = SelectParams::new(Tolerance::Pixels(3.0), [-1.0, 1.0]);
     p.progressive = Budget::ms(0.5);
     let c = cam(10.0, 50.0);
@@ -204,7 +204,7 @@ fn time_budget_carries_over() {
     }
     mesh.check_conformity().unwrap();
     assert!(frames > 1, "a 0.5 ms budget should take several frames");
-    let (mut reference, buf2, _) = loaded(4, harmonic);
+    let (mut reference, buf2, _) = loaded(4, wave);
     Selector::new(p)
         .converge(&mut reference, &buf2, &c, Mode::Progressive)
         .unwrap();
@@ -218,7 +218,7 @@ fn time_budget_carries_over() {
 /// mode shows everything that arrived (the uniform finest mesh once all has).
 #[test]
 fn modes() {
-    let (mut mesh, buf, base) = loaded(3, harmonic);
+    let (mut mesh, buf, base) = loaded(3, wave);
     let mut p = SelectParams::new(Tolerance::PercentOfHeight(30.0), [-1.0, 1.0]);
     p.interactive = Budget::ops(5);
     p.progressive = Budget::ops(200);
@@ -253,7 +253,7 @@ fn modes() {
     assert_eq!(mesh.leaf_count(), progressive);
 
     // complete mode with half of the nodes: exactly the usable ones are refined
-    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let (base, nodes) = detail_nodes(box5(3), wave);
     let mut m = AdaptiveMesh::new(&base).unwrap();
     let mut b = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
@@ -275,7 +275,7 @@ fn modes() {
 /// The background refiner hands over finished meshes; polling never blocks.
 #[test]
 fn background_refiner() {
-    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let (base, nodes) = detail_nodes(box5(3), wave);
     let leaves = base.forest().leaves() as usize;
     let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
     let r = BackgroundRefiner::spawn(base, p);
@@ -316,7 +316,7 @@ fn unit(s: &mut u64) -> f64 {
 #[test]
 fn incremental_equals_full_scan() {
     use tetwave_client::progressive::{order_nodes, ArrivalOrder};
-    let (base, all_nodes) = make_nodes(box5(4), harmonic);
+    let (base, all_nodes) = detail_nodes(box5(4), wave);
     let variants: [(Tolerance, bool, Option<f32>, CoarsenRef); 5] = [
         (
             Tolerance::PercentOfHeight(12.5),
@@ -444,7 +444,7 @@ fn incremental_equals_full_scan() {
 /// reaches the reference mesh.
 #[test]
 fn incremental_sees_outside_changes() {
-    let (mut a, buf, _) = loaded(4, harmonic);
+    let (mut a, buf, _) = loaded(4, wave);
     let mut b = a.clone();
     let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
     let mut inc = Selector::new(p.clone());
@@ -471,7 +471,7 @@ fn incremental_sees_outside_changes() {
 #[test]
 fn selectors_leave_the_change_log_trimmed() {
     for reference in [true, false] {
-        let (mut mesh, buf, _) = loaded(3, harmonic);
+        let (mut mesh, buf, _) = loaded(3, wave);
         let p = SelectParams::new(Tolerance::Pixels(4.0), [-1.0, 1.0]);
         let mut sel = if reference {
             Selector::full_scan(p)
