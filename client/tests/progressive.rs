@@ -2,8 +2,6 @@
 //! arrival orders, budgets reaching the unbudgeted mesh, and the leaf-mesh edge count.
 
 use rustc_hash::FxHashSet;
-use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
-use tetwave_client::mesh::AdaptiveMesh;
 use tetwave_client::progressive::{
     edges_on_box, order_nodes, run_progressive, ArrivalOrder, RunConfig,
 };
@@ -12,7 +10,7 @@ use tetwave_client::select::Tolerance;
 // fixtures: as in tests/select.rs
 
 mod common;
-use common::{box5, detail_nodes, wave};
+use common::{box5, detail_nodes, loaded, wave};
 
 fn cfg(tol: Option<f64>) -> RunConfig {
     RunConfig {
@@ -175,14 +173,7 @@ fn large_merge_sweeps_under_a_time_budget_settle() {
 /// Euler's formula on the box gives the leaf mesh's exact edge count.
 #[test]
 fn euler_edges() {
-    let (base, nodes) = detail_nodes(box5(3), wave);
-    let mut mesh = AdaptiveMesh::new(&base).unwrap();
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut arr = Arrivals::default();
-    for n in &nodes {
-        buf.insert(n, &mut arr).unwrap();
-    }
-    mesh.apply_arrivals(&buf, &arr);
+    let (mut mesh, buf, _) = loaded(3, wave);
     for id in [0u64, 5, 6, 13, 47, 51, 100] {
         if mesh.is_leaf(id) {
             mesh.refine(id, &buf).unwrap();

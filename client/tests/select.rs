@@ -10,22 +10,10 @@ use tetwave_client::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::{BaseMesh, TetId};
+use tetwave_protocol::TetId;
 
 mod common;
-use common::{box5, detail_nodes, wave};
-
-fn loaded(levels: u8, f: impl Fn([f64; 3]) -> f32) -> (AdaptiveMesh, DetailBuffer, BaseMesh) {
-    let (base, nodes) = detail_nodes(box5(levels), f);
-    let mut mesh = AdaptiveMesh::new(&base).unwrap();
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut arr = Arrivals::default();
-    for n in &nodes {
-        buf.insert(n, &mut arr).unwrap();
-    }
-    mesh.apply_arrivals(&buf, &arr);
-    (mesh, buf, base)
-}
+use common::{box5, detail_nodes, loaded, wave};
 
 fn cam(az_deg: f64, dist: f64) -> Camera {
     Camera::orbit(DVec3::splat(15.0), dist, az_deg, 10.0, 45.0, 256, 256)

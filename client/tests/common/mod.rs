@@ -22,6 +22,29 @@ pub fn wave(p: [f64; 3]) -> f32 {
     ((s * p[0]).sin() * (s * p[1]).cos() * (0.5 * s * p[2]).sin()) as f32
 }
 
+/// The level-`levels` [`box5`] hierarchy of `f` with every detail node delivered: the base-level
+/// adaptive mesh, the buffer holding every node, and the base mesh.
+pub fn loaded(
+    levels: u8,
+    f: impl Fn([f64; 3]) -> f32,
+) -> (
+    tetwave_client::mesh::AdaptiveMesh,
+    tetwave_client::detail_buffer::DetailBuffer,
+    BaseMesh,
+) {
+    use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
+    use tetwave_client::mesh::AdaptiveMesh;
+    let (base, nodes) = detail_nodes(box5(levels), f);
+    let mut mesh = AdaptiveMesh::new(&base).unwrap();
+    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut arr = Arrivals::default();
+    for n in &nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    mesh.apply_arrivals(&buf, &arr);
+    (mesh, buf, base)
+}
+
 /// The progressive experiment on the level-`levels` [`wave`] hierarchy (nodes in level order) with
 /// a render probe drawing every `every`-th step (GPU, or the CPU reference when `cpu`) against the
 /// full-resolution mesh: the run's report and the probe's figures.
