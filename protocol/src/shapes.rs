@@ -70,8 +70,9 @@ pub fn box6(lo: [f64; 3], hi: [f64; 3]) -> PointsAndTets {
 
 /// The unit cube `[0,1]^3` cut into `n^3` cells of 6 Kuhn tets each (around each cell's main
 /// diagonal), keeping the cells where `keep(i, j, k)`: grid points in x-fastest order (all of them,
-/// including those of dropped cells) and tets, cell by cell in x-fastest order, in [`KUHN_PATHS`]
-/// order within a cell. Tets are not reoriented: odd permutations are negative.
+/// including those of dropped cells) and tets, cell by cell in x-fastest order; within a cell, tet
+/// `[c, c + e_a, c + e_a + e_b, c + 1]` for the axis orders `ab` = xy, xz, yx, yz, zx, zy. Tets are
+/// not reoriented: odd permutations are negative.
 pub fn kuhn_grid(n: usize, keep: impl Fn(usize, usize, usize) -> bool) -> PointsAndTets {
     let idx = |c: [usize; 3]| (c[0] + (n + 1) * (c[1] + (n + 1) * c[2])) as u32;
     let mut points = Vec::with_capacity((n + 1).pow(3));
