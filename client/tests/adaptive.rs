@@ -5,86 +5,55 @@ use proptest::prelude::*;
 use std::time::Instant;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
 use tetwave_client::mesh::{AdaptiveMesh, MeshError};
-use tetwave_protocol::base::signed_volume;
-use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
 use tetwave_protocol::order::{shuffle, splitmix};
+use tetwave_protocol::shapes;
 use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_protocol::wavelet::{analyze, predict, synthesize};
+use tetwave_protocol::testing::{detail_nodes, unsampled_base};
+use tetwave_protocol::wavelet::{predict, synthesize};
 use tetwave_protocol::{BaseMesh, DetailNode, TetId, VertexKeys};
 
 // ------------------------------------------------------------------ fixtures
 
-fn corner(i: u32) -> [f64; 3] {
-    [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64]
-}
-
-/// Positions + tets with every tet made positive (last two vertices swapped where needed).
-fn oriented(positions: Vec<[f64; 3]>, tets: Vec<[u32; 4]>, levels: u8) -> BaseMesh {
-    let tets: Vec<[u32; 4]> = tets
-        .into_iter()
-        .map(|t| {
-            let p = t.map(|g| positions[g as usize]);
-            if signed_volume(p[0], p[1], p[2], p[3]) < 0.0 {
-                [t[0], t[1], t[3], t[2]]
-            } else {
-                t
-            }
-        })
-        .collect();
-    let n = tets.len();
-    let nv = positions.len();
-    BaseMesh {
-        levels,
-        positions,
-        tets,
-        values: vec![0.0; nv],
-        empty: vec![false; n],
-    }
-}
-
 /// The unit box in 5 tets.
 fn box5(levels: u8) -> BaseMesh {
-    oriented(
-        (0..8).map(corner).collect(),
-        vec![
-            [0, 1, 2, 4],
-            [3, 2, 1, 7],
-            [5, 4, 7, 1],
-            [6, 7, 4, 2],
-            [1, 2, 4, 7],
-        ],
-        levels,
-    )
+    unsampled_base(levels, shapes::box5([0.0; 3], [1.0; 3]))
 }
 
-/// The unit box in 6 Kuhn tets around the diagonal 0–7 (vertex orders deliberately mixed).
+/// The unit box in 6 Kuhn tets around the diagonal 0–7: `box6` with its tets reordered and the
+/// vertices of three of them permuted evenly (so they stay positive), so the base tets' vertex
+/// orders are deliberately mixed.
 fn kuhn6(levels: u8) -> BaseMesh {
-    oriented(
-        (0..8).map(corner).collect(),
-        vec![
-            [0, 1, 3, 7],
-            [7, 0, 1, 5],
-            [0, 4, 5, 7],
-            [6, 7, 0, 4],
-            [0, 2, 6, 7],
-            [3, 7, 2, 0],
-        ],
-        levels,
-    )
+    let (positions, tets) = shapes::box6([0.0; 3], [1.0; 3]);
+    // (tet of box6, its vertices in this order)
+    let mixed = [
+        (0, [0, 1, 2, 3]),
+        (1, [2, 0, 1, 3]),
+        (4, [0, 1, 2, 3]),
+        (5, [3, 2, 1, 0]),
+        (3, [0, 1, 2, 3]),
+        (2, [3, 2, 1, 0]),
+    ];
+    let tets = mixed.iter().map(|&(t, v)| v.map(|i| tets[t][i])).collect();
+    unsampled_base(levels, (positions, tets))
+}
+
+/// The unit box's corner tet at 000 (corners 0, 1, 2, 4).
+fn corner_tet(levels: u8) -> BaseMesh {
+    let c = shapes::box_corners([0.0; 3], [1.0; 3]);
+    unsampled_base(levels, (vec![c[0], c[1], c[2], c[4]], vec![[0, 1, 2, 3]]))
 }
 
 /// One tet, with a skewed shape.
 fn single(levels: u8) -> BaseMesh {
-    oriented(
-        vec![
-            [0.0, 0.0, 0.0],
-            [2.0, 0.1, 0.0],
-            [0.3, 1.5, 0.2],
-            [0.1, 0.4, 1.7],
-        ],
-        vec![[0, 1, 2, 3]],
-        levels,
-    )
+    let positions = vec![
+        [0.0, 0.0, 0.0],
+        [2.0, 0.1, 0.0],
+        [0.3, 1.5, 0.2],
+        [0.1, 0.4, 1.7],
+    ];
+    let mut tets = vec![[0, 1, 2, 3]];
+    shapes::orient_positive(&positions, &mut tets);
+    unsampled_base(levels, (positions, tets))
 }
 
 fn field(p: [f64; 3]) -> f32 {
@@ -93,9 +62,9 @@ fn field(p: [f64; 3]) -> f32 {
     (3.0 + (3.0 * x).sin() * (2.0 * y).cos() + z * z * x + 0.3 * (5.0 * z * y).sin()) as f32
 }
 
-/// Samples `field` at every vertex key, sets the base values, and computes every detail node
-/// (ownership: lowest id of the level whose tet contains the edge). `empty_bits` picks pseudo-random
-/// `empty_children` bits when nonzero.
+/// The hierarchy of `base` with `field` sampled and analysed by the reference analysis
+/// ([`detail_nodes`]), the synthesized value of every vertex key, and (when `empty_seed` is nonzero)
+/// pseudo-random `empty_children` bits.
 struct Data {
     base: BaseMesh,
     keys: VertexKeys,
@@ -103,49 +72,18 @@ struct Data {
     reference: Vec<f32>,
 }
 
-fn make_data(mut base: BaseMesh, empty_seed: u64) -> Data {
-    let keys = base.vertex_keys();
-    let n = keys.vertex_count() as usize;
-    let mut f = vec![f32::NAN; n];
-    for (e, _) in keys.entities() {
-        keys.for_each_in(e, |k, t, w| f[k as usize] = field(base.position(t, &w)));
-    }
-    let nv = base.positions.len();
-    base.values = f[..nv].to_vec();
-    let forest = base.forest();
-    let mut claimed = vec![false; n];
-    let mut nodes = Vec::with_capacity(forest.nodes() as usize);
-    let mut rng = empty_seed;
-    for k in 0..forest.levels {
-        for (id, t) in LevelWalker::level(forest, k) {
-            let mut owned = 0u8;
-            let mut coeffs = Vec::new();
-            for (e, &(a, b)) in EDGES.iter().enumerate() {
-                let m = keys.key(t.base, &t.edge_midpoint(e)) as usize;
-                if !claimed[m] {
-                    claimed[m] = true;
-                    owned |= 1 << e;
-                    let u = keys.key(t.base, &t.v[a]) as usize;
-                    let v = keys.key(t.base, &t.v[b]) as usize;
-                    coeffs.push(analyze(f[m], predict(f[u], f[v])));
-                }
+fn make_data(base: BaseMesh, empty_seed: u64) -> Data {
+    let (base, mut nodes) = detail_nodes(base, field);
+    if empty_seed != 0 {
+        let mut rng = empty_seed;
+        for n in &mut nodes {
+            rng = splitmix(rng);
+            if matches!(rng % 5, 0) {
+                n.empty_children = (rng >> 8) as u8 & (rng >> 16) as u8;
             }
-            let mut empty_children = 0u8;
-            if empty_seed != 0 {
-                rng = splitmix(rng);
-                if matches!(rng % 5, 0) {
-                    empty_children = (rng >> 8) as u8 & (rng >> 16) as u8;
-                }
-            }
-            nodes.push(DetailNode {
-                id,
-                owned,
-                empty_children,
-                subtree_max_abs: coeffs.iter().fold(0.0f32, |m, c| m.max(c.abs())),
-                coeffs,
-            });
         }
     }
+    let keys = base.vertex_keys();
     let reference = synthesize_all(&base, &keys, nodes.iter().cloned()).unwrap();
     Data {
         base,
@@ -715,8 +653,7 @@ fn long_sequence_level4() {
 /// keys) is refused with an error, not a panic.
 #[test]
 fn too_many_vertex_keys_is_an_error() {
-    let positions = vec![corner(0), corner(1), corner(2), corner(4)];
-    let base = oriented(positions, vec![[0, 1, 2, 3]], 12);
+    let base = corner_tet(12);
     base.validate().expect("a valid base mesh");
     assert!(base.vertex_keys().vertex_count() >= u32::MAX as u64);
     match AdaptiveMesh::new(&base) {
@@ -729,8 +666,7 @@ fn too_many_vertex_keys_is_an_error() {
 /// tets) is refused with an error, not a panic or a wrapped id.
 #[test]
 fn too_many_tets_is_an_error() {
-    let positions = vec![corner(0), corner(1), corner(2), corner(4)];
-    let base = oriented(positions, vec![[0, 1, 2, 3]], 14);
+    let base = corner_tet(14);
     base.validate().expect("a valid base mesh");
     let total = base.forest().total_tets();
     assert!(total >= tetwave_client::mesh::MAX_TETS);

@@ -2,8 +2,6 @@
 //! arrival orders, budgets reaching the unbudgeted mesh, and the leaf-mesh edge count.
 
 use rustc_hash::FxHashSet;
-use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
-use tetwave_client::mesh::AdaptiveMesh;
 use tetwave_client::progressive::{
     edges_on_box, order_nodes, run_progressive, ArrivalOrder, RunConfig,
 };
@@ -12,7 +10,7 @@ use tetwave_client::select::Tolerance;
 // fixtures: as in tests/select.rs
 
 mod common;
-use common::{box5, harmonic, make_nodes};
+use common::{box5, detail_nodes, loaded, wave};
 
 fn cfg(tol: Option<f64>) -> RunConfig {
     RunConfig {
@@ -27,7 +25,7 @@ fn cfg(tol: Option<f64>) -> RunConfig {
 #[test]
 fn tolerance_monotonicity() {
     // level 5: the thesis' Harmonic hierarchy size (187,245 tets); every node arrives by step 24
-    let (base, mut nodes) = make_nodes(box5(5), harmonic);
+    let (base, mut nodes) = detail_nodes(box5(5), wave);
     order_nodes(&mut nodes, ArrivalOrder::Level, 1);
     let uniform = base.forest().leaves() as f64;
     let mut last = 0.0;
@@ -60,7 +58,7 @@ fn tolerance_monotonicity() {
 /// Every arrival order and a per-step budget settle on the unbudgeted mesh.
 #[test]
 fn orders_and_budgets_settle() {
-    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let (base, nodes) = detail_nodes(box5(3), wave);
     for order in [
         ArrivalOrder::Level,
         ArrivalOrder::Random,
@@ -87,7 +85,7 @@ fn orders_and_budgets_settle() {
 /// candidates must not outlive the chunk that could free them).
 #[test]
 fn chunked_merges_settle() {
-    let (base, nodes) = make_nodes(box5(4), harmonic);
+    let (base, nodes) = detail_nodes(box5(4), wave);
     for (seed, order) in [ArrivalOrder::Level, ArrivalOrder::Random]
         .into_iter()
         .enumerate()
@@ -114,7 +112,7 @@ fn chunked_merges_settle() {
 /// are not cut into chunks (few candidates, most of the frame left), so no consolidating sweep.
 #[test]
 fn ample_time_budget_is_unbudgeted() {
-    let (base, nodes) = make_nodes(box5(4), harmonic);
+    let (base, nodes) = detail_nodes(box5(4), wave);
     for tol in [12.5, 5.0] {
         let c = RunConfig {
             steps: 40,
@@ -149,7 +147,7 @@ fn ample_time_budget_is_unbudgeted() {
 /// on the unbudgeted mesh.
 #[test]
 fn large_merge_sweeps_under_a_time_budget_settle() {
-    let (base, nodes) = make_nodes(box5(5), harmonic);
+    let (base, nodes) = detail_nodes(box5(5), wave);
     let c = RunConfig {
         steps: 12,
         per_step: 20_000,
@@ -175,14 +173,7 @@ fn large_merge_sweeps_under_a_time_budget_settle() {
 /// Euler's formula on the box gives the leaf mesh's exact edge count.
 #[test]
 fn euler_edges() {
-    let (base, nodes) = make_nodes(box5(3), harmonic);
-    let mut mesh = AdaptiveMesh::new(&base).unwrap();
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut arr = Arrivals::default();
-    for n in &nodes {
-        buf.insert(n, &mut arr).unwrap();
-    }
-    mesh.apply_arrivals(&buf, &arr);
+    let (mut mesh, buf, _) = loaded(3, wave);
     for id in [0u64, 5, 6, 13, 47, 51, 100] {
         if mesh.is_leaf(id) {
             mesh.refine(id, &buf).unwrap();
@@ -207,7 +198,7 @@ fn euler_edges() {
 /// memory.
 #[test]
 fn full_scan_takes_the_same_path() {
-    let (base, mut nodes) = make_nodes(box5(4), harmonic);
+    let (base, mut nodes) = detail_nodes(box5(4), wave);
     order_nodes(&mut nodes, ArrivalOrder::Random, 5);
     for tol in [Some(12.5), Some(6.0), None] {
         let c = RunConfig {

@@ -5,6 +5,7 @@
 mod common;
 
 use glam::DVec3;
+use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::{PtRenderer, VisibilityOrder};
 use tetwave_render::gpu::GpuContext;
@@ -31,12 +32,6 @@ fn compare(
     (psnr(&gpu, &reference), gpu, reference)
 }
 
-fn harmonic(p: [f64; 3]) -> f64 {
-    let u = p.map(|x| (x - 0.5) * 2.0);
-    let r2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
-    (-2.0 * r2).exp() * (4.0 * std::f64::consts::PI * r2.sqrt()).cos()
-}
-
 /// PSNR ≥ 45 dB against the reference at 256×256: single tet, 6-tet cube, 8³ Kuhn cube; an opaque-ish
 /// and a very transparent transfer function; camera outside, inside the volume, and grazing.
 #[test]
@@ -55,8 +50,8 @@ fn gpu_matches_reference_45db() {
         vec![[0, 1, 2, 3]],
         vec![0.0, 1.0, 0.3, 0.7],
     );
-    let cube6 = RenderMesh::kuhn_cube(1, 1.0, harmonic);
-    let cube8 = RenderMesh::kuhn_cube(8, 1.0, harmonic);
+    let cube6 = RenderMesh::kuhn_cube(1, 1.0, harmonic_unit);
+    let cube8 = RenderMesh::kuhn_cube(8, 1.0, harmonic_unit);
     for (name, mesh) in [("single", &single), ("cube6", &cube6), ("kuhn8", &cube8)] {
         let c = mesh.center();
         let d = mesh.diagonal();
@@ -105,7 +100,7 @@ fn mpvo_order_matches_reference() {
     let ctx = ctx();
     let r = PtRenderer::new(&ctx);
     let tf = TransferFunction::preset("default").unwrap();
-    let mesh = RenderMesh::kuhn_cube(8, 1.0, harmonic);
+    let mesh = RenderMesh::kuhn_cube(8, 1.0, harmonic_unit);
     let data = r.upload_with(&ctx, &mesh, true).unwrap();
     let c = mesh.center();
     let d = mesh.diagonal();
@@ -145,7 +140,7 @@ fn degenerate_input() {
     let r = PtRenderer::new(&ctx);
     let mut cases: Vec<(&str, RenderMesh)> = Vec::new();
     // sliver: a tet flattened to 1e-4 of its size, inside a normal cube mesh
-    let mut sliver = RenderMesh::kuhn_cube(2, 1.0, harmonic);
+    let mut sliver = RenderMesh::kuhn_cube(2, 1.0, harmonic_unit);
     let base = sliver.positions.len() as u32;
     sliver.positions.extend([
         [0.2, 0.2, 0.5],
@@ -158,7 +153,7 @@ fn degenerate_input() {
     sliver.orient_positive();
     cases.push(("sliver", sliver));
     // zero-volume tets: four coplanar points, and a repeated vertex
-    let mut flat = RenderMesh::kuhn_cube(2, 1.0, harmonic);
+    let mut flat = RenderMesh::kuhn_cube(2, 1.0, harmonic_unit);
     let b = flat.positions.len() as u32;
     flat.positions.extend([
         [0.1, 0.1, 0.3],
@@ -171,7 +166,7 @@ fn degenerate_input() {
     flat.tets.push([b, b, b + 1, b + 2]);
     cases.push(("zero-volume", flat));
     // far from the origin
-    let mut far = RenderMesh::kuhn_cube(4, 1.0, harmonic);
+    let mut far = RenderMesh::kuhn_cube(4, 1.0, harmonic_unit);
     for p in &mut far.positions {
         for c in p.iter_mut() {
             *c += 1e6;
@@ -243,7 +238,7 @@ fn refinement_converges() {
 fn accumulation_precisions_are_ordered_and_bounded() {
     use tetwave_render::gpu::pt::Accumulation;
     let ctx = ctx();
-    let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic);
+    let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic_unit);
     let cam = Camera::orbit(
         mesh.center(),
         1.6 * mesh.diagonal(),
@@ -311,7 +306,7 @@ fn render_probe_on_the_gpu() {
 fn image_sizes_outside_the_limit_are_errors() {
     let ctx = ctx();
     let r = PtRenderer::new(&ctx);
-    let mesh = RenderMesh::kuhn_cube(2, 1.0, harmonic);
+    let mesh = RenderMesh::kuhn_cube(2, 1.0, harmonic_unit);
     let data = r.upload(&ctx, &mesh).unwrap();
     let tf = TransferFunction::preset("default").unwrap();
     let limit = ctx.device.limits().max_texture_dimension_2d;

@@ -10,22 +10,10 @@ use tetwave_client::select::{
 use tetwave_client::session::Session;
 use tetwave_protocol::order::splitmix;
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::{BaseMesh, TetId};
+use tetwave_protocol::TetId;
 
 mod common;
-use common::{box5, harmonic, make_nodes};
-
-fn loaded(levels: u8, f: impl Fn([f64; 3]) -> f32) -> (AdaptiveMesh, DetailBuffer, BaseMesh) {
-    let (base, nodes) = make_nodes(box5(levels), f);
-    let mut mesh = AdaptiveMesh::new(&base).unwrap();
-    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
-    let mut arr = Arrivals::default();
-    for n in &nodes {
-        buf.insert(n, &mut arr).unwrap();
-    }
-    mesh.apply_arrivals(&buf, &arr);
-    (mesh, buf, base)
-}
+use common::{box5, detail_nodes, loaded, wave};
 
 fn cam(az_deg: f64, dist: f64) -> Camera {
     Camera::orbit(DVec3::splat(15.0), dist, az_deg, 10.0, 45.0, 256, 256)
@@ -53,7 +41,7 @@ fn tolerance_parse() {
 /// there for conformity (coarsening it alone is refused), and culling removes most of the mesh.
 #[test]
 fn frustum_outside_stays_coarse() {
-    let (mut mesh, buf, _) = loaded(4, harmonic);
+    let (mut mesh, buf, _) = loaded(4, wave);
     // close to one face, looking at it: most of the box is behind or beside the view
     let c = Camera::orbit(DVec3::new(15.0, 15.0, 15.0), 20.0, 0.0, 0.0, 30.0, 256, 256);
     let mut p = SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0]);
@@ -82,7 +70,7 @@ fn frustum_outside_stays_coarse() {
     }
     let with = mesh.leaf_count();
     p.frustum = false;
-    let (mut all, buf2, _) = loaded(4, harmonic);
+    let (mut all, buf2, _) = loaded(4, wave);
     Selector::new(p)
         .converge(&mut all, &buf2, &c, Mode::Progressive)
         .unwrap();
@@ -102,7 +90,7 @@ fn data_aware_keeps_flat_half_coarse() {
         if p[0] <= 15.0 {
             0.5
         } else {
-            0.5 + harmonic(p) * ((p[0] - 15.0) / 15.0) as f32
+            0.5 + wave(p) * ((p[0] - 15.0) / 15.0) as f32
         }
     };
     let (mut mesh, buf, _) = loaded(4, f);
@@ -152,7 +140,7 @@ fn data_aware_keeps_flat_half_coarse() {
 #[test]
 fn budget_frames_conform_and_converge() {
     for coarsen_ref in [CoarsenRef::Parent, CoarsenRef::Grandparent] {
-        let (mut mesh, buf, _) = loaded(4, harmonic);
+        let (mut mesh, buf, _) = loaded(4, wave);
         let mut p = SelectParams::new(Tolerance::PercentOfHeight(5.0), [-1.0, 1.0]);
         p.coarsen_ref = coarsen_ref;
         p.interactive = Budget::ops(40);
@@ -175,7 +163,7 @@ fn budget_frames_conform_and_converge() {
             }
         }
         let c = cam(90.0, 40.0);
-        let (mut reference, buf2, _) = loaded(4, harmonic);
+        let (mut reference, buf2, _) = loaded(4, wave);
         p.progressive = Budget::UNLIMITED;
         Selector::new(p)
             .converge(&mut reference, &buf2, &c, Mode::Progressive)
@@ -188,7 +176,7 @@ fn budget_frames_conform_and_converge() {
 /// A time budget cuts frames short and the carried work still converges.
 #[test]
 fn time_budget_carries_over() {
-    let (mut mesh, buf, _) = loaded(4, harmonic);
+    let (mut mesh, buf, _) = loaded(4, wave);
     let mut p = SelectParams::new(Tolerance::Pixels(3.0), [-1.0, 1.0]);
     p.progressive = Budget::ms(0.5);
     let c = cam(10.0, 50.0);
@@ -204,7 +192,7 @@ fn time_budget_carries_over() {
     }
     mesh.check_conformity().unwrap();
     assert!(frames > 1, "a 0.5 ms budget should take several frames");
-    let (mut reference, buf2, _) = loaded(4, harmonic);
+    let (mut reference, buf2, _) = loaded(4, wave);
     Selector::new(p)
         .converge(&mut reference, &buf2, &c, Mode::Progressive)
         .unwrap();
@@ -218,7 +206,7 @@ fn time_budget_carries_over() {
 /// mode shows everything that arrived (the uniform finest mesh once all has).
 #[test]
 fn modes() {
-    let (mut mesh, buf, base) = loaded(3, harmonic);
+    let (mut mesh, buf, base) = loaded(3, wave);
     let mut p = SelectParams::new(Tolerance::PercentOfHeight(30.0), [-1.0, 1.0]);
     p.interactive = Budget::ops(5);
     p.progressive = Budget::ops(200);
@@ -253,7 +241,7 @@ fn modes() {
     assert_eq!(mesh.leaf_count(), progressive);
 
     // complete mode with half of the nodes: exactly the usable ones are refined
-    let (base, nodes) = make_nodes(box5(3), harmonic);
+    let (base, nodes) = detail_nodes(box5(3), wave);
     let mut m = AdaptiveMesh::new(&base).unwrap();
     let mut b = DetailBuffer::new(base.forest(), base.vertex_keys());
     let mut arr = Arrivals::default();
@@ -277,7 +265,7 @@ fn modes() {
 /// its id, the nodes before it still held.
 #[test]
 fn session_takes_chunks_and_settles() {
-    let (base, mut nodes) = make_nodes(box5(3), harmonic);
+    let (base, mut nodes) = detail_nodes(box5(3), wave);
     let leaves = base.forest().leaves() as usize;
     let total = nodes.len();
     nodes.reverse();
@@ -303,7 +291,7 @@ fn session_takes_chunks_and_settles() {
     let rm = s.leaf_mesh([-1.0, 1.0]);
     assert_eq!(rm.tets.len(), leaves);
 
-    let (base, nodes) = make_nodes(box5(2), harmonic);
+    let (base, nodes) = detail_nodes(box5(2), wave);
     let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(1.0), [-1.0, 1.0])).unwrap();
     let mut bad = nodes[3].clone();
     bad.id = u64::MAX;
@@ -327,7 +315,7 @@ fn unit(s: &mut u64) -> f64 {
 #[test]
 fn incremental_equals_full_scan() {
     use tetwave_client::progressive::{order_nodes, ArrivalOrder};
-    let (base, all_nodes) = make_nodes(box5(4), harmonic);
+    let (base, all_nodes) = detail_nodes(box5(4), wave);
     let variants: [(Tolerance, bool, Option<f32>, CoarsenRef); 5] = [
         (
             Tolerance::PercentOfHeight(12.5),
@@ -455,7 +443,7 @@ fn incremental_equals_full_scan() {
 /// reaches the reference mesh.
 #[test]
 fn incremental_sees_outside_changes() {
-    let (mut a, buf, _) = loaded(4, harmonic);
+    let (mut a, buf, _) = loaded(4, wave);
     let mut b = a.clone();
     let p = SelectParams::new(Tolerance::PercentOfHeight(10.0), [-1.0, 1.0]);
     let mut inc = Selector::new(p.clone());
@@ -482,7 +470,7 @@ fn incremental_sees_outside_changes() {
 #[test]
 fn selectors_leave_the_change_log_trimmed() {
     for reference in [true, false] {
-        let (mut mesh, buf, _) = loaded(3, harmonic);
+        let (mut mesh, buf, _) = loaded(3, wave);
         let p = SelectParams::new(Tolerance::Pixels(4.0), [-1.0, 1.0]);
         let mut sel = if reference {
             Selector::full_scan(p)

@@ -3,16 +3,22 @@
 //! The contract both the server and the client compile: ids and child order of the semi-regular
 //! hierarchy ([`hierarchy`]), global vertex keys ([`vertex`]), the lifting steps ([`wavelet`]), detail
 //! nodes ([`node`]), the base mesh ([`base`]), whole-hierarchy synthesis ([`synthesis`]), the wire
-//! frames ([`wire`]), the store format ([`store_format`]), the refinement criterion ([`view`]) and the
-//! seeded shuffle both sides' test orders use ([`order`]).
+//! frames ([`wire`]), the store format ([`store_format`]), the refinement criterion ([`view`]), the
+//! seeded shuffle both sides' test orders use ([`order`]), the base meshes known by name
+//! ([`shapes`]) and the named synthetic fields ([`fields`]). With the feature `testing`, the module
+//! `testing` holds fixtures for other crates' tests.
 //! This crate does no I/O.
 
 pub mod base;
+pub mod fields;
 pub mod hierarchy;
 pub mod node;
 pub mod order;
+pub mod shapes;
 pub mod store_format;
 pub mod synthesis;
+#[cfg(feature = "testing")]
+pub mod testing;
 pub mod vertex;
 pub mod view;
 pub mod wavelet;

@@ -388,19 +388,10 @@ mod tests {
     use crate::hierarchy::{Forest, LatticeTet};
     use std::collections::HashSet;
 
-    /// The 5-tet box of the thesis (any positive-volume split works for counting).
+    /// The 5-tet unit box of the thesis (`box5`): its vertex count and tets.
     fn box5() -> (u32, Vec<[u32; 4]>) {
-        // corner index = x + 2y + 4z
-        (
-            8,
-            vec![
-                [0, 1, 2, 4],
-                [3, 2, 1, 7],
-                [5, 4, 7, 1],
-                [6, 7, 4, 2],
-                [1, 2, 4, 7],
-            ],
-        )
+        let (positions, tets) = crate::shapes::box5([0.0; 3], [1.0; 3]);
+        (positions.len() as u32, tets)
     }
 
     #[test]

@@ -1,8 +1,8 @@
 //! The leaf mesh as the renderers see it: positions, tets and one scalar per vertex.
 
 use glam::DVec3;
-use tetwave_protocol::base::signed_volume;
 use tetwave_protocol::hierarchy::LevelWalker;
+use tetwave_protocol::shapes;
 use tetwave_protocol::BaseMesh;
 
 #[derive(Debug, Clone, PartialEq)]
@@ -67,26 +67,21 @@ impl RenderMesh {
         m
     }
 
-    /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each, with the scalar `f` at the points.
+    /// `[0,1]^3 · size` cut into `n^3` cubes of 6 Kuhn tets each ([`shapes::kuhn_grid`]), positively
+    /// oriented, with the scalar `f` at the points.
     pub fn kuhn_cube(n: usize, size: f64, f: impl Fn([f64; 3]) -> f64) -> Self {
-        let (mut positions, tets) = tetwave_protocol::base::kuhn_grid(n, |_, _, _| true);
+        let (mut positions, mut tets) = shapes::kuhn_grid(n, |_, _, _| true);
         for p in &mut positions {
             *p = p.map(|c| c * size);
         }
+        shapes::orient_positive(&positions, &mut tets);
         let values = positions.iter().map(|&p| f(p) as f32).collect();
-        let mut m = RenderMesh::new(positions, tets, values);
-        m.orient_positive();
-        m
+        RenderMesh::new(positions, tets, values)
     }
 
     /// Swaps the last two vertices of negatively oriented tets.
     pub fn orient_positive(&mut self) {
-        for t in &mut self.tets {
-            let p = |k: usize| self.positions[t[k] as usize];
-            if signed_volume(p(0), p(1), p(2), p(3)) < 0.0 {
-                t.swap(2, 3);
-            }
-        }
+        shapes::orient_positive(&self.positions, &mut self.tets);
     }
 
     pub fn bounds(&self) -> (DVec3, DVec3) {

@@ -96,7 +96,7 @@ fn main() {
         55,
         0.3,
         |_, _, _| true,
-        |p| Synthetic::Harmonic.eval([p[0] * 30.0, p[1] * 30.0, p[2] * 30.0]),
+        tetwave_protocol::fields::harmonic_unit,
     );
     let tets = mesh.tets.len();
     let (m, _) = clean(mesh, None, None).unwrap();

@@ -2,25 +2,20 @@
 
 use proptest::prelude::*;
 use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_protocol::{BaseMesh, LatticeTet};
+use tetwave_protocol::testing::unsampled_base;
+use tetwave_protocol::LatticeTet;
 use tetwave_server::analysis::analyze_hierarchy;
 use tetwave_server::resample::synthetic::kuhn_cube_mesh;
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{base, resample, BaseSpec, Resampled, Source};
 
 fn resampled_with(levels: u8, box6: bool, field: impl Fn(u64) -> f32) -> Resampled {
-    let (positions, tets) = if box6 {
+    let shape = if box6 {
         base::box6([0.0; 3], [1.0; 3])
     } else {
         base::box5([0.0; 3], [1.0; 3])
     };
-    let mut b = BaseMesh {
-        levels,
-        positions,
-        tets,
-        values: vec![],
-        empty: vec![],
-    };
+    let mut b = unsampled_base(levels, shape);
     let keys = b.vertex_keys();
     let samples: Vec<f32> = (0..keys.vertex_count()).map(field).collect();
     b.values = samples[..b.positions.len()].to_vec();

@@ -4,6 +4,7 @@
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use tetwave_protocol::shapes::box6;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_tetwave-server"))
@@ -219,22 +220,14 @@ fn write_vtk(
     p
 }
 
+/// The unit cube's corners and its 6 Kuhn tets (VTK cell type 10), positively oriented: `box6`.
 fn cube_points() -> Vec<[f64; 3]> {
-    (0..8)
-        .map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64])
-        .collect()
+    box6([0.0; 3], [1.0; 3]).0
 }
 
 fn cube_tets() -> Vec<(u8, Vec<u32>)> {
-    // 6 Kuhn tets, positively oriented
-    vec![
-        (10, vec![0, 1, 3, 7]),
-        (10, vec![0, 1, 7, 5]),
-        (10, vec![0, 2, 7, 3]),
-        (10, vec![0, 2, 6, 7]),
-        (10, vec![0, 4, 5, 7]),
-        (10, vec![0, 4, 7, 6]),
-    ]
+    let (_, tets) = box6([0.0; 3], [1.0; 3]);
+    tets.iter().map(|t| (10, t.to_vec())).collect()
 }
 
 fn lin(p: &[f64; 3]) -> f64 {

@@ -5,9 +5,10 @@
 
 use std::collections::HashMap;
 use std::path::Path;
+use tetwave_protocol::shapes::box_corners;
 
 mod fixture_mesh;
-use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
+use fixture_mesh::{cube_points, fixture, temperature, tets, Corruptor};
 
 use tetwave_server::import::{read_mesh, ImportError, ImportedMesh, MeshFormat};
 use tetwave_server::resample::unstructured::{
@@ -30,7 +31,7 @@ fn cell_array<'m>(m: &'m ImportedMesh, name: &str) -> &'m [f64] {
 fn gmsh_1_0_reads_the_cube() {
     let m = read("cube_10.msh");
     assert_eq!(m.mesh.points, cube_points());
-    assert_eq!(m.mesh.tets, TETS.to_vec());
+    assert_eq!(m.mesh.tets, tets());
     assert_eq!(m.counts.cells_read, 8);
     assert_eq!(m.mesh.cells_ignored, 1, "the triangle");
     assert_eq!(m.tet_cells, (1..8).collect::<Vec<_>>());
@@ -49,7 +50,7 @@ fn medit_reads_the_cube_with_element_references() {
             read_mesh(&p, Some(MeshFormat::Medit)).unwrap()
         };
         assert_eq!(m.mesh.points, cube_points(), "{name}");
-        assert_eq!(m.mesh.tets, TETS.to_vec(), "{name}");
+        assert_eq!(m.mesh.tets, tets(), "{name}");
         assert_eq!(m.mesh.cells_ignored, 2, "{name}: 2 triangles");
         let refs: Vec<f64> = [1., 2., 3., 4., 5., 6., 7., 20., 21.].to_vec();
         assert_eq!(cell_array(&m, "ref"), refs.as_slice(), "{name}");
@@ -72,14 +73,14 @@ fn legacy_blank_lines_and_crlf_read_the_same() {
     let a = read("cube_42_ascii.vtk");
     let b = read("cube_42_blank_crlf.vtk");
     assert_eq!(a, b);
-    assert_eq!(b.mesh.tets, TETS.to_vec());
+    assert_eq!(b.mesh.tets, tets());
 }
 
 #[test]
 fn quadratic_tets_keep_their_corner_tet() {
     for name in ["quadratic.vtu", "quadratic_22.msh"] {
         let m = read(name);
-        assert_eq!(m.mesh.tets, TETS.to_vec(), "{name}");
+        assert_eq!(m.mesh.tets, tets(), "{name}");
         assert_eq!(m.counts.tets_linearized, 7, "{name}");
         assert_eq!(m.counts.tets, 0, "{name}");
         // 9 corners and one node on each of the 22 distinct edges of the 7 tets.
@@ -331,9 +332,7 @@ fn distance_field_for_a_bare_mesh() {
         "every cube point is on the boundary"
     );
     // A cube coned from its centre: the centre is 0.5 from the boundary.
-    let mut points: Vec<[f64; 3]> = (0..8)
-        .map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64])
-        .collect();
+    let mut points = box_corners([0.0; 3], [1.0; 3]);
     points.push([0.5, 0.5, 0.5]);
     let quads = [
         [0, 1, 3, 2],

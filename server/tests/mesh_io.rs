@@ -4,9 +4,10 @@
 //! never panic.
 
 use std::path::{Path, PathBuf};
+use tetwave_protocol::shapes::kuhn_grid;
 
 mod fixture_mesh;
-use fixture_mesh::{cube_points, fixture, temperature, Corruptor, TETS};
+use fixture_mesh::{cube_points, fixture, temperature, tets, Corruptor};
 
 use tetwave_server::import::{
     format_of_content, parse_tet_mesh, read_tet_mesh, read_tet_mesh_as, ImportError, MeshFormat,
@@ -59,7 +60,7 @@ fn assert_cube(name: &str, mesh: &TetMesh, tol: Tol, ignored: usize) {
             );
         }
     }
-    assert_eq!(mesh.tets, TETS.to_vec(), "{name}: tets");
+    assert_eq!(mesh.tets, tets(), "{name}: tets");
     assert_eq!(mesh.cells_ignored, ignored, "{name}: cells_ignored");
     let mut names: Vec<&str> = mesh.point_data.iter().map(|a| a.name.as_str()).collect();
     names.sort_unstable();
@@ -173,7 +174,7 @@ fn vtu_pieces_are_concatenated_with_shifted_indices() {
     let mut pts = vec![[2.0, 2.0, 2.0], [3.0, 3.0, 3.0]];
     pts.extend(cube_points());
     assert_eq!(mesh.points, pts);
-    let shifted: Vec<[u32; 4]> = TETS.iter().map(|t| t.map(|v| v + 2)).collect();
+    let shifted: Vec<[u32; 4]> = tets().iter().map(|t| t.map(|v| v + 2)).collect();
     assert_eq!(mesh.tets, shifted);
     assert_eq!(mesh.cells_ignored, 1, "the line of the first piece");
     let t: Vec<f64> = pts.iter().map(|&p| temperature(p)).collect();
@@ -183,40 +184,13 @@ fn vtu_pieces_are_concatenated_with_shifted_indices() {
 
 #[test]
 fn vtu_multi_block_zlib_grid() {
-    // 9^3 grid points, 6 tets per cell: connectivity spans several 32 KiB zlib blocks.
+    // 9^3 grid points, 6 tets per cell (as kuhn_grid lists them): connectivity spans several
+    // 32 KiB zlib blocks.
     let mesh = read("grid_zlib.vtu");
-    let n = 9u32;
-    let coord = |i: u32| f64::from(i) * 0.125;
-    let gid = |i, j, k| i + n * j + n * n * k;
-    let mut pts = Vec::new();
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                pts.push([coord(i), coord(j), coord(k)]);
-            }
-        }
-    }
-    let mut tets = Vec::new();
-    for k in 0..n - 1 {
-        for j in 0..n - 1 {
-            for i in 0..n - 1 {
-                let mut c = Vec::new();
-                for d in 0..2 {
-                    for b in 0..2 {
-                        for a in 0..2 {
-                            c.push(gid(i + a, j + b, k + d));
-                        }
-                    }
-                }
-                for t in &TETS[..6] {
-                    tets.push(t.map(|v| c[v as usize]));
-                }
-            }
-        }
-    }
+    let (pts, grid_tets) = kuhn_grid(8, |_, _, _| true);
     assert_eq!(mesh.points, pts);
     assert_eq!(mesh.tets.len(), 3072);
-    assert_eq!(mesh.tets, tets);
+    assert_eq!(mesh.tets, grid_tets);
     let t: Vec<f64> = pts.iter().map(|&p| temperature(p)).collect();
     assert_eq!(array(&mesh, "temperature"), Some(t.as_slice()));
 }

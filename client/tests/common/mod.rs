@@ -1,107 +1,51 @@
-//! Test data shared by the selection and progressive tests: a 30³ box in 5 tets and detail nodes of
-//! a field computed the way the server does (lowest id owns each new vertex).
+//! Test data shared by the selection and progressive tests: the thesis' 30³ box in 5 tets, a smooth
+//! test field on it, and detail nodes from the protocol's reference analysis.
 #![allow(dead_code)]
 
-use tetwave_protocol::base::signed_volume;
-use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
-use tetwave_protocol::wavelet::{analyze, predict};
-use tetwave_protocol::{BaseMesh, DetailNode};
+use tetwave_protocol::shapes;
+use tetwave_protocol::testing::unsampled_base;
+use tetwave_protocol::BaseMesh;
 
-/// The box `[0, 30]³` in 5 positive tets.
+pub use tetwave_protocol::testing::detail_nodes;
+
+/// The box `[0, 30]³` (the thesis' HARMONIC box) in 5 positive tets.
 pub fn box5(levels: u8) -> BaseMesh {
-    let positions: Vec<[f64; 3]> = (0..8u32)
-        .map(|i| {
-            [
-                30.0 * (i & 1) as f64,
-                30.0 * ((i >> 1) & 1) as f64,
-                30.0 * ((i >> 2) & 1) as f64,
-            ]
-        })
-        .collect();
-    let tets: Vec<[u32; 4]> = [
-        [0, 1, 2, 4],
-        [3, 2, 1, 7],
-        [5, 4, 7, 1],
-        [6, 7, 4, 2],
-        [1, 2, 4, 7],
-    ]
-    .into_iter()
-    .map(|t: [u32; 4]| {
-        let p = t.map(|g| positions[g as usize]);
-        if signed_volume(p[0], p[1], p[2], p[3]) < 0.0 {
-            [t[0], t[1], t[3], t[2]]
-        } else {
-            t
-        }
-    })
-    .collect();
-    BaseMesh {
-        levels,
-        values: vec![0.0; 8],
-        empty: vec![false; 5],
-        positions,
-        tets,
-    }
+    unsampled_base(levels, shapes::box5([0.0; 3], [30.0; 3]))
 }
 
-/// Samples `f` at every vertex and computes every detail node (lowest id of a level owns an edge).
-pub fn make_nodes(mut base: BaseMesh, f: impl Fn([f64; 3]) -> f32) -> (BaseMesh, Vec<DetailNode>) {
-    let keys = base.vertex_keys();
-    let n = keys.vertex_count() as usize;
-    let mut v = vec![0f32; n];
-    for (e, _) in keys.entities() {
-        keys.for_each_in(e, |k, t, w| v[k as usize] = f(base.position(t, &w)));
-    }
-    base.values = v[..base.positions.len()].to_vec();
-    let forest = base.forest();
-    let mut claimed = vec![false; n];
-    let mut nodes: Vec<DetailNode> = Vec::new();
-    for k in 0..forest.levels {
-        for (id, t) in LevelWalker::level(forest, k) {
-            let (mut owned, mut coeffs) = (0u8, Vec::new());
-            for (e, &(a, b)) in EDGES.iter().enumerate() {
-                let m = keys.key(t.base, &t.edge_midpoint(e)) as usize;
-                if !claimed[m] {
-                    claimed[m] = true;
-                    owned |= 1 << e;
-                    let u = keys.key(t.base, &t.v[a]) as usize;
-                    let w = keys.key(t.base, &t.v[b]) as usize;
-                    coeffs.push(analyze(v[m], predict(v[u], v[w])));
-                }
-            }
-            nodes.push(DetailNode {
-                id,
-                owned,
-                empty_children: 0,
-                subtree_max_abs: 0.0,
-                coeffs,
-            });
-        }
-    }
-    // subtree max |d|, finest nodes first
-    let mut smax: Vec<f32> = nodes
-        .iter()
-        .map(|n| n.coeffs.iter().fold(0f32, |m, c| m.max(c.abs())))
-        .collect();
-    for i in (0..nodes.len()).rev() {
-        let id = nodes[i].id;
-        for c in 0..8 {
-            let cid = forest.child(id, c) as usize;
-            if cid < smax.len() {
-                smax[i] = smax[i].max(smax[cid]);
-            }
-        }
-        nodes[i].subtree_max_abs = smax[i];
-    }
-    (base, nodes)
-}
-
-pub fn harmonic(p: [f64; 3]) -> f32 {
+/// A smooth separable wave on `[0, 30]³`, `sin(πx/15) · cos(πy/15) · sin(πz/30)`, values in
+/// `[−1, 1]`. Not the `synthetic:harmonic` dataset (`tetwave_protocol::fields::harmonic`): these
+/// tests' figures (e.g. that the first frame of a progressive run is its worst) are measured on
+/// this field.
+pub fn wave(p: [f64; 3]) -> f32 {
     let s = std::f64::consts::PI / 15.0;
     ((s * p[0]).sin() * (s * p[1]).cos() * (0.5 * s * p[2]).sin()) as f32
 }
 
-/// The progressive experiment on the level-`levels` harmonic hierarchy (nodes in level order) with
+/// The level-`levels` [`box5`] hierarchy of `f` with every detail node delivered: the base-level
+/// adaptive mesh, the buffer holding every node, and the base mesh.
+pub fn loaded(
+    levels: u8,
+    f: impl Fn([f64; 3]) -> f32,
+) -> (
+    tetwave_client::mesh::AdaptiveMesh,
+    tetwave_client::detail_buffer::DetailBuffer,
+    BaseMesh,
+) {
+    use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
+    use tetwave_client::mesh::AdaptiveMesh;
+    let (base, nodes) = detail_nodes(box5(levels), f);
+    let mut mesh = AdaptiveMesh::new(&base).unwrap();
+    let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+    let mut arr = Arrivals::default();
+    for n in &nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    mesh.apply_arrivals(&buf, &arr);
+    (mesh, buf, base)
+}
+
+/// The progressive experiment on the level-`levels` [`wave`] hierarchy (nodes in level order) with
 /// a render probe drawing every `every`-th step (GPU, or the CPU reference when `cpu`) against the
 /// full-resolution mesh: the run's report and the probe's figures.
 pub fn probed_run(
@@ -119,7 +63,7 @@ pub fn probed_run(
     use tetwave_protocol::view::Camera;
     use tetwave_render::render_mesh::RenderMesh;
     use tetwave_render::transfer::TransferFunction;
-    let (base, mut nodes) = make_nodes(box5(levels), harmonic);
+    let (base, mut nodes) = detail_nodes(box5(levels), wave);
     order_nodes(&mut nodes, ArrivalOrder::Level, 1);
     let values = tetwave_protocol::synthesis::synthesize_all(
         &base,

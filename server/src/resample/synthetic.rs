@@ -1,14 +1,8 @@
-//! Analytic fields, for the embedded default dataset and for tests.
-//!
-//! `harmonic` — the default, standing in for the thesis' HARMONIC (30×30×30 units): on the box
-//! `[0,30]^3`, with `u = (p − 15)/15 ∈ [−1,1]^3` and `r = |u|`,
-//!
-//! `f(p) = exp(−2 r²) · cos(4π r) + 0.25 · sin(2π u_x) · sin(2π u_y) · sin(2π u_z)`
-//!
-//! a radial standing wave (nested shells) plus a product of harmonics; values lie in about [−0.8, 1].
-//! `linear` is `f = x + 2y + 3z` on `[0,1]^3` (exactly representable by any linear interpolant).
+//! Analytic fields, for the embedded default dataset and for tests: the named synthetic datasets
+//! (`synthetic:harmonic`, `synthetic:linear`), defined in [`tetwave_protocol::fields`] so the client's
+//! tests and the renderer's use the same function, and the jittered Kuhn-cube test mesh.
 
-use std::f64::consts::PI;
+use tetwave_protocol::fields;
 
 /// A named analytic field on a box.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,28 +29,15 @@ impl Synthetic {
 
     pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
         match self {
-            Synthetic::Harmonic => ([0.0; 3], [30.0; 3]),
-            Synthetic::Linear => ([0.0; 3], [1.0; 3]),
+            Synthetic::Harmonic => fields::HARMONIC_BOUNDS,
+            Synthetic::Linear => fields::LINEAR_BOUNDS,
         }
     }
 
     pub fn eval(&self, p: [f64; 3]) -> f64 {
         match self {
-            Synthetic::Harmonic => {
-                let u = [
-                    (p[0] - 15.0) / 15.0,
-                    (p[1] - 15.0) / 15.0,
-                    (p[2] - 15.0) / 15.0,
-                ];
-                let r2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
-                let r = r2.sqrt();
-                (-2.0 * r2).exp() * (4.0 * PI * r).cos()
-                    + 0.25
-                        * (2.0 * PI * u[0]).sin()
-                        * (2.0 * PI * u[1]).sin()
-                        * (2.0 * PI * u[2]).sin()
-            }
-            Synthetic::Linear => p[0] + 2.0 * p[1] + 3.0 * p[2],
+            Synthetic::Harmonic => fields::harmonic(p),
+            Synthetic::Linear => fields::linear(p),
         }
     }
 }
@@ -69,16 +50,17 @@ fn unit_hash(seed: u64, k: u64) -> f64 {
     ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
 }
 
-/// An unstructured test mesh: `[0,1]^3` cut into `n^3` cubes of 6 Kuhn tets each (positively
-/// oriented), interior points moved by up to `jitter/2` of a cell, cells kept where `keep(i, j, k)`,
-/// with the point scalar `f` named `"f"`. Unused points are kept (they are in no tet).
+/// An unstructured test mesh: `[0,1]^3` cut into `n^3` cubes of 6 Kuhn tets each (as
+/// [`tetwave_protocol::shapes::kuhn_grid`] orders them, not reoriented), interior points moved by up
+/// to `jitter/2` of a cell, cells kept where `keep(i, j, k)`, with the point scalar `f` named `"f"`.
+/// Unused points are kept (they are in no tet).
 pub fn kuhn_cube_mesh(
     n: usize,
     jitter: f64,
     keep: impl Fn(usize, usize, usize) -> bool,
     f: impl Fn([f64; 3]) -> f64,
 ) -> crate::import::TetMesh {
-    let (mut points, tets) = tetwave_protocol::base::kuhn_grid(n, keep);
+    let (mut points, tets) = tetwave_protocol::shapes::kuhn_grid(n, keep);
     for (idx, p) in points.iter_mut().enumerate() {
         let c = [
             idx % (n + 1),

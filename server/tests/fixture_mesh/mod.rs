@@ -10,30 +10,26 @@ pub fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
-pub const XS: [f64; 2] = [0.1, 0.8];
-pub const YS: [f64; 2] = [0.2, 0.9];
-pub const ZS: [f64; 2] = [0.3, 1.0];
-pub const TETS: [[u32; 4]; 7] = [
-    [0, 1, 3, 7],
-    [0, 1, 5, 7],
-    [0, 2, 3, 7],
-    [0, 2, 6, 7],
-    [0, 4, 5, 7],
-    [0, 4, 6, 7],
-    [4, 5, 7, 8],
-];
+use tetwave_protocol::shapes::{box_corners, kuhn_grid};
 
+/// The fixtures' cube `[LO, HI]`; its corners are points 0–7, then the apex is point 8.
+pub const LO: [f64; 3] = [0.1, 0.2, 0.3];
+pub const HI: [f64; 3] = [0.8, 0.9, 1.0];
+pub const APEX: [f64; 3] = [0.45, 0.55, 1.4];
+
+/// The cube's corners (`x + 2y + 4z` order), then the apex.
 pub fn cube_points() -> Vec<[f64; 3]> {
-    let mut p = Vec::new();
-    for z in ZS {
-        for y in YS {
-            for x in XS {
-                p.push([x, y, z]);
-            }
-        }
-    }
-    p.push([0.45, 0.55, 1.4]);
+    let mut p = box_corners(LO, HI);
+    p.push(APEX);
     p
+}
+
+/// The cube's 6 Kuhn tets as `kuhn_grid(1)` lists them (not reoriented), then the apex tet on the
+/// top face: the 7 tets of every valid fixture, in file order.
+pub fn tets() -> Vec<[u32; 4]> {
+    let (_, mut t) = kuhn_grid(1, |_, _, _| true);
+    t.push([4, 5, 7, 8]);
+    t
 }
 
 pub fn temperature(p: [f64; 3]) -> f64 {
