@@ -518,15 +518,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             args.size.0,
             args.size.1,
         );
-        let view = ViewParams {
-            eye: cam.eye.to_array(),
-            target: cam.target.to_array(),
-            up: cam.basis().1.to_array(),
-            fovy_deg: cam.fovy_deg,
-            width: cam.width,
-            height: cam.height,
-            tol_px: tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0),
-        };
+        let view = cam.view_params(tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0));
         if last_view != Some(view) {
             let _ = out_tx.send(ClientMsg::View(view));
             last_view = Some(view);

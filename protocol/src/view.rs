@@ -72,6 +72,20 @@ impl Camera {
         }
     }
 
+    /// The `View` message for this camera and a tolerance of `tol_px` pixels (the inverse of
+    /// [`Self::from_view_params`] up to the near plane).
+    pub fn view_params(&self, tol_px: f64) -> ViewParams {
+        ViewParams {
+            eye: self.eye.to_array(),
+            target: self.target.to_array(),
+            up: self.basis().1.to_array(),
+            fovy_deg: self.fovy_deg,
+            width: self.width,
+            height: self.height,
+            tol_px,
+        }
+    }
+
     /// Unit view direction.
     pub fn forward(&self) -> DVec3 {
         (self.target - self.eye).normalize()

@@ -5,68 +5,13 @@
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_render::gpu::GpuContext;
-use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
-
-/// Reads an `Rgba8Unorm` texture back into an image.
-fn read_rgba8(ctx: &GpuContext, texture: &wgpu::Texture, w: u32, h: u32) -> Rgba8Image {
-    let bpr = (w * 4).div_ceil(256) * 256;
-    let buf = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("test readback"),
-        size: (bpr * h) as u64,
-        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-        mapped_at_creation: false,
-    });
-    let mut enc = ctx.device.create_command_encoder(&Default::default());
-    enc.copy_texture_to_buffer(
-        wgpu::TexelCopyTextureInfo {
-            texture,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        },
-        wgpu::TexelCopyBufferInfo {
-            buffer: &buf,
-            layout: wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(bpr),
-                rows_per_image: Some(h),
-            },
-        },
-        wgpu::Extent3d {
-            width: w,
-            height: h,
-            depth_or_array_layers: 1,
-        },
-    );
-    ctx.queue.submit([enc.finish()]);
-    let slice = buf.slice(..);
-    slice.map_async(wgpu::MapMode::Read, |_| {});
-    ctx.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .unwrap();
-    let bytes = slice.get_mapped_range().unwrap();
-    let pixels = (0..h as usize)
-        .flat_map(|y| {
-            bytes[y * bpr as usize..][..(w * 4) as usize]
-                .chunks_exact(4)
-                .map(|c| [c[0], c[1], c[2], c[3]])
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    Rgba8Image {
-        width: w,
-        height: h,
-        pixels,
-    }
-}
 
 #[test]
 fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     let ctx = GpuContext::new().unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"));
     let r = PtRenderer::with_accumulation(&ctx, Accumulation::U8);
-    assert_eq!(r.format(), wgpu::TextureFormat::Rgba8Unorm);
     let mesh = RenderMesh::kuhn_cube(6, 1.0, |p| (p[0] * 3.0).sin() * p[1] + p[2]);
     let data = r.upload(&ctx, &mesh).unwrap();
     let tf = TransferFunction::preset("default").unwrap();
@@ -92,32 +37,26 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
         view_formats: &[],
     });
     let view = texture.create_view(&Default::default());
-    r.draw_into(
-        &ctx,
-        &data,
-        &cam,
-        &tf,
-        VisibilityOrder::Centroid,
-        &view,
-        true,
-    );
-    let drawn = read_rgba8(&ctx, &texture, w, h);
+    let draw = |clear| {
+        r.draw_into(
+            &ctx,
+            &data,
+            &cam,
+            &tf,
+            VisibilityOrder::Centroid,
+            &view,
+            clear,
+        );
+        r.read_texture(&ctx, &texture).unwrap()
+    };
+    let drawn = draw(true);
     assert!(
         drawn == offscreen,
         "the caller's texture differs from the offscreen image"
     );
 
     // drawn without clearing over what the caller had: the same frame blends over it
-    r.draw_into(
-        &ctx,
-        &data,
-        &cam,
-        &tf,
-        VisibilityOrder::Centroid,
-        &view,
-        false,
-    );
-    let twice = read_rgba8(&ctx, &texture, w, h);
+    let twice = draw(false);
     assert!(
         twice != drawn,
         "a second frame without clear blends over the first"

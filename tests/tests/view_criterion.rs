@@ -4,7 +4,6 @@
 use tetwave_client::select::{Mode, SelectParams, Selector};
 use tetwave_client::session::Session;
 use tetwave_protocol::view::{Camera, Tolerance, View};
-use tetwave_protocol::wire::ViewParams;
 use tetwave_server::stream::{ServeConfig, Shared, DATA_DELTA};
 use tetwave_store::Store;
 
@@ -20,15 +19,7 @@ fn server_view_order_and_client_selection_rank_nodes_alike() {
     let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
     // close enough that part of the volume is outside the frustum
     let cam = Camera::orbit(centre, 1.2, 30.0, 20.0, 40.0, 320, 240);
-    let vp = ViewParams {
-        eye: cam.eye.to_array(),
-        target: cam.target.to_array(),
-        up: cam.basis().1.to_array(),
-        fovy_deg: cam.fovy_deg,
-        width: cam.width,
-        height: cam.height,
-        tol_px: 0.0,
-    };
+    let vp = cam.view_params(0.0);
 
     let server = Shared::open(&dir, ServeConfig::default())
         .unwrap()

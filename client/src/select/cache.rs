@@ -1,7 +1,7 @@
 //! What selection keeps per node slot: the node's facts, its last status (valid for one epoch)
 //! and its bounding sphere.
 
-use super::criteria::{sphere32, Status, OUTSIDE};
+use super::criteria::{sphere32, SlotInfo, Status, OUTSIDE};
 use super::{FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
@@ -131,15 +131,6 @@ impl SlotEntry {
     fn forget(&mut self) {
         self.word &= FACTS_MASK;
     }
-}
-
-/// The facts of one node [`Selector::info_of`] gives (from its [`SlotEntry`]).
-#[derive(Debug, Clone, Copy)]
-pub(super) struct SlotInfo {
-    pub(super) smax: f32,
-    pub(super) level: u8,
-    pub(super) present: bool,
-    pub(super) usable: bool,
 }
 
 /// The name of node `id` in [`SlotEntry::tag`]: its low 32 bits plus one, never 0. Two nodes that

@@ -3,8 +3,7 @@
 
 use super::cache::PREFETCH;
 use super::criteria::{Status, Terms};
-use super::sweep::SCAN_CHUNK;
-use super::{CoarsenRef, FrameCtx, Mode, SegVec, Selector};
+use super::{CoarsenRef, FrameCtx, Mode, SegVec, Selector, SCAN_CHUNK};
 use crate::mesh::AdaptiveMesh;
 use glam::DVec3;
 use tetwave_protocol::view::{f32_down, f32_up, View};

@@ -1,13 +1,21 @@
 //! The criteria: what a node's bounding sphere, subtree max and the view say of it, uncached
 //! ([`Selector::want_split`], [`Selector::want_merge`]) and through the per-slot caches.
 
-use super::cache::SlotInfo;
 use super::{CoarsenRef, FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
 use glam::{DVec3, Vec3};
 use tetwave_protocol::view::{data_weight, tet_sphere, View};
 use tetwave_protocol::TetId;
+
+/// The facts of one node the criteria read ([`Selector::info_of`] gives them from its cache entry).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct SlotInfo {
+    pub(super) smax: f32,
+    pub(super) level: u8,
+    pub(super) present: bool,
+    pub(super) usable: bool,
+}
 
 /// Bounding sphere of mesh vertices `v`: the centroid rounded to `f32`, and the distance from it to
 /// the farthest vertex rounded up to `f32` (so that selection caches it in 16 bytes, exactly).

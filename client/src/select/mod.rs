@@ -67,6 +67,9 @@ use tetwave_protocol::TetId;
 
 pub use criteria::bounding_sphere;
 
+/// Node slots scanned between two clock reads.
+pub(super) const SCAN_CHUNK: usize = 512;
+
 /// Whose error decides a merge (thesis: parent; grandparent "adds tolerance to over-refinement").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CoarsenRef {

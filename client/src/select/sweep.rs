@@ -5,14 +5,12 @@ use super::cache::PREFETCH;
 use super::candidates::SlotFlags;
 use super::certificates::Kinetic;
 use super::criteria::Status;
-use super::{Budget, FrameCtx, FrameStats, Mode, Selector};
+use super::{Budget, FrameCtx, FrameStats, Mode, Selector, SCAN_CHUNK};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, MeshError};
 use std::time::Instant;
 use tetwave_protocol::view::{Camera, View};
 
-/// Node slots scanned between two clock reads.
-pub(super) const SCAN_CHUNK: usize = 512;
 /// Sweeps one unbudgeted [`Selector::converge`] may take before giving up.
 const MAX_SWEEPS: usize = 256;
 

@@ -674,11 +674,7 @@ impl PtRenderer {
         let device = &ctx.device;
         let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         let (w, h) = (cam.width, cam.height);
-        let texel = match self.format {
-            wgpu::TextureFormat::Rgba32Float => 16,
-            wgpu::TextureFormat::Rgba16Float => 8,
-            _ => 4,
-        };
+        let texel = texel_bytes(self.format);
         let bpr = (w * texel).div_ceil(256) * 256;
         // taken out for the frame and put back only when it succeeds (a failed readback may leave
         // the buffer mapped or pending)
@@ -702,85 +698,19 @@ impl PtRenderer {
                 view_formats: &[],
             });
             let view = texture.create_view(&Default::default());
-            let readback = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size: (bpr * h) as u64,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
+            let readback = readback_buffer(device, bpr, h);
             (w, h, texture, view, readback)
         });
         let (_, _, texture, view, readback) = &target;
         let mut enc = device.create_command_encoder(&Default::default());
         self.encode_pass(&mut enc, view, true, &frame);
-        enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: readback,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(bpr),
-                    rows_per_image: Some(h),
-                },
-            },
-            wgpu::Extent3d {
-                width: w,
-                height: h,
-                depth_or_array_layers: 1,
-            },
-        );
+        encode_copy(&mut enc, texture, readback, bpr);
         let t1 = std::time::Instant::now();
         ctx.queue.submit([enc.finish()]);
-        let slice = readback.slice(..);
-        slice.map_async(wgpu::MapMode::Read, |_| {});
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        wait_mapped(ctx, readback)?;
         let gpu_ms = t1.elapsed().as_secs_f64() * 1e3;
         let t2 = std::time::Instant::now();
-        let bytes = slice
-            .get_mapped_range()
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
-        // straight to 8 bits per channel, as `Rgba8Image::from_f64` rounds (non-finite → 0)
-        let q = |x: f32| {
-            if x.is_finite() {
-                crate::image_metrics::unit_to_u8(x as f64)
-            } else {
-                0
-            }
-        };
-        let mut pixels = vec![[0u8; 4]; (w * h) as usize];
-        pixels
-            .par_chunks_mut(w.max(1) as usize)
-            .enumerate()
-            .for_each(|(y, out)| {
-                let row = &bytes[y * bpr as usize..][..(w * texel) as usize];
-                match texel {
-                    16 => {
-                        for (o, c) in out.iter_mut().zip(row.chunks_exact(16)) {
-                            let f: [f32; 4] = bytemuck::pod_read_unaligned(c);
-                            *o = f.map(q);
-                        }
-                    }
-                    8 => {
-                        for (o, c) in out.iter_mut().zip(row.chunks_exact(8)) {
-                            let f: [u16; 4] = bytemuck::pod_read_unaligned(c);
-                            *o = f.map(|h| q(half_to_f32(h)));
-                        }
-                    }
-                    _ => {
-                        for (o, c) in out.iter_mut().zip(row.chunks_exact(4)) {
-                            o.copy_from_slice(c);
-                        }
-                    }
-                }
-            });
-        drop(bytes);
+        let pixels = decode_mapped(readback, w, h, bpr, texel)?;
         readback.unmap();
         cache.target = Some(target);
         let img = Rgba8Image {
@@ -799,6 +729,138 @@ impl PtRenderer {
             },
         ))
     }
+
+    /// Reads a texture of [`Self::format`] (with `COPY_SRC` usage, e.g. one [`Self::draw_into`]
+    /// drew) back into an 8-bit image, as [`Self::render_ordered`] reads its own target.
+    pub fn read_texture(
+        &self,
+        ctx: &GpuContext,
+        texture: &wgpu::Texture,
+    ) -> Result<Rgba8Image, RenderError> {
+        let (w, h) = (texture.width(), texture.height());
+        let texel = texel_bytes(self.format);
+        let bpr = (w * texel).div_ceil(256) * 256;
+        let buffer = readback_buffer(&ctx.device, bpr, h);
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        encode_copy(&mut enc, texture, &buffer, bpr);
+        ctx.queue.submit([enc.finish()]);
+        wait_mapped(ctx, &buffer)?;
+        let pixels = decode_mapped(&buffer, w, h, bpr, texel)?;
+        buffer.unmap();
+        Ok(Rgba8Image {
+            width: w,
+            height: h,
+            pixels,
+        })
+    }
+}
+
+/// Bytes per texel of the renderer's colour formats.
+fn texel_bytes(format: wgpu::TextureFormat) -> u32 {
+    match format {
+        wgpu::TextureFormat::Rgba32Float => 16,
+        wgpu::TextureFormat::Rgba16Float => 8,
+        _ => 4,
+    }
+}
+
+/// A mappable buffer for `h` rows of `bpr` bytes.
+fn readback_buffer(device: &wgpu::Device, bpr: u32, h: u32) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: (bpr * h) as u64,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    })
+}
+
+/// Copies the whole of `texture` into `buffer`, rows `bpr` bytes apart.
+fn encode_copy(
+    enc: &mut wgpu::CommandEncoder,
+    texture: &wgpu::Texture,
+    buffer: &wgpu::Buffer,
+    bpr: u32,
+) {
+    let (w, h) = (texture.width(), texture.height());
+    enc.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(bpr),
+                rows_per_image: Some(h),
+            },
+        },
+        wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
+/// Maps `buffer` for reading and waits for the GPU.
+fn wait_mapped(ctx: &GpuContext, buffer: &wgpu::Buffer) -> Result<(), RenderError> {
+    buffer.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| RenderError::Readback(e.to_string()))
+}
+
+/// The mapped rows of `buffer` as 8-bit pixels (straight to 8 bits per channel, as
+/// `Rgba8Image::from_f64` rounds; non-finite → 0). The caller unmaps.
+fn decode_mapped(
+    buffer: &wgpu::Buffer,
+    w: u32,
+    h: u32,
+    bpr: u32,
+    texel: u32,
+) -> Result<Vec<[u8; 4]>, RenderError> {
+    let bytes = buffer
+        .slice(..)
+        .get_mapped_range()
+        .map_err(|e| RenderError::Readback(e.to_string()))?;
+    let q = |x: f32| {
+        if x.is_finite() {
+            crate::image_metrics::unit_to_u8(x as f64)
+        } else {
+            0
+        }
+    };
+    let mut pixels = vec![[0u8; 4]; (w * h) as usize];
+    pixels
+        .par_chunks_mut(w.max(1) as usize)
+        .enumerate()
+        .for_each(|(y, out)| {
+            let row = &bytes[y * bpr as usize..][..(w * texel) as usize];
+            match texel {
+                16 => {
+                    for (o, c) in out.iter_mut().zip(row.chunks_exact(16)) {
+                        let f: [f32; 4] = bytemuck::pod_read_unaligned(c);
+                        *o = f.map(q);
+                    }
+                }
+                8 => {
+                    for (o, c) in out.iter_mut().zip(row.chunks_exact(8)) {
+                        let f: [u16; 4] = bytemuck::pod_read_unaligned(c);
+                        *o = f.map(|h| q(half_to_f32(h)));
+                    }
+                }
+                _ => {
+                    for (o, c) in out.iter_mut().zip(row.chunks_exact(4)) {
+                        o.copy_from_slice(c);
+                    }
+                }
+            }
+        });
+    Ok(pixels)
 }
 
 /// IEEE half → f32 (exact).

@@ -2,7 +2,7 @@
 //! then each node's subtree max |d| and empty children, bottom-up by id arithmetic.
 
 use super::par::par_map;
-use super::walk::{load, Cell, UNOWNED};
+use super::walk::{fold_children, load, Cell, UNOWNED};
 use super::{SCATTER_PARALLEL_FROM, SEQUENTIAL_BELOW};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -124,17 +124,4 @@ pub(super) fn fold_subtrees(
                 .for_each(fold);
         }
     }
-}
-
-/// Folds 8 children's subtree max and empty flags into their parent's.
-#[inline]
-pub(super) fn fold_children(own: &mut f32, empty: &mut u8, child_max: &[f32], child_empty: &[u8]) {
-    let mut e = 0u8;
-    for i in 0..8 {
-        *own = own.max(child_max[i]);
-        if child_empty[i] == 0xff {
-            e |= 1 << i;
-        }
-    }
-    *empty = e;
 }

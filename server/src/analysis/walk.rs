@@ -2,7 +2,6 @@
 //! id, computes their details against the values synthesis will reconstruct, and records its own
 //! max |d| (and, on the last level, folds its children into it).
 
-use super::gather::fold_children;
 use super::keys::{for_each_split_keys, for_each_tet_keys};
 use super::par::par_max;
 use super::{bar, BASE_PER_TASK, PARALLEL_WALK_FROM, PARENTS_PER_TASK};
@@ -295,4 +294,17 @@ impl Walk<'_> {
         pb.finish_and_clear();
         max_err
     }
+}
+
+/// Folds 8 children's subtree max and empty flags into their parent's.
+#[inline]
+pub(super) fn fold_children(own: &mut f32, empty: &mut u8, child_max: &[f32], child_empty: &[u8]) {
+    let mut e = 0u8;
+    for i in 0..8 {
+        *own = own.max(child_max[i]);
+        if child_empty[i] == 0xff {
+            e |= 1 << i;
+        }
+    }
+    *empty = e;
 }
