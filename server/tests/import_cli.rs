@@ -62,6 +62,13 @@ fn json_reports_split_cells() {
     for name in ["volcells.vtu", "volcells_51.vtk", "volcells_22.msh"] {
         let j = prepare(&fixture(name), &[]);
         let i = &j["import"];
+        let points = tetwave_server::import::read_mesh(Path::new(&fixture(name)), None)
+            .unwrap()
+            .mesh
+            .points
+            .len();
+        assert!(points >= 8, "{name}: {points} points");
+        assert_eq!(i["points_read"], points, "{name}");
         assert_eq!(i["cells_read"], 5, "{name}");
         assert_eq!(i["tets_read"], 17, "{name}");
         assert_eq!(i["tets_kept"], 17, "{name}");

@@ -45,6 +45,8 @@ pub const SLIVER_DEGREES: f64 = 5.0;
 /// What cleaning did, for the summary.
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct CleanReport {
+    /// Points of the file (every point, used by a cell or not).
+    pub points_read: usize,
     /// Cells of the file, of every kind.
     pub cells_read: usize,
     /// Tets before cleaning: the file's tets, corner tets of higher-order tets, split cells.
@@ -250,6 +252,7 @@ pub fn clean_import(
 ) -> Result<(ScalarTetMesh, CleanReport), CleanError> {
     let c = m.counts;
     let mut report = CleanReport {
+        points_read: m.mesh.points.len(),
         cells_read: c.cells_read,
         tets_read: m.mesh.tets.len(),
         cells_ignored: m.mesh.cells_ignored,
