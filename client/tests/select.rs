@@ -471,7 +471,9 @@ fn incremental_sees_outside_changes() {
 fn selectors_leave_the_change_log_trimmed() {
     for reference in [true, false] {
         let (mut mesh, buf, _) = loaded(3, wave);
-        let p = SelectParams::new(Tolerance::Pixels(4.0), [-1.0, 1.0]);
+        let mut p = SelectParams::new(Tolerance::Pixels(4.0), [-1.0, 1.0]);
+        // a budget in operations, not time: every frame does some work however loaded the machine
+        p.interactive = Budget::ops(500);
         let mut sel = if reference {
             Selector::full_scan(p)
         } else {
