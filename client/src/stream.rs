@@ -20,7 +20,8 @@ use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{
-    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
+    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES,
+    PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 use tetwave_render::gpu::pt::PtRenderer;
@@ -30,6 +31,7 @@ use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction};
 use tokio::sync::mpsc;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::Message;
 
 /// `tetwave stream` options.
@@ -234,7 +236,7 @@ async fn network(
         let have = ranges_of(&net.received.lock().expect("lock"));
         let conn = tokio::time::timeout(
             Duration::from_secs(5),
-            tokio_tungstenite::connect_async(url.as_str()),
+            tokio_tungstenite::connect_async_with_config(url.as_str(), Some(ws_config()), false),
         )
         .await;
         let (mut ws, _) = match conn {
@@ -330,6 +332,14 @@ async fn network(
             });
         }
     }
+}
+
+/// The client's WebSocket limits: a message may be as large as a protocol frame
+/// ([`MAX_FRAME_BYTES`]); tungstenite's default (16 MiB) would refuse a large base mesh forever.
+pub fn ws_config() -> WebSocketConfig {
+    WebSocketConfig::default()
+        .max_message_size(Some(MAX_FRAME_BYTES))
+        .max_frame_size(Some(MAX_FRAME_BYTES))
 }
 
 /// Runs a headless streaming session.
