@@ -77,7 +77,8 @@ pub struct StreamArgs {
     /// Render with the CPU reference instead of the GPU.
     #[arg(long)]
     pub cpu: bool,
-    /// Stop as soon as every node has arrived and the mesh has converged (at most `--frames`).
+    /// Stop as soon as every node has arrived and the mesh has converged (at most `--frames`);
+    /// ending with nodes missing is then an error (exit status 1).
     #[arg(long)]
     pub until_complete: bool,
     /// Refine but do not render (network and mesh measurements only).
@@ -139,6 +140,14 @@ pub enum StreamError {
     Render(#[from] RenderError),
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
+    /// `--until-complete` and the session ended with nodes missing (frames ran out, or the
+    /// stream failed past the base mesh); the frames written so far are kept.
+    #[error("the session ended incomplete: {received} of {total} nodes after {frames} frames")]
+    Incomplete {
+        received: u64,
+        total: u64,
+        frames: usize,
+    },
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -342,9 +351,18 @@ pub fn ws_config() -> WebSocketConfig {
         .max_frame_size(Some(MAX_FRAME_BYTES))
 }
 
-/// Runs a headless streaming session.
+/// Runs a headless streaming session. With `--until-complete`, a session that ends with nodes
+/// missing is an error.
 pub fn run(args: &StreamArgs) -> Result<StreamReport, StreamError> {
-    Ok(run_session(args, Faults::default())?.report)
+    let report = run_session(args, Faults::default())?.report;
+    if args.until_complete && !report.complete {
+        return Err(StreamError::Incomplete {
+            received: report.nodes_received,
+            total: report.nodes_total,
+            frames: report.frames.len(),
+        });
+    }
+    Ok(report)
 }
 
 /// A finished session: the report and the client's final state.

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::time::Duration;
-use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
+use tetwave_client::stream::{run, run_session, Faults, StreamArgs, StreamError, Streamed};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
@@ -153,4 +153,31 @@ fn disconnect_and_resume_loses_nothing_and_repeats_nothing() {
         clean.report.bytes_received, cut.report.bytes_received
     );
     assert!(ratio <= 1.05, "resumed session took {ratio:.3}x the bytes");
+}
+
+/// `--until-complete` and too few frames to receive everything: an error naming what arrived,
+/// not a success (the frames written so far stay on disk).
+#[test]
+fn until_complete_and_incomplete_is_an_error() {
+    let (d, _, n) = store(5);
+    let srv = serve(&d.path().join("s"), "level");
+    let mut a = StreamArgs::new(&srv.1, &d.path().join("out"));
+    a.no_render = true;
+    a.frames = 1;
+    a.per_frame = 10;
+    a.until_complete = true;
+    a.frame_ms = 5;
+    match run(&a) {
+        Err(StreamError::Incomplete {
+            received,
+            total,
+            frames,
+        }) => {
+            assert_eq!(total, n);
+            assert!(received < total, "{received} of {total}");
+            assert_eq!(frames, 1);
+        }
+        other => panic!("expected an incomplete session, got {other:?}"),
+    }
+    assert!(d.path().join("out/frames.jsonl").exists());
 }
