@@ -49,7 +49,8 @@ enum Cmd {
         #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
         spacing: [f64; 3],
         /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
-        /// magnitude `NAME:mag` (the default for vectors) or a component `NAME:0`. Cell arrays are
+        /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
+        /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
         /// averaged to the points, weighted by volume. Default: the first point scalar.
         #[arg(long)]
         scalar: Option<String>,

@@ -126,10 +126,21 @@ enum Choice<'m> {
 }
 
 /// Values of one component (or the magnitude, or the only component) of tuples of `nc` values.
+/// The magnitude is the Euclidean norm of a vector and the Frobenius norm of a tensor: a
+/// 6-component tuple is a symmetric tensor stored as (xx, yy, zz, xy, yz, xz), VTK's order, whose
+/// off-diagonal terms count twice.
 fn component(values: &[f64], nc: usize, c: Option<Component>) -> Vec<f64> {
     match c {
         None | Some(Component::Index(_)) if nc == 1 => values.to_vec(),
         Some(Component::Index(k)) => values.chunks_exact(nc).map(|t| t[k]).collect(),
+        None | Some(Component::Magnitude) if nc == 6 => values
+            .chunks_exact(6)
+            .map(|t| {
+                let diag = t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+                let off = t[3] * t[3] + t[4] * t[4] + t[5] * t[5];
+                (diag + 2.0 * off).sqrt()
+            })
+            .collect(),
         None | Some(Component::Magnitude) => values
             .chunks_exact(nc)
             .map(|t| t.iter().map(|x| x * x).sum::<f64>().sqrt())
@@ -811,6 +822,20 @@ fn invert_columns(c: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
 
 #[cfg(test)]
 mod tests {
+
+    /// `:mag` is the Frobenius norm: of a 6-component symmetric tensor (off-diagonal terms twice),
+    /// of a 9-component full tensor, and the Euclidean norm of a vector.
+    #[test]
+    fn magnitude_is_the_frobenius_norm_of_tensors() {
+        let sym = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let full = [1.0, 4.0, 6.0, 4.0, 2.0, 5.0, 6.0, 5.0, 3.0];
+        let m = Some(Component::Magnitude);
+        let want = (1.0f64 + 4.0 + 9.0 + 2.0 * (16.0 + 25.0 + 36.0)).sqrt();
+        assert_eq!(component(&sym, 6, m), vec![want]);
+        assert!((component(&full, 9, m)[0] - want).abs() < 1e-12);
+        assert_eq!(component(&[3.0, 4.0, 0.0], 3, m), vec![5.0]);
+    }
+
     use super::*;
 
     fn cube6() -> ScalarTetMesh {
