@@ -5,10 +5,10 @@
 use std::path::Path;
 use std::time::Duration;
 use tetwave_client::stream::{run, run_session, Faults, StreamArgs, StreamError, Streamed};
-use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
 use tetwave_store::Store;
+
+mod common;
 
 /// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
 struct Server(Option<tokio::sync::oneshot::Sender<()>>, String);
@@ -50,16 +50,11 @@ fn serve(store: &Path, order: &str) -> Server {
     Server(Some(stop_tx), format!("http://{addr}"))
 }
 
+/// A harmonic store in `<dir>/s`, its synthesized values and its node count.
 fn store(levels: u8) -> (tempfile::TempDir, Vec<f32>, u64) {
-    let d = tempfile::tempdir().unwrap();
-    let mut o = PrepareOptions::new("synthetic:harmonic", &d.path().join("s"));
-    o.levels = levels;
-    prepare(&o).unwrap();
-    let s = Store::open(&d.path().join("s")).unwrap();
-    let n = s.manifest.counts.nodes;
-    let values =
-        synthesize_all(&s.base, &s.base.vertex_keys(), s.read_nodes(0, n).unwrap()).unwrap();
-    (d, values, n)
+    let (d, dir) = common::harmonic_store(levels);
+    let s = Store::open(&dir).unwrap();
+    (d, s.synthesize_all().unwrap(), s.manifest.counts.nodes)
 }
 
 fn session(url: &str, out: &Path, faults: Faults) -> Streamed {
