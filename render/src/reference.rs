@@ -6,11 +6,12 @@
 //! non-convex meshes and gaps are exact) and each is integrated with sub-steps doubled until the
 //! result changes by less than `1e-7`. Rays start at the camera's near plane.
 
-use crate::image_metrics::Rgba8Image;
+use crate::image_metrics::{unit_to_u8, Rgba8Image};
 use crate::render_mesh::RenderMesh;
 use crate::transfer::{integrate_segment_converged, TransferFunction};
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 use tetwave_protocol::view::Camera;
 
 /// Convergence tolerance of each segment's integral.
@@ -28,9 +29,48 @@ pub fn render_reference_f64(
     cam: &Camera,
     tf: &TransferFunction,
 ) -> Vec<[f64; 4]> {
+    trace(mesh, cam, tf, None, |p| p).expect("not cancellable")
+}
+
+/// [`render_reference_f64`] quantized to RGBA8.
+pub fn render_reference(mesh: &RenderMesh, cam: &Camera, tf: &TransferFunction) -> Rgba8Image {
+    let pixels = trace(mesh, cam, tf, None, |p| p.map(unit_to_u8)).expect("not cancellable");
+    Rgba8Image {
+        width: cam.width,
+        height: cam.height,
+        pixels,
+    }
+}
+
+/// [`render_reference`] that stops when `cancel` becomes true (checked before each row): `None`
+/// then. Memory: 4 bytes per pixel for the image, plus per tet its ray geometry (~140 bytes) and one
+/// 12-byte entry per image row its screen footprint spans.
+pub fn render_reference_cancellable(
+    mesh: &RenderMesh,
+    cam: &Camera,
+    tf: &TransferFunction,
+    cancel: &AtomicBool,
+) -> Option<Rgba8Image> {
+    let pixels = trace(mesh, cam, tf, Some(cancel), |p| p.map(unit_to_u8))?;
+    Some(Rgba8Image {
+        width: cam.width,
+        height: cam.height,
+        pixels,
+    })
+}
+
+/// The integrator: every pixel's premultiplied RGBA through `px`; `None` when cancelled.
+fn trace<T: Send + Copy + Default>(
+    mesh: &RenderMesh,
+    cam: &Camera,
+    tf: &TransferFunction,
+    cancel: Option<&AtomicBool>,
+    px: impl Fn([f64; 4]) -> T + Sync,
+) -> Option<Vec<T>> {
+    let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
     let (w, h) = (cam.width as usize, cam.height as usize);
     if w == 0 || h == 0 {
-        return Vec::new();
+        return Some(Vec::new());
     }
     let origin = mesh.center();
     let eye = cam.eye - origin;
@@ -85,10 +125,16 @@ pub fn render_reference_f64(
             row.push((t as u32, x0 as u32, x1 as u32));
         }
     }
-    let mut out = vec![[0f64; 4]; w * h];
+    if cancelled() {
+        return None;
+    }
+    let mut out = vec![T::default(); w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, line)| {
+        if cancelled() {
+            return;
+        }
         let mut segs: Vec<(f64, f64, f64, f64)> = Vec::new();
-        for (x, px) in line.iter_mut().enumerate() {
+        for (x, pixel) in line.iter_mut().enumerate() {
             let dir = cam.ray_dir(x as u32, y as u32);
             let t_near = cam.near_t(dir);
             segs.clear();
@@ -129,15 +175,10 @@ pub fn render_reference_f64(
                     break;
                 }
             }
-            *px = [c[0], c[1], c[2], 1.0 - tr];
+            *pixel = px([c[0], c[1], c[2], 1.0 - tr]);
         }
     });
-    out
-}
-
-/// [`render_reference_f64`] quantized to RGBA8.
-pub fn render_reference(mesh: &RenderMesh, cam: &Camera, tf: &TransferFunction) -> Rgba8Image {
-    Rgba8Image::from_f64(cam.width, cam.height, &render_reference_f64(mesh, cam, tf))
+    (!cancelled()).then_some(out)
 }
 
 #[cfg(test)]
@@ -212,5 +253,29 @@ mod tests {
             .fold(0.0, f64::max);
         // each segment converges to 1e-7; summed over the segments of a ray: far below one 8-bit level
         assert!(worst < 1e-5, "{worst}");
+    }
+
+    /// The cancellable integrator gives the same image when left alone and nothing once cancelled.
+    #[test]
+    fn cancellable_matches_and_cancels() {
+        let mesh = RenderMesh::new(
+            vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
+            vec![[0, 1, 2, 3]],
+            vec![0.0, 0.3, 0.6, 1.0],
+        );
+        let cam = Camera::orbit(mesh.center(), 3.0, 35.0, 25.0, 40.0, 24, 20);
+        let tf = TransferFunction::preset("default").unwrap();
+        let keep = AtomicBool::new(false);
+        let a = render_reference(&mesh, &cam, &tf);
+        let b = render_reference_cancellable(&mesh, &cam, &tf, &keep).unwrap();
+        assert_eq!(a.pixels, b.pixels);
+        assert!(a.pixels.iter().any(|p| p[3] > 0), "the tet is in view");
+        let stop = AtomicBool::new(true);
+        assert!(render_reference_cancellable(&mesh, &cam, &tf, &stop).is_none());
     }
 }

@@ -81,9 +81,47 @@ enum Cmd {
         #[arg(long, default_value = "127.0.0.1:7878")]
         addr: String,
         /// Require this token from every client (`Authorization: Bearer T`, `?token=T`, or the
-        /// stream's Hello); requests without it get 401. An empty token is refused.
-        #[arg(long, env = "TETWAVE_TOKEN")]
+        /// stream's Hello); requests without it get 401. An empty token is refused. A token given
+        /// on the command line is visible to every user of this machine (`ps`): prefer the
+        /// TETWAVE_TOKEN environment variable. Wrong tokens are logged with the peer's address and
+        /// limited to 10 in a burst, then one a second, per address.
+        #[arg(long, env = "TETWAVE_TOKEN", hide_env_values = true)]
         token: Option<String>,
+        /// Also serve requests whose Host is this name (repeatable; `*`: any). IP addresses and
+        /// `localhost` are always served; other names are refused against DNS rebinding.
+        #[arg(long = "allow-host", value_name = "NAME")]
+        allow_hosts: Vec<String>,
+        /// Also accept browser requests from this origin, e.g. `https://viz.example:8443`
+        /// (repeatable; `*`: any). By default only pages served by this server may use it.
+        #[arg(long = "allow-origin", value_name = "ORIGIN")]
+        allow_origins: Vec<String>,
+        /// Most open connections (HTTP and WebSocket); default: 1024, or less under a low
+        /// open-file limit (`ulimit -n` minus 64).
+        #[arg(long)]
+        max_connections: Option<usize>,
+        /// Most open HTTP connections per client address.
+        #[arg(long, default_value_t = 128)]
+        max_connections_per_peer: usize,
+        /// Most WebSocket streams per client address (behind a reverse proxy every client has the
+        /// proxy's address: raise it there).
+        #[arg(long, default_value_t = 16)]
+        max_streams_per_peer: usize,
+        /// Seconds a client has to send a request's headers (and an idle keep-alive connection
+        /// stays open).
+        #[arg(long, default_value_t = 10.0)]
+        header_timeout: f64,
+        /// Seconds a stream may stay silent while the server waits on it.
+        #[arg(long, default_value_t = 120.0)]
+        idle_timeout: f64,
+        /// Renders that may wait behind the running one (`/v1/render`); more get 503.
+        #[arg(long, default_value_t = 4)]
+        render_queue: usize,
+        /// Seconds a render may take, waiting included; then 503 and it is cancelled.
+        #[arg(long, default_value_t = 30.0)]
+        render_deadline: f64,
+        /// Most pixels (width × height) of one render.
+        #[arg(long, default_value_t = 2048 * 2048)]
+        max_render_pixels: u64,
         /// Default order of the stream (a client may pick another with `/v1/stream?order=`).
         #[arg(long, value_enum, default_value_t = tetwave_server::stream::Order::Level)]
         order: tetwave_server::stream::Order,
@@ -225,6 +263,16 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             store,
             addr,
             token,
+            allow_hosts,
+            allow_origins,
+            max_connections,
+            max_connections_per_peer,
+            max_streams_per_peer,
+            header_timeout,
+            idle_timeout,
+            render_queue,
+            render_deadline,
+            max_render_pixels,
             order,
             batch,
             window,
@@ -241,11 +289,46 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 // an unset variable in `--token "$T"` must not serve without authentication
                 return Err("--token is empty; leave it out to serve without a token".into());
             }
+            let secs = |name: &str, v: f64| {
+                if v.is_finite() && v > 0.0 && v <= 86_400.0 {
+                    Ok(std::time::Duration::from_secs_f64(v))
+                } else {
+                    Err(format!("--{name} {v}: give seconds in (0, 86400]"))
+                }
+            };
+            let mut limits = tetwave_server::stream::Limits::default();
+            if let Some(m) = max_connections {
+                if m == 0 {
+                    return Err("--max-connections must be at least 1".into());
+                }
+                if let Some(files) = tetwave_server::stream::open_file_limit() {
+                    if m as u64 + 64 > files {
+                        tracing::warn!(
+                            "--max-connections {m} is close to the open-file limit {files}; \
+                             raise `ulimit -n` or connections will fail at accept"
+                        );
+                    }
+                }
+                limits.max_connections = m;
+            }
+            limits.max_connections_per_peer = max_connections_per_peer.max(1);
+            limits.max_streams_per_peer = max_streams_per_peer.max(1);
+            limits.header_read_timeout = secs("header-timeout", header_timeout)?;
+            limits.render_queue = render_queue;
+            limits.render_deadline = secs("render-deadline", render_deadline)?;
+            limits.max_render_pixels = max_render_pixels.max(1);
+            let lower = |v: Vec<String>| v.into_iter().map(|s| s.to_ascii_lowercase()).collect();
             let config = ServeConfig {
                 token,
                 order,
                 batch,
                 window,
+                idle_timeout: secs("idle-timeout", idle_timeout)?,
+                limits,
+                origins: tetwave_server::stream::OriginPolicy {
+                    allow_hosts: lower(allow_hosts),
+                    allow_origins: lower(allow_origins),
+                },
                 ..ServeConfig::default()
             };
             let shared = Shared::open(&store, config)?;
@@ -259,6 +342,12 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     .await
                     .map_err(|e| format!("{addr}: {e}"))?;
                 let local = listener.local_addr()?;
+                if !local.ip().is_loopback() && shared.config.token.is_none() {
+                    tracing::warn!(
+                        "serving on {local} without a token: anyone who can reach this address \
+                         can read the data (set TETWAVE_TOKEN)"
+                    );
+                }
                 {
                     use std::io::Write;
                     let mut out = std::io::stdout().lock();

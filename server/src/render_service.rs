@@ -16,13 +16,14 @@
 use axum::http::StatusCode;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::BaseMesh;
 use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::Rgba8Image;
-use tetwave_render::reference::render_reference;
+use tetwave_render::reference::render_reference_cancellable;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 use tetwave_store::Store;
@@ -245,6 +246,32 @@ pub struct RenderService {
     dir: PathBuf,
     data: OnceLock<Result<StoreData, String>>,
     state: Mutex<RenderState>,
+    counts: RenderCounts,
+}
+
+/// Renders started, finished, cancelled and running (for `/healthz` and tests).
+#[derive(Default)]
+struct RenderCounts {
+    started: AtomicU64,
+    finished: AtomicU64,
+    cancelled: AtomicU64,
+}
+
+/// Decrements nothing; counts how a render ended when dropped.
+struct Counting<'a> {
+    counts: &'a RenderCounts,
+    ended: bool,
+}
+
+impl Drop for Counting<'_> {
+    fn drop(&mut self) {
+        let c = if self.ended {
+            &self.counts.finished
+        } else {
+            &self.counts.cancelled
+        };
+        c.fetch_add(1, Ordering::Relaxed);
+    }
 }
 
 /// One rendered image and how.
@@ -264,7 +291,24 @@ impl RenderService {
                 gpu: None,
                 mesh: None,
             }),
+            counts: RenderCounts::default(),
         }
+    }
+
+    /// `{started, finished, cancelled, running}` so far, as JSON.
+    pub fn counts(&self) -> serde_json::Value {
+        let c = &self.counts;
+        let (s, f, x) = (
+            c.started.load(Ordering::Relaxed),
+            c.finished.load(Ordering::Relaxed),
+            c.cancelled.load(Ordering::Relaxed),
+        );
+        serde_json::json!({
+            "started": s,
+            "finished": f,
+            "cancelled": x,
+            "running": s.saturating_sub(f + x),
+        })
     }
 
     fn data(&self) -> Result<&StoreData, String> {
@@ -278,15 +322,45 @@ impl RenderService {
             .map_err(|e| e.clone())
     }
 
-    /// Renders one image (blocking: call from a blocking thread). `Err((status, message))`.
-    pub fn render(&self, p: &RenderParams) -> Result<Rendered, (StatusCode, String)> {
+    /// Renders one image (blocking: call from a blocking thread). `Err((status, message))`. When
+    /// `cancel` becomes true the CPU integrator stops within a row and this returns 503; a GPU
+    /// render is checked before it starts.
+    pub fn render(
+        &self,
+        p: &RenderParams,
+        cancel: &AtomicBool,
+    ) -> Result<Rendered, (StatusCode, String)> {
+        self.counts.started.fetch_add(1, Ordering::Relaxed);
+        let mut counting = Counting {
+            counts: &self.counts,
+            ended: false,
+        };
+        let r = self.render_counted(p, cancel);
+        counting.ended = r.is_ok() || !cancel.load(Ordering::Relaxed);
+        r
+    }
+
+    fn render_counted(
+        &self,
+        p: &RenderParams,
+        cancel: &AtomicBool,
+    ) -> Result<Rendered, (StatusCode, String)> {
         let internal = |e: String| (StatusCode::INTERNAL_SERVER_ERROR, e);
+        let cancelled = || {
+            (
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the render was cancelled".to_string(),
+            )
+        };
         let (store, values) = self.data().map_err(internal)?;
         let base = &store.base;
         let level = p.level_for(base);
         let tf = TransferFunction::preset(&p.tf)
             .ok_or_else(|| (StatusCode::BAD_REQUEST, format!("unknown tf {:?}", p.tf)))?;
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        if cancel.load(Ordering::Relaxed) {
+            return Err(cancelled());
+        }
         let mesh = match &st.mesh {
             Some((l, m)) if *l == level => m.clone(),
             _ => {
@@ -345,7 +419,7 @@ impl RenderService {
                 Err(_) => {}
             }
         }
-        let image = render_reference(&mesh, &cam, &tf);
+        let image = render_reference_cancellable(&mesh, &cam, &tf, cancel).ok_or_else(cancelled)?;
         Ok(Rendered {
             image,
             renderer: "cpu-reference".into(),

@@ -61,7 +61,8 @@ fn health(addr: SocketAddr, rt: &tokio::runtime::Runtime) -> serde_json::Value {
 #[test]
 fn sixty_four_concurrent_clients_all_complete() {
     let (_d, dir) = make_store(5);
-    let (_server, addr) = spawn_server(&dir, &["--batch", "256"]);
+    // every client comes from 127.0.0.1: allow them all (the default is 16 streams per address)
+    let (_server, addr) = spawn_server(&dir, &["--batch", "256", "--max-streams-per-peer", "64"]);
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()

@@ -1,5 +1,6 @@
 //! What `tetwave-server serve` is told: the stream [`Order`] and the [`ServeConfig`].
 
+use super::origin::OriginPolicy;
 use std::time::Duration;
 
 /// The order detail nodes are streamed in.
@@ -47,6 +48,48 @@ pub struct ServeConfig {
     pub cache_limit_bytes: u64,
     /// Most nodes one `GET /v1/nodes` may ask for.
     pub max_range: u64,
+    /// Connection, time and render limits.
+    pub limits: Limits,
+    /// Host and Origin allowlists.
+    pub origins: OriginPolicy,
+}
+
+/// What a server admits and for how long; `docs/security.md` lists each with its flag.
+#[derive(Debug, Clone)]
+pub struct Limits {
+    /// Open connections (HTTP and WebSocket) at most; more are closed on accept.
+    pub max_connections: usize,
+    /// Open HTTP connections per peer address.
+    pub max_connections_per_peer: usize,
+    /// WebSocket streams per peer address; more get 429.
+    pub max_streams_per_peer: usize,
+    /// Request headers must arrive within this; an idle keep-alive connection is closed after it.
+    pub header_read_timeout: Duration,
+    /// Longest an HTTP request other than a render may take (408 after it).
+    pub request_timeout: Duration,
+    /// Renders that may wait behind the running one; more get 503 with `Retry-After`.
+    pub render_queue: usize,
+    /// Longest a render may take, waiting included: then 503 and the render is cancelled.
+    pub render_deadline: Duration,
+    /// Most pixels (width × height) one render may have.
+    pub max_render_pixels: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        // leave room below the open-file limit for the store's files and the process itself
+        let files = super::admission::open_file_limit().unwrap_or(1024);
+        Limits {
+            max_connections: (files.saturating_sub(64) as usize).clamp(16, 1024),
+            max_connections_per_peer: 128,
+            max_streams_per_peer: 16,
+            header_read_timeout: Duration::from_secs(10),
+            request_timeout: Duration::from_secs(60),
+            render_queue: 4,
+            render_deadline: Duration::from_secs(30),
+            max_render_pixels: 2048 * 2048,
+        }
+    }
 }
 
 impl Default for ServeConfig {
@@ -60,6 +103,8 @@ impl Default for ServeConfig {
             seed: 0x7e7_3a7e,
             cache_limit_bytes: 512 << 20,
             max_range: 1 << 16,
+            limits: Limits::default(),
+            origins: OriginPolicy::default(),
         }
     }
 }

@@ -3,15 +3,16 @@
 
 use super::auth::same;
 use super::config::Order;
-use super::schedule::Schedule;
+use super::schedule::{Schedule, MAX_QUEUED_WANTS};
 use super::state::Shared;
 use axum::body::Bytes;
-use axum::extract::ws::{Message, WebSocket};
+use axum::extract::ws::{CloseFrame, Message, WebSocket};
 use futures_util::{SinkExt, StreamExt};
+use std::sync::atomic::Ordering as AtomicOrdering;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tetwave_protocol::wire::{
-    decode_client, encode, ClientMsg, ServerMsg, ViewParams, PROTOCOL_VERSION,
+    decode_client, encode, ClientMsg, ServerMsg, MAX_RANGES, PROTOCOL_VERSION,
 };
 use tokio::sync::mpsc;
 
@@ -28,7 +29,21 @@ pub(super) enum ConnError {
 /// What the reader task hands the connection loop.
 enum Incoming {
     Msg(ClientMsg),
+    /// A frame that does not decode, or a text frame.
     Bad(String),
+    /// A message over the size limit (the socket is unusable for reading after it).
+    TooBig(String),
+}
+
+/// WebSocket close codes (RFC 6455 §7.4.1) the server uses.
+mod close_code {
+    pub const NORMAL: u16 = 1000;
+    /// Idle timeout.
+    pub const GOING_AWAY: u16 = 1001;
+    /// A message the protocol does not allow: wrong version, token, order or budget.
+    pub const POLICY: u16 = 1008;
+    pub const TOO_BIG: u16 = 1009;
+    pub const INTERNAL: u16 = 1011;
 }
 
 /// How long a client has to send `Hello`.
@@ -36,21 +51,154 @@ const HELLO_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long one frame may take to go out.
 const SEND_TIMEOUT: Duration = Duration::from_secs(60);
 
+/// A client's control messages draw on this budget: each costs one unit plus one per range. It
+/// holds [`BUDGET_BURST`] units and refills at [`BUDGET_PER_SEC`]; a client that overdraws it is
+/// closed (1008). An honest client sends a few `Want`s, a `View` per frame and an `Ack` per batch.
+const BUDGET_PER_SEC: f64 = MAX_RANGES as f64;
+const BUDGET_BURST: f64 = 4.0 * MAX_RANGES as f64;
+/// Control messages with more ranges than this are applied on a blocking thread.
+const BLOCKING_RANGES: usize = 256;
+
+/// A token bucket.
+struct Budget {
+    units: f64,
+    at: Instant,
+}
+
+impl Budget {
+    fn new() -> Self {
+        Budget {
+            units: BUDGET_BURST,
+            at: Instant::now(),
+        }
+    }
+    fn charge(&mut self, cost: usize) -> bool {
+        let now = Instant::now();
+        self.units =
+            (self.units + (now - self.at).as_secs_f64() * BUDGET_PER_SEC).min(BUDGET_BURST);
+        self.at = now;
+        self.units -= cost as f64;
+        self.units >= 0.0
+    }
+}
+
+/// Ranges a control message carries.
+fn ranges_of(m: &ClientMsg) -> usize {
+    match m {
+        ClientMsg::Hello { have, .. } => have.len(),
+        ClientMsg::Want(r) | ClientMsg::Cancel(r) => r.len(),
+        ClientMsg::View(_) | ClientMsg::Ack { .. } => 0,
+    }
+}
+
+/// Why a connection is being closed: a code for the close frame, and an `Error` message first when
+/// the client should learn why.
+struct Closing {
+    code: u16,
+    reason: String,
+    /// `Error { code }` sent before the close frame.
+    error: Option<u16>,
+    result: Result<(), ConnError>,
+}
+
+impl Closing {
+    fn client(error: u16, reason: String) -> Self {
+        Closing {
+            code: close_code::POLICY,
+            error: Some(error),
+            result: Err(ConnError::Client(reason.clone())),
+            reason,
+        }
+    }
+    fn from_incoming_failure(m: Incoming) -> Self {
+        match m {
+            Incoming::TooBig(r) => Closing {
+                code: close_code::TOO_BIG,
+                error: None,
+                result: Err(ConnError::Client(r.clone())),
+                reason: r,
+            },
+            Incoming::Bad(r) => Closing::client(400, r),
+            Incoming::Msg(_) => Closing::client(400, "unexpected message".into()),
+        }
+    }
+    fn internal(reason: String) -> Self {
+        Closing {
+            code: close_code::INTERNAL,
+            error: Some(500),
+            result: Err(ConnError::Socket(reason.clone())),
+            reason,
+        }
+    }
+    fn idle() -> Self {
+        Closing {
+            code: close_code::GOING_AWAY,
+            reason: "idle timeout".into(),
+            error: None,
+            result: Err(ConnError::Idle),
+        }
+    }
+    fn normal() -> Self {
+        Closing {
+            code: close_code::NORMAL,
+            reason: String::new(),
+            error: None,
+            result: Ok(()),
+        }
+    }
+}
+
 pub(super) async fn run_connection(
     socket: WebSocket,
     s: Arc<Shared>,
     order: Order,
     pre_auth: bool,
+    peer: Option<std::net::SocketAddr>,
 ) -> Result<(), ConnError> {
-    let (mut sink, mut stream) = socket.split();
-    let error_frame = |code: u16, message: String| {
-        Bytes::from(encode(&ServerMsg::Error { code, message }).unwrap_or_default())
+    let (mut sink, stream) = socket.split();
+    let closing = match stream_to(&mut sink, stream, &s, order, pre_auth, peer).await {
+        Ok(c) => c,
+        // the socket failed: nothing more can be said on it
+        Err(e) => return Err(e),
     };
+    if let Some(code) = closing.error {
+        let f = encode(&ServerMsg::Error {
+            code,
+            message: closing.reason.clone(),
+        })
+        .unwrap_or_default();
+        let _ = send(&mut sink, Bytes::from(f)).await;
+    }
+    let mut reason = closing.reason;
+    // a close frame's reason is at most 123 bytes
+    while reason.len() > 123 {
+        reason.pop();
+    }
+    let frame = CloseFrame {
+        code: closing.code,
+        reason: reason.into(),
+    };
+    let _ = tokio::time::timeout(
+        Duration::from_secs(2),
+        sink.send(Message::Close(Some(frame))),
+    )
+    .await;
+    closing.result
+}
 
+/// The stream proper; returns how to close (or a socket error, when nothing can be sent).
+async fn stream_to(
+    sink: &mut Sink,
+    mut stream: futures_util::stream::SplitStream<WebSocket>,
+    s: &Arc<Shared>,
+    order: Order,
+    pre_auth: bool,
+    peer: Option<std::net::SocketAddr>,
+) -> Result<Closing, ConnError> {
     // 1. Hello
     let first = match tokio::time::timeout(HELLO_TIMEOUT, read_msg(&mut stream)).await {
-        Err(_) => return Err(ConnError::Idle),
-        Ok(None) => return Ok(()),
+        Err(_) => return Ok(Closing::idle()),
+        Ok(None) => return Ok(Closing::normal()),
         Ok(Some(m)) => m,
     };
     let have = match first {
@@ -61,39 +209,33 @@ pub(super) async fn run_connection(
         }) => {
             if version != PROTOCOL_VERSION {
                 let m = format!("protocol version {version}, server speaks {PROTOCOL_VERSION}");
-                let _ = send(&mut sink, error_frame(426, m.clone())).await;
-                let _ = sink.close().await;
-                return Err(ConnError::Client(m));
+                return Ok(Closing::client(426, m));
             }
             if let (Some(want), false) = (&s.config.token, pre_auth) {
                 if !token.as_deref().is_some_and(|t| same(t, want)) {
-                    let _ =
-                        send(&mut sink, error_frame(401, "missing or wrong token".into())).await;
-                    let _ = sink.close().await;
-                    return Err(ConnError::Client("unauthorized".into()));
+                    if token.is_some() {
+                        s.auth_failures.failed(peer, "stream Hello");
+                    }
+                    return Ok(Closing::client(401, "missing or wrong token".into()));
                 }
             }
             have
         }
         Incoming::Msg(_) => {
-            let m = "the first message must be Hello".to_string();
-            let _ = send(&mut sink, error_frame(400, m.clone())).await;
-            let _ = sink.close().await;
-            return Err(ConnError::Client(m));
+            return Ok(Closing::client(
+                400,
+                "the first message must be Hello".into(),
+            ))
         }
-        Incoming::Bad(m) => {
-            let _ = send(&mut sink, error_frame(400, m.clone())).await;
-            let _ = sink.close().await;
-            return Err(ConnError::Client(m));
-        }
+        other => return Ok(Closing::from_incoming_failure(other)),
     };
 
     // 2. reader task: decoded client messages into a small bounded channel
     let (tx, mut rx) = mpsc::channel::<Incoming>(32);
     let reader = tokio::spawn(async move {
         while let Some(m) = read_msg(&mut stream).await {
-            let bad = matches!(m, Incoming::Bad(_));
-            if tx.send(m).await.is_err() || bad {
+            let last = !matches!(m, Incoming::Msg(_));
+            if tx.send(m).await.is_err() || last {
                 break;
             }
         }
@@ -107,10 +249,17 @@ pub(super) async fn run_connection(
     let _reader = AbortOnDrop(reader);
 
     // 3. manifest, base
-    send(&mut sink, s.manifest_frame.clone()).await?;
-    send(&mut sink, s.base_frame.clone()).await?;
+    send(sink, s.manifest_frame.clone()).await?;
+    send(sink, s.base_frame.clone()).await?;
 
     // 4. nodes
+    let mut budget = Budget::new();
+    if !budget.charge(1 + have.len()) {
+        return Ok(Closing::client(
+            429,
+            "Hello exceeds the message budget".into(),
+        ));
+    }
     let sched_s = s.clone();
     let mut sched = tokio::task::spawn_blocking(move || {
         let mut sc = Schedule::new(&sched_s, order);
@@ -125,130 +274,153 @@ pub(super) async fn run_connection(
     let mut end_due = true;
     let batch = s.config.batch.max(1);
     let window = s.config.window.max(1);
+    let mut rescans = 0u64;
+    // control messages received and not applied yet (Acks are applied at once)
+    let mut pending: Vec<ClientMsg> = Vec::new();
 
     loop {
-        // control messages that are already here (coalesce views: only the last one counts)
-        let mut view = None;
+        // control messages that are already here
         loop {
             match rx.try_recv() {
-                Ok(m) => match handle(&mut sched, m, &mut acked, next_seq, &mut end_due) {
-                    Ok(Some(v)) => view = Some(v),
-                    Ok(None) => {}
-                    Err(e) => {
-                        let _ = send(&mut sink, error_frame(400, e.to_string())).await;
-                        let _ = sink.close().await;
-                        return Err(e);
+                Ok(m) => {
+                    if let Some(c) = accept(m, &mut budget, &mut acked, next_seq, &mut pending) {
+                        return Ok(c);
                     }
-                },
-                Err(mpsc::error::TryRecvError::Empty) => break,
-                Err(mpsc::error::TryRecvError::Disconnected) => {
-                    let _ = sink.close().await;
-                    return Ok(());
                 }
+                Err(mpsc::error::TryRecvError::Empty) => break,
+                Err(mpsc::error::TryRecvError::Disconnected) => return Ok(Closing::normal()),
             }
         }
-        if let Some(v) = view {
-            sched.set_view(v);
-        }
         let can_send = next_seq - acked < window;
-        if sched.has_work() && can_send {
-            let (sc, frame) = {
-                let s2 = s.clone();
-                let seq = next_seq;
-                let mut sc = sched;
-                tokio::task::spawn_blocking(move || {
-                    let mut ids = sc.next_batch(&s2, batch);
-                    let f = s2
-                        .fetch(&mut ids)
+        if !pending.is_empty() || (sched.has_work() && can_send) {
+            let heavy = pending.iter().map(ranges_of).sum::<usize>() > BLOCKING_RANGES;
+            let wants = pending.iter().any(|m| matches!(m, ClientMsg::Want(_)));
+            let msgs = std::mem::take(&mut pending);
+            let send_now = can_send;
+            let step = move |mut sc: Schedule, s2: &Shared, seq: u64| {
+                let applied = apply(&mut sc, msgs);
+                let frame = (applied && send_now && sc.has_work()).then(|| {
+                    let mut ids = sc.next_batch(s2, batch);
+                    s2.fetch(&mut ids)
                         .map_err(|e| e.to_string())
                         .and_then(|nodes| {
                             let k = nodes.len() as u64;
                             encode(&ServerMsg::Nodes { seq, nodes })
                                 .map(|f| (f, k))
                                 .map_err(|e| e.to_string())
-                        });
-                    (sc, f)
-                })
-                .await
-                .map_err(|e| ConnError::Socket(e.to_string()))?
+                        })
+                });
+                (sc, applied, frame)
+            };
+            // batches and large control messages on a blocking thread; small ones here
+            let (sc, applied, frame) = if heavy || send_now && sched.has_work() {
+                let s2 = s.clone();
+                let seq = next_seq;
+                tokio::task::spawn_blocking(move || step(sched, &s2, seq))
+                    .await
+                    .map_err(|e| ConnError::Socket(e.to_string()))?
+            } else {
+                step(sched, s, next_seq)
             };
             sched = sc;
-            let (frame, k) = match frame {
-                Ok(x) => x,
-                Err(m) => {
-                    let _ = send(&mut sink, error_frame(500, m.clone())).await;
-                    let _ = sink.close().await;
-                    return Err(ConnError::Socket(m));
-                }
-            };
-            if k == 0 {
-                continue;
+            let r = sched.rescans();
+            s.view_rescans
+                .fetch_add(r - rescans, AtomicOrdering::Relaxed);
+            rescans = r;
+            if !applied {
+                return Ok(Closing::client(
+                    429,
+                    format!("more than {MAX_QUEUED_WANTS} queued Want ranges"),
+                ));
             }
-            send(&mut sink, Bytes::from(frame)).await?;
-            next_seq += 1;
-            nodes_sent += k;
-            end_due = true;
+            if wants {
+                end_due = true;
+            }
+            match frame {
+                None => {}
+                Some(Err(m)) => return Ok(Closing::internal(m)),
+                Some(Ok((_, 0))) => {}
+                Some(Ok((frame, k))) => {
+                    send(sink, Bytes::from(frame)).await?;
+                    next_seq += 1;
+                    nodes_sent += k;
+                    end_due = true;
+                }
+            }
             continue;
         }
         if !sched.has_work() && end_due {
             let f = encode(&ServerMsg::End { nodes_sent }).unwrap_or_default();
-            send(&mut sink, Bytes::from(f)).await?;
+            send(sink, Bytes::from(f)).await?;
             end_due = false;
             continue;
         }
         // nothing to do until the client says something (an Ack, a Want, a View)
         match tokio::time::timeout(s.config.idle_timeout, rx.recv()).await {
-            Err(_) => {
-                let _ = sink.close().await;
-                return Err(ConnError::Idle);
-            }
-            Ok(None) => {
-                let _ = sink.close().await;
-                return Ok(());
-            }
-            Ok(Some(m)) => match handle(&mut sched, m, &mut acked, next_seq, &mut end_due) {
-                Ok(Some(v)) => sched.set_view(v),
-                Ok(None) => {}
-                Err(e) => {
-                    let _ = send(&mut sink, error_frame(400, e.to_string())).await;
-                    let _ = sink.close().await;
-                    return Err(e);
+            Err(_) => return Ok(Closing::idle()),
+            Ok(None) => return Ok(Closing::normal()),
+            Ok(Some(m)) => {
+                if let Some(c) = accept(m, &mut budget, &mut acked, next_seq, &mut pending) {
+                    return Ok(c);
                 }
-            },
+            }
         }
     }
 }
 
-/// Applies one client message; returns a view to apply (views are coalesced by the caller).
-fn handle(
-    sched: &mut Schedule,
+/// Takes one client message: an `Ack` is applied at once, other control messages are charged to
+/// the budget and queued in `pending` (only the last `View` of a run counts). `Some` closes.
+fn accept(
     m: Incoming,
+    budget: &mut Budget,
     acked: &mut u64,
     next_seq: u64,
-    end_due: &mut bool,
-) -> Result<Option<ViewParams>, ConnError> {
+    pending: &mut Vec<ClientMsg>,
+) -> Option<Closing> {
+    let m = match m {
+        Incoming::Msg(m) => m,
+        other => return Some(Closing::from_incoming_failure(other)),
+    };
+    if !budget.charge(1 + ranges_of(&m)) {
+        return Some(Closing::client(
+            429,
+            "control messages exceed the connection's budget".into(),
+        ));
+    }
     match m {
-        Incoming::Bad(e) => Err(ConnError::Client(e)),
-        Incoming::Msg(m) => match m {
-            ClientMsg::Hello { .. } => Err(ConnError::Client("a second Hello".into())),
-            ClientMsg::View(v) => Ok(Some(v)),
+        ClientMsg::Hello { .. } => Some(Closing::client(400, "a second Hello".into())),
+        ClientMsg::Ack { seq } => {
+            *acked = (*acked).max(seq.saturating_add(1).min(next_seq));
+            None
+        }
+        ClientMsg::View(v) => {
+            // views coalesce: a newer one replaces one not applied yet
+            pending.retain(|p| !matches!(p, ClientMsg::View(_)));
+            pending.push(ClientMsg::View(v));
+            None
+        }
+        m => {
+            pending.push(m);
+            None
+        }
+    }
+}
+
+/// Applies queued control messages in order; `false` when a `Want` overflows the queue.
+fn apply(sched: &mut Schedule, msgs: Vec<ClientMsg>) -> bool {
+    for m in msgs {
+        match m {
+            ClientMsg::View(v) => sched.set_view(v),
             ClientMsg::Want(r) => {
                 if !sched.want(&r) {
-                    return Err(ConnError::Client("too many queued Want ranges".into()));
+                    return false;
                 }
-                *end_due = true;
-                Ok(None)
             }
-            ClientMsg::Cancel(r) => {
-                sched.cancel(&r);
-                Ok(None)
-            }
-            ClientMsg::Ack { seq } => {
-                *acked = (*acked).max(seq.saturating_add(1).min(next_seq));
-                Ok(None)
-            }
-        },
+            ClientMsg::Cancel(r) => sched.cancel(&r),
+            ClientMsg::Hello { .. } | ClientMsg::Ack { .. } => {}
+        }
     }
+    true
 }
 
 type Sink = futures_util::stream::SplitSink<WebSocket, Message>;
@@ -266,7 +438,13 @@ async fn send(sink: &mut Sink, b: Bytes) -> Result<(), ConnError> {
 async fn read_msg(stream: &mut futures_util::stream::SplitStream<WebSocket>) -> Option<Incoming> {
     loop {
         match stream.next().await? {
-            Err(_) => return None,
+            Err(e) => {
+                let inner = e.into_inner();
+                return match inner.downcast_ref::<tungstenite::Error>() {
+                    Some(tungstenite::Error::Capacity(c)) => Some(Incoming::TooBig(c.to_string())),
+                    _ => None,
+                };
+            }
             Ok(Message::Binary(b)) => {
                 return Some(match decode_client(&b) {
                     Ok(m) => Incoming::Msg(m),

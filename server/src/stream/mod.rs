@@ -27,16 +27,20 @@
 //! connection sends next) and `connection` (one WebSocket stream). Dependencies point one way:
 //! routes → connection → schedule → state → config; `render_service` knows nothing of this module.
 
+mod admission;
 mod auth;
 mod config;
 mod connection;
 mod error;
+mod origin;
 mod routes;
 mod schedule;
 mod state;
 
-pub use config::{Order, ServeConfig};
+pub use admission::{open_file_limit, Peer};
+pub use config::{Limits, Order, ServeConfig};
 pub use error::ServeError;
+pub use origin::OriginPolicy;
 pub use routes::{app, rss_kib};
 pub use schedule::DATA_DELTA;
 pub use state::Shared;
@@ -54,11 +58,13 @@ pub async fn serve(addr: &str, shared: Arc<Shared>) -> Result<(), ServeError> {
     serve_on(listener, shared).await
 }
 
-/// Serves on a bound listener (tests bind `127.0.0.1:0`).
+/// Serves on a bound listener (tests bind `127.0.0.1:0`) under the admission limits
+/// ([`Limits`]) until the process ends.
 pub async fn serve_on(
     listener: tokio::net::TcpListener,
     shared: Arc<Shared>,
 ) -> Result<(), ServeError> {
-    axum::serve(listener, app(shared)).await?;
+    let app = app(shared.clone());
+    admission::accept_loop(listener, shared, app).await;
     Ok(())
 }

@@ -6,13 +6,15 @@
 use super::config::Order;
 use super::state::Shared;
 use glam::DVec3;
-use std::collections::VecDeque;
+use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 use tetwave_protocol::view::{data_weight, screen_error, Camera, Tolerance, View};
 use tetwave_protocol::wire::{IdRange, ViewParams};
 use tetwave_protocol::{BaseMesh, TetId};
 
-/// A fixed-size set of node ids.
+/// A fixed-size set of node ids. Range operations work a 64-bit word at a time, so a range costs
+/// `O(len / 64)`, never `O(len)` single-bit steps.
 struct BitSet(Vec<u64>);
 
 impl BitSet {
@@ -24,13 +26,99 @@ impl BitSet {
         self.0[(i / 64) as usize] >> (i % 64) & 1 == 1
     }
     #[inline]
-    fn set(&mut self, i: u64) {
-        self.0[(i / 64) as usize] |= 1 << (i % 64);
+    fn set(&mut self, i: u64) -> bool {
+        let (w, m) = ((i / 64) as usize, 1u64 << (i % 64));
+        let new = self.0[w] & m == 0;
+        self.0[w] |= m;
+        new
     }
-    #[inline]
-    fn clear(&mut self, i: u64) {
-        self.0[(i / 64) as usize] &= !(1 << (i % 64));
+    /// Applies `f(word, mask)` to every word that `a..b` touches (`mask`: the range's bits in it).
+    fn for_words(&mut self, a: u64, b: u64, mut f: impl FnMut(&mut u64, u64)) {
+        if a >= b {
+            return;
+        }
+        let (wa, wb) = ((a / 64) as usize, ((b - 1) / 64) as usize);
+        for w in wa..=wb {
+            let lo = if w == wa { a % 64 } else { 0 };
+            let hi = if w == wb { (b - 1) % 64 } else { 63 };
+            let mask = (u64::MAX >> (63 - hi)) & (u64::MAX << lo);
+            f(&mut self.0[w], mask);
+        }
     }
+    /// Sets `a..b`; returns how many ids were not set before.
+    fn set_range(&mut self, a: u64, b: u64) -> u64 {
+        let mut new = 0;
+        self.for_words(a, b, |w, m| {
+            new += u64::from((!*w & m).count_ones());
+            *w |= m;
+        });
+        new
+    }
+    fn clear_range(&mut self, a: u64, b: u64) {
+        self.for_words(a, b, |w, m| *w &= !m);
+    }
+}
+
+/// Disjoint, non-adjacent id ranges `start → end`, merged on insert: a range costs `O(log k)` plus
+/// the ranges it absorbs, however many ids it names.
+#[derive(Default)]
+struct RangeSet(BTreeMap<u64, u64>);
+
+impl RangeSet {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    fn insert(&mut self, mut a: u64, mut b: u64) {
+        if a >= b {
+            return;
+        }
+        // a range that starts before `a` and reaches it absorbs the new one's start
+        if let Some((&s, &e)) = self.0.range(..=a).next_back() {
+            if e >= a {
+                a = s;
+                b = b.max(e);
+                self.0.remove(&s);
+            }
+        }
+        // ranges that start within `a..=b` are absorbed
+        while let Some((&s, &e)) = self.0.range(a..=b).next() {
+            b = b.max(e);
+            self.0.remove(&s);
+        }
+        self.0.insert(a, b);
+    }
+    /// Removes and returns up to `max` ids from the front (lowest first).
+    fn pop_front(&mut self, max: u64) -> Option<(u64, u64)> {
+        let (&a, &b) = self.0.iter().next()?;
+        self.0.remove(&a);
+        let end = b.min(a.saturating_add(max));
+        if end < b {
+            self.0.insert(end, b);
+        }
+        Some((a, end))
+    }
+}
+
+/// A message's ranges clipped to `0..n`, sorted and merged: at most `ranges.len()` disjoint ranges,
+/// `O(r log r)` whatever the ranges cover.
+fn merged(ranges: &[IdRange], n: u64) -> Vec<(u64, u64)> {
+    let mut v: Vec<(u64, u64)> = ranges
+        .iter()
+        .map(|r| (r.from.min(n), r.to.min(n)))
+        .filter(|(a, b)| a < b)
+        .collect();
+    v.sort_unstable();
+    let mut out: Vec<(u64, u64)> = Vec::with_capacity(v.len());
+    for (a, b) in v {
+        match out.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
 }
 
 enum Plan {
@@ -42,13 +130,42 @@ enum Plan {
         cursor: usize,
     },
     /// View order: `chunk` holds the best pending ids for `view`, best last (popped from the end);
-    /// recomputed when it runs out or the view changes.
-    View {
-        view: ViewParams,
-        chunk: Vec<TetId>,
-        stale: bool,
-    },
+    /// recomputed when it runs out, or when the view changed and the last rescan is old enough
+    /// ([`ViewPlan::rescan_due`]).
+    View(ViewPlan),
 }
+
+struct ViewPlan {
+    view: ViewParams,
+    chunk: Vec<TetId>,
+    stale: bool,
+    /// When the last rescan ended, and what it cost.
+    last: Option<(Instant, Duration)>,
+}
+
+impl ViewPlan {
+    /// A changed view triggers a rescan only [`RESCAN_SPACING`] × its cost (at least
+    /// [`RESCAN_MIN_INTERVAL`]) after the last one, so a client that sends a `View` before every
+    /// batch cannot make the connection spend more than about a fifth of its time rescanning. Until
+    /// then the current chunk (the old view's best) goes on.
+    fn rescan_due(&self, now: Instant) -> bool {
+        if self.chunk.is_empty() {
+            return true;
+        }
+        if !self.stale {
+            return false;
+        }
+        match self.last {
+            None => true,
+            Some((at, cost)) => now >= at + (cost * RESCAN_SPACING).max(RESCAN_MIN_INTERVAL),
+        }
+    }
+}
+
+/// Rescans wait at least this many times the last one's cost.
+const RESCAN_SPACING: u32 = 4;
+/// … and at least this long.
+const RESCAN_MIN_INTERVAL: Duration = Duration::from_millis(50);
 
 /// What one connection still has to send.
 pub(super) struct Schedule {
@@ -59,13 +176,15 @@ pub(super) struct Schedule {
     cancelled: BitSet,
     /// Ids not yet done.
     remaining: u64,
-    /// Explicit requests, served before the order.
-    wants: VecDeque<(TetId, TetId)>,
+    /// Explicit requests, served before the order, lowest id first.
+    wants: RangeSet,
     plan: Plan,
+    /// View rescans so far (tests read it).
+    rescans: u64,
 }
 
-/// Most queued `Want` ranges per connection.
-const MAX_QUEUED_WANTS: usize = 1 << 18;
+/// Most disjoint `Want` ranges a connection may have queued (after merging).
+pub(super) const MAX_QUEUED_WANTS: usize = 1 << 16;
 
 impl Schedule {
     pub(super) fn new(s: &Shared, order: Order) -> Self {
@@ -80,73 +199,63 @@ impl Schedule {
                 perm: s.random_perm(),
                 cursor: 0,
             },
-            Order::View => Plan::View {
+            Order::View => Plan::View(ViewPlan {
                 view: default_view(&s.store.base),
                 chunk: Vec::new(),
                 stale: true,
-            },
+                last: None,
+            }),
         };
         Schedule {
             n,
             done: BitSet::new(n),
             cancelled: BitSet::new(n),
             remaining: n,
-            wants: VecDeque::new(),
+            wants: RangeSet::default(),
             plan,
+            rescans: 0,
         }
     }
 
-    fn clip(&self, r: &IdRange) -> (u64, u64) {
-        (r.from.min(self.n), r.to.min(self.n))
-    }
-
     fn mark_done(&mut self, i: TetId) {
-        if !self.done.get(i) {
-            self.done.set(i);
+        if self.done.set(i) {
             self.remaining -= 1;
         }
     }
 
+    /// The client already holds `ranges`. `O(r log r + n/64)`.
     pub(super) fn have(&mut self, ranges: &[IdRange]) {
-        for r in ranges {
-            let (a, b) = self.clip(r);
-            for i in a..b {
-                self.mark_done(i);
-            }
+        for (a, b) in merged(ranges, self.n) {
+            self.remaining -= self.done.set_range(a, b);
         }
     }
 
+    /// Drops `ranges` from the order and from queued `Want`s. `O(r log r + n/64)`.
     pub(super) fn cancel(&mut self, ranges: &[IdRange]) {
-        for r in ranges {
-            let (a, b) = self.clip(r);
-            for i in a..b {
-                self.mark_done(i);
-                self.cancelled.set(i);
-            }
+        for (a, b) in merged(ranges, self.n) {
+            self.remaining -= self.done.set_range(a, b);
+            self.cancelled.set_range(a, b);
         }
     }
 
-    /// Queues ranges; `false` when the queue would exceed its bound.
+    /// Queues ranges to send ahead of the order; `false` when the queue would exceed
+    /// [`MAX_QUEUED_WANTS`] disjoint ranges. `O(r log r + n/64)`.
     pub(super) fn want(&mut self, ranges: &[IdRange]) -> bool {
-        if self.wants.len() + ranges.len() > MAX_QUEUED_WANTS {
+        let m = merged(ranges, self.n);
+        if self.wants.len() + m.len() > MAX_QUEUED_WANTS {
             return false;
         }
-        for r in ranges {
-            let (a, b) = self.clip(r);
-            if a < b {
-                for i in a..b {
-                    self.cancelled.clear(i);
-                }
-                self.wants.push_back((a, b));
-            }
+        for (a, b) in m {
+            self.cancelled.clear_range(a, b);
+            self.wants.insert(a, b);
         }
         true
     }
 
     pub(super) fn set_view(&mut self, v: ViewParams) {
-        if let Plan::View { view, stale, .. } = &mut self.plan {
-            *view = v;
-            *stale = true;
+        if let Plan::View(p) = &mut self.plan {
+            p.view = v;
+            p.stale = true;
         }
     }
 
@@ -154,23 +263,19 @@ impl Schedule {
         !self.wants.is_empty() || self.remaining > 0
     }
 
+    /// View rescans so far.
+    pub(super) fn rescans(&self) -> u64 {
+        self.rescans
+    }
+
     /// Up to `max` ids to send next (wanted ranges first, then the order).
     pub(super) fn next_batch(&mut self, s: &Shared, max: usize) -> Vec<TetId> {
         let mut out = Vec::with_capacity(max.min(self.n as usize));
         while out.len() < max {
-            let Some((a, b)) = self.wants.front_mut() else {
+            let Some((a, b)) = self.wants.pop_front((max - out.len()) as u64) else {
                 break;
             };
-            while *a < *b && out.len() < max {
-                let i = *a;
-                *a += 1;
-                if !self.cancelled.get(i) {
-                    out.push(i);
-                }
-            }
-            if *a >= *b {
-                self.wants.pop_front();
-            }
+            out.extend((a..b).filter(|&i| !self.cancelled.get(i)));
         }
         for &i in &out {
             self.mark_done(i);
@@ -195,15 +300,19 @@ impl Schedule {
                     }
                     perm[*cursor]
                 }
-                Plan::View { view, chunk, stale } => {
-                    while chunk.last().is_some_and(|&i| self.done.get(i)) {
-                        chunk.pop();
+                Plan::View(p) => {
+                    while p.chunk.last().is_some_and(|&i| self.done.get(i)) {
+                        p.chunk.pop();
                     }
-                    if *stale || chunk.is_empty() {
-                        *chunk = view_chunk(s, view, &self.done, self.remaining);
-                        *stale = false;
+                    let now = Instant::now();
+                    if p.rescan_due(now) {
+                        p.chunk = view_chunk(s, &p.view, &self.done, self.remaining);
+                        p.stale = false;
+                        let end = Instant::now();
+                        p.last = Some((end, end - now));
+                        self.rescans += 1;
                     }
-                    match chunk.pop() {
+                    match p.chunk.pop() {
                         Some(i) => i,
                         None => break,
                     }
@@ -325,5 +434,79 @@ fn default_view(base: &BaseMesh) -> ViewParams {
         width: 512,
         height: 512,
         tol_px: 1.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Word-wise range operations agree with bit-by-bit ones, and `set_range` counts the
+        /// newly set ids.
+        #[test]
+        fn bitset_ranges_match_single_bits(
+            n in 1u64..300,
+            ops in prop::collection::vec((0u64..320, 0u64..320, any::<bool>()), 0..20),
+        ) {
+            let mut fast = BitSet::new(n);
+            let mut slow = vec![false; n as usize];
+            for (a, b, set) in ops {
+                let (a, b) = (a.min(n), b.min(n));
+                if set {
+                    let new = fast.set_range(a, b);
+                    let mut want = 0;
+                    for i in a..b {
+                        want += u64::from(!slow[i as usize]);
+                        slow[i as usize] = true;
+                    }
+                    prop_assert_eq!(new, want);
+                } else {
+                    fast.clear_range(a, b);
+                    for i in a..b {
+                        slow[i as usize] = false;
+                    }
+                }
+            }
+            for i in 0..n {
+                prop_assert_eq!(fast.get(i), slow[i as usize]);
+            }
+        }
+
+        /// A range set holds exactly the union of what was inserted, as disjoint non-adjacent
+        /// ranges, and pops it lowest first.
+        #[test]
+        fn range_set_is_the_union(ranges in prop::collection::vec((0u64..200, 0u64..40), 0..30)) {
+            let mut set = RangeSet::default();
+            let mut slow = [false; 240];
+            for (a, len) in ranges {
+                set.insert(a, a + len);
+                for i in a..a + len {
+                    slow[i as usize] = true;
+                }
+            }
+            let spans: Vec<(u64, u64)> = set.0.iter().map(|(&a, &b)| (a, b)).collect();
+            for w in spans.windows(2) {
+                prop_assert!(w[0].1 < w[1].0, "{:?} overlap or touch", w);
+            }
+            let mut popped = Vec::new();
+            while let Some((a, b)) = set.pop_front(7) {
+                prop_assert!(b - a <= 7 && a < b);
+                popped.extend(a..b);
+            }
+            let want: Vec<u64> = (0..240).filter(|&i| slow[i as usize]).collect();
+            prop_assert_eq!(popped, want);
+        }
+    }
+
+    #[test]
+    fn merged_sorts_clips_and_joins() {
+        let r = |from, to| IdRange { from, to };
+        let m = merged(
+            &[r(8, 12), r(0, 3), r(2, 5), r(5, 6), r(30, 40), r(9, 9)],
+            32,
+        );
+        assert_eq!(m, vec![(0, 6), (8, 12), (30, 32)]);
     }
 }

@@ -2,6 +2,8 @@
 //! (manifest, base), per-node metadata (subtree maxima, the magnitude and random orders, bounding
 //! spheres) and, when small enough, every node.
 
+use super::admission::Admission;
+use super::auth::FailureLimiter;
 use super::config::ServeConfig;
 use super::error::ServeError;
 use crate::render_service::RenderService;
@@ -39,7 +41,15 @@ pub struct Shared {
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
     pub(super) connections: AtomicU64,
+    /// View-order rescans over every connection (`/healthz` reports it).
+    pub(super) view_rescans: AtomicU64,
     pub render: RenderService,
+    /// Open connections and streams.
+    pub(super) admission: Arc<Admission>,
+    /// Wrong tokens per peer.
+    pub(super) auth_failures: FailureLimiter,
+    /// Renders run one at a time (the queue in front is a concurrency limit on the route).
+    pub(super) render_run: tokio::sync::Mutex<()>,
 }
 
 /// Nodes read per step while loading metadata.
@@ -89,6 +99,7 @@ impl Shared {
             dir.display()
         );
         let render = RenderService::new(dir);
+        let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
             store,
             config,
@@ -103,7 +114,11 @@ impl Shared {
             random_perm: OnceLock::new(),
             geometry: OnceLock::new(),
             connections: AtomicU64::new(0),
+            view_rescans: AtomicU64::new(0),
             render,
+            admission,
+            auth_failures: FailureLimiter::default(),
+            render_run: tokio::sync::Mutex::new(()),
         }))
     }
 

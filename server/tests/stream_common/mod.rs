@@ -47,9 +47,31 @@ pub struct HttpResponse {
 
 /// `GET path` with extra header lines, `Connection: close`.
 pub async fn get(addr: SocketAddr, path: &str, extra: &[(&str, &str)]) -> HttpResponse {
+    get_from([127, 0, 0, 1], addr, path, extra).await
+}
+
+/// A TCP connection to `addr` from the loopback address `ip` (any 127.x.y.z works on Linux), so a
+/// test can play several peers.
+pub async fn tcp_from(ip: [u8; 4], addr: SocketAddr) -> std::io::Result<tokio::net::TcpStream> {
+    let sock = tokio::net::TcpSocket::new_v4()?;
+    sock.bind(SocketAddr::from((ip, 0)))?;
+    sock.connect(addr).await
+}
+
+/// [`get`] from the loopback address `ip`. A `Host` in `extra` replaces the default one.
+pub async fn get_from(
+    ip: [u8; 4],
+    addr: SocketAddr,
+    path: &str,
+    extra: &[(&str, &str)],
+) -> HttpResponse {
     tokio::time::timeout(T, async {
-        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-        let mut req = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
+        let mut s = tcp_from(ip, addr).await.unwrap();
+        let mut req = format!("GET {path} HTTP/1.1\r\n");
+        if !extra.iter().any(|(k, _)| k.eq_ignore_ascii_case("host")) {
+            req.push_str(&format!("Host: {addr}\r\n"));
+        }
+        req.push_str("Connection: close\r\n");
         for (k, v) in extra {
             req.push_str(&format!("{k}: {v}\r\n"));
         }
@@ -116,6 +138,33 @@ pub async fn connect(addr: SocketAddr, query: &str) -> Ws {
         .expect("connect timed out")
         .expect("connect");
     ws
+}
+
+/// A stream WebSocket from the loopback address `ip`, with extra request headers.
+pub async fn connect_from(
+    ip: [u8; 4],
+    addr: SocketAddr,
+    query: &str,
+    headers: &[(&str, &str)],
+) -> Result<Ws, tokio_tungstenite::tungstenite::Error> {
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let mut req = format!("ws://{addr}/v1/stream{query}")
+        .into_client_request()
+        .unwrap();
+    for (k, v) in headers {
+        req.headers_mut().insert(
+            tokio_tungstenite::tungstenite::http::HeaderName::from_bytes(k.as_bytes()).unwrap(),
+            v.parse().unwrap(),
+        );
+    }
+    let tcp = tcp_from(ip, addr).await?;
+    let (ws, _) = tokio::time::timeout(
+        T,
+        tokio_tungstenite::client_async(req, tokio_tungstenite::MaybeTlsStream::Plain(tcp)),
+    )
+    .await
+    .expect("connect timed out")?;
+    Ok(ws)
 }
 
 pub async fn send(ws: &mut Ws, m: &ClientMsg) {
