@@ -243,6 +243,9 @@ type StoreData = (Store, Arc<Vec<f32>>);
 /// Renders a store's uniform levels on request: synthesis once, meshes and GPU uploads of the last
 /// level kept, one render at a time.
 pub struct RenderService {
+    /// Renders run on their own threads at a lower CPU priority (nice 10 on Linux), so a render never
+    /// starves the stream and `/healthz` of CPU.
+    pool: Option<rayon::ThreadPool>,
     dir: PathBuf,
     data: OnceLock<Result<StoreData, String>>,
     state: Mutex<RenderState>,
@@ -284,7 +287,16 @@ pub struct Rendered {
 
 impl RenderService {
     pub fn new(dir: &Path) -> Self {
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("render-{i}"))
+            .start_handler(|_| lower_priority())
+            .build()
+            .map_err(|e| tracing::warn!("render threads: {e}; renders use the shared pool"))
+            .ok();
         RenderService {
+            pool,
             dir: dir.to_path_buf(),
             data: OnceLock::new(),
             state: Mutex::new(RenderState {
@@ -419,13 +431,31 @@ impl RenderService {
                 Err(_) => {}
             }
         }
-        let image = render_reference_cancellable(&mesh, &cam, &tf, cancel).ok_or_else(cancelled)?;
+        // only the lock-free integrator runs on the render pool: a pool thread waiting inside it may
+        // run another queued pool job, which must never be one that takes `state`
+        let trace = || render_reference_cancellable(&mesh, &cam, &tf, cancel);
+        let image = match &self.pool {
+            Some(pool) => pool.install(trace),
+            None => trace(),
+        }
+        .ok_or_else(cancelled)?;
         Ok(Rendered {
             image,
             renderer: "cpu-reference".into(),
             level,
             tets: mesh.tets.len(),
         })
+    }
+}
+
+/// Lowers the calling thread's CPU priority to nice 10 (Linux: `setpriority` on a thread id applies
+/// to that thread only); elsewhere nothing.
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: plain system calls on the calling thread's own id; failure only leaves the priority
+    unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        libc::setpriority(libc::PRIO_PROCESS, tid, 10);
     }
 }
 

@@ -55,7 +55,8 @@ async fn close_code(ws: &mut Ws) -> Option<CloseCode> {
 
 /// A `Hello` whose `have` holds 65,536 whole-range entries, then two `Want`s of 65,536 whole
 /// ranges each (the attack of the issue: 10.9 s of frozen `/healthz` and ~1.5e9 queued sends). Now
-/// each message costs its ranges: the wanted nodes arrive once each, and `/healthz` answers meanwhile.
+/// each message costs its ranges: the wanted nodes arrive once per `Want` at most, and `/healthz`
+/// answers meanwhile.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn range_floods_cost_ranges_not_ids() {
     let (addr, shared) = start(&store(), ServeConfig::default()).await;
@@ -82,15 +83,18 @@ async fn range_floods_cost_ranges_not_ids() {
         }
         worst
     });
-    // every wanted node once: the two messages name the same ids
+    // every node at least once, and at most once per Want (a Want applied after nodes went out
+    // asks for them again); the per-id code queued 65,536 sends of each
     let (nodes, end_sent, _) = receive_nodes(&mut ws).await;
-    let mut seen = vec![false; n as usize];
+    let mut seen = vec![0u32; n as usize];
     for node in &nodes {
-        assert!(!seen[node.id as usize], "node {} sent twice", node.id);
-        seen[node.id as usize] = true;
+        seen[node.id as usize] += 1;
     }
-    assert_eq!(nodes.len() as u64, n, "every node once");
-    assert_eq!(end_sent, n);
+    assert!(
+        seen.iter().all(|&k| (1..=2).contains(&k)),
+        "each node once or twice"
+    );
+    assert_eq!(end_sent, nodes.len() as u64);
     let worst = probe.await.unwrap();
     println!(
         "{n} nodes: Hello with 65,536 whole ranges answered in {hello_s:.3} s; \

@@ -9,7 +9,7 @@ use std::net::SocketAddr;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use stream_common::*;
-use tetwave_protocol::wire::ServerMsg;
+use tetwave_protocol::wire::{ClientMsg, IdRange, ServerMsg};
 
 struct Server(Child);
 
@@ -58,8 +58,12 @@ fn health(addr: SocketAddr, rt: &tokio::runtime::Runtime) -> serde_json::Value {
     serde_json::from_slice(&r.body).unwrap()
 }
 
+/// The tests of this file measure the server under load: one at a time.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn sixty_four_concurrent_clients_all_complete() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let (_d, dir) = make_store(5);
     // every client comes from 127.0.0.1: allow them all (the default is 16 streams per address)
     let (_server, addr) = spawn_server(&dir, &["--batch", "256", "--max-streams-per-peer", "64"]);
@@ -142,4 +146,220 @@ fn sixty_four_concurrent_clients_all_complete() {
         );
     }
     assert_eq!(after["connections"].as_u64(), Some(0), "connections closed");
+}
+
+/// Server RSS may not exceed this while under the attack below (a level-5 store).
+const ATTACK_RSS_BOUND_KIB: u64 = 512 * 1024;
+
+/// Issue 21's adversarial load, against the binary with its default limits, for a bounded time:
+/// two Want/Cancel flooders, 100 slowloris sockets, 200 idle WebSockets (half never say Hello, half
+/// never read), 16 expensive CPU renders — each attacker from its own loopback address — while one
+/// honest client streams the whole store and a probe asks `/healthz` every 50 ms. The honest client
+/// completes, `/healthz` answers within 100 ms at p99, the server's RSS stays below
+/// [`ATTACK_RSS_BOUND_KIB`], and everything stops by itself.
+#[test]
+fn adversarial_load_leaves_health_and_honest_clients_alone() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (_d, dir) = make_store(5);
+    let (_server, addr) = spawn_server(&dir, &[]);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let n = health(addr, &rt)["nodes"].as_u64().unwrap();
+    // warm the renderer (the first render synthesizes the store) so renders below are all rendering
+    assert_eq!(
+        rt.block_on(get(addr, "/v1/render?width=8&height=8&renderer=cpu", &[]))
+            .status,
+        200
+    );
+    let attack = Duration::from_secs(20);
+    let t0 = Instant::now();
+    let report = rt.block_on(async move {
+        let until = t0 + attack;
+        let mut attackers = Vec::new();
+        // two Want/Cancel flooders: reconnect whenever the budget closes them
+        for k in 0..2u8 {
+            attackers.push(tokio::spawn(async move {
+                let mut closed = 0u32;
+                let whole = IdRange { from: 0, to: n };
+                while Instant::now() < until {
+                    let Ok(mut ws) = connect_from([127, 0, 1, k], addr, "", &[]).await else {
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                        continue;
+                    };
+                    send(&mut ws, &hello(None, vec![])).await;
+                    let mut sent = 0;
+                    while Instant::now() < until && sent < 64 {
+                        let m = if sent % 2 == 0 {
+                            ClientMsg::Want(vec![whole; 65_536])
+                        } else {
+                            ClientMsg::Cancel(vec![whole; 65_536])
+                        };
+                        let frame = tetwave_protocol::wire::encode(&m).unwrap();
+                        use futures_util::SinkExt;
+                        let r = tokio::time::timeout(
+                            Duration::from_secs(2),
+                            ws.send(tokio_tungstenite::tungstenite::Message::Binary(
+                                frame.into(),
+                            )),
+                        )
+                        .await;
+                        if !matches!(r, Ok(Ok(()))) {
+                            break;
+                        }
+                        sent += 1;
+                    }
+                    closed += 1;
+                }
+                format!("flooder {k}: {closed} connections")
+            }));
+        }
+        // 100 slowloris sockets, re-opened when the server closes them
+        attackers.push(tokio::spawn(async move {
+            let mut opened = 0u32;
+            let mut tasks = Vec::new();
+            for i in 0..100u32 {
+                tasks.push(tokio::spawn(async move {
+                    let mut opened = 0u32;
+                    while Instant::now() < until {
+                        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+                        let Ok(mut s) = tcp_from([127, 0, 2, 1], addr).await else {
+                            tokio::time::sleep(Duration::from_millis(100)).await;
+                            continue;
+                        };
+                        opened += 1;
+                        let _ = s
+                            .write_all(format!("GET /healthz HTTP/1.1\r\nX-{i}: ").as_bytes())
+                            .await;
+                        let mut buf = [0u8; 64];
+                        // one byte a second until the server hangs up
+                        while Instant::now() < until {
+                            if let Ok(r) =
+                                tokio::time::timeout(Duration::from_secs(1), s.read(&mut buf)).await
+                            {
+                                if matches!(r, Ok(0) | Err(_)) {
+                                    break;
+                                }
+                            }
+                            if s.write_all(b"a").await.is_err() {
+                                break;
+                            }
+                        }
+                    }
+                    opened
+                }));
+            }
+            for t in tasks {
+                opened += t.await.unwrap_or(0);
+            }
+            format!("slowloris: {opened} sockets opened")
+        }));
+        // 200 idle WebSockets: half never say Hello, half say it and never read
+        attackers.push(tokio::spawn(async move {
+            let mut held = Vec::new();
+            let (mut ok, mut refused) = (0u32, 0u32);
+            for i in 0..200u32 {
+                match connect_from([127, 0, 3, 1], addr, "", &[]).await {
+                    Ok(mut ws) => {
+                        ok += 1;
+                        if i % 2 == 1 {
+                            send(&mut ws, &hello(None, vec![])).await;
+                        }
+                        held.push(ws);
+                    }
+                    Err(_) => refused += 1,
+                }
+            }
+            tokio::time::sleep_until(until.into()).await;
+            drop(held);
+            format!("idle WebSockets: {ok} admitted, {refused} refused")
+        }));
+        // 16 expensive renders at once
+        attackers.push(tokio::spawn(async move {
+            let mut tasks = Vec::new();
+            for _ in 0..16 {
+                tasks.push(tokio::spawn(async move {
+                    get_from(
+                        [127, 0, 4, 1],
+                        addr,
+                        "/v1/render?width=2048&height=2048&renderer=cpu",
+                        &[],
+                    )
+                    .await
+                    .status
+                }));
+            }
+            let mut statuses = Vec::new();
+            for t in tasks {
+                statuses.push(t.await.unwrap_or(0));
+            }
+            statuses.sort_unstable();
+            format!("16 renders: statuses {statuses:?}")
+        }));
+        // the probe
+        let probe = tokio::spawn(async move {
+            let mut lat = Vec::new();
+            let mut peak_rss = 0u64;
+            while Instant::now() < until {
+                let t = Instant::now();
+                let r = get_from([127, 0, 5, 1], addr, "/healthz", &[]).await;
+                lat.push(t.elapsed().as_secs_f64() * 1e3);
+                assert_eq!(r.status, 200);
+                let h: serde_json::Value = serde_json::from_slice(&r.body).unwrap();
+                peak_rss = peak_rss.max(h["rss_kib"].as_u64().unwrap_or(0));
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            (lat, peak_rss)
+        });
+        // the honest client, once the attack is under way
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let honest = tokio::spawn(async move {
+            let t = Instant::now();
+            let mut ws = connect_from([127, 0, 6, 1], addr, "", &[])
+                .await
+                .expect("honest client admitted");
+            send(&mut ws, &hello(None, vec![])).await;
+            let s = receive_all(&mut ws).await;
+            let mut ids: Vec<u64> = s.nodes.iter().map(|d| d.id).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            (ids.len() as u64, t.elapsed())
+        });
+        let honest = honest.await.expect("honest client");
+        let (lat, peak_rss) = probe.await.unwrap();
+        let mut lines = Vec::new();
+        for a in attackers {
+            lines.push(a.await.unwrap());
+        }
+        (honest, lat, peak_rss, lines)
+    });
+    let ((got, honest_time), mut lat, peak_rss, lines) = report;
+    let elapsed = t0.elapsed();
+    lat.sort_by(f64::total_cmp);
+    let p = |q: f64| lat[((lat.len() - 1) as f64 * q).round() as usize];
+    let after = health(addr, &rt);
+    eprintln!(
+        "adversarial load, {n} nodes, {:.1} s: honest client {got}/{n} nodes in {:.2} s; \
+         /healthz {} probes p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; server RSS peak {} KiB \
+         (VmHWM {}); {}",
+        elapsed.as_secs_f64(),
+        honest_time.as_secs_f64(),
+        lat.len(),
+        p(0.5),
+        p(0.99),
+        lat[lat.len() - 1],
+        peak_rss,
+        after["peak_rss_kib"],
+        lines.join("; ")
+    );
+    assert_eq!(got, n, "the honest client gets every node");
+    assert!(p(0.99) < 100.0, "/healthz p99 {:.1} ms", p(0.99));
+    let hwm = after["peak_rss_kib"].as_u64().unwrap_or(peak_rss);
+    assert!(hwm < ATTACK_RSS_BOUND_KIB, "server RSS peaked at {hwm} KiB");
+    assert!(
+        elapsed < Duration::from_secs(60),
+        "the attack stops by itself"
+    );
 }

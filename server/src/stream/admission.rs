@@ -115,6 +115,42 @@ impl Admission {
     }
 }
 
+/// Stream control messages draw on a budget per peer address, shared by all its connections (so
+/// reconnecting does not refill it): each message costs one unit plus one per id range. It holds
+/// [`BUDGET_BURST`] units and refills at [`BUDGET_PER_SEC`]; a connection whose message overdraws
+/// it is closed (1008). An honest client sends a few `Want`s, a `View` per frame and an `Ack` per
+/// batch.
+pub const BUDGET_PER_SEC: f64 = tetwave_protocol::wire::MAX_RANGES as f64;
+/// See [`BUDGET_PER_SEC`].
+pub const BUDGET_BURST: f64 = 4.0 * tetwave_protocol::wire::MAX_RANGES as f64;
+/// Peers whose budgets are remembered at most (full buckets are forgotten first).
+const MAX_BUDGET_PEERS: usize = 4096;
+
+/// Per-peer token buckets of stream control work.
+#[derive(Default)]
+pub struct PeerBudgets(Mutex<HashMap<IpAddr, (f64, std::time::Instant)>>);
+
+impl PeerBudgets {
+    /// Charges `cost` units to `ip`; `false` when its budget is overdrawn.
+    pub fn charge(&self, ip: IpAddr, cost: usize) -> bool {
+        let now = std::time::Instant::now();
+        let level = |e: &(f64, std::time::Instant)| {
+            (e.0 + (now - e.1).as_secs_f64() * BUDGET_PER_SEC).min(BUDGET_BURST)
+        };
+        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if m.len() >= MAX_BUDGET_PEERS && !m.contains_key(&ip) {
+            m.retain(|_, e| level(e) < BUDGET_BURST);
+            if m.len() >= MAX_BUDGET_PEERS {
+                m.clear();
+            }
+        }
+        let e = m.entry(ip).or_insert((BUDGET_BURST, now));
+        let units = level(e) - cost as f64;
+        *e = (units, now);
+        units >= 0.0
+    }
+}
+
 /// The soft limit on open files of this process (Linux: `/proc/self/limits`).
 pub fn open_file_limit() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/limits").ok()?;

@@ -1,6 +1,7 @@
 //! One WebSocket connection of the stream: `Hello`, then manifest, base and `Nodes` batches under the
 //! acknowledgement window, with `Ack`, `Want`, `Cancel` and `View` read concurrently.
 
+use super::admission::PeerBudgets;
 use super::auth::same;
 use super::config::Order;
 use super::schedule::{Schedule, MAX_QUEUED_WANTS};
@@ -10,10 +11,8 @@ use axum::extract::ws::{CloseFrame, Message, WebSocket};
 use futures_util::{SinkExt, StreamExt};
 use std::sync::atomic::Ordering as AtomicOrdering;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
-use tetwave_protocol::wire::{
-    decode_client, encode, ClientMsg, ServerMsg, MAX_RANGES, PROTOCOL_VERSION,
-};
+use std::time::Duration;
+use tetwave_protocol::wire::{decode_client, encode, ClientMsg, ServerMsg, PROTOCOL_VERSION};
 use tokio::sync::mpsc;
 
 #[derive(Debug, thiserror::Error)]
@@ -51,34 +50,18 @@ const HELLO_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long one frame may take to go out.
 const SEND_TIMEOUT: Duration = Duration::from_secs(60);
 
-/// A client's control messages draw on this budget: each costs one unit plus one per range. It
-/// holds [`BUDGET_BURST`] units and refills at [`BUDGET_PER_SEC`]; a client that overdraws it is
-/// closed (1008). An honest client sends a few `Want`s, a `View` per frame and an `Ack` per batch.
-const BUDGET_PER_SEC: f64 = MAX_RANGES as f64;
-const BUDGET_BURST: f64 = 4.0 * MAX_RANGES as f64;
 /// Control messages with more ranges than this are applied on a blocking thread.
 const BLOCKING_RANGES: usize = 256;
 
-/// A token bucket.
-struct Budget {
-    units: f64,
-    at: Instant,
+/// The peer's control-message budget ([`PeerBudgets`]).
+struct Budget<'a> {
+    budgets: &'a PeerBudgets,
+    ip: std::net::IpAddr,
 }
 
-impl Budget {
-    fn new() -> Self {
-        Budget {
-            units: BUDGET_BURST,
-            at: Instant::now(),
-        }
-    }
+impl Budget<'_> {
     fn charge(&mut self, cost: usize) -> bool {
-        let now = Instant::now();
-        self.units =
-            (self.units + (now - self.at).as_secs_f64() * BUDGET_PER_SEC).min(BUDGET_BURST);
-        self.at = now;
-        self.units -= cost as f64;
-        self.units >= 0.0
+        self.budgets.charge(self.ip, cost)
     }
 }
 
@@ -248,18 +231,22 @@ async fn stream_to(
     }
     let _reader = AbortOnDrop(reader);
 
+    let mut budget = Budget {
+        budgets: &s.budgets,
+        ip: peer.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |p| p.ip()),
+    };
+    if !budget.charge(1 + have.len()) {
+        return Ok(Closing::client(
+            429,
+            "this address's control messages exceed its budget".into(),
+        ));
+    }
+
     // 3. manifest, base
     send(sink, s.manifest_frame.clone()).await?;
     send(sink, s.base_frame.clone()).await?;
 
     // 4. nodes
-    let mut budget = Budget::new();
-    if !budget.charge(1 + have.len()) {
-        return Ok(Closing::client(
-            429,
-            "Hello exceeds the message budget".into(),
-        ));
-    }
     let sched_s = s.clone();
     let mut sched = tokio::task::spawn_blocking(move || {
         let mut sc = Schedule::new(&sched_s, order);
@@ -372,7 +359,7 @@ async fn stream_to(
 /// the budget and queued in `pending` (only the last `View` of a run counts). `Some` closes.
 fn accept(
     m: Incoming,
-    budget: &mut Budget,
+    budget: &mut Budget<'_>,
     acked: &mut u64,
     next_seq: u64,
     pending: &mut Vec<ClientMsg>,
@@ -384,7 +371,7 @@ fn accept(
     if !budget.charge(1 + ranges_of(&m)) {
         return Some(Closing::client(
             429,
-            "control messages exceed the connection's budget".into(),
+            "this address's control messages exceed its budget".into(),
         ));
     }
     match m {

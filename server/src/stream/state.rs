@@ -2,7 +2,7 @@
 //! (manifest, base), per-node metadata (subtree maxima, the magnitude and random orders, bounding
 //! spheres) and, when small enough, every node.
 
-use super::admission::Admission;
+use super::admission::{Admission, PeerBudgets};
 use super::auth::FailureLimiter;
 use super::config::ServeConfig;
 use super::error::ServeError;
@@ -46,6 +46,8 @@ pub struct Shared {
     pub render: RenderService,
     /// Open connections and streams.
     pub(super) admission: Arc<Admission>,
+    /// Stream control work per peer.
+    pub(super) budgets: PeerBudgets,
     /// Wrong tokens per peer.
     pub(super) auth_failures: FailureLimiter,
     /// Renders run one at a time (the queue in front is a concurrency limit on the route).
@@ -118,6 +120,7 @@ impl Shared {
             render,
             admission,
             auth_failures: FailureLimiter::default(),
+            budgets: PeerBudgets::default(),
             render_run: tokio::sync::Mutex::new(()),
         }))
     }
