@@ -47,6 +47,9 @@ pub struct ServeConfig {
     pub cache_limit_bytes: u64,
     /// Most nodes one `GET /v1/nodes` may ask for.
     pub max_range: u64,
+    /// Recompute every store file's CRC-32 when the store opens (`serve --verify`; reads the whole
+    /// store). The structure and `base.bin`'s checksum are always checked.
+    pub verify_checksums: bool,
 }
 
 impl Default for ServeConfig {
@@ -60,6 +63,7 @@ impl Default for ServeConfig {
             seed: 0x7e7_3a7e,
             cache_limit_bytes: 512 << 20,
             max_range: 1 << 16,
+            verify_checksums: false,
         }
     }
 }
