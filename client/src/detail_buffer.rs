@@ -15,6 +15,7 @@
 use rustc_hash::FxHashMap;
 use tetwave_protocol::hierarchy::EDGES;
 use tetwave_protocol::node::NodeError;
+use tetwave_protocol::wire::IdRange;
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId, VertexKeys};
 
 /// Per-node metadata kept after the coefficients have been moved to the by-key table.
@@ -163,6 +164,25 @@ impl<V: Cell> IdTable<V> {
         self.len
     }
 
+    /// The keys present, ascending: the pages in order, then the sparse keys (all above the
+    /// pages') sorted.
+    fn keys(&self) -> impl Iterator<Item = u64> + '_ {
+        let dense = self
+            .dir
+            .iter()
+            .enumerate()
+            .filter(|&(_, &p)| p != NO_PAGE)
+            .flat_map(move |(d, &p)| {
+                let page = &self.pages[p as usize];
+                (0..PAGE)
+                    .filter(move |&i| !page[i].is_empty())
+                    .map(move |i| ((d << PAGE_BITS) + i) as u64)
+            });
+        let mut sparse: Vec<u64> = self.sparse.keys().copied().collect();
+        sparse.sort_unstable();
+        dense.chain(sparse)
+    }
+
     fn bytes(&self) -> usize {
         use std::mem::size_of;
         self.dir.capacity() * 4
@@ -267,6 +287,33 @@ impl DetailBuffer {
     #[inline]
     pub fn is_present(&self, t: TetId) -> bool {
         self.meta.contains_key(t)
+    }
+
+    /// The ids of the hierarchy's nodes not held, as ascending disjoint ranges. The walk takes time
+    /// in the nodes held (and their pages), never in the hierarchy's size: a hierarchy of a
+    /// billion nodes with none held is one range.
+    pub fn missing_ranges(&self) -> impl Iterator<Item = IdRange> + '_ {
+        let nodes = self.forest.nodes();
+        let mut next = 0u64;
+        // every id held is below `nodes` (insert refuses the others)
+        let mut held = self.meta.keys();
+        std::iter::from_fn(move || loop {
+            if next >= nodes {
+                return None;
+            }
+            let from = next;
+            match held.next() {
+                Some(id) if id == next => next += 1,
+                Some(id) => {
+                    next = id + 1;
+                    return Some(IdRange { from, to: id });
+                }
+                None => {
+                    next = nodes;
+                    return Some(IdRange { from, to: nodes });
+                }
+            }
+        })
     }
 
     /// Whether `t` and all its ancestors have arrived.
@@ -412,6 +459,24 @@ mod tests {
         for &k in &arr.keys {
             assert!(b.coeff(k).is_some());
         }
+    }
+
+    /// The ids not held, as ranges: all of them at first, then the gaps around what arrived.
+    #[test]
+    fn missing_ranges_are_the_gaps() {
+        let mut b = setup();
+        let r = |from, to| IdRange { from, to };
+        assert_eq!(b.missing_ranges().collect::<Vec<_>>(), [r(0, 9)]);
+        let mut arr = Arrivals::default();
+        b.insert(&node(3, 0b001000), &mut arr).unwrap();
+        assert_eq!(b.missing_ranges().collect::<Vec<_>>(), [r(0, 3), r(4, 9)]);
+        b.insert(&node(0, 0b111111), &mut arr).unwrap();
+        b.insert(&node(8, 0), &mut arr).unwrap();
+        assert_eq!(b.missing_ranges().collect::<Vec<_>>(), [r(1, 3), r(4, 8)]);
+        for id in [1, 2, 4, 5, 6, 7] {
+            b.insert(&node(id, 0), &mut arr).unwrap();
+        }
+        assert_eq!(b.missing_ranges().count(), 0);
     }
 
     #[test]

@@ -27,7 +27,9 @@ enum Cmd {
     /// its time and optionally its PSNR against the reference.
     Render(tetwave_client::render_cli::RenderArgs),
     /// Stream from a `tetwave-server serve` and render progressively: PNG frames and one JSON line
-    /// per frame (frame, bytes_received, nodes, tets, refine_ms, render_ms, psnr_db).
+    /// per frame (frame, bytes_received, nodes, tets, refine_ms, render_ms, psnr_db). A stream that
+    /// fails before every node has arrived (a refused node or frame, a lost connection, nodes the
+    /// server never sends, a hierarchy over --max-nodes) exits with status 1.
     Stream(tetwave_client::stream::StreamArgs),
     /// Benchmarks.
     Bench {

@@ -492,6 +492,10 @@ pub struct BenchArgs {
     /// One JSON object per run on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Recompute every store file's CRC-32 when opening it (reads the whole store; `base.bin`'s
+    /// and the structure are always checked).
+    #[arg(long)]
+    pub verify: bool,
 }
 
 /// A count of at least 1 (`--render-every`).
@@ -504,7 +508,12 @@ fn at_least_one(s: &str) -> Result<usize, String> {
 
 /// Runs `tetwave bench progressive`: one [`RunReport`] per tolerance (and the simple run).
 pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Result<Vec<RunReport>> {
-    let store = tetwave_store::Store::open(&args.store)?;
+    let store = tetwave_store::Store::open_with(
+        &args.store,
+        tetwave_store::OpenOptions {
+            verify_checksums: args.verify,
+        },
+    )?;
     let m = &store.manifest;
     let mut nodes = store.read_nodes(0, m.counts.nodes)?;
     order_nodes(&mut nodes, args.order, args.seed);

@@ -11,7 +11,7 @@ use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction};
-use tetwave_store::{Store, StoreError};
+use tetwave_store::{OpenOptions, Store, StoreError};
 
 /// What to render and how.
 #[derive(Debug, Clone, clap::Args)]
@@ -56,6 +56,10 @@ pub struct RenderArgs {
     /// Print one JSON object (`tets, ms, psnr_db`, …).
     #[arg(long)]
     pub json: bool,
+    /// Recompute every store file's CRC-32 when opening it (reads the whole store; `base.bin`'s
+    /// and the structure are always checked).
+    #[arg(long)]
+    pub verify: bool,
 }
 
 /// Image widths and heights the CLIs accept, in pixels.
@@ -142,7 +146,12 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
 
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     let tf = TransferFunction::load(&a.tf)?;
-    let store = Store::open(&a.store)?;
+    let store = Store::open_with(
+        &a.store,
+        OpenOptions {
+            verify_checksums: a.verify,
+        },
+    )?;
     let (mesh, level) = store_mesh(&store, a.levels)?;
     let distance = a.distance.unwrap_or(1.6 * mesh.diagonal());
     let cam = Camera::orbit(

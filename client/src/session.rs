@@ -124,6 +124,12 @@ impl Session {
         (self.buf.nodes_held(), self.base.forest().nodes())
     }
 
+    /// Whether every node of the hierarchy is held.
+    pub fn is_complete(&self) -> bool {
+        let (held, total) = self.progress();
+        held == total
+    }
+
     /// The drawable leaf mesh, its colours mapped over `value_range`.
     pub fn leaf_mesh(&self, value_range: [f32; 2]) -> RenderMesh {
         crate::draw::leaf_mesh(&self.mesh, value_range)

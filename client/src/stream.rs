@@ -5,10 +5,9 @@
 //!
 //! The network runs on a tokio task; the frame loop never waits on it longer than its frame period.
 
-use crate::detail_buffer::DetailBuffer;
 use crate::mesh::AdaptiveMesh;
 use crate::select::{Mode, SelectParams, Tolerance};
-use crate::session::Session;
+use crate::session::{NodeRejected, Session};
 use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use std::collections::BTreeSet;
@@ -20,7 +19,7 @@ use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{
-    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES,
+    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES, MAX_RANGES,
     PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
@@ -32,7 +31,7 @@ use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction};
 use tokio::sync::mpsc;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
-use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 /// `tetwave stream` options.
 #[derive(Debug, Clone, clap::Args)]
@@ -88,7 +87,25 @@ pub struct StreamArgs {
     /// arrived. Unread batches wait in the connection, which slows the server (backpressure).
     #[arg(long, default_value_t = 0)]
     pub per_frame: usize,
+    /// Reconnect attempts after the connection drops (or the first connect fails) before giving
+    /// up with an error; an attempt that brings new nodes starts the count again. Attempts wait
+    /// 0, 100, 200, … ms.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(0..=100))]
+    pub retries: u32,
+    /// Refuse a dataset whose hierarchy has more detail nodes than this (the base mesh's tets
+    /// times (8^levels − 1)/7), before allocating anything for it. The default, 2^27 =
+    /// 134,217,728, is about 48 GB at the ~360 bytes a node the client holds once everything has
+    /// arrived and is refined (51 B per leaf tet measured, 7 leaves per node).
+    #[arg(long, default_value_t = DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_nodes: u64,
 }
+
+/// `--max-nodes`' default: see [`StreamArgs::max_nodes`].
+pub const DEFAULT_MAX_NODES: u64 = 1 << 27;
+
+/// `Want` rounds after an `End` with nodes missing before the session fails
+/// ([`StreamError::Unavailable`]).
+pub const MAX_WANT_ROUNDS: u32 = 8;
 
 impl StreamArgs {
     /// The CLI defaults, for `url`, writing into `out`.
@@ -112,12 +129,33 @@ impl StreamArgs {
             until_complete: false,
             no_render: false,
             per_frame: 0,
+            retries: 5,
+            max_nodes: DEFAULT_MAX_NODES,
         }
     }
 }
 
-fn buf_forest_nodes(buf: &DetailBuffer) -> u64 {
-    buf.forest().nodes()
+/// Refuses, before anything is allocated for it, a base mesh whose hierarchy has more than
+/// `limit` detail nodes (`--max-nodes`), or whose levels or node count disagree with the manifest.
+/// `base` passed [`BaseMesh::validate`] (at most 16 levels), so the count is exact in u128.
+pub fn check_hierarchy(base: &BaseMesh, m: &Manifest, limit: u64) -> Result<(), StreamError> {
+    let tets = base.tets.len();
+    let nodes = tets as u128 * ((1u128 << (3 * base.levels as u32)) - 1) / 7;
+    if nodes > limit as u128 {
+        return Err(StreamError::TooLarge {
+            tets,
+            levels: base.levels,
+            nodes,
+            limit,
+        });
+    }
+    if m.levels != base.levels || m.counts.nodes as u128 != nodes {
+        return Err(StreamError::Protocol(format!(
+            "the base mesh ({} levels, {nodes} nodes) disagrees with the manifest ({} levels, {} nodes)",
+            base.levels, m.levels, m.counts.nodes
+        )));
+    }
+    Ok(())
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -130,6 +168,38 @@ pub enum StreamError {
     Server { code: u16, message: String },
     #[error("protocol: {0}")]
     Protocol(String),
+    /// A frame that does not decode, or whose contents fail their checks (a malformed node, an
+    /// invalid base mesh).
+    #[error("unreadable frame from the server: {0}")]
+    BadFrame(String),
+    /// A WebSocket message over the client's limit ([`ws_config`]).
+    #[error("the server sent a message over the {MAX_FRAME_BYTES}-byte limit ({0})")]
+    FrameTooLarge(String),
+    /// The connection dropped and `--retries` attempts to reconnect brought nothing.
+    #[error("connection to {url} lost: {reason} (gave up after {retries} reconnect attempts)")]
+    Disconnected {
+        url: String,
+        reason: String,
+        retries: u32,
+    },
+    /// A node the session refused (beyond the hierarchy, or claiming another node's vertex).
+    #[error("the server sent an invalid node: {0}")]
+    NodeRejected(#[from] NodeRejected),
+    /// `End` with nodes missing, still missing after [`MAX_WANT_ROUNDS`] requests for them.
+    #[error("the server ended the stream with {missing} of {total} nodes missing after {rounds} requests for them")]
+    Unavailable {
+        missing: u64,
+        total: u64,
+        rounds: u32,
+    },
+    /// A base mesh whose hierarchy is over the client's budget (`--max-nodes`).
+    #[error("the base mesh's hierarchy ({tets} tets, {levels} levels) has {nodes} detail nodes, over the client's limit of {limit} (--max-nodes)")]
+    TooLarge {
+        tets: usize,
+        levels: u8,
+        nodes: u128,
+        limit: u64,
+    },
     #[error("no manifest/base mesh received within {0:?}")]
     NoBase(Duration),
     #[error(transparent)]
@@ -140,8 +210,8 @@ pub enum StreamError {
     Render(#[from] RenderError),
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
-    /// `--until-complete` and the session ended with nodes missing (frames ran out, or the
-    /// stream failed past the base mesh); the frames written so far are kept.
+    /// `--until-complete` and the frames ran out with nodes missing (a stream that fails past
+    /// the base mesh is its own error); the frames written so far are kept.
     #[error("the session ended incomplete: {received} of {total} nodes after {frames} frames")]
     Incomplete {
         received: u64,
@@ -229,6 +299,9 @@ struct Net {
     received: Arc<Mutex<BTreeSet<TetId>>>,
 }
 
+/// Waits between reconnect attempts: none before the first, then 100 ms times the attempts before.
+const RETRY_STEP: Duration = Duration::from_millis(100);
+
 async fn network(
     url: String,
     token: Option<String>,
@@ -236,36 +309,53 @@ async fn network(
     tx: mpsc::Sender<(ServerMsg, u64)>,
     mut out: mpsc::UnboundedReceiver<ClientMsg>,
     faults: Faults,
+    retries: u32,
 ) -> Result<(), StreamError> {
-    let mut attempts = 0u32;
+    // consecutive connection attempts that brought no new node (a failed connect counts too)
+    let mut failures = 0u32;
     let mut dropped = false;
     let mut batches = 0u64;
     let mut held_back: Vec<(ServerMsg, u64)> = Vec::new();
+    // why the last connection ended, once one has
+    let mut lost: Option<String> = None;
+    // a connect that fails for good: after a lost connection, that loss is the cause
+    let give_up = |url: String, lost: Option<String>, reason: String| match lost {
+        None => StreamError::Connect { url, reason },
+        Some(l) => StreamError::Disconnected {
+            url,
+            reason: format!("{l}; reconnecting: {reason}"),
+            retries,
+        },
+    };
     loop {
-        let have = ranges_of(&net.received.lock().expect("lock"));
+        // the first attempt after a connection that brought nodes goes at once
+        if failures > 1 {
+            tokio::time::sleep(RETRY_STEP * (failures - 1)).await;
+        }
+        // what the client holds, so the server skips it; the server takes at most MAX_RANGES
+        // ranges, and whatever a shortened list leaves out comes again (a duplicate, ignored)
+        let mut have = ranges_of(&net.received.lock().expect("lock"));
+        have.truncate(MAX_RANGES);
         let conn = tokio::time::timeout(
             Duration::from_secs(5),
             tokio_tungstenite::connect_async_with_config(url.as_str(), Some(ws_config()), false),
         )
         .await;
-        let (mut ws, _) = match conn {
-            Ok(Ok(c)) => c,
+        let mut ws = match conn {
+            Ok(Ok((ws, _))) => ws,
             Ok(Err(e)) => {
-                attempts += 1;
-                if attempts > 5 {
-                    return Err(StreamError::Connect {
-                        url,
-                        reason: e.to_string(),
-                    });
+                failures += 1;
+                if failures > retries {
+                    return Err(give_up(url, lost, e.to_string()));
                 }
-                tokio::time::sleep(Duration::from_millis(100 * attempts as u64)).await;
                 continue;
             }
             Err(_) => {
-                return Err(StreamError::Connect {
-                    url,
-                    reason: "timed out".into(),
-                })
+                failures += 1;
+                if failures > retries {
+                    return Err(give_up(url, lost, "connect timed out".into()));
+                }
+                continue;
             }
         };
         let hello = ClientMsg::Hello {
@@ -274,72 +364,87 @@ async fn network(
             have,
         };
         let frame = encode(&hello).map_err(|e| StreamError::Protocol(e.to_string()))?;
-        if ws.send(Message::Binary(frame.into())).await.is_err() {
-            attempts += 1;
-            continue;
-        }
-        loop {
-            tokio::select! {
-                msg = ws.next() => {
-                    let Some(Ok(msg)) = msg else { break };
-                    let Message::Binary(bytes) = msg else { continue };
-                    net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
-                    let m = decode_server(&bytes).map_err(|e| StreamError::Protocol(e.to_string()))?;
-                    let mut deliver = vec![(m, bytes.len() as u64)];
-                    if let (ServerMsg::Nodes { nodes, .. }, _) = &deliver[0] {
-                        batches += 1;
-                        if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                            deliver.clear();
-                        } else {
-                            let mut r = net.received.lock().expect("lock");
-                            r.extend(nodes.iter().map(|n| n.id));
-                            drop(r);
-                            if faults.duplicate_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                                deliver.push(deliver[0].clone());
+        let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
+            e.to_string()
+        } else {
+            loop {
+                tokio::select! {
+                    msg = ws.next() => {
+                        let msg = match msg {
+                            None => break "the server closed the connection".to_string(),
+                            // over the limit: the same message would come again on a reconnect
+                            Some(Err(WsError::Capacity(e))) => {
+                                return Err(StreamError::FrameTooLarge(e.to_string()))
                             }
-                            if let Some(g) = faults.reverse_groups {
-                                held_back.append(&mut deliver);
-                                if held_back.len() >= g {
-                                    held_back.reverse();
-                                    deliver.append(&mut held_back);
+                            Some(Err(e)) => break e.to_string(),
+                            Some(Ok(m)) => m,
+                        };
+                        let Message::Binary(bytes) = msg else { continue };
+                        net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+                        let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
+                        let mut deliver = vec![(m, bytes.len() as u64)];
+                        if let (ServerMsg::Nodes { nodes, .. }, _) = &deliver[0] {
+                            batches += 1;
+                            if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
+                                deliver.clear();
+                            } else {
+                                let mut r = net.received.lock().expect("lock");
+                                let before = r.len();
+                                r.extend(nodes.iter().map(|n| n.id));
+                                if r.len() > before {
+                                    // progress: this connection is worth reconnecting to again
+                                    failures = 0;
+                                }
+                                drop(r);
+                                if faults.duplicate_every.is_some_and(|k| batches.is_multiple_of(k)) {
+                                    deliver.push(deliver[0].clone());
+                                }
+                                if let Some(g) = faults.reverse_groups {
+                                    held_back.append(&mut deliver);
+                                    if held_back.len() >= g {
+                                        held_back.reverse();
+                                        deliver.append(&mut held_back);
+                                    }
                                 }
                             }
+                        } else {
+                            // anything else flushes what was held back, in order of arrival
+                            let mut flushed: Vec<(ServerMsg, u64)> = std::mem::take(&mut held_back);
+                            flushed.append(&mut deliver);
+                            deliver = flushed;
                         }
-                    } else {
-                        // anything else flushes what was held back, in order of arrival
-                        let mut flushed: Vec<(ServerMsg, u64)> = std::mem::take(&mut held_back);
-                        flushed.append(&mut deliver);
-                        deliver = flushed;
-                    }
-                    for m in deliver {
-                        if tx.send(m).await.is_err() {
-                            return Ok(());
+                        for m in deliver {
+                            if tx.send(m).await.is_err() {
+                                return Ok(());
+                            }
+                        }
+                        if !dropped && faults.drop_after_batches.is_some_and(|n| batches >= n) {
+                            dropped = true;
+                            drop(ws);
+                            break "dropped (test fault)".to_string();
                         }
                     }
-                    if !dropped && faults.drop_after_batches.is_some_and(|n| batches >= n) {
-                        dropped = true;
-                        drop(ws);
-                        break;
-                    }
-                }
-                m = out.recv() => {
-                    let Some(m) = m else { return Ok(()) };
-                    let frame = encode(&m).map_err(|e| StreamError::Protocol(e.to_string()))?;
-                    if ws.send(Message::Binary(frame.into())).await.is_err() {
-                        break;
+                    m = out.recv() => {
+                        let Some(m) = m else { return Ok(()) };
+                        let frame = encode(&m).map_err(|e| StreamError::Protocol(e.to_string()))?;
+                        if let Err(e) = ws.send(Message::Binary(frame.into())).await {
+                            break e.to_string();
+                        }
                     }
                 }
             }
-        }
-        // dropped: reconnect and resume
-        net.reconnects.fetch_add(1, Ordering::Relaxed);
-        attempts += 1;
-        if attempts > 20 {
-            return Err(StreamError::Connect {
+        };
+        // dropped: reconnect and resume, unless the attempts since the last progress ran out
+        failures += 1;
+        if failures > retries {
+            return Err(StreamError::Disconnected {
                 url,
-                reason: "too many reconnects".into(),
+                reason,
+                retries,
             });
         }
+        lost = Some(reason);
+        net.reconnects.fetch_add(1, Ordering::Relaxed);
     }
 }
 
@@ -416,6 +521,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         tx,
         out_rx,
         faults,
+        args.retries,
     ));
 
     let mut manifest: Option<Manifest> = None;
@@ -433,7 +539,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut last_view: Option<ViewParams> = None;
     let wait_base = Duration::from_secs(10);
     let mut frame = 0u32;
-    while frame < args.frames {
+    // a failure past the base mesh: the frames so far are written, then the session fails
+    let mut failure: Option<StreamError> = None;
+    let mut net_done = false;
+    'frames: while frame < args.frames {
         // 1. data: wait up to one frame period for the first message, then take what is ready
         let deadline = Instant::now() + Duration::from_millis(args.frame_ms);
         let mut got_any = false;
@@ -458,7 +567,27 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                             _ => StreamError::NoBase(wait_base),
                         });
                     }
-                    Ok(None) => None,
+                    Ok(None) => {
+                        // the network task ended (after what it delivered): a failure unless
+                        // everything has arrived
+                        if !net_done {
+                            net_done = true;
+                            let why = rt.block_on(&mut task);
+                            if !state.as_ref().is_some_and(Session::is_complete) {
+                                failure = Some(match why {
+                                    Ok(Err(e)) => e,
+                                    Ok(Ok(())) => {
+                                        StreamError::Protocol("the network task ended".into())
+                                    }
+                                    Err(e) => StreamError::Protocol(format!(
+                                        "the network task failed: {e}"
+                                    )),
+                                });
+                                break 'frames;
+                            }
+                        }
+                        None
+                    }
                     Err(_) => {
                         if state.is_none() {
                             return Err(StreamError::NoBase(wait_base));
@@ -476,10 +605,17 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 ServerMsg::Manifest(m) => manifest = Some(*m),
                 // a resumed connection sends the base mesh again: keep what is already built
                 ServerMsg::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
+                ServerMsg::Base(_) if state.is_some() => {
+                    failure = Some(StreamError::Protocol(
+                        "the server sent a different base mesh on a resumed connection".into(),
+                    ));
+                    break 'frames;
+                }
                 ServerMsg::Base(b) => {
                     let m = manifest
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
+                    check_hierarchy(&b, m, args.max_nodes)?;
                     let params =
                         SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
                     state = Some(
@@ -491,9 +627,13 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     let session = state.as_mut().ok_or_else(|| {
                         StreamError::Protocol("nodes before the base mesh".into())
                     })?;
-                    let done = session
-                        .insert(&nodes)
-                        .map_err(|e| StreamError::Protocol(e.source.to_string()))?;
+                    let done = match session.insert(&nodes) {
+                        Ok(done) => done,
+                        Err(e) => {
+                            failure = Some(e.into());
+                            break 'frames;
+                        }
+                    };
                     duplicates += done.duplicates as u64;
                     if args.psnr {
                         received_nodes.extend(nodes.iter().cloned());
@@ -502,22 +642,35 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     let _ = out_tx.send(ClientMsg::Ack { seq });
                 }
                 ServerMsg::End { .. } => {
-                    // re-request whatever was lost on the way (bounded rounds)
+                    // re-request whatever was lost on the way (bounded rounds); the missing ids
+                    // are walked as ranges, in time and memory of what arrived, whatever the
+                    // hierarchy's size
                     if let Some(session) = &state {
-                        let buf = session.buffer();
-                        let missing: BTreeSet<TetId> = (0..buf_forest_nodes(buf))
-                            .filter(|&t| !buf.is_present(t))
-                            .collect();
-                        if missing.is_empty() {
+                        let (held, total) = session.progress();
+                        if held == total {
                             ended = true;
-                        } else if want_rounds < 8 {
+                        } else if want_rounds < MAX_WANT_ROUNDS {
                             want_rounds += 1;
-                            let _ = out_tx.send(ClientMsg::Want(ranges_of(&missing)));
+                            let want: Vec<IdRange> =
+                                session.buffer().missing_ranges().take(MAX_RANGES).collect();
+                            let _ = out_tx.send(ClientMsg::Want(want));
+                        } else {
+                            failure = Some(StreamError::Unavailable {
+                                missing: total - held,
+                                total,
+                                rounds: want_rounds,
+                            });
+                            break 'frames;
                         }
                     }
                 }
                 ServerMsg::Error { code, message } => {
-                    return Err(StreamError::Server { code, message })
+                    let e = StreamError::Server { code, message };
+                    if state.is_none() {
+                        return Err(e);
+                    }
+                    failure = Some(e);
+                    break 'frames;
                 }
             }
             // the first image goes out as soon as the base mesh is there
@@ -610,7 +763,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     let complete = nodes_total > 0 && nodes_received == nodes_total;
     // 5. accuracy against the full-resolution reference, once everything has arrived
-    if args.psnr {
+    if args.psnr && failure.is_none() {
         if let (true, Some(session), Some(m)) = (complete, &state, &manifest) {
             let base = session.base();
             received_nodes.sort_by_key(|n| n.id);
@@ -635,6 +788,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         reason: e.to_string(),
     })?;
     task.abort();
+    if let Some(e) = failure {
+        return Err(e);
+    }
     let (base, mesh) = match state.map(Session::into_parts) {
         Some((base, _, mesh, _)) => (Some(base), Some(mesh)),
         None => (None, None),

@@ -154,6 +154,26 @@ impl Forest {
         self.level_start(self.levels)
     }
 
+    /// [`Self::level_start`] without overflow: `None` when the count does not fit in a u64 (a base
+    /// mesh of many tets with many levels, e.g. one read from an untrusted source).
+    pub fn checked_level_start(&self, k: u8) -> Option<u64> {
+        let p = 1u128.checked_shl(3 * k as u32)?;
+        (self.n_base as u128)
+            .checked_mul(p - 1)
+            .map(|x| x / 7)
+            .and_then(|x| u64::try_from(x).ok())
+    }
+
+    /// [`Self::nodes`] without overflow: `None` when it does not fit in a u64.
+    pub fn checked_nodes(&self) -> Option<u64> {
+        self.checked_level_start(self.levels)
+    }
+
+    /// [`Self::total_tets`] without overflow: `None` when it does not fit in a u64.
+    pub fn checked_total_tets(&self) -> Option<u64> {
+        self.checked_level_start(self.levels + 1)
+    }
+
     /// Whether `id` names a tet of this forest.
     pub fn contains(&self, id: TetId) -> bool {
         id < self.total_tets()
@@ -450,6 +470,25 @@ mod tests {
         assert_eq!(f6.leaves(), 1_310_720);
         assert_eq!(f6.nodes(), 187_245);
         assert_eq!(Forest::new(6, 5).total_tets(), 224_694);
+    }
+
+    /// The checked counts agree with the plain ones where those fit, and say `None` where they
+    /// would wrap (2^20 roots at 16 levels: 2^20 · 8^16 / 7 ≈ 2^65.8).
+    #[test]
+    fn checked_counts() {
+        for (n, l) in [(5u64, 5u8), (6, 6), (5, 10), (1 << 16, 15)] {
+            let f = Forest::new(n, l);
+            assert_eq!(f.checked_nodes(), Some(f.nodes()));
+            assert_eq!(f.checked_total_tets(), Some(f.total_tets()));
+        }
+        assert_eq!(Forest::new(5, 10).checked_nodes(), Some(766_958_445));
+        let huge = Forest::new(1 << 20, MAX_LEVELS);
+        assert_eq!(huge.checked_nodes(), None);
+        assert_eq!(huge.checked_total_tets(), None);
+        let edge = Forest::new(1 << 16, MAX_LEVELS);
+        assert_eq!(edge.checked_nodes(), Some(edge.nodes()));
+        assert_eq!(edge.checked_total_tets(), None);
+        assert_eq!(Forest::new(u64::MAX, 1).checked_total_tets(), None);
     }
 
     #[test]

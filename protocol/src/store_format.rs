@@ -207,13 +207,19 @@ impl StoreHead {
             .check()
             .map_err(|e| FormatError::Inconsistent(format!("manifest.json: {e}")))?;
         let forest = base.forest();
-        if base.levels != manifest.levels || forest.nodes() != manifest.counts.nodes {
+        let nodes = forest.checked_nodes().ok_or_else(|| {
+            FormatError::Base(format!(
+                "{} tets refined {} times: the node count does not fit in 64 bits",
+                forest.n_base, forest.levels
+            ))
+        })?;
+        if base.levels != manifest.levels || nodes != manifest.counts.nodes {
             return Err(FormatError::Inconsistent(
                 "base mesh disagrees with the manifest".into(),
             ));
         }
         if !index_bytes.len().is_multiple_of(8)
-            || (index_bytes.len() / 8) as u64 != forest.nodes().div_ceil(BLOCK)
+            || (index_bytes.len() / 8) as u64 != nodes.div_ceil(BLOCK)
         {
             return Err(FormatError::Inconsistent(
                 "coeff_index.bin size disagrees with the node count".into(),
@@ -245,22 +251,45 @@ impl StoreHead {
         if from == to {
             return Ok(Vec::new());
         }
+        // offsets and lengths in checked arithmetic: the index comes from a file, and a wrapped
+        // product would read another node's coefficients
+        let overflow = |what: &str| FormatError::Inconsistent(format!("{what} overflows"));
         let block = from / BLOCK;
         let block_start = block * BLOCK;
-        let mut recs = vec![0u8; ((to - block_start) * NODE_RECORD) as usize];
-        files.read_at("nodes.bin", block_start * NODE_RECORD, &mut recs)?;
+        let recs_len = (to - block_start)
+            .checked_mul(NODE_RECORD)
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or_else(|| overflow("nodes.bin: the range's length"))?;
+        let mut recs = vec![0u8; recs_len];
+        let recs_at = block_start
+            .checked_mul(NODE_RECORD)
+            .ok_or_else(|| overflow("nodes.bin: the range's offset"))?;
+        files.read_at("nodes.bin", recs_at, &mut recs)?;
         let skip = ((from - block_start) * NODE_RECORD) as usize;
-        let coeff_at = self.index[block as usize]
-            + recs[..skip]
-                .chunks_exact(6)
-                .map(|r| r[0].count_ones() as u64)
-                .sum::<u64>();
+        let entry = *self.index.get(block as usize).ok_or_else(|| {
+            FormatError::Inconsistent(format!("coeff_index.bin: no entry for block {block}"))
+        })?;
+        let coeff_at = entry
+            .checked_add(
+                recs[..skip]
+                    .chunks_exact(6)
+                    .map(|r| r[0].count_ones() as u64)
+                    .sum::<u64>(),
+            )
+            .ok_or_else(|| overflow("coeff_index.bin: a coefficient offset"))?;
         let recs = &recs[skip..];
         let count: u64 = recs.chunks_exact(6).map(|r| r[0].count_ones() as u64).sum();
         let enc = &self.manifest.encoding;
         let width = enc.width() as u64;
-        let mut cb = vec![0u8; (count * width) as usize];
-        files.read_at("coeffs.bin", coeff_at * width, &mut cb)?;
+        let cb_len = count
+            .checked_mul(width)
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or_else(|| overflow("coeffs.bin: the range's length"))?;
+        let mut cb = vec![0u8; cb_len];
+        let cb_at = coeff_at
+            .checked_mul(width)
+            .ok_or_else(|| overflow("coeffs.bin: the range's offset"))?;
+        files.read_at("coeffs.bin", cb_at, &mut cb)?;
         let mut coeffs = cb.chunks_exact(width as usize).map(|c| enc.decode(c));
         let mut out = Vec::with_capacity((to - from) as usize);
         for (j, r) in recs.chunks_exact(6).enumerate() {

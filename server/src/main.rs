@@ -134,6 +134,10 @@ enum Cmd {
         /// Worker threads (default: the number of cores).
         #[arg(long)]
         threads: Option<usize>,
+        /// Recompute every store file's CRC-32 before serving (reads the whole store; the
+        /// structure and base.bin's checksum are always checked).
+        #[arg(long)]
+        verify: bool,
     },
 }
 
@@ -277,6 +281,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             batch,
             window,
             threads,
+            verify,
         } => {
             use tetwave_server::stream::{serve_on, ServeConfig, Shared};
             if !(1..=1 << 16).contains(&batch) {
@@ -329,6 +334,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     allow_hosts: lower(allow_hosts),
                     allow_origins: lower(allow_origins),
                 },
+                verify_checksums: verify,
                 ..ServeConfig::default()
             };
             let shared = Shared::open(&store, config)?;

@@ -166,6 +166,12 @@ fn verify_fails_on_a_corrupted_store() {
     b[10] ^= 0x55;
     std::fs::write(&p, b).unwrap();
     expect_error(&["verify", s(&store)], &["coeffs.bin", "checksum"]);
+    // the flip keeps the structure: `serve` checks the checksums only with --verify (and then
+    // refuses before it binds)
+    expect_error(
+        &["serve", s(&store), "--verify", "--addr", "127.0.0.1:0"],
+        &["coeffs.bin", "checksum"],
+    );
 }
 
 // ---- bad input ----

@@ -23,10 +23,11 @@ pub use tetwave_protocol::store_format::{
     BLOCK, STORE_FORMAT, STORE_VERSION,
 };
 
+mod check;
 mod read;
 mod write;
 
-pub use read::Store;
+pub use read::{OpenOptions, Store};
 pub use write::{write, StoreContent, StoreMeta};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.

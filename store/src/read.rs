@@ -5,7 +5,7 @@ use crate::{io_err, StoreError, STORE_FILES};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
-use tetwave_protocol::store_format::{Manifest, StoreFiles, StoreHead};
+use tetwave_protocol::store_format::{Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
@@ -32,10 +32,26 @@ pub struct Store {
     files: DirFiles,
 }
 
+/// How [`Store::open_with`] checks a store.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// Also recompute every file's CRC-32 ([`Store::check_sums`]): reads the whole store.
+    /// `base.bin`'s is always checked.
+    pub verify_checksums: bool,
+}
+
 impl Store {
-    /// Opens a store, checking the manifest, the base mesh and every file's size (not checksums: see
-    /// [`Store::check_sums`]).
+    /// Opens a store with the default [`OpenOptions`] (structural checks and `base.bin`'s
+    /// checksum; not the other files' checksums).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        Self::open_with(dir, OpenOptions::default())
+    }
+
+    /// Opens a store, checking the manifest, the base mesh (its CRC-32 included), every file's
+    /// size against the manifest, and the structure that random access relies on (see the
+    /// `check` module: counts, the coefficient index, the owned masks; one pass over `nodes.bin`);
+    /// with [`OpenOptions::verify_checksums`], every file's CRC-32 as well.
+    pub fn open_with(dir: &Path, options: OpenOptions) -> Result<Self, StoreError> {
         let mpath = dir.join("manifest.json");
         let text = std::fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
         let manifest: Manifest =
@@ -44,6 +60,13 @@ impl Store {
                 reason: e.to_string(),
             })?;
         for (name, sum) in &manifest.files {
+            // only the store's own files: a name like `../x` or `/dev/zero` is never opened
+            if !STORE_FILES.contains(&name.as_str()) {
+                return Err(StoreError::Corrupt {
+                    path: mpath,
+                    reason: format!("{name:?} is not a file of a store"),
+                });
+            }
             let p = dir.join(name);
             let len = std::fs::metadata(&p).map_err(io_err(&p))?.len();
             if len != sum.bytes {
@@ -54,8 +77,41 @@ impl Store {
             }
         }
         let bpath = dir.join("base.bin");
+        let base_len = std::fs::metadata(&bpath).map_err(io_err(&bpath))?.len();
+        if base_len > MAX_BASE_BYTES as u64 {
+            return Err(StoreError::Corrupt {
+                path: bpath,
+                reason: format!("{base_len} bytes exceeds the {MAX_BASE_BYTES}-byte limit"),
+            });
+        }
         let base_bytes = std::fs::read(&bpath).map_err(io_err(&bpath))?;
+        // the base mesh is small and every render depends on it: its checksum is always checked
+        let Some(sum) = manifest.files.get("base.bin") else {
+            return Err(StoreError::Corrupt {
+                path: mpath,
+                reason: "no checksum for base.bin".into(),
+            });
+        };
+        let got = crc32fast::hash(&base_bytes);
+        if got != sum.crc32 {
+            return Err(StoreError::Corrupt {
+                path: bpath,
+                reason: format!("checksum {got:08x}, manifest says {:08x}", sum.crc32),
+            });
+        }
+        // the index is read whole: first its size (StoreHead::decode then ties the manifest's node
+        // count to the base mesh)
         let ipath = dir.join("coeff_index.bin");
+        let index_len = std::fs::metadata(&ipath).map_err(io_err(&ipath))?.len();
+        if Some(index_len) != manifest.counts.nodes.div_ceil(BLOCK).checked_mul(8) {
+            return Err(StoreError::Corrupt {
+                path: ipath,
+                reason: format!(
+                    "{index_len} bytes, the manifest's {} nodes need 8 per block of {BLOCK}",
+                    manifest.counts.nodes
+                ),
+            });
+        }
         let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
         let head = StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(|source| {
             StoreError::Format {
@@ -63,13 +119,18 @@ impl Store {
                 source,
             }
         })?;
-        Ok(Store {
+        crate::check::structure(dir, &head)?;
+        let store = Store {
             dir: dir.to_path_buf(),
             manifest: head.manifest.clone(),
             base: head.base.clone(),
             head,
             files: DirFiles(dir.to_path_buf()),
-        })
+        };
+        if options.verify_checksums {
+            store.check_sums()?;
+        }
+        Ok(store)
     }
 
     pub fn forest(&self) -> Forest {

@@ -52,6 +52,9 @@ pub struct ServeConfig {
     pub limits: Limits,
     /// Host and Origin allowlists.
     pub origins: OriginPolicy,
+    /// Recompute every store file's CRC-32 when the store opens (`serve --verify`; reads the whole
+    /// store). The structure and `base.bin`'s checksum are always checked.
+    pub verify_checksums: bool,
 }
 
 /// What a server admits and for how long; `docs/security.md` lists each with its flag.
@@ -105,6 +108,7 @@ impl Default for ServeConfig {
             max_range: 1 << 16,
             limits: Limits::default(),
             origins: OriginPolicy::default(),
+            verify_checksums: false,
         }
     }
 }

@@ -15,7 +15,7 @@ use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
-use tetwave_store::{Store, StoreError};
+use tetwave_store::{OpenOptions, Store, StoreError};
 
 /// Per-node geometry for view-dependent order: bounding spheres, in world units.
 pub(super) struct Geometry {
@@ -60,7 +60,12 @@ const LOAD_CHUNK: u64 = 1 << 16;
 impl Shared {
     /// Opens the store and prepares what connections share.
     pub fn open(dir: &std::path::Path, config: ServeConfig) -> Result<Arc<Shared>, ServeError> {
-        let store = Store::open(dir)?;
+        let store = Store::open_with(
+            dir,
+            OpenOptions {
+                verify_checksums: config.verify_checksums,
+            },
+        )?;
         let forest = store.forest();
         let nodes = store.manifest.counts.nodes;
         if nodes > u32::MAX as u64 {
