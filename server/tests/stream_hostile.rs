@@ -478,3 +478,103 @@ async fn header_timeout_and_peer_limits() {
     }
     assert!(connect_from(HONEST, addr, "", &[]).await.is_ok());
 }
+
+/// A stream the client leaves silent closes with 1001 after the idle timeout; a store that fails to
+/// read mid-stream gets `Error 500` and a close with 1011.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_and_internal_failures_close_with_codes() {
+    // idle: the client takes the window's batches and never acknowledges them
+    let config = ServeConfig {
+        idle_timeout: Duration::from_secs(1),
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&store(), config).await;
+    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
+    send(&mut ws, &hello(None, vec![])).await;
+    let t0 = Instant::now();
+    assert_eq!(close_code(&mut ws).await, Some(CloseCode::Away));
+    assert!(t0.elapsed() >= Duration::from_secs(1));
+
+    // internal: nodes are read from disk (no cache), and the coefficients vanish after opening
+    let d = tempfile::tempdir().unwrap();
+    let copy = d.path().join("store");
+    std::fs::create_dir(&copy).unwrap();
+    for e in std::fs::read_dir(store()).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), copy.join(e.file_name())).unwrap();
+    }
+    let config = ServeConfig {
+        cache_limit_bytes: 0,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&copy, config).await;
+    std::fs::write(copy.join("coeffs.bin"), b"").unwrap();
+    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
+    send(&mut ws, &hello(None, vec![])).await;
+    let mut error = None;
+    let code = tokio::time::timeout(T, async {
+        while let Some(m) = ws.next().await {
+            match m {
+                Ok(Message::Binary(b)) => {
+                    if let Ok(ServerMsg::Error { code, .. }) =
+                        tetwave_protocol::wire::decode_server(&b)
+                    {
+                        error = Some(code);
+                    }
+                }
+                Ok(Message::Close(f)) => return f.map(|f| f.code),
+                Ok(_) => {}
+                Err(_) => return None,
+            }
+        }
+        None
+    })
+    .await
+    .unwrap();
+    assert_eq!(error, Some(500));
+    assert_eq!(code, Some(CloseCode::Error));
+}
+
+/// The total connection limit holds across addresses.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn total_connection_limit() {
+    let config = ServeConfig {
+        limits: Limits {
+            max_connections: 3,
+            ..Limits::default()
+        },
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&store(), config).await;
+    let mut held = Vec::new();
+    for k in 0..3u8 {
+        held.push(tcp_from([127, 0, 7, k], addr).await.unwrap());
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let mut fourth = tcp_from([127, 0, 7, 9], addr).await.unwrap();
+    let mut buf = [0u8; 16];
+    let r = tokio::time::timeout(Duration::from_secs(2), fourth.read(&mut buf)).await;
+    assert!(
+        matches!(r, Ok(Ok(0)) | Ok(Err(_))),
+        "the 4th connection is closed at once: {r:?}"
+    );
+    drop(held);
+    // room again once they are gone
+    let t0 = Instant::now();
+    loop {
+        let mut s = tcp_from(HONEST, addr).await.unwrap();
+        s.write_all(
+            format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n")
+                .as_bytes(),
+        )
+        .await
+        .unwrap();
+        let mut out = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(2), s.read_to_end(&mut out)).await;
+        if out.starts_with(b"HTTP/1.1 200") {
+            break;
+        }
+        assert!(t0.elapsed() < T, "no room after the connections closed");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
