@@ -448,12 +448,13 @@ async fn network(
     }
 }
 
-/// The client's WebSocket limits: a message may be as large as a protocol frame
-/// ([`MAX_FRAME_BYTES`]); tungstenite's default (16 MiB) would refuse a large base mesh forever.
+/// The client's WebSocket limits: a message may be as large as a whole protocol frame
+/// ([`MAX_FRAME_BYTES`] after the 4-byte length prefix); tungstenite's default (16 MiB) would
+/// refuse a large base mesh forever.
 pub fn ws_config() -> WebSocketConfig {
     WebSocketConfig::default()
-        .max_message_size(Some(MAX_FRAME_BYTES))
-        .max_frame_size(Some(MAX_FRAME_BYTES))
+        .max_message_size(Some(MAX_FRAME_BYTES + 4))
+        .max_frame_size(Some(MAX_FRAME_BYTES + 4))
 }
 
 /// Runs a headless streaming session. With `--until-complete`, a session that ends with nodes
