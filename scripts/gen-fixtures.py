@@ -2,7 +2,7 @@
 """Writes the mesh-reader test fixtures in server/tests/fixtures/.
 
 The fixtures are written by `meshio` (pip install meshio), so that they come from a
-different code path than the Rust readers in server/src/import/. The variants
+different code path than the Rust readers in import/src/. The variants
 meshio cannot write (appended VTK XML data, legacy SCALARS sections, non-contiguous gmsh
 node tags, METADATA blocks, broken files) are written below with plain Python.
 

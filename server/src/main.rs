@@ -59,7 +59,7 @@ enum Cmd {
         field: Option<String>,
         /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
         #[arg(long)]
-        format: Option<tetwave_server::import::MeshFormat>,
+        format: Option<tetwave_import::MeshFormat>,
         /// Replace NaN/Inf input values by this value instead of refusing the input.
         #[arg(long)]
         nan_as: Option<f64>,

@@ -1,7 +1,6 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
 use crate::analysis::{analyze_hierarchy, AnalysisError};
-use crate::import::{self, ImportError, MeshFormat};
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
@@ -9,6 +8,7 @@ use crate::resample::{resample, BaseSpec, ResampleError, Source};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tetwave_import::{self as import, ImportError, MeshFormat};
 use tetwave_protocol::synthesis::apply_node;
 use tetwave_protocol::LatticeTet;
 use tetwave_store::{self as store, Store, StoreError, StoreMeta};

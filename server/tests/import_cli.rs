@@ -62,7 +62,7 @@ fn json_reports_split_cells() {
     for name in ["volcells.vtu", "volcells_51.vtk", "volcells_22.msh"] {
         let j = prepare(&fixture(name), &[]);
         let i = &j["import"];
-        let points = tetwave_server::import::read_mesh(Path::new(&fixture(name)), None)
+        let points = tetwave_import::read_mesh(Path::new(&fixture(name)), None)
             .unwrap()
             .mesh
             .points

@@ -10,7 +10,7 @@ use tetwave_protocol::shapes::box_corners;
 mod fixture_mesh;
 use fixture_mesh::{cube_points, fixture, temperature, tets, Corruptor};
 
-use tetwave_server::import::{read_mesh, ImportError, ImportedMesh, MeshFormat};
+use tetwave_import::{read_mesh, ImportError, ImportedMesh, MeshFormat};
 use tetwave_server::resample::unstructured::{
     boundary_distance, clean_import, min_dihedral_deg, CleanError, ImportOptions,
 };
@@ -426,10 +426,10 @@ fn new_fixtures_survive_truncation() {
         "quadratic_22.msh",
     ] {
         let bytes = std::fs::read(fixture(name)).unwrap();
-        let fmt = tetwave_server::import::format_of(Path::new(name)).unwrap();
-        let full = tetwave_server::import::parse_mesh(Path::new(name), &bytes, fmt).unwrap();
+        let fmt = tetwave_import::format_of(Path::new(name)).unwrap();
+        let full = tetwave_import::parse_mesh(Path::new(name), &bytes, fmt).unwrap();
         for len in 0..bytes.len() {
-            match tetwave_server::import::parse_mesh(Path::new(name), &bytes[..len], fmt) {
+            match tetwave_import::parse_mesh(Path::new(name), &bytes[..len], fmt) {
                 Err(ImportError::Malformed { .. }) => {}
                 Err(e) => panic!("{name}[..{len}]: {e:?}"),
                 Ok(m) => {
@@ -457,10 +457,10 @@ fn new_fixtures_corrupted_never_panic() {
         "quadratic.vtu",
     ] {
         let bytes = std::fs::read(fixture(name)).unwrap();
-        let fmt = tetwave_server::import::format_of(Path::new(name)).unwrap();
+        let fmt = tetwave_import::format_of(Path::new(name)).unwrap();
         for round in 0..300 {
             let b = rng.corrupt(&bytes, round);
-            match tetwave_server::import::parse_mesh(Path::new(name), &b, fmt) {
+            match tetwave_import::parse_mesh(Path::new(name), &b, fmt) {
                 Ok(m) => {
                     let n = m.mesh.points.len();
                     assert!(m.mesh.tets.iter().flatten().all(|&v| (v as usize) < n));

@@ -9,7 +9,7 @@ use tetwave_protocol::shapes::kuhn_grid;
 mod fixture_mesh;
 use fixture_mesh::{cube_points, fixture, temperature, tets, Corruptor};
 
-use tetwave_server::import::{
+use tetwave_import::{
     format_of_content, parse_tet_mesh, read_tet_mesh, read_tet_mesh_as, ImportError, MeshFormat,
     TetMesh,
 };
@@ -422,8 +422,7 @@ fn corrupted_bytes_never_panic() {
 #[test]
 fn devices_are_not_read() {
     for format in [None, Some(MeshFormat::LegacyVtk)] {
-        let e =
-            tetwave_server::import::read_mesh(Path::new("/dev/zero"), format).expect_err("refused");
+        let e = tetwave_import::read_mesh(Path::new("/dev/zero"), format).expect_err("refused");
         assert!(e.to_string().contains("not a regular file"), "{e}");
     }
 }

@@ -15,9 +15,9 @@ pub mod raw;
 pub mod synthetic;
 pub mod unstructured;
 
-use crate::import;
 use rayon::prelude::*;
 use std::path::PathBuf;
+use tetwave_import as import;
 use tetwave_protocol::hierarchy::MAX_LEVELS;
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::BaseMesh;

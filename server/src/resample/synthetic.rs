@@ -59,7 +59,7 @@ pub fn kuhn_cube_mesh(
     jitter: f64,
     keep: impl Fn(usize, usize, usize) -> bool,
     f: impl Fn([f64; 3]) -> f64,
-) -> crate::import::TetMesh {
+) -> tetwave_import::TetMesh {
     let (mut points, tets) = tetwave_protocol::shapes::kuhn_grid(n, keep);
     for (idx, p) in points.iter_mut().enumerate() {
         let c = [
@@ -74,10 +74,10 @@ pub fn kuhn_cube_mesh(
         }
     }
     let values = points.iter().map(|&p| f(p)).collect();
-    crate::import::TetMesh {
+    tetwave_import::TetMesh {
         points,
         tets,
-        point_data: vec![crate::import::ScalarArray {
+        point_data: vec![tetwave_import::ScalarArray {
             name: "f".into(),
             values,
         }],

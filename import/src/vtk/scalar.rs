@@ -1,6 +1,6 @@
 //! VTK scalar types (XML and legacy names) and their values from binary or ascii data.
 
-use crate::import::lex::{show, Bad, Endian, Res};
+use crate::lex::{show, Bad, Endian, Res};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Scalar {

@@ -33,11 +33,16 @@
 //! DataFile`, `$MeshFormat` or `$NOD`, `MeshVersionFormatted`), otherwise from the extension;
 //! [`read_mesh`] takes an override (`prepare --format`).
 //!
+//! [`clean`] turns an [`ImportedMesh`] and a scalar choice (`--scalar NAME`, `NAME:mag`, `NAME:K`,
+//! `--field distance`, `--nan-as`) into one value per point; `prepare` (server) resamples that and
+//! `tetwave render <mesh>` (client) draws it as it is.
+//!
 //! This file: format detection and the entry points. What the readers return is in `mesh.rs`,
 //! the cell kinds and their split into tets in `cells.rs`, the error and byte cursor they share in
 //! `lex.rs`; each format has its own file (VTK a folder, `vtk/`).
 
 mod cells;
+pub mod clean;
 mod lex;
 mod medit;
 mod mesh;

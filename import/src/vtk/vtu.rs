@@ -22,9 +22,9 @@ use super::scalar::{ascii_values, bytes_to_f64, bytes_to_i64, Scalar};
 use super::xml::{
     split_appended, walk_xml, Appended, AppendedEncoding, XmlArray, XmlDoc, XmlPiece,
 };
-use crate::import::cells::{check_nodes, vtk_cell, Cell};
-use crate::import::lex::{find, point_index, show, Bad, Endian, Lex, Res};
-use crate::import::mesh::{FieldArray, ImportedMesh, ScalarArray};
+use crate::cells::{check_nodes, vtk_cell, Cell};
+use crate::lex::{find, point_index, show, Bad, Endian, Lex, Res};
+use crate::mesh::{FieldArray, ImportedMesh, ScalarArray};
 
 pub(crate) fn parse_vtu(bytes: &[u8]) -> Res<ImportedMesh> {
     let (xml, appended) = match find(bytes, b"<AppendedData") {

@@ -4,7 +4,7 @@
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use crate::import::lex::{show, Bad, Res};
+use crate::lex::{show, Bad, Res};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Ctx {

@@ -7,9 +7,9 @@
 //! `vtkIdType` 4, as VTK writes them on 64-bit Linux.
 
 use super::scalar::{bytes_to_f64, bytes_to_i64, Scalar};
-use crate::import::cells::{check_nodes, vtk_cell, Cell};
-use crate::import::lex::{capacity, point_index, show, Bad, Endian, Lex, Res};
-use crate::import::mesh::{FieldArray, ImportedMesh, ScalarArray};
+use crate::cells::{check_nodes, vtk_cell, Cell};
+use crate::lex::{capacity, point_index, show, Bad, Endian, Lex, Res};
+use crate::mesh::{FieldArray, ImportedMesh, ScalarArray};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum LegacyType {

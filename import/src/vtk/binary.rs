@@ -4,7 +4,7 @@
 use std::borrow::Cow;
 use std::io::Read;
 
-use crate::import::lex::{Bad, Endian, Lex, Res};
+use crate::lex::{Bad, Endian, Lex, Res};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Compression {

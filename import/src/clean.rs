@@ -1,0 +1,674 @@
+//! Cleaning an imported mesh: the scalar choice (`--scalar NAME`, `NAME:mag`, `NAME:K`, cell arrays
+//! averaged to the points volume-weighted, `--field distance`), NaN/Inf handling, orientation,
+//! degenerate and duplicate tets, quality. `prepare` resamples what this returns; `tetwave render
+//! <mesh>` draws it as it is.
+
+use crate::{FieldArray, ImportedMesh, TetMesh};
+use std::collections::{HashMap, HashSet};
+use tetwave_protocol::base::signed_volume;
+
+#[derive(Debug, thiserror::Error)]
+pub enum CleanError {
+    #[error("the mesh has no tetrahedra or other volume cells ({ignored} points, lines or surface cells ignored{unsupported}): a surface-only mesh has no volume to resample")]
+    NoTets { ignored: usize, unsupported: String },
+    #[error("the mesh has no point or cell arrays; pass --field distance to view its geometry (the distance to its boundary)")]
+    NoScalars,
+    #[error("no point or cell array named {name:?}; available: {available}")]
+    UnknownScalar { name: String, available: String },
+    #[error("array {name:?} has {components} components: {component:?} is not one (use {name}:mag or {name}:0..{last})", last = components - 1)]
+    UnknownComponent {
+        name: String,
+        components: usize,
+        component: String,
+    },
+    #[error("unknown --field {0:?} (known: distance)")]
+    UnknownField(String),
+    #[error("--field and --scalar exclude each other")]
+    FieldAndScalar,
+    #[error("scalar {name:?} has {count} NaN/Inf values (first at point {first}); pass --nan-as VALUE to replace them")]
+    NonFinite {
+        name: String,
+        count: usize,
+        first: usize,
+    },
+    #[error("point {index} has a non-finite coordinate")]
+    BadPoint { index: usize },
+    #[error("all {count} tets have zero volume")]
+    AllDegenerate { count: usize },
+}
+
+/// Tets whose smallest dihedral angle is below this many degrees are counted as slivers.
+pub const SLIVER_DEGREES: f64 = 5.0;
+
+/// What cleaning did, for the summary.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct CleanReport {
+    /// Points of the file (every point, used by a cell or not).
+    pub points_read: usize,
+    /// Cells of the file, of every kind.
+    pub cells_read: usize,
+    /// Tets before cleaning: the file's tets, corner tets of higher-order tets, split cells.
+    pub tets_read: usize,
+    pub tets_kept: usize,
+    pub tets_reoriented: usize,
+    /// Zero-volume and duplicate tets dropped.
+    pub tets_dropped: usize,
+    pub tets_dropped_degenerate: usize,
+    pub tets_dropped_duplicate: usize,
+    /// Points, lines, surface cells and volume cells of unsupported kinds.
+    pub cells_ignored: usize,
+    /// Volume cells of unsupported kinds (part of `cells_ignored`).
+    pub cells_unsupported: usize,
+    /// Hexahedra, wedges and pyramids split into tets.
+    pub cells_split: usize,
+    /// Higher-order tets reduced to their corner tet.
+    pub cells_linearized: usize,
+    /// The scalar: an array name, `name:mag` or `name:K` for a vector, or `distance`.
+    pub scalar: String,
+    /// `point`, `cell` (averaged to the points) or `geometric`.
+    pub scalar_source: String,
+    pub non_finite_replaced: usize,
+    /// Smallest dihedral angle of the kept tets, in degrees.
+    pub min_dihedral_deg: f64,
+    /// Kept tets with a dihedral angle below [`SLIVER_DEGREES`].
+    pub slivers: usize,
+    /// What was done, in words.
+    pub notes: Vec<String>,
+}
+
+/// A cleaned tet mesh with one scalar per point, ready for point location.
+pub struct ScalarTetMesh {
+    pub points: Vec<[f64; 3]>,
+    pub tets: Vec<[u32; 4]>,
+    pub values: Vec<f64>,
+}
+
+/// How the scalar is chosen.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ImportOptions<'a> {
+    /// `NAME`, `NAME:mag` or `NAME:K` among point and cell arrays; the first point scalar when
+    /// absent (then the first point vector's magnitude, the first cell array).
+    pub scalar: Option<&'a str>,
+    /// A geometric field instead of an array: `distance` (to the boundary).
+    pub field: Option<&'a str>,
+    pub nan_as: Option<f64>,
+}
+
+/// Picks the scalar, checks for NaN/Inf, re-orients inverted tets and drops zero-volume ones.
+pub fn clean(
+    mesh: TetMesh,
+    scalar: Option<&str>,
+    nan_as: Option<f64>,
+) -> Result<(ScalarTetMesh, CleanReport), CleanError> {
+    clean_import(
+        mesh.into(),
+        &ImportOptions {
+            scalar,
+            field: None,
+            nan_as,
+        },
+    )
+}
+
+/// A component of a vector array.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Component {
+    Magnitude,
+    Index(usize),
+}
+
+/// The chosen array.
+enum Choice<'m> {
+    Point(&'m str, &'m [f64], usize, Option<Component>),
+    Cell(&'m FieldArray, Option<Component>),
+}
+
+/// Values of one component (or the magnitude, or the only component) of tuples of `nc` values.
+/// The magnitude is the Euclidean norm of a vector and the Frobenius norm of a tensor: a
+/// 6-component tuple is a symmetric tensor stored as (xx, yy, zz, xy, yz, xz), VTK's order, whose
+/// off-diagonal terms count twice.
+fn component(values: &[f64], nc: usize, c: Option<Component>) -> Vec<f64> {
+    match c {
+        None | Some(Component::Index(_)) if nc == 1 => values.to_vec(),
+        Some(Component::Index(k)) => values.chunks_exact(nc).map(|t| t[k]).collect(),
+        None | Some(Component::Magnitude) if nc == 6 => values
+            .chunks_exact(6)
+            .map(|t| {
+                let diag = t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+                let off = t[3] * t[3] + t[4] * t[4] + t[5] * t[5];
+                (diag + 2.0 * off).sqrt()
+            })
+            .collect(),
+        None | Some(Component::Magnitude) => values
+            .chunks_exact(nc)
+            .map(|t| t.iter().map(|x| x * x).sum::<f64>().sqrt())
+            .collect(),
+    }
+}
+
+fn parse_component(name: &str, nc: usize, spec: &str) -> Result<Option<Component>, CleanError> {
+    let c = match spec.to_ascii_lowercase().as_str() {
+        "mag" | "magnitude" | "norm" => Component::Magnitude,
+        "x" => Component::Index(0),
+        "y" => Component::Index(1),
+        "z" => Component::Index(2),
+        s => match s.parse::<usize>() {
+            Ok(k) => Component::Index(k),
+            Err(_) => Component::Index(usize::MAX),
+        },
+    };
+    match c {
+        Component::Index(k) if k >= nc => Err(CleanError::UnknownComponent {
+            name: name.to_string(),
+            components: nc,
+            component: spec.to_string(),
+        }),
+        c => Ok(Some(c)),
+    }
+}
+
+fn available(m: &ImportedMesh) -> String {
+    let mut out = Vec::new();
+    let vector = |a: &FieldArray, kind: &str| {
+        format!(
+            "{n} ({kind}, {c} components: {n}:mag, {n}:0..{last})",
+            n = a.name,
+            c = a.components,
+            last = a.components - 1
+        )
+    };
+    for a in &m.mesh.point_data {
+        out.push(format!("{} (point)", a.name));
+    }
+    for a in &m.point_vectors {
+        out.push(vector(a, "point"));
+    }
+    for a in &m.cell_data {
+        if a.components == 1 {
+            out.push(format!("{} (cell)", a.name));
+        } else {
+            out.push(vector(a, "cell"));
+        }
+    }
+    if out.is_empty() {
+        "none (pass --field distance)".into()
+    } else {
+        out.join(", ")
+    }
+}
+
+fn choose<'m>(m: &'m ImportedMesh, scalar: Option<&str>) -> Result<Choice<'m>, CleanError> {
+    let find = |name: &str| -> Option<Choice<'m>> {
+        if let Some(a) = m.mesh.point_data.iter().find(|a| a.name == name) {
+            return Some(Choice::Point(&a.name, &a.values, 1, None));
+        }
+        if let Some(a) = m.point_vectors.iter().find(|a| a.name == name) {
+            return Some(Choice::Point(&a.name, &a.values, a.components, None));
+        }
+        m.cell_data
+            .iter()
+            .find(|a| a.name == name)
+            .map(|a| Choice::Cell(a, None))
+    };
+    let Some(spec) = scalar else {
+        if let Some(a) = m.mesh.point_data.first() {
+            return Ok(Choice::Point(&a.name, &a.values, 1, None));
+        }
+        if let Some(a) = m.point_vectors.first() {
+            return Ok(Choice::Point(&a.name, &a.values, a.components, None));
+        }
+        return m
+            .cell_data
+            .first()
+            .map(|a| Choice::Cell(a, None))
+            .ok_or(CleanError::NoScalars);
+    };
+    if let Some(c) = find(spec) {
+        return Ok(c);
+    }
+    if let Some((name, comp)) = spec.rsplit_once(':') {
+        if let Some(c) = find(name) {
+            return Ok(match c {
+                Choice::Point(n, v, nc, _) => {
+                    Choice::Point(n, v, nc, parse_component(n, nc, comp)?)
+                }
+                Choice::Cell(a, _) => {
+                    Choice::Cell(a, parse_component(&a.name, a.components, comp)?)
+                }
+            });
+        }
+    }
+    Err(CleanError::UnknownScalar {
+        name: spec.to_string(),
+        available: available(m),
+    })
+}
+
+/// The report's name of a choice: `name`, `name:mag` or `name:K`.
+fn choice_name(name: &str, nc: usize, c: Option<Component>) -> String {
+    match (nc, c) {
+        (1, _) => name.to_string(),
+        (_, Some(Component::Index(k))) => format!("{name}:{k}"),
+        _ => format!("{name}:mag"),
+    }
+}
+
+/// Picks the scalar, checks for NaN/Inf, re-orients inverted tets, drops zero-volume and duplicate
+/// ones, converts cell data to point data and measures the tets' quality.
+pub fn clean_import(
+    m: ImportedMesh,
+    o: &ImportOptions<'_>,
+) -> Result<(ScalarTetMesh, CleanReport), CleanError> {
+    let c = m.counts;
+    let mut report = CleanReport {
+        points_read: m.mesh.points.len(),
+        cells_read: c.cells_read,
+        tets_read: m.mesh.tets.len(),
+        cells_ignored: m.mesh.cells_ignored,
+        cells_unsupported: c.cells_unsupported,
+        cells_split: c.cells_split,
+        cells_linearized: c.tets_linearized,
+        ..Default::default()
+    };
+    if m.mesh.tets.is_empty() {
+        return Err(CleanError::NoTets {
+            ignored: c.cells_lower_dim,
+            unsupported: match c.cells_unsupported {
+                0 => String::new(),
+                k => format!(", {k} volume cells of unsupported kinds"),
+            },
+        });
+    }
+    if let Some(index) = m
+        .mesh
+        .points
+        .iter()
+        .position(|p| p.iter().any(|x| !x.is_finite()))
+    {
+        return Err(CleanError::BadPoint { index });
+    }
+    if o.field.is_some() && o.scalar.is_some() {
+        return Err(CleanError::FieldAndScalar);
+    }
+    if let Some(f) = o.field {
+        if !f.eq_ignore_ascii_case("distance") {
+            return Err(CleanError::UnknownField(f.to_string()));
+        }
+    }
+    let choice = match o.field {
+        Some(_) => None,
+        None => Some(choose(&m, o.scalar)?),
+    };
+
+    // Geometry: orientation, zero-volume and duplicate tets.
+    let points = &m.mesh.points;
+    let (lo, hi) = bbox(points);
+    let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
+    let eps = 1e-12 * diag.powi(3);
+    let mut tets = Vec::with_capacity(m.mesh.tets.len());
+    let mut cells = Vec::with_capacity(m.mesh.tets.len());
+    let mut volumes = Vec::with_capacity(m.mesh.tets.len());
+    let mut seen = HashSet::with_capacity(m.mesh.tets.len());
+    for (t, &cell) in m.mesh.tets.iter().zip(&m.tet_cells) {
+        let p = |k: usize| points[t[k] as usize];
+        let v = signed_volume(p(0), p(1), p(2), p(3));
+        if v.abs() <= eps {
+            report.tets_dropped_degenerate += 1;
+            continue;
+        }
+        let mut key = *t;
+        key.sort_unstable();
+        if !seen.insert(key) {
+            report.tets_dropped_duplicate += 1;
+            continue;
+        }
+        if v < 0.0 {
+            tets.push([t[0], t[1], t[3], t[2]]);
+            report.tets_reoriented += 1;
+        } else {
+            tets.push(*t);
+        }
+        cells.push(cell);
+        volumes.push(v.abs());
+    }
+    report.tets_dropped = report.tets_dropped_degenerate + report.tets_dropped_duplicate;
+    if tets.is_empty() {
+        return Err(CleanError::AllDegenerate {
+            count: m.mesh.tets.len(),
+        });
+    }
+    report.tets_kept = tets.len();
+
+    // The scalar.
+    let n = points.len();
+    let mut values = match choice {
+        None => {
+            report.scalar = "distance".into();
+            report.scalar_source = "geometric".into();
+            report
+                .notes
+                .push("scalar: the distance to the mesh's boundary (--field distance)".into());
+            boundary_distance(points, &tets)
+        }
+        Some(Choice::Point(name, v, nc, comp)) => {
+            report.scalar = choice_name(name, nc, comp);
+            report.scalar_source = "point".into();
+            if nc > 1 && comp.is_none() {
+                report.notes.push(format!(
+                    "point array \"{name}\" has {nc} components: its magnitude is used"
+                ));
+            }
+            component(v, nc, comp)
+        }
+        Some(Choice::Cell(a, comp)) => {
+            report.scalar = choice_name(&a.name, a.components, comp);
+            report.scalar_source = "cell".into();
+            let per_cell = component(&a.values, a.components, comp);
+            report.notes.push(format!(
+                "cell array \"{}\" converted to point data by volume-weighted averaging over the tets around each point",
+                report.scalar
+            ));
+            let mut num = vec![0.0; n];
+            let mut den = vec![0.0; n];
+            for ((t, &cell), &vol) in tets.iter().zip(&cells).zip(&volumes) {
+                let x = per_cell.get(cell).copied().unwrap_or(f64::NAN);
+                for &v in t {
+                    num[v as usize] += vol * x;
+                    den[v as usize] += vol;
+                }
+            }
+            num.iter()
+                .zip(&den)
+                .map(|(&a, &d)| if d > 0.0 { a / d } else { 0.0 })
+                .collect()
+        }
+    };
+    let bad: Vec<usize> = values
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| !v.is_finite())
+        .map(|(i, _)| i)
+        .collect();
+    if !bad.is_empty() {
+        match o.nan_as {
+            Some(x) => {
+                for &i in &bad {
+                    values[i] = x;
+                }
+                report.non_finite_replaced = bad.len();
+            }
+            None => {
+                return Err(CleanError::NonFinite {
+                    name: report.scalar.clone(),
+                    count: bad.len(),
+                    first: bad[0],
+                })
+            }
+        }
+    }
+
+    // Quality.
+    report.min_dihedral_deg = 180.0;
+    for t in &tets {
+        let a = min_dihedral_deg(t.map(|v| points[v as usize]));
+        report.min_dihedral_deg = report.min_dihedral_deg.min(a);
+        if a < SLIVER_DEGREES {
+            report.slivers += 1;
+        }
+    }
+
+    // Notes.
+    if c.tets_linearized > 0 {
+        report.notes.push(format!(
+            "{} higher-order tets reduced to their corner tets",
+            c.tets_linearized
+        ));
+    }
+    if c.cells_split > 0 {
+        report.notes.push(format!(
+            "{} hexahedra, wedges and pyramids split into {} tets (quad faces cut from their smallest point index)",
+            c.cells_split, c.tets_from_split
+        ));
+    }
+    if c.cells_lower_dim > 0 {
+        report.notes.push(format!(
+            "{} points, lines and surface cells ignored",
+            c.cells_lower_dim
+        ));
+    }
+    if c.cells_unsupported > 0 {
+        report.notes.push(format!(
+            "{} volume cells of unsupported kinds (polyhedra, Lagrange cells...) ignored",
+            c.cells_unsupported
+        ));
+    }
+    if report.tets_reoriented > 0 {
+        report.notes.push(format!(
+            "{} inverted tets re-oriented",
+            report.tets_reoriented
+        ));
+    }
+    if report.tets_dropped > 0 {
+        report.notes.push(format!(
+            "{} tets dropped ({} zero-volume, {} duplicate)",
+            report.tets_dropped, report.tets_dropped_degenerate, report.tets_dropped_duplicate
+        ));
+    }
+    report.notes.push(format!(
+        "quality: min dihedral angle {:.2} degrees, {} slivers (below {SLIVER_DEGREES} degrees)",
+        report.min_dihedral_deg, report.slivers
+    ));
+    Ok((
+        ScalarTetMesh {
+            points: m.mesh.points,
+            tets,
+            values,
+        },
+        report,
+    ))
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// The smallest of a tet's six dihedral angles, in degrees.
+pub fn min_dihedral_deg(p: [[f64; 3]; 4]) -> f64 {
+    // Outward normal of the face opposite each vertex.
+    let normals = [0, 1, 2, 3].map(|i| {
+        let f: Vec<[f64; 3]> = (0..4).filter(|&k| k != i).map(|k| p[k]).collect();
+        let n = cross(sub(f[1], f[0]), sub(f[2], f[0]));
+        if dot(n, sub(p[i], f[0])) > 0.0 {
+            n.map(|x| -x)
+        } else {
+            n
+        }
+    });
+    let mut best = 180.0f64;
+    for i in 0..4 {
+        for j in i + 1..4 {
+            let (a, b) = (normals[i], normals[j]);
+            let c = dot(a, b) / (dot(a, a) * dot(b, b)).sqrt();
+            let angle = 180.0 - c.clamp(-1.0, 1.0).acos().to_degrees();
+            best = best.min(angle);
+        }
+    }
+    best
+}
+
+/// Distance from every point to the boundary surface of the tets (the faces that only one tet
+/// has), through a uniform grid of the boundary triangles searched ring by ring.
+pub fn boundary_distance(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Vec<f64> {
+    let mut faces: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 2);
+    for t in tets {
+        for skip in 0..4 {
+            let mut f = [0u32; 3];
+            let mut k = 0;
+            for (i, &v) in t.iter().enumerate() {
+                if i != skip {
+                    f[k] = v;
+                    k += 1;
+                }
+            }
+            f.sort_unstable();
+            *faces.entry(f).or_default() += 1;
+        }
+    }
+    let mut boundary: Vec<[u32; 3]> = faces
+        .into_iter()
+        .filter(|&(_, c)| c == 1)
+        .map(|(f, _)| f)
+        .collect();
+    boundary.sort_unstable();
+    let mut out = vec![f64::INFINITY; points.len()];
+    if boundary.is_empty() {
+        return vec![0.0; points.len()];
+    }
+    let mut on_boundary = vec![false; points.len()];
+    for f in &boundary {
+        for &v in f {
+            on_boundary[v as usize] = true;
+        }
+    }
+    let (lo, hi) = bbox(points);
+    let res = ((boundary.len() as f64).cbrt().ceil() as usize).clamp(1, 64);
+    let size = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / res as f64).max(1e-300));
+    let cell = |x: f64, a: usize| (((x - lo[a]) / size[a]).floor().max(0.0) as usize).min(res - 1);
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); res * res * res];
+    for (fi, f) in boundary.iter().enumerate() {
+        let q = f.map(|v| points[v as usize]);
+        let c0 = [0, 1, 2].map(|a| cell(q[0][a].min(q[1][a]).min(q[2][a]), a));
+        let c1 = [0, 1, 2].map(|a| cell(q[0][a].max(q[1][a]).max(q[2][a]), a));
+        for k in c0[2]..=c1[2] {
+            for j in c0[1]..=c1[1] {
+                for i in c0[0]..=c1[0] {
+                    bins[i + res * (j + res * k)].push(fi as u32);
+                }
+            }
+        }
+    }
+    let h = size[0].min(size[1]).min(size[2]);
+    for (pi, p) in points.iter().enumerate() {
+        if on_boundary[pi] {
+            out[pi] = 0.0;
+            continue;
+        }
+        let c = [0, 1, 2].map(|a| cell(p[a], a) as i64);
+        let mut best = f64::INFINITY;
+        for r in 0..=res as i64 {
+            for k in c[2] - r..=c[2] + r {
+                for j in c[1] - r..=c[1] + r {
+                    for i in c[0] - r..=c[0] + r {
+                        let ring = (i - c[0]).abs().max((j - c[1]).abs()).max((k - c[2]).abs());
+                        let inside = [i, j, k].iter().all(|&x| x >= 0 && x < res as i64);
+                        if ring != r || !inside {
+                            continue;
+                        }
+                        let bin = &bins[i as usize + res * (j as usize + res * k as usize)];
+                        for &fi in bin {
+                            let f = boundary[fi as usize];
+                            let q = f.map(|v| points[v as usize]);
+                            let d = point_triangle_distance(*p, q[0], q[1], q[2]);
+                            best = best.min(d);
+                        }
+                    }
+                }
+            }
+            if best <= r as f64 * h {
+                break;
+            }
+        }
+        out[pi] = best;
+    }
+    out
+}
+
+/// Distance from `p` to the triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
+fn point_triangle_distance(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
+    let ab = sub(b, a);
+    let ac = sub(c, a);
+    let ap = sub(p, a);
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    let dist = |q: [f64; 3]| dot(sub(p, q), sub(p, q)).sqrt();
+    let along =
+        |o: [f64; 3], d: [f64; 3], t: f64| [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return dist(a);
+    }
+    let bp = sub(p, b);
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return dist(b);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return dist(along(a, ab, d1 / (d1 - d3)));
+    }
+    let cp = sub(p, c);
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return dist(c);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return dist(along(a, ac, d2 / (d2 - d6)));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return dist(along(b, sub(c, b), (d4 - d3) / ((d4 - d3) + (d5 - d6))));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    dist([
+        a[0] + ab[0] * v + ac[0] * w,
+        a[1] + ab[1] * v + ac[1] * w,
+        a[2] + ab[2] * v + ac[2] * w,
+    ])
+}
+
+pub fn bbox(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+
+    /// `:mag` is the Frobenius norm: of a 6-component symmetric tensor (off-diagonal terms twice),
+    /// of a 9-component full tensor, and the Euclidean norm of a vector.
+    #[test]
+    fn magnitude_is_the_frobenius_norm_of_tensors() {
+        let sym = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let full = [1.0, 4.0, 6.0, 4.0, 2.0, 5.0, 6.0, 5.0, 3.0];
+        let m = Some(Component::Magnitude);
+        let want = (1.0f64 + 4.0 + 9.0 + 2.0 * (16.0 + 25.0 + 36.0)).sqrt();
+        assert_eq!(component(&sym, 6, m), vec![want]);
+        assert!((component(&full, 9, m)[0] - want).abs() < 1e-12);
+        assert_eq!(component(&[3.0, 4.0, 0.0], 3, m), vec![5.0]);
+    }
+
+    use super::*;
+}
