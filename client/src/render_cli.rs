@@ -138,8 +138,9 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
         });
     }
     let values = store.synthesize_all()?;
+    let empty = store.empty_children()?;
     Ok((
-        RenderMesh::uniform_level(&store.base, &values, level),
+        RenderMesh::uniform_level(&store.base, &values, &empty, level),
         level,
     ))
 }

@@ -769,9 +769,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             let base = session.base();
             received_nodes.sort_by_key(|n| n.id);
             received_nodes.dedup_by_key(|n| n.id);
+            let empty: Vec<u8> = received_nodes.iter().map(|n| n.empty_children).collect();
             let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
                 .map_err(|e| StreamError::Protocol(e.to_string()))?;
-            let mut full = RenderMesh::uniform_level(base, &values, base.levels);
+            let mut full = RenderMesh::uniform_level(base, &values, &empty, base.levels);
             full.value_range = (m.value_range[0], m.value_range[1]);
             for (rec, (cam, img)) in frames.iter_mut().zip(cams.iter().zip(&images)) {
                 let reference: Rgba8Image = render_reference(&full, cam, &tf);

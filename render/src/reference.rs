@@ -185,11 +185,9 @@ fn trace<T: Send + Copy + Default>(
 mod tests {
     use super::*;
 
-    /// A single tet with a constant field: every covered pixel equals the closed form
-    /// `rgb · (1 − exp(−τ ℓ))` for its chord length ℓ.
-    #[test]
-    fn constant_field_matches_closed_form() {
-        let mesh = RenderMesh::new(
+    /// The unit corner tet with the value `v` at every vertex.
+    fn one_tet(v: f32) -> RenderMesh {
+        RenderMesh::new(
             vec![
                 [0.0, 0.0, 0.0],
                 [1.0, 0.0, 0.0],
@@ -197,8 +195,15 @@ mod tests {
                 [0.0, 0.0, 1.0],
             ],
             vec![[0, 1, 2, 3]],
-            vec![0.5; 4],
-        );
+            vec![v; 4],
+        )
+    }
+
+    /// A single tet with a constant field: every covered pixel equals the closed form
+    /// `rgb · (1 − exp(−τ ℓ))` for its chord length ℓ.
+    #[test]
+    fn constant_field_matches_closed_form() {
+        let mesh = one_tet(0.5);
         let tf = TransferFunction::preset("default").unwrap();
         let cam = Camera::orbit(mesh.center(), 4.0, 30.0, 25.0, 30.0, 48, 48);
         let img = render_reference_f64(&mesh, &cam, &tf);
@@ -258,16 +263,9 @@ mod tests {
     /// The cancellable integrator gives the same image when left alone and nothing once cancelled.
     #[test]
     fn cancellable_matches_and_cancels() {
-        let mesh = RenderMesh::new(
-            vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [0.0, 1.0, 0.0],
-                [0.0, 0.0, 1.0],
-            ],
-            vec![[0, 1, 2, 3]],
-            vec![0.0, 0.3, 0.6, 1.0],
-        );
+        let mut mesh = one_tet(0.5);
+        mesh.values = vec![0.0, 0.3, 0.6, 1.0];
+        mesh.value_range = (0.0, 1.0);
         let cam = Camera::orbit(mesh.center(), 3.0, 35.0, 25.0, 40.0, 24, 20);
         let tf = TransferFunction::preset("default").unwrap();
         let keep = AtomicBool::new(false);

@@ -31,17 +31,26 @@ impl RenderMesh {
     }
 
     /// The uniform level-`level` leaf mesh of a hierarchy whose finest-level vertex values (indexed by
-    /// vertex key, as `synthesize_all` returns them) are `values`; empty tets are left out.
-    pub fn uniform_level(base: &BaseMesh, values: &[f32], level: u8) -> Self {
+    /// vertex key, as `synthesize_all` returns them) are `values`. Tets outside the input domain are
+    /// left out at every level: empty base tets, children a node marks empty (`empty_children[id]`,
+    /// bit `i` for child `i`; ids past the slice's end mark nothing) and everything below them.
+    pub fn uniform_level(
+        base: &BaseMesh,
+        values: &[f32],
+        empty_children: &[u8],
+        level: u8,
+    ) -> Self {
         let keys = base.vertex_keys();
         let forest = base.forest();
         let level = level.min(forest.levels);
+        let empty = empty_at_level(base, empty_children, level);
+        let start = forest.level_start(level);
         let mut remap = std::collections::HashMap::new();
         let mut positions = Vec::new();
         let mut vals = Vec::new();
         let mut tets = Vec::new();
         for (id, t) in LevelWalker::level(forest, level) {
-            if level == 0 && base.empty.get(id as usize).copied().unwrap_or(false) {
+            if empty[(id - start) as usize] {
                 continue;
             }
             let mut tet = [0u32; 4];
@@ -150,4 +159,27 @@ impl RenderMesh {
         });
         (planes, g, c)
     }
+}
+
+/// Which tets of `level` lie outside the input domain (indexed from the level's first id): a base
+/// tet flagged empty, or a child its parent node marks empty, or anything below either.
+pub fn empty_at_level(base: &BaseMesh, empty_children: &[u8], level: u8) -> Vec<bool> {
+    let forest = base.forest();
+    let mut empty: Vec<bool> = (0..forest.level_len(0) as usize)
+        .map(|i| base.empty.get(i).copied().unwrap_or(false))
+        .collect();
+    for k in 0..level.min(forest.levels) {
+        let start = forest.level_start(k);
+        let mut next = vec![false; forest.level_len(k + 1) as usize];
+        for (j, &e) in empty.iter().enumerate() {
+            let id = start + j as u64;
+            let mask = empty_children.get(id as usize).copied().unwrap_or(0);
+            let first = forest.child(id, 0) - forest.level_start(k + 1);
+            for c in 0..8 {
+                next[(first + c) as usize] = e || mask >> c & 1 == 1;
+            }
+        }
+        empty = next;
+    }
+    empty
 }

@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 use tetwave_protocol::synthesis::synthesize_all;
-use tetwave_server::analysis::analyze_hierarchy;
+use tetwave_server::analysis::{analyze_hierarchy, Precision};
 use tetwave_server::resample::synthetic::{kuhn_cube_mesh, Synthetic};
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{resample, BaseSpec, Resampled, Source};
@@ -35,7 +35,7 @@ fn analysis_loop(source: &Source, threads: usize) {
                 outside: r.outside,
             };
             let t = Instant::now();
-            let a = analyze_hierarchy(copy, None, false).unwrap();
+            let a = analyze_hierarchy(copy, Precision::Lossless, false).unwrap();
             times.push(t.elapsed().as_secs_f64());
             drop(a);
         }
@@ -69,7 +69,7 @@ fn main() {
             let r = resample(&source, &BaseSpec::Box5, levels).unwrap();
             vertices = r.samples.len();
             let t = Instant::now();
-            let a = analyze_hierarchy(r, None, false).unwrap();
+            let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
             t_analysis.push(t.elapsed().as_secs_f64());
             let keys = a.base.vertex_keys();
             let nodes = a.nodes();

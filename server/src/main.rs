@@ -37,8 +37,14 @@ enum Cmd {
         #[arg(long, default_value = "box5")]
         base: BaseSpec,
         /// Quantize details uniformly to this many bits (8..=24); lossless f32 when absent.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "max_error")]
         bits: Option<u8>,
+        /// Keep every reconstructed vertex within this of its sample: `E` in the field's units, or
+        /// `E%` of the value range (e.g. `0.1%`). The quantizer's step and code width follow from
+        /// it; the manifest records the bound and the measured error, and `verify` checks them.
+        /// Lossless f32 when absent.
+        #[arg(long, value_parser = parse_max_error)]
+        max_error: Option<tetwave_server::analysis::ErrorBound>,
         /// Raw grid dimensions `X,Y,Z` (x fastest).
         #[arg(long, value_parser = parse_dims)]
         dims: Option<[usize; 3]>,
@@ -158,6 +164,10 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
         .map_err(|_| "expected three numbers".to_string())
 }
 
+fn parse_max_error(s: &str) -> Result<tetwave_server::analysis::ErrorBound, String> {
+    tetwave_server::analysis::ErrorBound::parse(s)
+}
+
 fn parse_dims(s: &str) -> Result<[usize; 3], String> {
     parse_triple(s)
 }
@@ -192,6 +202,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             levels,
             base,
             bits,
+            max_error,
             dims,
             dtype,
             spacing,
@@ -207,6 +218,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 levels,
                 base,
                 bits,
+                max_error,
                 dims,
                 dtype,
                 spacing,

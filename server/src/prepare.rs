@@ -1,6 +1,6 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
-use crate::analysis::{analyze_hierarchy, AnalysisError};
+use crate::analysis::{analyze_hierarchy, AnalysisError, ErrorBound, Precision};
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
@@ -15,6 +15,8 @@ use tetwave_store::{self as store, Store, StoreError, StoreMeta};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
+    #[error("{0}")]
+    Usage(String),
     #[error("unknown input {0:?}: give synthetic:harmonic|linear, a raw grid (.raw, or any file with --dims), or a .vtu/.vtk/.msh mesh")]
     UnknownInput(String),
     #[error("unknown synthetic field {0:?} (known: harmonic, linear)")]
@@ -57,6 +59,8 @@ pub struct PrepareOptions {
     pub levels: u8,
     pub base: BaseSpec,
     pub bits: Option<u8>,
+    /// Every reconstructed vertex within this of its sample (not with `bits`).
+    pub max_error: Option<ErrorBound>,
     pub dims: Option<[usize; 3]>,
     pub dtype: String,
     pub spacing: [f64; 3],
@@ -78,6 +82,7 @@ impl PrepareOptions {
             levels: 5,
             base: BaseSpec::Box5,
             bits: None,
+            max_error: None,
             dims: None,
             dtype: "u8".into(),
             spacing: [1.0; 3],
@@ -188,7 +193,17 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     drop(source);
     let outside = r.outside;
     tracing::info!(vertices = r.samples.len(), outside, "analysing");
-    let a = analyze_hierarchy(r, o.bits, o.progress)?;
+    let precision = match (o.bits, o.max_error) {
+        (None, None) => Precision::Lossless,
+        (Some(b), None) => Precision::Bits(b),
+        (None, Some(e)) => Precision::MaxError(e),
+        (Some(_), Some(_)) => {
+            return Err(PrepareError::Usage(
+                "give --bits or --max-error, not both".into(),
+            ))
+        }
+    };
+    let a = analyze_hierarchy(r, precision, o.progress)?;
     let base_name = match &o.base {
         BaseSpec::Box5 => "box5".to_string(),
         BaseSpec::Box6 => "box6".to_string(),

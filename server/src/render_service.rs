@@ -237,8 +237,8 @@ struct RenderState {
     mesh: Option<(u8, Arc<RenderMesh>)>,
 }
 
-/// The store and its synthesized finest-level values.
-type StoreData = (Store, Arc<Vec<f32>>);
+/// The store, its synthesized finest-level values and its nodes' empty-children masks.
+type StoreData = (Store, Arc<Vec<f32>>, Vec<u8>);
 
 /// Renders a store's uniform levels on request: synthesis once, meshes and GPU uploads of the last
 /// level kept, one render at a time.
@@ -328,7 +328,8 @@ impl RenderService {
             .get_or_init(|| {
                 let s = Store::open(&self.dir).map_err(|e| e.to_string())?;
                 let v = s.synthesize_all().map_err(|e| e.to_string())?;
-                Ok((s, Arc::new(v)))
+                let empty = s.empty_children().map_err(|e| e.to_string())?;
+                Ok((s, Arc::new(v), empty))
             })
             .as_ref()
             .map_err(|e| e.clone())
@@ -364,7 +365,7 @@ impl RenderService {
                 "the render was cancelled".to_string(),
             )
         };
-        let (store, values) = self.data().map_err(internal)?;
+        let (store, values, empty) = self.data().map_err(internal)?;
         let base = &store.base;
         let level = p.level_for(base);
         let tf = TransferFunction::preset(&p.tf)
@@ -376,7 +377,7 @@ impl RenderService {
         let mesh = match &st.mesh {
             Some((l, m)) if *l == level => m.clone(),
             _ => {
-                let m = Arc::new(RenderMesh::uniform_level(base, values, level));
+                let m = Arc::new(RenderMesh::uniform_level(base, values, empty, level));
                 st.mesh = Some((level, m.clone()));
                 m
             }

@@ -4,7 +4,7 @@ use proptest::prelude::*;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::unsampled_base;
 use tetwave_protocol::LatticeTet;
-use tetwave_server::analysis::analyze_hierarchy;
+use tetwave_server::analysis::{analyze_hierarchy, Precision};
 use tetwave_server::resample::synthetic::kuhn_cube_mesh;
 use tetwave_server::resample::unstructured::{clean, Locator};
 use tetwave_server::resample::{base, resample, BaseSpec, Resampled, Source};
@@ -44,7 +44,7 @@ proptest! {
     fn round_trip_bit_exact(levels in 0u8..=6, seed in any::<u64>(), box6 in any::<bool>()) {
         let r = resampled_with(levels, box6, |k| (1.0 + hash(seed, k)) as f32);
         let reference = r.samples.clone();
-        let a = analyze_hierarchy(r, None, false).unwrap();
+        let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
         let keys = a.base.vertex_keys();
         let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         prop_assert_eq!(values, reference);
@@ -57,7 +57,7 @@ proptest! {
     fn round_trip_any_field(levels in 0u8..=5, seed in any::<u64>(), scale in 1e-3f64..1e6) {
         let r = resampled_with(levels, false, |k| ((hash(seed, k) - 0.5) * scale) as f32);
         let reference = r.samples.clone();
-        let a = analyze_hierarchy(r, None, false).unwrap();
+        let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
         let keys = a.base.vertex_keys();
         let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         let range = (a.value_range.1 - a.value_range.0) as f64;
@@ -71,7 +71,7 @@ proptest! {
     fn quantized_error_within_bound(levels in 1u8..=5, seed in any::<u64>(), bits in 8u8..=16) {
         let r = resampled_with(levels, false, |k| (hash(seed, k) * 100.0) as f32);
         let reference = r.samples.clone();
-        let a = analyze_hierarchy(r, Some(bits), false).unwrap();
+        let a = analyze_hierarchy(r, Precision::Bits(bits), false).unwrap();
         let keys = a.base.vertex_keys();
         let values = synthesize_all(&a.base, &keys, a.nodes()).unwrap();
         let err = values.iter().zip(&reference).map(|(x, y)| (*x as f64 - *y as f64).abs()).fold(0.0, f64::max);
@@ -86,7 +86,7 @@ proptest! {
 fn every_new_vertex_has_exactly_one_owner() {
     let levels = 4;
     let r = resampled_with(levels, false, |k| k as f32);
-    let a = analyze_hierarchy(r, None, false).unwrap();
+    let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
     let keys = a.base.vertex_keys();
     let forest = a.base.forest();
     let mut owner = vec![None; keys.vertex_count() as usize];
@@ -153,7 +153,7 @@ fn non_convex_input_leaves_outside_tets_empty() {
     let r = resample(&source, &BaseSpec::Box6, levels).unwrap();
     assert!(r.outside > 0);
     let outside: Vec<bool> = r.samples.iter().map(|x| x.is_nan()).collect();
-    let a = analyze_hierarchy(r, None, false).unwrap();
+    let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
     let keys = a.base.vertex_keys();
     let forest = a.base.forest();
     let (mut empty_leaves, mut leaves_fully_out) = (0, 0);

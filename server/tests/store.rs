@@ -189,3 +189,103 @@ fn a_failed_rewrite_leaves_no_store() {
     assert!(!d.path().join("manifest.json.partial").exists());
     verify(d.path()).unwrap();
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// `--max-error E`: over random fields (a raw f32 grid: a smooth wave plus noise of random
+    /// amplitude, offset and scale) and random bounds (absolute or a percentage of the range), every
+    /// synthesized vertex is within `E` of its sample, the manifest's bound is at most `E`, and
+    /// `verify` passes.
+    #[test]
+    fn every_vertex_within_max_error(
+        seed in any::<u64>(),
+        noise in 0.0f64..1.0,
+        offset in -1e3f64..1e3,
+        scale in 1e-3f64..1e3,
+        exp in -5.0f64..-1.0,
+        pct in any::<bool>(),
+        levels in 2u8..4,
+    ) {
+        use tetwave_server::analysis::ErrorBound;
+        let d = tempfile::tempdir().unwrap();
+        let n = 9usize;
+        let mut state = seed | 1;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut bytes = Vec::with_capacity(n * n * n * 4);
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    let (x, y, z) = (i as f64 / 8.0, j as f64 / 8.0, k as f64 / 8.0);
+                    let v = offset + scale * ((3.0 * x).sin() * (2.0 * y + z).cos() + noise * rnd());
+                    bytes.extend_from_slice(&(v as f32).to_le_bytes());
+                }
+            }
+        }
+        let raw = d.path().join("field.raw");
+        std::fs::write(&raw, bytes).unwrap();
+        let out = d.path().join("store");
+        let mut o = PrepareOptions::new(raw.to_str().unwrap(), &out);
+        o.dims = Some([n, n, n]);
+        o.dtype = "f32".into();
+        o.levels = levels;
+        let frac = 10f64.powf(exp);
+        let bound = if pct { ErrorBound::OfRange(frac) } else { ErrorBound::Absolute(frac * scale) };
+        o.max_error = Some(bound);
+        if let Err(err) = prepare(&o) {
+            // only a bound f32 cannot hold at these magnitudes, or one that would need codes over
+            // 24 bits, may be refused
+            let magnitude = offset.abs() + 2.0 * scale;
+            let e = match bound {
+                ErrorBound::Absolute(e) => e,
+                ErrorBound::OfRange(f) => f * 2.0 * scale * (1.0 + noise),
+            };
+            prop_assert!(e < 2e-6 * magnitude, "refused a reachable bound {e}: {err}");
+            prop_assert!(err.to_string().contains("lossless"), "{err}");
+            return Ok(());
+        }
+        let store = Store::open(&out).unwrap();
+        let values = store.synthesize_all().unwrap();
+        let reference = store.read_reference().unwrap();
+        let (lo, hi) = (store.manifest.value_range[0] as f64, store.manifest.value_range[1] as f64);
+        let e = match bound {
+            ErrorBound::Absolute(e) => e,
+            ErrorBound::OfRange(f) => f * (hi - lo),
+        };
+        let worst = values
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (*a as f64 - *b as f64).abs())
+            .fold(0.0, f64::max);
+        prop_assert!(worst <= e, "max error {worst} > bound {e}");
+        prop_assert!(store.manifest.max_error_bound <= e);
+        prop_assert!(worst <= store.manifest.max_error_bound);
+        prop_assert!(verify(&out).is_ok());
+    }
+}
+
+/// `--max-error` below what f32 can hold is refused with a message, and `--bits` with it too.
+#[test]
+fn max_error_refuses_what_it_cannot_keep() {
+    use tetwave_server::analysis::ErrorBound;
+    let d = tempfile::tempdir().unwrap();
+    let mut o = PrepareOptions::new("synthetic:harmonic", &d.path().join("a"));
+    o.levels = 2;
+    o.max_error = Some(ErrorBound::Absolute(1e-12));
+    let e = prepare(&o).unwrap_err().to_string();
+    assert!(e.contains("--max-error") && e.contains("lossless"), "{e}");
+    o.max_error = Some(ErrorBound::OfRange(1e-3));
+    o.bits = Some(12);
+    let e = prepare(&o).unwrap_err().to_string();
+    assert!(e.contains("not both"), "{e}");
+    assert!(ErrorBound::parse("0.1%").is_ok_and(|b| b == ErrorBound::OfRange(0.001)));
+    assert!(ErrorBound::parse("2.5").is_ok_and(|b| b == ErrorBound::Absolute(2.5)));
+    for bad in ["", "-1", "0", "inf", "abc%", "nan"] {
+        assert!(ErrorBound::parse(bad).is_err(), "{bad:?}");
+    }
+}

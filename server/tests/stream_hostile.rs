@@ -33,6 +33,15 @@ async fn health(addr: SocketAddr) -> serde_json::Value {
     serde_json::from_slice(&r.body).unwrap()
 }
 
+/// A stream from [`ATTACKER`] after `Hello` (with `have`), the manifest and the base mesh.
+async fn opened(addr: SocketAddr, have: Vec<IdRange>) -> Ws {
+    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
+    send(&mut ws, &hello(None, have)).await;
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    ws
+}
+
 fn whole(n: u64) -> IdRange {
     IdRange { from: 0, to: n }
 }
@@ -61,11 +70,8 @@ async fn close_code(ws: &mut Ws) -> Option<CloseCode> {
 async fn range_floods_cost_ranges_not_ids() {
     let (addr, shared) = start(&store(), ServeConfig::default()).await;
     let n = shared.nodes();
-    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
-    send(&mut ws, &hello(None, vec![whole(n); 65_536])).await;
     let t0 = Instant::now();
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut ws = opened(addr, vec![whole(n); 65_536]).await;
     match recv(&mut ws).await {
         Some(ServerMsg::End { nodes_sent: 0 }) => {}
         other => panic!("a client that has everything gets End at once, got {other:?}"),
@@ -115,10 +121,7 @@ async fn cancel_then_want_sends_only_the_wanted() {
     };
     let (addr, shared) = start(&store(), config).await;
     let n = shared.nodes();
-    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
-    send(&mut ws, &hello(None, vec![])).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut ws = opened(addr, vec![]).await;
     // the first batch is in flight (window 1, not acked): cancel everything, want 100..300
     send(&mut ws, &ClientMsg::Cancel(vec![whole(n); 1000])).await;
     send(
@@ -149,10 +152,7 @@ async fn a_view_per_batch_does_not_rescan_per_batch() {
     };
     let (addr, shared) = start(&store(), config).await;
     let n = shared.nodes();
-    let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
-    send(&mut ws, &hello(None, vec![])).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut ws = opened(addr, vec![]).await;
     let t0 = Instant::now();
     let mut batches = 0u64;
     let mut got = 0u64;

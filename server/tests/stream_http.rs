@@ -196,7 +196,12 @@ async fn render_matches_a_local_render_of_the_same_camera() {
     let (addr, _) = start(&dir, ServeConfig::default()).await;
     let (w, h, az, el, dist, level) = (64u32, 48u32, 30.0, 20.0, 3.5, 2u8);
     let local = Store::open(&dir).unwrap();
-    let mesh = RenderMesh::uniform_level(&local.base, &local.synthesize_all().unwrap(), level);
+    let mesh = RenderMesh::uniform_level(
+        &local.base,
+        &local.synthesize_all().unwrap(),
+        &local.empty_children().unwrap(),
+        level,
+    );
     let dist = dist * mesh.diagonal();
     let cam = Camera::orbit(mesh.center(), dist, az, el, 40.0, w, h);
     let tf = TransferFunction::load("default").unwrap();

@@ -185,6 +185,20 @@ impl Store {
             })
     }
 
+    /// Every node's empty-children mask, by id (bit `i`: child `i` lies outside the input domain), as
+    /// the renderers' `uniform_level` wants it.
+    pub fn empty_children(&self) -> Result<Vec<u8>, StoreError> {
+        let n = self.manifest.counts.nodes;
+        let mut out = Vec::with_capacity(n as usize);
+        let mut from = 0;
+        while from < n {
+            let to = (from + (1 << 16)).min(n);
+            out.extend(self.read_nodes(from, to)?.iter().map(|d| d.empty_children));
+            from = to;
+        }
+        Ok(out)
+    }
+
     /// The sampled values `verify` compares synthesis with.
     pub fn read_reference(&self) -> Result<Vec<f32>, StoreError> {
         let p = self.dir.join("reference.f32");

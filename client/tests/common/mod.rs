@@ -72,7 +72,8 @@ pub fn probed_run(
     )
     .unwrap();
     let range = [-1.0, 1.0];
-    let full = RenderMesh::uniform_level(&base, &values, base.levels);
+    let empty: Vec<u8> = nodes.iter().map(|d| d.empty_children).collect();
+    let full = RenderMesh::uniform_level(&base, &values, &empty, base.levels);
     let tf = TransferFunction::preset("default").unwrap();
     let mut probe = RenderProbe::new(full, range, every, cpu, tf)
         .unwrap_or_else(|e| panic!("the render probe cannot run: {e}"));

@@ -90,6 +90,18 @@ impl Analysis {
 pub enum AnalysisError {
     #[error("--bits must be in 8..=24, got {0}")]
     BadBits(u8),
+    #[error("--max-error {0}: give a positive, finite bound")]
+    BadMaxError(f64),
+    #[error(
+        "--max-error {bound}: below what f32 values of magnitude {magnitude} can hold; \
+         leave it out for a lossless store"
+    )]
+    MaxErrorTooSmall { bound: f64, magnitude: f64 },
+    #[error(
+        "--max-error {bound}: details up to {detail} would need codes wider than 24 bits; \
+         leave it out for a lossless store"
+    )]
+    MaxErrorNeedsTooManyBits { bound: f64, detail: f64 },
     #[error("{0} tets in one level is more than this build can index")]
     TooLarge(u64),
 }
@@ -121,13 +133,56 @@ const SCATTER_PARALLEL_FROM: usize = 1 << 16;
 /// Levels of at least this many tets are walked in parallel.
 const PARALLEL_WALK_FROM: usize = 1 << 11;
 
-/// Runs the analysis. `bits`: uniform quantization of the details (8..=24), or lossless f32.
+/// How precisely the details are kept.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Precision {
+    /// f32 details: synthesis reproduces the samples to f32 rounding.
+    Lossless,
+    /// Uniform quantization to this many bits (8..=24), the step sized to cover every detail.
+    Bits(u8),
+    /// The step chosen so that every reconstructed vertex is within this of its sample, the code
+    /// width so that the codes cover every detail.
+    MaxError(ErrorBound),
+}
+
+/// A bound on the reconstruction error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ErrorBound {
+    /// In the field's units.
+    Absolute(f64),
+    /// This fraction of the sampled value range (`--max-error 0.1%` is `OfRange(0.001)`).
+    OfRange(f64),
+}
+
+impl ErrorBound {
+    /// Parses `E` (absolute) or `E%` (of the value range).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        let (num, pct) = match t.strip_suffix('%') {
+            Some(n) => (n.trim(), true),
+            None => (t, false),
+        };
+        let x: f64 = num
+            .parse()
+            .map_err(|_| format!("not a number or a percentage: {s:?}"))?;
+        if !(x.is_finite() && x > 0.0) {
+            return Err(format!("must be positive and finite: {s:?}"));
+        }
+        Ok(if pct {
+            ErrorBound::OfRange(x / 100.0)
+        } else {
+            ErrorBound::Absolute(x)
+        })
+    }
+}
+
+/// Runs the analysis with details kept to `precision`.
 pub fn analyze_hierarchy(
     r: Resampled,
-    bits: Option<u8>,
+    precision: Precision,
     progress: bool,
 ) -> Result<Analysis, AnalysisError> {
-    if let Some(b) = bits {
+    if let Precision::Bits(b) = precision {
         if !tetwave_protocol::store_format::QUANTIZED_BITS.contains(&b) {
             return Err(AnalysisError::BadBits(b));
         }
@@ -142,7 +197,7 @@ pub fn analyze_hierarchy(
     let n = r.samples.len();
     let stats = SampleStats::of(&r.samples);
     let (lo, hi) = (stats.lo, stats.hi);
-    let quantizer = samples::size_quantizer(bits, &r);
+    let quantizer = samples::size_quantizer(precision, &r, &stats)?;
     let Resampled {
         mut base,
         keys,
@@ -201,13 +256,7 @@ pub fn analyze_hierarchy(
         .into_iter()
         .map(|a| f32::from_bits(a.into_inner()))
         .collect();
-    let error_bound = match &quantizer {
-        Some(q) => {
-            q.step as f64 / 2.0 * (1.0 + 1e-6)
-                + 4.0 * f32::EPSILON as f64 * (lo.abs().max(hi.abs()) as f64 + q.step as f64)
-        }
-        None => 1e-6 * ((hi - lo) as f64).max(f32::MIN_POSITIVE as f64),
-    };
+    let error_bound = samples::error_bound(quantizer.as_ref(), lo, hi);
     Ok(Analysis {
         base,
         owned,

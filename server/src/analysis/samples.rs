@@ -4,10 +4,12 @@
 
 use super::keys::{for_each_tet_keys, parent_chunks};
 use super::PARALLEL_PASS_FROM;
+use super::{AnalysisError, ErrorBound, Precision};
 use crate::resample::Resampled;
 use rayon::prelude::*;
 use std::sync::atomic::AtomicU32;
 use tetwave_protocol::hierarchy::EDGES;
+use tetwave_protocol::store_format::QUANTIZED_BITS;
 use tetwave_protocol::wavelet::Quantizer;
 use tetwave_protocol::Forest;
 
@@ -90,20 +92,81 @@ impl SampleStats {
     }
 }
 
-/// The quantizer for `bits` (none: lossless), its step sized so that the codes cover every
-/// closed-loop detail.
-pub(super) fn size_quantizer(bits: Option<u8>, r: &Resampled) -> Option<Quantizer> {
+/// The quantizer for `precision` (none: lossless).
+///
+/// With `Bits(b)` the step is sized so that the codes cover every closed-loop detail. With
+/// `MaxError(E)` the step is chosen first: closed-loop quantization leaves each vertex with its own
+/// detail's rounding error only (the prediction uses reconstructed values), at most `step / 2`, so
+/// `step = 2 E` less the f32 rounding the analysis allows for ([`error_bound`]); the code width is
+/// then the narrowest in 8..=24 bits that covers every detail.
+pub(super) fn size_quantizer(
+    precision: Precision,
+    r: &Resampled,
+    stats: &SampleStats,
+) -> Result<Option<Quantizer>, AnalysisError> {
     let forest = r.base.forest();
-    bits.map(|b| {
-        let m = max_open_detail(forest, r);
-        // closed-loop details are at most m + q/2: the codes ±(2^(b−1)−1) cover them with q = m/(max−1)
-        let step = if m > 0.0 {
-            ((m / (Quantizer::max_code(b) - 1) as f64) as f32).max(f32::MIN_POSITIVE)
-        } else {
-            1.0
-        };
-        Quantizer { bits: b, step }
-    })
+    match precision {
+        Precision::Lossless => Ok(None),
+        Precision::Bits(b) => {
+            let m = max_open_detail(forest, r);
+            // closed-loop details are at most m + q/2: the codes ±(2^(b−1)−1) cover them with
+            // q = m/(max−1)
+            let step = if m > 0.0 {
+                ((m / (Quantizer::max_code(b) - 1) as f64) as f32).max(f32::MIN_POSITIVE)
+            } else {
+                1.0
+            };
+            Ok(Some(Quantizer { bits: b, step }))
+        }
+        Precision::MaxError(bound) => {
+            let e = match bound {
+                ErrorBound::Absolute(e) => e,
+                ErrorBound::OfRange(f) => f * (stats.hi as f64 - stats.lo as f64),
+            };
+            if !(e.is_finite() && e > 0.0) {
+                return Err(AnalysisError::BadMaxError(e));
+            }
+            // the largest step whose bound (error_bound) is at most e
+            let magnitude = stats.lo.abs().max(stats.hi.abs()) as f64;
+            let slack = 4.0 * f32::EPSILON as f64;
+            // (1 − 1e-9): room for the rounding of error_bound's own arithmetic
+            let step = (e - slack * magnitude) / (0.5 * (1.0 + 1e-6) + slack) * (1.0 - 1e-9);
+            // f32 rounding of the step itself: never round it up
+            let mut q = step as f32;
+            if q as f64 > step {
+                q = f32::from_bits(q.to_bits() - 1);
+            }
+            if !(step > 0.0 && q > 0.0) {
+                return Err(AnalysisError::MaxErrorTooSmall {
+                    bound: e,
+                    magnitude,
+                });
+            }
+            let m = max_open_detail(forest, r);
+            // codes must reach the largest closed-loop detail, m + q/2
+            let need = ((m + 0.5 * q as f64) / q as f64).ceil() + 1.0;
+            let bits = QUANTIZED_BITS
+                .clone()
+                .find(|&b| Quantizer::max_code(b) as f64 >= need)
+                .ok_or(AnalysisError::MaxErrorNeedsTooManyBits {
+                    bound: e,
+                    detail: m,
+                })?;
+            Ok(Some(Quantizer { bits, step: q }))
+        }
+    }
+}
+
+/// The bound on `|synthesized − sample|` that a store with `quantizer` guarantees (what the
+/// manifest records and `verify` checks): half a step plus f32 rounding, or f32 rounding alone.
+pub(super) fn error_bound(quantizer: Option<&Quantizer>, lo: f32, hi: f32) -> f64 {
+    match quantizer {
+        Some(q) => {
+            q.step as f64 / 2.0 * (1.0 + 1e-6)
+                + 4.0 * f32::EPSILON as f64 * (lo.abs().max(hi.abs()) as f64 + q.step as f64)
+        }
+        None => 1e-6 * ((hi - lo) as f64).max(f32::MIN_POSITIVE as f64),
+    }
 }
 
 /// The reference values (the samples' own memory, in place), outside base vertices set to the

@@ -2,7 +2,7 @@
 //! samples the scalar at every vertex of the finest level.
 //!
 //! Inputs: an analytic field ([`synthetic`]), a raw grid ([`raw`], trilinear) or an unstructured tet
-//! mesh (read by [`crate::import`]; [`unstructured`] location and barycentric interpolation).
+//! mesh (read by [`tetwave_import`]; [`unstructured`] location and barycentric interpolation).
 //!
 //! **Outside rule.** A vertex where the input has no data (outside a non-convex mesh) is marked outside
 //! (`NaN` in [`Resampled::samples`]). Analysis gives it a zero detail, i.e. the linear prediction from
