@@ -23,8 +23,9 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Render a store's uniform level to PNG (GPU projected tetrahedra, or the CPU reference), with
-    /// its time and optionally its PSNR against the reference.
+    /// Render a store's uniform level, or a mesh file (.vtu, .vtk, .msh, .mesh) as it is, to PNG
+    /// (GPU projected tetrahedra, or the CPU reference), with its time and optionally its PSNR
+    /// against the reference. A store and the mesh it was prepared from frame the same default view.
     Render(tetwave_client::render_cli::RenderArgs),
     /// Stream from a `tetwave-server serve` and render progressively: PNG frames and one JSON line
     /// per frame (frame, bytes_received, nodes, tets, refine_ms, render_ms, psnr_db). A stream that
@@ -107,9 +108,13 @@ fn main() -> ExitCode {
                         .psnr_db
                         .map(|p| format!(", PSNR {p:.2} dB vs reference"))
                         .unwrap_or_default();
+                    let what = match &r.scalar {
+                        Some(s) => format!("mesh as it is, scalar {s}"),
+                        None => format!("level {}", r.level),
+                    };
                     println!(
-                        "{}: {} tets (level {}), {}x{}, {:.1} ms{psnr} -> {}",
-                        r.renderer, r.tets, r.level, r.width, r.height, r.ms, r.output
+                        "{}: {} tets ({what}), {}x{}, {:.1} ms{psnr} -> {}",
+                        r.renderer, r.tets, r.width, r.height, r.ms, r.output
                     );
                 }
                 ExitCode::SUCCESS

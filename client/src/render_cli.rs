@@ -1,9 +1,19 @@
-//! `tetwave render`: one image of a store's uniform level, on the GPU (projected tetrahedra) or with
-//! the CPU reference integrator, with its time and, on request, its PSNR against the reference.
+//! `tetwave render`: one image of a store's uniform level, or of the unstructured mesh a store is
+//! prepared from (`.vtu`, legacy `.vtk`, `.msh`, `.mesh`) as it is, on the GPU (projected
+//! tetrahedra) or with the CPU reference integrator, with its time and, on request, its PSNR
+//! against the reference.
+//!
+//! A store and the mesh file it was prepared from frame the same default view: the store's base
+//! mesh is the box around the mesh's points (`prepare`'s box5/box6), so both have the same bounds,
+//! hence the same camera and extinction unit; the mesh's value range is its chosen scalar's
+//! min/max over its points, and the store's the range of its samples, which interpolate that
+//! scalar, so it lies within it (equal when the samples reach the extremes).
 
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tetwave_import::clean::{clean_import, CleanError, ImportOptions};
+use tetwave_import::{format_of, read_mesh, ImportError, MeshFormat};
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_render::gpu::{GpuContext, RenderError};
@@ -16,11 +26,27 @@ use tetwave_store::{OpenOptions, Store, StoreError};
 /// What to render and how.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
-    /// Store directory (written by `tetwave-server prepare`).
+    /// Store directory (written by `tetwave-server prepare`), or a mesh file (`.vtu`, `.vtk`,
+    /// `.msh`, `.mesh`) drawn as it is.
+    #[arg(value_name = "STORE|MESH")]
     pub store: PathBuf,
-    /// Uniform level to draw (default: the store's finest).
+    /// Uniform level to draw (default: the store's finest; stores only).
     #[arg(long)]
     pub levels: Option<u8>,
+    /// Mesh input: the scalar, `NAME`, `NAME:mag` or `NAME:K` among point and cell arrays (as
+    /// `prepare --scalar`; default: the first point array, else the first cell array).
+    #[arg(long)]
+    pub scalar: Option<String>,
+    /// Mesh input: a geometric scalar instead of an array (`distance`: to the mesh's boundary).
+    #[arg(long)]
+    pub field: Option<String>,
+    /// Mesh input: replace NaN/Inf values of the scalar by this (refused otherwise).
+    #[arg(long, allow_hyphen_values = true)]
+    pub nan_as: Option<f64>,
+    /// Mesh input: the format (vtu, vtk, msh, mesh), whatever the content and extension say; also
+    /// makes the input a mesh file.
+    #[arg(long)]
+    pub format: Option<MeshFormat>,
     #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
     pub azimuth: f64,
     #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
@@ -107,6 +133,12 @@ pub enum RenderCliError {
     Tf(#[from] TfError),
     #[error(transparent)]
     Gpu(#[from] RenderError),
+    #[error(transparent)]
+    Import(#[from] ImportError),
+    #[error("{path}: {source}")]
+    Clean { path: PathBuf, source: CleanError },
+    #[error("{0}")]
+    Usage(String),
     #[error("--levels {asked} exceeds the store's {levels} levels")]
     Level { asked: u8, levels: u8 },
     #[error("{path}: cannot write PNG: {reason}")]
@@ -115,8 +147,14 @@ pub enum RenderCliError {
 
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderReport {
+    /// `store` or `mesh`.
+    pub input: String,
     pub tets: u64,
+    /// The store's level drawn (0 for a mesh file).
     pub level: u8,
+    /// The mesh's scalar (`name`, `name:mag`, `name:K`, `distance`); none for a store.
+    pub scalar: Option<String>,
+    pub value_range: (f32, f32),
     pub width: u32,
     pub height: u32,
     pub renderer: String,
@@ -145,15 +183,64 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
     ))
 }
 
+/// Whether `tetwave render`'s input is a mesh file rather than a store directory: `--format`
+/// given, or not a directory and either a mesh extension or an existing file.
+pub fn is_mesh_input(path: &Path, format: Option<MeshFormat>) -> bool {
+    format.is_some() || (!path.is_dir() && (format_of(path).is_some() || path.is_file()))
+}
+
+/// A mesh file as it is: its points, its cleaned tets (re-oriented, zero-volume and duplicate ones
+/// dropped, other volume cells split into tets) and the chosen scalar, exactly as `prepare` reads
+/// it before resampling. Returns the scalar's name too.
+pub fn file_mesh(
+    path: &Path,
+    format: Option<MeshFormat>,
+    options: &ImportOptions<'_>,
+) -> Result<(RenderMesh, String), RenderCliError> {
+    let imported = read_mesh(path, format)?;
+    let (clean, report) =
+        clean_import(imported, options).map_err(|source| RenderCliError::Clean {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let values = clean.values.iter().map(|&v| v as f32).collect();
+    Ok((
+        RenderMesh::new(clean.points, clean.tets, values),
+        report.scalar,
+    ))
+}
+
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     let tf = TransferFunction::load(&a.tf)?;
-    let store = Store::open_with(
-        &a.store,
-        OpenOptions {
-            verify_checksums: a.verify,
-        },
-    )?;
-    let (mesh, level) = store_mesh(&store, a.levels)?;
+    let is_mesh = is_mesh_input(&a.store, a.format);
+    let (mesh, level, scalar) = if is_mesh {
+        if a.levels.is_some() {
+            return Err(RenderCliError::Usage(
+                "--levels applies to stores, not mesh files".into(),
+            ));
+        }
+        let options = ImportOptions {
+            scalar: a.scalar.as_deref(),
+            field: a.field.as_deref(),
+            nan_as: a.nan_as,
+        };
+        let (mesh, scalar) = file_mesh(&a.store, a.format, &options)?;
+        (mesh, 0, Some(scalar))
+    } else {
+        if a.scalar.is_some() || a.field.is_some() || a.nan_as.is_some() {
+            return Err(RenderCliError::Usage(
+                "--scalar, --field and --nan-as apply to mesh files; a store has one scalar".into(),
+            ));
+        }
+        let store = Store::open_with(
+            &a.store,
+            OpenOptions {
+                verify_checksums: a.verify,
+            },
+        )?;
+        let (mesh, level) = store_mesh(&store, a.levels)?;
+        (mesh, level, None)
+    };
     let distance = a.distance.unwrap_or(1.6 * mesh.diagonal());
     let cam = Camera::orbit(
         mesh.center(),
@@ -193,8 +280,11 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         reason: e.to_string(),
     })?;
     Ok(RenderReport {
+        input: if is_mesh { "mesh" } else { "store" }.into(),
         tets: mesh.tets.len() as u64,
         level,
+        scalar,
+        value_range: mesh.value_range,
         width: a.size.0,
         height: a.size.1,
         renderer,
