@@ -415,6 +415,35 @@ fn more_broken_files_fail_with_a_telling_error() {
     }
 }
 
+/// A Medit file whose sections are complete but which lacks `End` is read (meshio reads it); one
+/// cut inside a section, inside the last number, or before its volume elements is still refused.
+#[test]
+fn medit_without_end_is_read_when_every_section_is_complete() {
+    let bytes = std::fs::read(fixture("cube.mesh")).unwrap();
+    let text = String::from_utf8(bytes.clone()).unwrap();
+    let at = text.rfind("End").unwrap();
+    let parse =
+        |b: &[u8]| tetwave_server::import::parse_mesh(Path::new("cube.mesh"), b, MeshFormat::Medit);
+    let full = parse(&bytes).unwrap();
+    // No End, the file ends with the line end after the last record.
+    let no_end = parse(&bytes[..at]).unwrap();
+    assert_eq!(no_end, full);
+    // The same without the blank line: still a line end after the last record.
+    let trimmed = text[..at].trim_end().to_string() + "\n";
+    assert_eq!(parse(trimmed.as_bytes()).unwrap(), full);
+    // The last number without its line end could be the prefix of a longer one.
+    let err = parse(text[..at].trim_end().as_bytes()).unwrap_err();
+    assert!(err.to_string().contains("no End keyword"), "{err}");
+    // Cut inside the Tetrahedra section (after a whole line): a count is not read in full.
+    let tets_at = text.find("Tetrahedra").unwrap();
+    let line2 = tets_at + text[tets_at..].match_indices('\n').nth(2).unwrap().0 + 1;
+    let err = parse(&bytes[..line2]).unwrap_err();
+    assert!(err.to_string().contains("truncated"), "{err}");
+    // Cut after the vertices, before any volume element: refused.
+    let err = parse(&bytes[..tets_at]).unwrap_err();
+    assert!(err.to_string().contains("no End keyword"), "{err}");
+}
+
 #[test]
 fn new_fixtures_survive_truncation() {
     for name in [
