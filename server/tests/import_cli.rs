@@ -198,3 +198,35 @@ fn broken_files_exit_non_zero_with_one_line() {
         expect_error(&fixture(name), &[], needles);
     }
 }
+
+/// Every array constant (a Medit `ref` of zeros): the store is written with a warning on stderr
+/// and in the summary that names the arrays; `--json` lists them.
+#[test]
+fn all_constant_arrays_warn() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("zeros.mesh");
+    std::fs::write(
+        &input,
+        "MeshVersionFormatted 2\nDimension 3\nVertices\n5\n0 0 0 0\n1 0 0 0\n0 1 0 0\n0 0 1 0\n1 1 1 0\n\
+         Tetrahedra\n2\n1 2 3 4 0\n2 3 4 5 0\nEnd\n",
+    )
+    .unwrap();
+    let input = input.to_str().unwrap();
+    let out = out_dir(&d, "o");
+    let (ok, stdout, stderr) = run(&["prepare", input, "--levels", "1", "--out", &out]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("every array of the mesh is constant")
+            && stderr.contains("ref (cell, constant)"),
+        "{stderr}"
+    );
+    assert!(
+        stdout.contains("warning: every array is constant (ref (cell, constant))"),
+        "{stdout}"
+    );
+    let j = prepare(input, &[]);
+    assert_eq!(j["import"]["scalar"], "ref");
+    assert_eq!(j["import"]["arrays"][0]["name"], "ref");
+    assert_eq!(j["import"]["arrays"][0]["source"], "cell");
+    assert_eq!(j["import"]["arrays"][0]["constant"], true);
+}

@@ -359,6 +359,105 @@ fn distance_field_for_a_bare_mesh() {
     ));
 }
 
+/// Without `--scalar`, a constant first array (a `node_groups` of zeros) is passed over for the
+/// first array that varies; when every array is constant the first is kept, with a warning that
+/// names them. `arrays` lists them all either way.
+#[test]
+fn default_scalar_skips_constant_arrays() {
+    use tetwave_server::import::{FieldArray, ScalarArray, TetMesh};
+    let points = cube_points();
+    let mesh = |arrays: Vec<(&str, Vec<f64>)>, cells: Option<Vec<f64>>| {
+        let tm = TetMesh {
+            points: points.clone(),
+            tets: tets(),
+            point_data: arrays
+                .into_iter()
+                .map(|(name, values)| ScalarArray {
+                    name: name.into(),
+                    values,
+                })
+                .collect(),
+            cells_ignored: 0,
+        };
+        let mut m = ImportedMesh::from(tm);
+        if let Some(values) = cells {
+            m.cell_data.push(FieldArray {
+                name: "ref".into(),
+                components: 1,
+                values,
+            });
+        }
+        m
+    };
+    let zeros = vec![0.0; points.len()];
+    let temp: Vec<f64> = points.iter().map(|&p| temperature(p)).collect();
+    let (m, r) = clean_import(
+        mesh(
+            vec![
+                ("node_groups", zeros.clone()),
+                ("temperature", temp.clone()),
+            ],
+            None,
+        ),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "temperature");
+    assert_eq!(m.values, temp);
+    let listed: Vec<(&str, bool)> = r
+        .arrays
+        .iter()
+        .map(|a| (a.name.as_str(), a.constant))
+        .collect();
+    assert_eq!(listed, [("node_groups", true), ("temperature", false)]);
+    assert!(
+        r.notes.iter().any(|n| n.contains("chosen by default") && n.contains("node_groups (point, constant)")),
+        "{:?}",
+        r.notes
+    );
+    // A varying cell array after a constant point array is chosen too.
+    let (_, r) = clean_import(
+        mesh(
+            vec![("node_groups", zeros.clone())],
+            Some((1..=7).map(f64::from).collect()),
+        ),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(
+        (r.scalar.as_str(), r.scalar_source.as_str()),
+        ("ref", "cell")
+    );
+    // Every array constant (Medit's ref of zeros too): the first, with a warning naming them.
+    let (_, r) = clean_import(
+        mesh(vec![("node_groups", zeros.clone())], Some(vec![0.0; 7])),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "node_groups");
+    let warning = r
+        .notes
+        .iter()
+        .find(|n| n.starts_with("warning"))
+        .expect("a warning");
+    assert!(
+        warning.contains("every array is constant")
+            && warning.contains("node_groups (point, constant), ref (cell, constant)"),
+        "{warning}"
+    );
+    // --scalar still picks a constant array without complaint.
+    let (_, r) = clean_import(
+        mesh(vec![("node_groups", zeros), ("temperature", temp)], None),
+        &opts(Some("node_groups")),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "node_groups");
+    assert!(!r
+        .notes
+        .iter()
+        .any(|n| n.contains("by default") || n.starts_with("warning")));
+}
+
 #[test]
 fn surface_only_mesh_is_refused() {
     let err = clean_import(read("surface_only.msh"), &opts(None))

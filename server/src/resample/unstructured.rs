@@ -76,6 +76,20 @@ pub struct CleanReport {
     pub slivers: usize,
     /// What was done, in words.
     pub notes: Vec<String>,
+    /// The mesh's arrays, in the order the default choice tries them (point scalars, point
+    /// vectors, cell arrays).
+    pub arrays: Vec<ArrayInfo>,
+}
+
+/// One array of the mesh, as `prepare --json` lists it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ArrayInfo {
+    pub name: String,
+    /// `point` or `cell`.
+    pub source: String,
+    pub components: usize,
+    /// Every value (the magnitude of a vector; on the tets' cells for a cell array) is the same.
+    pub constant: bool,
 }
 
 /// A cleaned tet mesh with one scalar per point, ready for point location.
@@ -213,17 +227,18 @@ fn choose<'m>(m: &'m ImportedMesh, scalar: Option<&str>) -> Result<Choice<'m>, C
             .map(|a| Choice::Cell(a, None))
     };
     let Some(spec) = scalar else {
-        if let Some(a) = m.mesh.point_data.first() {
-            return Ok(Choice::Point(&a.name, &a.values, 1, None));
-        }
-        if let Some(a) = m.point_vectors.first() {
-            return Ok(Choice::Point(&a.name, &a.values, a.components, None));
-        }
-        return m
-            .cell_data
-            .first()
-            .map(|a| Choice::Cell(a, None))
-            .ok_or(CleanError::NoScalars);
+        let (i, _) = default_array(&arrays(m)).ok_or(CleanError::NoScalars)?;
+        let np = m.mesh.point_data.len();
+        let nv = m.point_vectors.len();
+        return Ok(if i < np {
+            let a = &m.mesh.point_data[i];
+            Choice::Point(&a.name, &a.values, 1, None)
+        } else if i < np + nv {
+            let a = &m.point_vectors[i - np];
+            Choice::Point(&a.name, &a.values, a.components, None)
+        } else {
+            Choice::Cell(&m.cell_data[i - np - nv], None)
+        });
     };
     if let Some(c) = find(spec) {
         return Ok(c);
@@ -244,6 +259,59 @@ fn choose<'m>(m: &'m ImportedMesh, scalar: Option<&str>) -> Result<Choice<'m>, C
         name: spec.to_string(),
         available: available(m),
     })
+}
+
+/// Whether every non-NaN value is the same.
+fn is_constant(values: impl IntoIterator<Item = f64>) -> bool {
+    let mut first = None;
+    for v in values.into_iter().filter(|v| !v.is_nan()) {
+        match first {
+            None => first = Some(v),
+            Some(f) if f != v => return false,
+            Some(_) => {}
+        }
+    }
+    true
+}
+
+/// The mesh's arrays in the order the default choice tries them: point scalars, point vectors
+/// (their magnitude), cell arrays (on the cells that gave tets).
+pub fn arrays(m: &ImportedMesh) -> Vec<ArrayInfo> {
+    let info = |name: &str, source: &str, components: usize, constant: bool| ArrayInfo {
+        name: name.to_string(),
+        source: source.to_string(),
+        components,
+        constant,
+    };
+    let mut out = Vec::new();
+    for a in &m.mesh.point_data {
+        out.push(info(
+            &a.name,
+            "point",
+            1,
+            is_constant(a.values.iter().copied()),
+        ));
+    }
+    for a in &m.point_vectors {
+        let mag = component(&a.values, a.components, None);
+        out.push(info(&a.name, "point", a.components, is_constant(mag)));
+    }
+    for a in &m.cell_data {
+        let v = component(&a.values, a.components, None);
+        let on_tets = m.tet_cells.iter().filter_map(|&c| v.get(c).copied());
+        out.push(info(&a.name, "cell", a.components, is_constant(on_tets)));
+    }
+    out
+}
+
+/// The array used without `--scalar`: the first that is not constant, else the first (with
+/// `true`: every array is constant, the store will be blank). `None` without arrays.
+pub fn default_array(arrays: &[ArrayInfo]) -> Option<(usize, bool)> {
+    match arrays.iter().position(|a| !a.constant) {
+        Some(i) => Some((i, false)),
+        None if arrays.is_empty() => None,
+        None => Some((0, true)),
+    }
 }
 
 /// The report's name of a choice: `name`, `name:mag` or `name:K`.
@@ -301,6 +369,40 @@ pub fn clean_import(
         Some(_) => None,
         None => Some(choose(&m, o.scalar)?),
     };
+    report.arrays = arrays(&m);
+    let listed = || {
+        report
+            .arrays
+            .iter()
+            .map(|a| {
+                let constant = if a.constant { ", constant" } else { "" };
+                format!("{} ({}{constant})", a.name, a.source)
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut default_notes = Vec::new();
+    if choice.is_some() && o.scalar.is_none() {
+        if let Some((i, all_constant)) = default_array(&report.arrays) {
+            let name = &report.arrays[i].name;
+            let list = listed();
+            if all_constant {
+                tracing::warn!(
+                    array = %name,
+                    arrays = %list,
+                    "every array of the mesh is constant: the store will be blank"
+                );
+                default_notes.push(format!(
+                    "warning: every array is constant ({list}): \"{name}\" is used and the store will be blank; pass --field distance to view the geometry"
+                ));
+            } else {
+                tracing::info!(array = %name, arrays = %list, "scalar chosen by default");
+                default_notes.push(format!(
+                    "scalar \"{name}\" chosen by default (the first array that is not constant; --scalar NAME picks another); arrays: {list}"
+                ));
+            }
+        }
+    }
 
     // Geometry: orientation, zero-volume and duplicate tets.
     let points = &m.mesh.points;
@@ -385,6 +487,7 @@ pub fn clean_import(
                 .collect()
         }
     };
+    report.notes.extend(default_notes);
     let bad: Vec<usize> = values
         .iter()
         .enumerate()
