@@ -599,3 +599,126 @@ fn new_fixtures_corrupted_never_panic() {
         }
     }
 }
+
+/// Two tets in two physical groups (1: elementary 10, 2: elementary 20) and a triangle (3, 30),
+/// in every gmsh variant the reader takes, written here byte by byte.
+fn two_groups_msh() -> Vec<(&'static str, Vec<u8>)> {
+    const P: [[f64; 3]; 5] = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 1.0, 1.0],
+    ];
+    let i = |b: &mut Vec<u8>, v: i32| b.extend_from_slice(&v.to_le_bytes());
+    let z = |b: &mut Vec<u8>, v: u64| b.extend_from_slice(&v.to_le_bytes());
+    let f = |b: &mut Vec<u8>, v: f64| b.extend_from_slice(&v.to_le_bytes());
+    let s = |b: &mut Vec<u8>, t: &str| b.extend_from_slice(t.as_bytes());
+    let nodes_ascii: String = P
+        .iter()
+        .enumerate()
+        .map(|(k, p)| format!("{} {} {} {}\n", k + 1, p[0], p[1], p[2]))
+        .collect();
+    let v10 = format!(
+        "$NOD\n5\n{nodes_ascii}$ENDNOD\n$ELM\n3\n1 2 3 30 3 2 3 4\n2 4 1 10 4 1 2 3 4\n3 4 2 20 4 2 3 4 5\n$ENDELM\n"
+    );
+    let v22 = format!(
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n3 1 \"inner\"\n3 2 \"outer\"\n$EndPhysicalNames\n\
+         $Nodes\n5\n{nodes_ascii}$EndNodes\n$Elements\n3\n1 2 2 3 30 2 3 4\n2 4 2 1 10 1 2 3 4\n3 4 2 2 20 2 3 4 5\n$EndElements\n"
+    );
+    let mut b22 = Vec::new();
+    s(&mut b22, "$MeshFormat\n2.2 1 8\n");
+    i(&mut b22, 1);
+    s(&mut b22, "\n$EndMeshFormat\n$Nodes\n5\n");
+    for (k, p) in P.iter().enumerate() {
+        i(&mut b22, k as i32 + 1);
+        p.iter().for_each(|&x| f(&mut b22, x));
+    }
+    s(&mut b22, "\n$EndNodes\n$Elements\n3\n");
+    for v in [
+        vec![2, 1, 2, 1, 3, 30, 2, 3, 4],
+        vec![4, 2, 2, 2, 1, 10, 1, 2, 3, 4, 3, 2, 20, 2, 3, 4, 5],
+    ] {
+        v.iter().for_each(|&x| i(&mut b22, x));
+    }
+    s(&mut b22, "\n$EndElements\n");
+    let v41 = format!(
+        "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Entities\n0 0 1 2\n30 0 0 0 1 1 1 1 3 0\n\
+         10 0 0 0 1 1 1 1 1 1 30\n20 0 0 0 1 1 1 1 2 1 -30\n$EndEntities\n\
+         $Nodes\n1 5 1 5\n3 10 0 5\n1\n2\n3\n4\n5\n{}$EndNodes\n\
+         $Elements\n3 3 1 3\n2 30 2 1\n1 2 3 4\n3 10 4 1\n2 1 2 3 4\n3 20 4 1\n3 2 3 4 5\n$EndElements\n",
+        P.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect::<String>()
+    );
+    let mut b41 = Vec::new();
+    s(&mut b41, "$MeshFormat\n4.1 1 8\n");
+    i(&mut b41, 1);
+    s(&mut b41, "\n$EndMeshFormat\n$Entities\n");
+    [0, 0, 1, 2].iter().for_each(|&n| z(&mut b41, n));
+    for (tag, phys, bound) in [(30, 3, None), (10, 1, Some(30)), (20, 2, Some(-30))] {
+        i(&mut b41, tag);
+        [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
+            .iter()
+            .for_each(|&x| f(&mut b41, x));
+        z(&mut b41, 1);
+        i(&mut b41, phys);
+        match bound {
+            None => z(&mut b41, 0),
+            Some(t) => {
+                z(&mut b41, 1);
+                i(&mut b41, t);
+            }
+        }
+    }
+    s(&mut b41, "\n$EndEntities\n$Nodes\n");
+    [1, 5, 1, 5].iter().for_each(|&n| z(&mut b41, n));
+    [3, 10, 0].iter().for_each(|&n| i(&mut b41, n));
+    z(&mut b41, 5);
+    (1..=5).for_each(|k| z(&mut b41, k));
+    P.iter().flatten().for_each(|&x| f(&mut b41, x));
+    s(&mut b41, "\n$EndNodes\n$Elements\n");
+    [3, 3, 1, 3].iter().for_each(|&n| z(&mut b41, n));
+    for (dim, ent, ty, rec) in [
+        (2, 30, 2, vec![1u64, 2, 3, 4]),
+        (3, 10, 4, vec![2, 1, 2, 3, 4]),
+        (3, 20, 4, vec![3, 2, 3, 4, 5]),
+    ] {
+        [dim, ent, ty].iter().for_each(|&n| i(&mut b41, n));
+        z(&mut b41, 1);
+        rec.iter().for_each(|&n| z(&mut b41, n));
+    }
+    s(&mut b41, "\n$EndElements\n");
+    vec![
+        ("1.0", v10.into_bytes()),
+        ("2.2 ascii", v22.into_bytes()),
+        ("2.2 binary", b22),
+        ("4.1 ascii", v41.into_bytes()),
+        ("4.1 binary", b41),
+    ]
+}
+
+/// gmsh physical and elementary tags become the cell arrays `gmsh:physical` and
+/// `gmsh:geometrical` (one value per element, the triangle's too) in 1.0, 2.2 and 4.1, ascii and
+/// binary; the default scalar is the physical group, which varies.
+#[test]
+fn gmsh_tags_become_cell_arrays() {
+    for (variant, bytes) in two_groups_msh() {
+        let m = tetwave_server::import::parse_mesh(Path::new("two.msh"), &bytes, MeshFormat::Msh)
+            .unwrap_or_else(|e| panic!("{variant}: {e}"));
+        assert_eq!(m.mesh.tets, [[0, 1, 2, 3], [1, 2, 3, 4]], "{variant}");
+        assert_eq!(m.tet_cells, [1, 2], "{variant}");
+        let names: Vec<&str> = m.cell_data.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names, ["gmsh:physical", "gmsh:geometrical"], "{variant}");
+        assert_eq!(
+            cell_array(&m, "gmsh:physical"),
+            [3.0, 1.0, 2.0],
+            "{variant}"
+        );
+        assert_eq!(
+            cell_array(&m, "gmsh:geometrical"),
+            [30.0, 10.0, 20.0],
+            "{variant}"
+        );
+        let (_, r) = clean_import(m, &opts(None)).unwrap();
+        assert_eq!(r.scalar, "gmsh:physical", "{variant}");
+    }
+}
