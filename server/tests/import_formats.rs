@@ -722,3 +722,91 @@ fn gmsh_tags_become_cell_arrays() {
         assert_eq!(r.scalar, "gmsh:physical", "{variant}");
     }
 }
+
+/// `--field distance` on meshes whose every vertex lies on the boundary (one big tet; a slab of
+/// 6 Kuhn tets): zero at every input vertex, yet the resampled field is the exact distance to the
+/// boundary at every lattice vertex inside, since it is computed there and not interpolated.
+#[test]
+fn distance_field_is_computed_at_the_resampled_vertices() {
+    use tetwave_server::import::TetMesh;
+    use tetwave_server::resample::unstructured::{bbox, Locator};
+    use tetwave_server::resample::{resample, BaseSpec, Source};
+    let s3 = 3f64.sqrt();
+    let tet = |p: [f64; 3]| (p[0].min(p[1]).min(p[2])).min((1.0 - p[0] - p[1] - p[2]) / s3);
+    let slab = |p: [f64; 3]| {
+        [p[0], 4.0 - p[0], p[1], 4.0 - p[1], p[2], 1.0 - p[2]]
+            .into_iter()
+            .fold(f64::INFINITY, f64::min)
+    };
+    let (slab_points, slab_tets) = tetwave_server::resample::base::box6([0.0; 3], [4.0, 4.0, 1.0]);
+    /// Name, points, tets and the exact distance to the boundary.
+    type Case<'a> = (
+        &'a str,
+        Vec<[f64; 3]>,
+        Vec<[u32; 4]>,
+        &'a dyn Fn([f64; 3]) -> f64,
+    );
+    let cases: [Case; 2] = [
+        (
+            "tet",
+            vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            vec![[0, 1, 2, 3]],
+            &tet,
+        ),
+        ("slab", slab_points, slab_tets, &slab),
+    ];
+    for (name, points, tets, exact) in cases {
+        let m = ImportedMesh::from(TetMesh {
+            points,
+            tets,
+            ..TetMesh::default()
+        });
+        let o = ImportOptions {
+            field: Some("distance"),
+            ..opts(None)
+        };
+        let (clean, _) = clean_import(m, &o).unwrap();
+        assert!(
+            clean.values.iter().all(|&v| v == 0.0),
+            "{name}: every vertex is on the boundary"
+        );
+        let loc = Locator::new(&clean);
+        for p in [
+            [0.1, 0.2, 0.3],
+            [0.2, 0.2, 0.2],
+            [0.25, 0.25, 0.25],
+            [0.05, 0.1, 0.02],
+        ] {
+            let d = loc.sample(p).expect("inside");
+            assert!(
+                (d - exact(p)).abs() < 1e-12,
+                "{name} at {p:?}: {d} vs {}",
+                exact(p)
+            );
+        }
+        assert_eq!(loc.sample([2.0, 2.0, 2.0]), None, "{name}");
+        let bounds = bbox(&clean.points);
+        let r = resample(&Source::Mesh(Box::new(loc), bounds), &BaseSpec::Box6, 3).unwrap();
+        let (mut inside, mut positive) = (0, 0);
+        for (e, _) in r.keys.entities() {
+            r.keys.for_each_in(e, |key, t, w| {
+                let v = r.samples[key as usize];
+                if v.is_nan() {
+                    return;
+                }
+                let p = r.base.position(t, &w);
+                let want = exact(p).max(0.0);
+                assert!(
+                    (f64::from(v) - want).abs() < 1e-6,
+                    "{name}: lattice vertex {p:?}: {v} vs {want}"
+                );
+                inside += 1;
+                positive += usize::from(v > 0.0);
+            });
+        }
+        assert!(
+            positive > 0 && inside > positive,
+            "{name}: {positive} of {inside} positive"
+        );
+    }
+}

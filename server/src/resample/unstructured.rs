@@ -97,6 +97,10 @@ pub struct ScalarTetMesh {
     pub points: Vec<[f64; 3]>,
     pub tets: Vec<[u32; 4]>,
     pub values: Vec<f64>,
+    /// The scalar is the distance to the boundary (`--field distance`): [`Locator`] computes it at
+    /// each sampled point instead of interpolating `values`, which are zero at every vertex of a
+    /// mesh whose vertices all lie on its boundary.
+    pub distance: bool,
 }
 
 /// How the scalar is chosen.
@@ -568,6 +572,7 @@ pub fn clean_import(
             points: m.mesh.points,
             tets,
             values,
+            distance: o.field.is_some(),
         },
         report,
     ))
@@ -614,79 +619,115 @@ pub fn min_dihedral_deg(p: [[f64; 3]; 4]) -> f64 {
 }
 
 /// Distance from every point to the boundary surface of the tets (the faces that only one tet
-/// has), through a uniform grid of the boundary triangles searched ring by ring.
+/// has); 0 at the points on it. See [`BoundaryDistance`].
 pub fn boundary_distance(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Vec<f64> {
-    let mut faces: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 2);
-    for t in tets {
-        for skip in 0..4 {
-            let mut f = [0u32; 3];
-            let mut k = 0;
-            for (i, &v) in t.iter().enumerate() {
-                if i != skip {
-                    f[k] = v;
-                    k += 1;
-                }
-            }
-            f.sort_unstable();
-            *faces.entry(f).or_default() += 1;
-        }
-    }
-    let mut boundary: Vec<[u32; 3]> = faces
-        .into_iter()
-        .filter(|&(_, c)| c == 1)
-        .map(|(f, _)| f)
-        .collect();
-    boundary.sort_unstable();
-    let mut out = vec![f64::INFINITY; points.len()];
-    if boundary.is_empty() {
+    let d = BoundaryDistance::new(points, tets);
+    if d.tris.is_empty() {
         return vec![0.0; points.len()];
     }
     let mut on_boundary = vec![false; points.len()];
-    for f in &boundary {
+    for f in &d.faces {
         for &v in f {
             on_boundary[v as usize] = true;
         }
     }
-    let (lo, hi) = bbox(points);
-    let res = ((boundary.len() as f64).cbrt().ceil() as usize).clamp(1, 64);
-    let size = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / res as f64).max(1e-300));
-    let cell = |x: f64, a: usize| (((x - lo[a]) / size[a]).floor().max(0.0) as usize).min(res - 1);
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); res * res * res];
-    for (fi, f) in boundary.iter().enumerate() {
-        let q = f.map(|v| points[v as usize]);
-        let c0 = [0, 1, 2].map(|a| cell(q[0][a].min(q[1][a]).min(q[2][a]), a));
-        let c1 = [0, 1, 2].map(|a| cell(q[0][a].max(q[1][a]).max(q[2][a]), a));
-        for k in c0[2]..=c1[2] {
-            for j in c0[1]..=c1[1] {
-                for i in c0[0]..=c1[0] {
-                    bins[i + res * (j + res * k)].push(fi as u32);
+    points
+        .iter()
+        .zip(&on_boundary)
+        .map(|(&p, &on)| if on { 0.0 } else { d.distance(p) })
+        .collect()
+}
+
+/// The boundary surface of a tet mesh (the faces that only one tet has) in a uniform grid of
+/// about one triangle per cell, for the distance from any point to it: the cells are searched ring
+/// by ring around the point's cell until no unvisited ring can hold a closer triangle.
+pub struct BoundaryDistance {
+    faces: Vec<[u32; 3]>,
+    tris: Vec<[[f64; 3]; 3]>,
+    lo: [f64; 3],
+    size: [f64; 3],
+    res: usize,
+    bins: Vec<Vec<u32>>,
+}
+
+impl BoundaryDistance {
+    pub fn new(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Self {
+        let mut faces: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 2);
+        for t in tets {
+            for skip in 0..4 {
+                let mut f = [0u32; 3];
+                let mut k = 0;
+                for (i, &v) in t.iter().enumerate() {
+                    if i != skip {
+                        f[k] = v;
+                        k += 1;
+                    }
+                }
+                f.sort_unstable();
+                *faces.entry(f).or_default() += 1;
+            }
+        }
+        let mut boundary: Vec<[u32; 3]> = faces
+            .into_iter()
+            .filter(|&(_, c)| c == 1)
+            .map(|(f, _)| f)
+            .collect();
+        boundary.sort_unstable();
+        let tris: Vec<[[f64; 3]; 3]> = boundary
+            .iter()
+            .map(|f| f.map(|v| points[v as usize]))
+            .collect();
+        let (lo, hi) = bbox(tris.iter().flatten());
+        let res = ((tris.len() as f64).cbrt().ceil() as usize).clamp(1, 64);
+        let size = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / res as f64).max(1e-300));
+        let mut d = BoundaryDistance {
+            faces: boundary,
+            tris,
+            lo,
+            size,
+            res,
+            bins: vec![Vec::new(); res * res * res],
+        };
+        for fi in 0..d.tris.len() {
+            let q = d.tris[fi];
+            let c0 = [0, 1, 2].map(|a| d.cell(q[0][a].min(q[1][a]).min(q[2][a]), a));
+            let c1 = [0, 1, 2].map(|a| d.cell(q[0][a].max(q[1][a]).max(q[2][a]), a));
+            for k in c0[2]..=c1[2] {
+                for j in c0[1]..=c1[1] {
+                    for i in c0[0]..=c1[0] {
+                        d.bins[i + res * (j + res * k)].push(fi as u32);
+                    }
                 }
             }
         }
+        d
     }
-    let h = size[0].min(size[1]).min(size[2]);
-    for (pi, p) in points.iter().enumerate() {
-        if on_boundary[pi] {
-            out[pi] = 0.0;
-            continue;
-        }
-        let c = [0, 1, 2].map(|a| cell(p[a], a) as i64);
+
+    fn cell(&self, x: f64, a: usize) -> usize {
+        (((x - self.lo[a]) / self.size[a]).floor().max(0.0) as usize).min(self.res - 1)
+    }
+
+    /// Distance from `p` to the boundary surface (infinite if the mesh has none).
+    pub fn distance(&self, p: [f64; 3]) -> f64 {
+        let res = self.res as i64;
+        // A point outside the grid starts from the nearest cell: it is only farther from the
+        // other rings, so the stopping rule still holds.
+        let c = [0, 1, 2].map(|a| self.cell(p[a], a) as i64);
+        let h = self.size[0].min(self.size[1]).min(self.size[2]);
         let mut best = f64::INFINITY;
-        for r in 0..=res as i64 {
+        for r in 0..=res {
             for k in c[2] - r..=c[2] + r {
                 for j in c[1] - r..=c[1] + r {
                     for i in c[0] - r..=c[0] + r {
                         let ring = (i - c[0]).abs().max((j - c[1]).abs()).max((k - c[2]).abs());
-                        let inside = [i, j, k].iter().all(|&x| x >= 0 && x < res as i64);
+                        let inside = [i, j, k].iter().all(|&x| x >= 0 && x < res);
                         if ring != r || !inside {
                             continue;
                         }
-                        let bin = &bins[i as usize + res * (j as usize + res * k as usize)];
+                        let bin = &self.bins[(i + res * (j + res * k)) as usize];
                         for &fi in bin {
-                            let f = boundary[fi as usize];
-                            let q = f.map(|v| points[v as usize]);
-                            let d = point_triangle_distance(*p, q[0], q[1], q[2]);
-                            best = best.min(d);
+                            let q = self.tris[fi as usize];
+                            best = best.min(point_triangle_distance(p, q[0], q[1], q[2]));
                         }
                     }
                 }
@@ -695,9 +736,8 @@ pub fn boundary_distance(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Vec<f64> {
                 break;
             }
         }
-        out[pi] = best;
+        best
     }
-    out
 }
 
 /// Distance from `p` to the triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
@@ -747,7 +787,7 @@ fn point_triangle_distance(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -
     ])
 }
 
-pub fn bbox(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+pub fn bbox<'p>(points: impl IntoIterator<Item = &'p [f64; 3]>) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in points {
@@ -774,6 +814,8 @@ pub struct Locator {
     values: Vec<f64>,
     /// Tolerance on barycentric coordinates for points on faces.
     eps: f64,
+    /// For `--field distance`: the boundary, to which the distance is computed at each point.
+    boundary: Option<BoundaryDistance>,
 }
 
 impl Locator {
@@ -853,10 +895,14 @@ impl Locator {
             tets: mesh.tets.clone(),
             values: mesh.values.clone(),
             eps: 1e-9,
+            boundary: mesh
+                .distance
+                .then(|| BoundaryDistance::new(&mesh.points, &mesh.tets)),
         }
     }
 
-    /// Interpolated value at `p`, or `None` outside the mesh.
+    /// Interpolated value at `p` (with `distance`, the distance from `p` to the boundary), or
+    /// `None` outside the mesh.
     pub fn sample(&self, p: [f64; 3]) -> Option<f64> {
         let mut c = [0usize; 3];
         for a in 0..3 {
@@ -889,6 +935,9 @@ impl Locator {
             }
         }
         let (_, ti, l) = best?;
+        if let Some(b) = &self.boundary {
+            return Some(b.distance(p));
+        }
         let t = self.tets[ti];
         let l = l.map(|x| x.max(0.0));
         let sum: f64 = l.iter().sum();
@@ -951,6 +1000,7 @@ mod tests {
             points,
             tets,
             values,
+            distance: false,
         }
     }
 
