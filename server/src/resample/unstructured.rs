@@ -638,17 +638,27 @@ pub fn boundary_distance(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Vec<f64> {
         .collect()
 }
 
-/// The boundary surface of a tet mesh (the faces that only one tet has) in a uniform grid of
-/// about one triangle per cell, for the distance from any point to it: the cells are searched ring
-/// by ring around the point's cell until no unvisited ring can hold a closer triangle.
+/// The boundary surface of a tet mesh (the faces that only one tet has) in a bounding volume
+/// hierarchy (boxes split at the median of the triangles' centroids along their longest axis, at
+/// most 4 triangles a leaf), for the distance from any point to it: nearer boxes first, a box no
+/// nearer than the best triangle so far is skipped. A query costs about `log n` boxes wherever
+/// the point is, deep inside the mesh or next to its surface.
 pub struct BoundaryDistance {
     faces: Vec<[u32; 3]>,
     tris: Vec<[[f64; 3]; 3]>,
-    lo: [f64; 3],
-    size: [f64; 3],
-    res: usize,
-    bins: Vec<Vec<u32>>,
+    nodes: Vec<BvhNode>,
 }
+
+/// A box of the hierarchy: a leaf holds `tris[start..start + count]`, an inner node (`count` 0)
+/// has its children at `start` and `start + 1`.
+struct BvhNode {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    start: u32,
+    count: u32,
+}
+
+const BVH_LEAF: usize = 4;
 
 impl BoundaryDistance {
     pub fn new(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Self {
@@ -673,67 +683,104 @@ impl BoundaryDistance {
             .map(|(f, _)| f)
             .collect();
         boundary.sort_unstable();
-        let tris: Vec<[[f64; 3]; 3]> = boundary
+        let mut tris: Vec<[[f64; 3]; 3]> = boundary
             .iter()
             .map(|f| f.map(|v| points[v as usize]))
             .collect();
-        let (lo, hi) = bbox(tris.iter().flatten());
-        let res = ((tris.len() as f64).cbrt().ceil() as usize).clamp(1, 64);
-        let size = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / res as f64).max(1e-300));
-        let mut d = BoundaryDistance {
-            faces: boundary,
-            tris,
-            lo,
-            size,
-            res,
-            bins: vec![Vec::new(); res * res * res],
-        };
-        for fi in 0..d.tris.len() {
-            let q = d.tris[fi];
-            let c0 = [0, 1, 2].map(|a| d.cell(q[0][a].min(q[1][a]).min(q[2][a]), a));
-            let c1 = [0, 1, 2].map(|a| d.cell(q[0][a].max(q[1][a]).max(q[2][a]), a));
-            for k in c0[2]..=c1[2] {
-                for j in c0[1]..=c1[1] {
-                    for i in c0[0]..=c1[0] {
-                        d.bins[i + res * (j + res * k)].push(fi as u32);
-                    }
+        let mut nodes = Vec::with_capacity(2 * tris.len() / BVH_LEAF + 1);
+        if !tris.is_empty() {
+            nodes.push(BvhNode {
+                lo: [0.0; 3],
+                hi: [0.0; 3],
+                start: 0,
+                count: 0,
+            });
+            // (node, range of tris): the range is sorted in place, children appended in pairs.
+            let mut todo = vec![(0usize, 0usize, tris.len())];
+            while let Some((node, a, b)) = todo.pop() {
+                let (lo, hi) = bbox(tris[a..b].iter().flatten());
+                nodes[node].lo = lo;
+                nodes[node].hi = hi;
+                if b - a <= BVH_LEAF {
+                    nodes[node].start = a as u32;
+                    nodes[node].count = (b - a) as u32;
+                    continue;
                 }
+                let centroid = |t: &[[f64; 3]; 3], k: usize| t[0][k] + t[1][k] + t[2][k];
+                let (clo, chi) = bbox(
+                    tris[a..b]
+                        .iter()
+                        .map(|t| [0, 1, 2].map(|k| centroid(t, k)))
+                        .collect::<Vec<_>>()
+                        .iter(),
+                );
+                let axis = (0..3)
+                    .max_by(|&x, &y| (chi[x] - clo[x]).total_cmp(&(chi[y] - clo[y])))
+                    .unwrap_or(0);
+                let mid = (b - a) / 2;
+                tris[a..b].select_nth_unstable_by(mid, |s, t| {
+                    centroid(s, axis).total_cmp(&centroid(t, axis))
+                });
+                let child = nodes.len();
+                for _ in 0..2 {
+                    nodes.push(BvhNode {
+                        lo: [0.0; 3],
+                        hi: [0.0; 3],
+                        start: 0,
+                        count: 0,
+                    });
+                }
+                nodes[node].start = child as u32;
+                todo.push((child, a, a + mid));
+                todo.push((child + 1, a + mid, b));
             }
         }
-        d
-    }
-
-    fn cell(&self, x: f64, a: usize) -> usize {
-        (((x - self.lo[a]) / self.size[a]).floor().max(0.0) as usize).min(self.res - 1)
+        BoundaryDistance {
+            faces: boundary,
+            tris,
+            nodes,
+        }
     }
 
     /// Distance from `p` to the boundary surface (infinite if the mesh has none).
     pub fn distance(&self, p: [f64; 3]) -> f64 {
-        let res = self.res as i64;
-        // A point outside the grid starts from the nearest cell: it is only farther from the
-        // other rings, so the stopping rule still holds.
-        let c = [0, 1, 2].map(|a| self.cell(p[a], a) as i64);
-        let h = self.size[0].min(self.size[1]).min(self.size[2]);
+        let box_d2 = |n: &BvhNode| {
+            (0..3)
+                .map(|k| {
+                    let d = (n.lo[k] - p[k]).max(p[k] - n.hi[k]).max(0.0);
+                    d * d
+                })
+                .sum::<f64>()
+        };
         let mut best = f64::INFINITY;
-        for r in 0..=res {
-            for k in c[2] - r..=c[2] + r {
-                for j in c[1] - r..=c[1] + r {
-                    for i in c[0] - r..=c[0] + r {
-                        let ring = (i - c[0]).abs().max((j - c[1]).abs()).max((k - c[2]).abs());
-                        let inside = [i, j, k].iter().all(|&x| x >= 0 && x < res);
-                        if ring != r || !inside {
-                            continue;
-                        }
-                        let bin = &self.bins[(i + res * (j + res * k)) as usize];
-                        for &fi in bin {
-                            let q = self.tris[fi as usize];
-                            best = best.min(point_triangle_distance(p, q[0], q[1], q[2]));
-                        }
-                    }
-                }
+        let mut best2 = f64::INFINITY;
+        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+        if let Some(root) = self.nodes.first() {
+            stack.push((0, box_d2(root)));
+        }
+        while let Some((ni, d2)) = stack.pop() {
+            if d2 >= best2 {
+                continue;
             }
-            if best <= r as f64 * h {
-                break;
+            let n = &self.nodes[ni as usize];
+            if n.count > 0 {
+                let (a, b) = (n.start as usize, (n.start + n.count) as usize);
+                for q in &self.tris[a..b] {
+                    best = best.min(point_triangle_distance(p, q[0], q[1], q[2]));
+                }
+                best2 = best * best;
+                continue;
+            }
+            let (l, r) = (n.start, n.start + 1);
+            let dl = box_d2(&self.nodes[l as usize]);
+            let dr = box_d2(&self.nodes[r as usize]);
+            // The nearer child is popped first.
+            if dl <= dr {
+                stack.push((r, dr));
+                stack.push((l, dl));
+            } else {
+                stack.push((l, dl));
+                stack.push((r, dr));
             }
         }
         best
@@ -1002,6 +1049,43 @@ mod tests {
             values,
             distance: false,
         }
+    }
+
+    /// The hierarchy finds the same nearest triangle as a look at every one, for points inside,
+    /// on and outside a surface of 768 triangles.
+    #[test]
+    fn boundary_distance_matches_brute_force() {
+        let (mut points, mut tets) = (Vec::new(), Vec::new());
+        for c in 0..64u32 {
+            let o = [
+                f64::from(c % 4),
+                f64::from(c / 4 % 4),
+                f64::from(c / 16) * 0.7,
+            ];
+            let (p, t) = crate::resample::base::box6(o, [o[0] + 1.0, o[1] + 0.9, o[2] + 0.5]);
+            let base = points.len() as u32;
+            points.extend(p);
+            tets.extend(t.iter().map(|t| t.map(|v| v + base)));
+        }
+        let d = BoundaryDistance::new(&points, &tets);
+        assert_eq!(d.tris.len(), 64 * 12);
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let p = [next() * 6.0 - 1.0, next() * 6.0 - 1.0, next() * 4.0 - 1.0];
+            let brute = d
+                .tris
+                .iter()
+                .map(|q| point_triangle_distance(p, q[0], q[1], q[2]))
+                .fold(f64::INFINITY, f64::min);
+            assert_eq!(d.distance(p), brute, "at {p:?}");
+        }
+        assert_eq!(d.distance(points[5]), 0.0);
     }
 
     #[test]
