@@ -3,7 +3,10 @@
 //! renders a frame per step, sends its view when the camera moves, and after a dropped connection
 //! reconnects and resumes with the ranges it already holds (no node lost, none applied twice).
 //!
-//! The network runs on a tokio task; the frame loop never waits on it longer than its frame period.
+//! The network runs on a tokio task that decodes every message and acknowledges each batch as soon as
+//! it is queued for the frame loop (up to [`INGEST_QUEUE`] messages ahead), so the stream arrives at
+//! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
+//! waits on the network longer than its frame period (not at all once everything has arrived).
 
 use crate::mesh::AdaptiveMesh;
 use crate::select::{Mode, SelectParams, Tolerance};
@@ -299,6 +302,9 @@ struct Net {
     received: Arc<Mutex<BTreeSet<TetId>>>,
 }
 
+/// Decoded messages (batches, mostly) the network task may queue ahead of the frame loop.
+const INGEST_QUEUE: usize = 256;
+
 /// Waits between reconnect attempts: none before the first, then 100 ms times the attempts before.
 const RETRY_STEP: Duration = Duration::from_millis(100);
 
@@ -367,7 +373,7 @@ async fn network(
         let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
             e.to_string()
         } else {
-            loop {
+            'conn: loop {
                 tokio::select! {
                     msg = ws.next() => {
                         let msg = match msg {
@@ -413,9 +419,23 @@ async fn network(
                             flushed.append(&mut deliver);
                             deliver = flushed;
                         }
+                        // a batch is acknowledged once it is in the session's queue, not when the frame
+                        // loop gets to it: ingestion runs at the network's pace, and the queue's bound
+                        // is the backpressure
                         for m in deliver {
+                            let ack = match &m.0 {
+                                ServerMsg::Nodes { seq, .. } => Some(*seq),
+                                _ => None,
+                            };
                             if tx.send(m).await.is_err() {
                                 return Ok(());
+                            }
+                            if let Some(seq) = ack {
+                                let f = encode(&ClientMsg::Ack { seq })
+                                    .map_err(|e| StreamError::Protocol(e.to_string()))?;
+                                if let Err(e) = ws.send(Message::Binary(f.into())).await {
+                                    break 'conn e.to_string();
+                                }
                             }
                         }
                         if !dropped && faults.drop_after_batches.is_some_and(|n| batches >= n) {
@@ -511,8 +531,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         reconnects: Arc::new(AtomicU64::new(0)),
         received: Arc::new(Mutex::new(BTreeSet::new())),
     });
-    // a short queue: unread batches stay in the connection, so the server slows down (backpressure)
-    let (tx, mut rx) = mpsc::channel::<(ServerMsg, u64)>(4);
+    // decoded messages waiting for the frame loop; the network task acknowledges a batch once it is
+    // queued here, so when the queue is full the network waits, the server's window fills and the
+    // server slows down (backpressure)
+    let (tx, mut rx) = mpsc::channel::<(ServerMsg, u64)>(INGEST_QUEUE);
     let (out_tx, out_rx) = mpsc::unbounded_channel::<ClientMsg>();
     let t0 = Instant::now();
     let mut task = rt.spawn(network(
@@ -552,7 +574,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             if args.per_frame > 0 && applied >= args.per_frame {
                 break;
             }
-            let msg = if !got_any || state.is_none() {
+            // once everything has arrived there is nothing to wait for
+            let msg = if state.is_none() || (!got_any && !ended) {
                 let left = if state.is_none() {
                     wait_base.saturating_sub(t0.elapsed())
                 } else {
@@ -624,7 +647,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                             .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?,
                     );
                 }
-                ServerMsg::Nodes { seq, nodes } => {
+                ServerMsg::Nodes { nodes, .. } => {
                     let session = state.as_mut().ok_or_else(|| {
                         StreamError::Protocol("nodes before the base mesh".into())
                     })?;
@@ -640,7 +663,6 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                         received_nodes.extend(nodes.iter().cloned());
                     }
                     applied += nodes.len();
-                    let _ = out_tx.send(ClientMsg::Ack { seq });
                 }
                 ServerMsg::End { .. } => {
                     // re-request whatever was lost on the way (bounded rounds); the missing ids

@@ -383,7 +383,8 @@ async fn a_message_over_the_limit_is_an_error() {
             open(&mut ws, &m, &base).await;
             let tcp = ws.get_mut();
             let mut raw = vec![0x82, 127];
-            raw.extend_from_slice(&(MAX_FRAME_BYTES as u64 + 1).to_be_bytes());
+            // one byte over a whole maximal frame (MAX_FRAME_BYTES and its 4-byte length prefix)
+            raw.extend_from_slice(&(MAX_FRAME_BYTES as u64 + 5).to_be_bytes());
             raw.extend_from_slice(&[0u8; 64]);
             let _ = tcp.write_all(&raw).await;
             let _ = tcp.flush().await;

@@ -74,6 +74,20 @@ pub struct CleanReport {
     pub slivers: usize,
     /// What was done, in words.
     pub notes: Vec<String>,
+    /// The mesh's arrays, in the order the default choice tries them (point scalars, point
+    /// vectors, cell arrays).
+    pub arrays: Vec<ArrayInfo>,
+}
+
+/// One array of the mesh, as `prepare --json` lists it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ArrayInfo {
+    pub name: String,
+    /// `point` or `cell`.
+    pub source: String,
+    pub components: usize,
+    /// Every value (the magnitude of a vector; on the tets' cells for a cell array) is the same.
+    pub constant: bool,
 }
 
 /// A cleaned tet mesh with one scalar per point, ready for point location.
@@ -81,6 +95,10 @@ pub struct ScalarTetMesh {
     pub points: Vec<[f64; 3]>,
     pub tets: Vec<[u32; 4]>,
     pub values: Vec<f64>,
+    /// The scalar is the distance to the boundary (`--field distance`): `prepare`'s point locator computes it at
+    /// each sampled point instead of interpolating `values`, which are zero at every vertex of a
+    /// mesh whose vertices all lie on its boundary.
+    pub distance: bool,
 }
 
 /// How the scalar is chosen.
@@ -211,17 +229,18 @@ fn choose<'m>(m: &'m ImportedMesh, scalar: Option<&str>) -> Result<Choice<'m>, C
             .map(|a| Choice::Cell(a, None))
     };
     let Some(spec) = scalar else {
-        if let Some(a) = m.mesh.point_data.first() {
-            return Ok(Choice::Point(&a.name, &a.values, 1, None));
-        }
-        if let Some(a) = m.point_vectors.first() {
-            return Ok(Choice::Point(&a.name, &a.values, a.components, None));
-        }
-        return m
-            .cell_data
-            .first()
-            .map(|a| Choice::Cell(a, None))
-            .ok_or(CleanError::NoScalars);
+        let (i, _) = default_array(&arrays(m)).ok_or(CleanError::NoScalars)?;
+        let np = m.mesh.point_data.len();
+        let nv = m.point_vectors.len();
+        return Ok(if i < np {
+            let a = &m.mesh.point_data[i];
+            Choice::Point(&a.name, &a.values, 1, None)
+        } else if i < np + nv {
+            let a = &m.point_vectors[i - np];
+            Choice::Point(&a.name, &a.values, a.components, None)
+        } else {
+            Choice::Cell(&m.cell_data[i - np - nv], None)
+        });
     };
     if let Some(c) = find(spec) {
         return Ok(c);
@@ -242,6 +261,59 @@ fn choose<'m>(m: &'m ImportedMesh, scalar: Option<&str>) -> Result<Choice<'m>, C
         name: spec.to_string(),
         available: available(m),
     })
+}
+
+/// Whether every non-NaN value is the same.
+fn is_constant(values: impl IntoIterator<Item = f64>) -> bool {
+    let mut first = None;
+    for v in values.into_iter().filter(|v| !v.is_nan()) {
+        match first {
+            None => first = Some(v),
+            Some(f) if f != v => return false,
+            Some(_) => {}
+        }
+    }
+    true
+}
+
+/// The mesh's arrays in the order the default choice tries them: point scalars, point vectors
+/// (their magnitude), cell arrays (on the cells that gave tets).
+pub fn arrays(m: &ImportedMesh) -> Vec<ArrayInfo> {
+    let info = |name: &str, source: &str, components: usize, constant: bool| ArrayInfo {
+        name: name.to_string(),
+        source: source.to_string(),
+        components,
+        constant,
+    };
+    let mut out = Vec::new();
+    for a in &m.mesh.point_data {
+        out.push(info(
+            &a.name,
+            "point",
+            1,
+            is_constant(a.values.iter().copied()),
+        ));
+    }
+    for a in &m.point_vectors {
+        let mag = component(&a.values, a.components, None);
+        out.push(info(&a.name, "point", a.components, is_constant(mag)));
+    }
+    for a in &m.cell_data {
+        let v = component(&a.values, a.components, None);
+        let on_tets = m.tet_cells.iter().filter_map(|&c| v.get(c).copied());
+        out.push(info(&a.name, "cell", a.components, is_constant(on_tets)));
+    }
+    out
+}
+
+/// The array used without `--scalar`: the first that is not constant, else the first (with
+/// `true`: every array is constant, the store will be blank). `None` without arrays.
+pub fn default_array(arrays: &[ArrayInfo]) -> Option<(usize, bool)> {
+    match arrays.iter().position(|a| !a.constant) {
+        Some(i) => Some((i, false)),
+        None if arrays.is_empty() => None,
+        None => Some((0, true)),
+    }
 }
 
 /// The report's name of a choice: `name`, `name:mag` or `name:K`.
@@ -299,6 +371,40 @@ pub fn clean_import(
         Some(_) => None,
         None => Some(choose(&m, o.scalar)?),
     };
+    report.arrays = arrays(&m);
+    let listed = || {
+        report
+            .arrays
+            .iter()
+            .map(|a| {
+                let constant = if a.constant { ", constant" } else { "" };
+                format!("{} ({}{constant})", a.name, a.source)
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut default_notes = Vec::new();
+    if choice.is_some() && o.scalar.is_none() {
+        if let Some((i, all_constant)) = default_array(&report.arrays) {
+            let name = &report.arrays[i].name;
+            let list = listed();
+            if all_constant {
+                tracing::warn!(
+                    array = %name,
+                    arrays = %list,
+                    "every array of the mesh is constant: the store will be blank"
+                );
+                default_notes.push(format!(
+                    "warning: every array is constant ({list}): \"{name}\" is used and the store will be blank; pass --field distance to view the geometry"
+                ));
+            } else {
+                tracing::info!(array = %name, arrays = %list, "scalar chosen by default");
+                default_notes.push(format!(
+                    "scalar \"{name}\" chosen by default (the first array that is not constant; --scalar NAME picks another); arrays: {list}"
+                ));
+            }
+        }
+    }
 
     // Geometry: orientation, zero-volume and duplicate tets.
     let points = &m.mesh.points;
@@ -383,6 +489,7 @@ pub fn clean_import(
                 .collect()
         }
     };
+    report.notes.extend(default_notes);
     let bad: Vec<usize> = values
         .iter()
         .enumerate()
@@ -463,6 +570,7 @@ pub fn clean_import(
             points: m.mesh.points,
             tets,
             values,
+            distance: o.field.is_some(),
         },
         report,
     ))
@@ -509,90 +617,172 @@ pub fn min_dihedral_deg(p: [[f64; 3]; 4]) -> f64 {
 }
 
 /// Distance from every point to the boundary surface of the tets (the faces that only one tet
-/// has), through a uniform grid of the boundary triangles searched ring by ring.
+/// has); 0 at the points on it. See [`BoundaryDistance`].
 pub fn boundary_distance(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Vec<f64> {
-    let mut faces: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 2);
-    for t in tets {
-        for skip in 0..4 {
-            let mut f = [0u32; 3];
-            let mut k = 0;
-            for (i, &v) in t.iter().enumerate() {
-                if i != skip {
-                    f[k] = v;
-                    k += 1;
-                }
-            }
-            f.sort_unstable();
-            *faces.entry(f).or_default() += 1;
-        }
-    }
-    let mut boundary: Vec<[u32; 3]> = faces
-        .into_iter()
-        .filter(|&(_, c)| c == 1)
-        .map(|(f, _)| f)
-        .collect();
-    boundary.sort_unstable();
-    let mut out = vec![f64::INFINITY; points.len()];
-    if boundary.is_empty() {
+    let d = BoundaryDistance::new(points, tets);
+    if d.tris.is_empty() {
         return vec![0.0; points.len()];
     }
     let mut on_boundary = vec![false; points.len()];
-    for f in &boundary {
+    for f in &d.faces {
         for &v in f {
             on_boundary[v as usize] = true;
         }
     }
-    let (lo, hi) = bbox(points);
-    let res = ((boundary.len() as f64).cbrt().ceil() as usize).clamp(1, 64);
-    let size = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / res as f64).max(1e-300));
-    let cell = |x: f64, a: usize| (((x - lo[a]) / size[a]).floor().max(0.0) as usize).min(res - 1);
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); res * res * res];
-    for (fi, f) in boundary.iter().enumerate() {
-        let q = f.map(|v| points[v as usize]);
-        let c0 = [0, 1, 2].map(|a| cell(q[0][a].min(q[1][a]).min(q[2][a]), a));
-        let c1 = [0, 1, 2].map(|a| cell(q[0][a].max(q[1][a]).max(q[2][a]), a));
-        for k in c0[2]..=c1[2] {
-            for j in c0[1]..=c1[1] {
-                for i in c0[0]..=c1[0] {
-                    bins[i + res * (j + res * k)].push(fi as u32);
-                }
-            }
-        }
-    }
-    let h = size[0].min(size[1]).min(size[2]);
-    for (pi, p) in points.iter().enumerate() {
-        if on_boundary[pi] {
-            out[pi] = 0.0;
-            continue;
-        }
-        let c = [0, 1, 2].map(|a| cell(p[a], a) as i64);
-        let mut best = f64::INFINITY;
-        for r in 0..=res as i64 {
-            for k in c[2] - r..=c[2] + r {
-                for j in c[1] - r..=c[1] + r {
-                    for i in c[0] - r..=c[0] + r {
-                        let ring = (i - c[0]).abs().max((j - c[1]).abs()).max((k - c[2]).abs());
-                        let inside = [i, j, k].iter().all(|&x| x >= 0 && x < res as i64);
-                        if ring != r || !inside {
-                            continue;
-                        }
-                        let bin = &bins[i as usize + res * (j as usize + res * k as usize)];
-                        for &fi in bin {
-                            let f = boundary[fi as usize];
-                            let q = f.map(|v| points[v as usize]);
-                            let d = point_triangle_distance(*p, q[0], q[1], q[2]);
-                            best = best.min(d);
-                        }
+    points
+        .iter()
+        .zip(&on_boundary)
+        .map(|(&p, &on)| if on { 0.0 } else { d.distance(p) })
+        .collect()
+}
+
+/// The boundary surface of a tet mesh (the faces that only one tet has) in a bounding volume
+/// hierarchy (boxes split at the median of the triangles' centroids along their longest axis, at
+/// most 4 triangles a leaf), for the distance from any point to it: nearer boxes first, a box no
+/// nearer than the best triangle so far is skipped. A query costs about `log n` boxes wherever
+/// the point is, deep inside the mesh or next to its surface.
+pub struct BoundaryDistance {
+    faces: Vec<[u32; 3]>,
+    tris: Vec<[[f64; 3]; 3]>,
+    nodes: Vec<BvhNode>,
+}
+
+/// A box of the hierarchy: a leaf holds `tris[start..start + count]`, an inner node (`count` 0)
+/// has its children at `start` and `start + 1`.
+struct BvhNode {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    start: u32,
+    count: u32,
+}
+
+const BVH_LEAF: usize = 4;
+
+impl BoundaryDistance {
+    pub fn new(points: &[[f64; 3]], tets: &[[u32; 4]]) -> Self {
+        let mut faces: HashMap<[u32; 3], u32> = HashMap::with_capacity(tets.len() * 2);
+        for t in tets {
+            for skip in 0..4 {
+                let mut f = [0u32; 3];
+                let mut k = 0;
+                for (i, &v) in t.iter().enumerate() {
+                    if i != skip {
+                        f[k] = v;
+                        k += 1;
                     }
                 }
-            }
-            if best <= r as f64 * h {
-                break;
+                f.sort_unstable();
+                *faces.entry(f).or_default() += 1;
             }
         }
-        out[pi] = best;
+        let mut boundary: Vec<[u32; 3]> = faces
+            .into_iter()
+            .filter(|&(_, c)| c == 1)
+            .map(|(f, _)| f)
+            .collect();
+        boundary.sort_unstable();
+        let mut tris: Vec<[[f64; 3]; 3]> = boundary
+            .iter()
+            .map(|f| f.map(|v| points[v as usize]))
+            .collect();
+        let mut nodes = Vec::with_capacity(2 * tris.len() / BVH_LEAF + 1);
+        if !tris.is_empty() {
+            nodes.push(BvhNode {
+                lo: [0.0; 3],
+                hi: [0.0; 3],
+                start: 0,
+                count: 0,
+            });
+            // (node, range of tris): the range is sorted in place, children appended in pairs.
+            let mut todo = vec![(0usize, 0usize, tris.len())];
+            while let Some((node, a, b)) = todo.pop() {
+                let (lo, hi) = bbox(tris[a..b].iter().flatten());
+                nodes[node].lo = lo;
+                nodes[node].hi = hi;
+                if b - a <= BVH_LEAF {
+                    nodes[node].start = a as u32;
+                    nodes[node].count = (b - a) as u32;
+                    continue;
+                }
+                let centroid = |t: &[[f64; 3]; 3], k: usize| t[0][k] + t[1][k] + t[2][k];
+                let (clo, chi) = bbox(
+                    tris[a..b]
+                        .iter()
+                        .map(|t| [0, 1, 2].map(|k| centroid(t, k)))
+                        .collect::<Vec<_>>()
+                        .iter(),
+                );
+                let axis = (0..3)
+                    .max_by(|&x, &y| (chi[x] - clo[x]).total_cmp(&(chi[y] - clo[y])))
+                    .unwrap_or(0);
+                let mid = (b - a) / 2;
+                tris[a..b].select_nth_unstable_by(mid, |s, t| {
+                    centroid(s, axis).total_cmp(&centroid(t, axis))
+                });
+                let child = nodes.len();
+                for _ in 0..2 {
+                    nodes.push(BvhNode {
+                        lo: [0.0; 3],
+                        hi: [0.0; 3],
+                        start: 0,
+                        count: 0,
+                    });
+                }
+                nodes[node].start = child as u32;
+                todo.push((child, a, a + mid));
+                todo.push((child + 1, a + mid, b));
+            }
+        }
+        BoundaryDistance {
+            faces: boundary,
+            tris,
+            nodes,
+        }
     }
-    out
+
+    /// Distance from `p` to the boundary surface (infinite if the mesh has none).
+    pub fn distance(&self, p: [f64; 3]) -> f64 {
+        let box_d2 = |n: &BvhNode| {
+            (0..3)
+                .map(|k| {
+                    let d = (n.lo[k] - p[k]).max(p[k] - n.hi[k]).max(0.0);
+                    d * d
+                })
+                .sum::<f64>()
+        };
+        let mut best = f64::INFINITY;
+        let mut best2 = f64::INFINITY;
+        let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
+        if let Some(root) = self.nodes.first() {
+            stack.push((0, box_d2(root)));
+        }
+        while let Some((ni, d2)) = stack.pop() {
+            if d2 >= best2 {
+                continue;
+            }
+            let n = &self.nodes[ni as usize];
+            if n.count > 0 {
+                let (a, b) = (n.start as usize, (n.start + n.count) as usize);
+                for q in &self.tris[a..b] {
+                    best = best.min(point_triangle_distance(p, q[0], q[1], q[2]));
+                }
+                best2 = best * best;
+                continue;
+            }
+            let (l, r) = (n.start, n.start + 1);
+            let dl = box_d2(&self.nodes[l as usize]);
+            let dr = box_d2(&self.nodes[r as usize]);
+            // The nearer child is popped first.
+            if dl <= dr {
+                stack.push((r, dr));
+                stack.push((l, dl));
+            } else {
+                stack.push((l, dl));
+                stack.push((r, dr));
+            }
+        }
+        best
+    }
 }
 
 /// Distance from `p` to the triangle `abc` (Ericson, Real-Time Collision Detection, 5.1.5).
@@ -642,7 +832,7 @@ fn point_triangle_distance(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -
     ])
 }
 
-pub fn bbox(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+pub fn bbox<'p>(points: impl IntoIterator<Item = &'p [f64; 3]>) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in points {
@@ -671,4 +861,41 @@ mod tests {
     }
 
     use super::*;
+
+    /// The hierarchy finds the same nearest triangle as a look at every one, for points inside,
+    /// on and outside a surface of 768 triangles.
+    #[test]
+    fn boundary_distance_matches_brute_force() {
+        let (mut points, mut tets) = (Vec::new(), Vec::new());
+        for c in 0..64u32 {
+            let o = [
+                f64::from(c % 4),
+                f64::from(c / 4 % 4),
+                f64::from(c / 16) * 0.7,
+            ];
+            let (p, t) = tetwave_protocol::shapes::box6(o, [o[0] + 1.0, o[1] + 0.9, o[2] + 0.5]);
+            let base = points.len() as u32;
+            points.extend(p);
+            tets.extend(t.iter().map(|t| t.map(|v| v + base)));
+        }
+        let d = BoundaryDistance::new(&points, &tets);
+        assert_eq!(d.tris.len(), 64 * 12);
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let p = [next() * 6.0 - 1.0, next() * 6.0 - 1.0, next() * 4.0 - 1.0];
+            let brute = d
+                .tris
+                .iter()
+                .map(|q| point_triangle_distance(p, q[0], q[1], q[2]))
+                .fold(f64::INFINITY, f64::min);
+            assert_eq!(d.distance(p), brute, "at {p:?}");
+        }
+        assert_eq!(d.distance(points[5]), 0.0);
+    }
 }

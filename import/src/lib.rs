@@ -9,7 +9,7 @@
 //! | --- | --- | --- |
 //! | `.vtu` (VTK XML `UnstructuredGrid`) | ascii, inline binary (base64), appended raw and base64, zlib or none, `UInt32`/`UInt64` headers, either byte order, several pieces; point and cell arrays | `vtk/`: `quick-xml` tokenizer, `flate2` inflate, the rest ours |
 //! | `.vtk` (legacy `UNSTRUCTURED_GRID`) | versions 2.0 to 5.1, ascii and binary; `POINT_DATA`/`CELL_DATA` `SCALARS`, `VECTORS`, `NORMALS` and `FIELD` arrays | `vtk/legacy.rs`: ours |
-//! | `.msh` (gmsh) | 1.0, 2.2 and 4.1, ascii and binary (2.2, 4.1); `$NodeData`, `$ElementData` | `msh.rs`: ours |
+//! | `.msh` (gmsh) | 1.0, 2.2 and 4.1, ascii and binary (2.2, 4.1); `$NodeData`, `$ElementData`; element tags as `gmsh:physical`, `gmsh:geometrical` | `msh.rs`: ours |
 //! | `.mesh` (Medit) | ascii; element references as the cell array `ref` | `medit.rs`: ours |
 //!
 //! Cells: linear tets are kept; higher-order tets give their corner tet; hexahedra, wedges and

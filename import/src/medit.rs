@@ -7,6 +7,15 @@
 //! references become the cell array `ref`. Other known sections (`Corners`, `Ridges`, `Normals`,
 //! ...) are read past; an unknown keyword is an error, since its size is not known. `#` starts a
 //! comment. The binary `.meshb` is not read.
+//!
+//! A missing final `End` (meshio reads such files) is accepted only when the file could not have
+//! been cut short inside a record: every section read in full (each declared count of records
+//! read), the file ending in whitespace (a line end) after its last record, so that its last
+//! number cannot be the prefix of a longer one, and at least one volume element section read.
+//! Otherwise it is an error: a truncation inside a section, in the middle of a number or a keyword,
+//! or before any volume element is refused. A file cut exactly at a section boundary after its
+//! volume elements (e.g. before a trailing `Triangles` section) cannot be told from a complete file
+//! without `End`; it is read with the sections it has.
 
 use super::cells::{check_nodes, Cell, Shape};
 use super::lex::{capacity, point_index, show, Bad, Lex, Res};
@@ -171,10 +180,14 @@ pub(super) fn parse_medit(bytes: &[u8]) -> Res<ImportedMesh> {
     }
     let _ = dim;
     if !ended {
-        return Err(Bad::new(
-            "End",
-            "file is truncated: no End keyword".to_string(),
-        ));
+        let has_volume = cells.iter().any(|c| matches!(c.0, Cell::Volume { .. }));
+        if !bytes.last().is_some_and(u8::is_ascii_whitespace) || !has_volume {
+            return Err(Bad::new(
+                "End",
+                "file is truncated: no End keyword (a file without End must end with a line end after complete sections, volume elements among them)",
+            ));
+        }
+        tracing::warn!("Medit file without End keyword: every section is complete, read as is");
     }
     let points = points.ok_or_else(|| Bad::new("Vertices", "the file has no Vertices section"))?;
     let np = points.len();

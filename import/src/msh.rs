@@ -13,8 +13,13 @@
 //!   scalars; more: point vectors) named by their first string tag (a later block with the same
 //!   name, e.g. another time step, gets `#2`, `#3`... appended); partial blocks are skipped.
 //!   `$ElementData` blocks become cell arrays if every volume element has a value.
-//! - Other sections (`$Entities`, `$PhysicalNames`, ...) are skipped by looking for their `$End`
-//!   line. gmsh 4.0 and 3.x are refused.
+//! - Element tags become cell arrays as meshio names them: `gmsh:physical` (the physical group)
+//!   and `gmsh:geometrical` (the elementary entity). In 1.0 and 2.2 they are the element's first
+//!   two tags; in 4.1 the geometrical tag is the block's entity and the physical one the entity's
+//!   first physical tag in `$Entities`. An array is kept when every volume element has a value
+//!   (other elements without one get NaN).
+//! - Other sections (`$PhysicalNames`, ...) are skipped by looking for their `$End` line. gmsh
+//!   4.0 and 3.x are refused.
 
 use std::collections::HashMap;
 
@@ -92,6 +97,29 @@ struct Raw {
     nodes: Vec<u64>,
     node_data: Vec<TagData>,
     element_data: Vec<TagData>,
+    /// Per element, in file order: its physical and geometrical tags.
+    cell_tags: Vec<Tags>,
+    /// 4.1 `$Entities`: (dimension, entity tag) → its first physical tag.
+    entities: HashMap<(i64, i64), i64>,
+}
+
+/// An element's tags: 1.0 and 2.2 give them on the element; 4.1 gives the entity (dimension and
+/// tag) whose physical tag `$Entities` holds.
+#[derive(Debug, Clone, Copy, Default)]
+struct Tags {
+    physical: Option<i64>,
+    geometrical: Option<i64>,
+    entity_dim: Option<i64>,
+}
+
+impl Tags {
+    fn of(tags: &[i64]) -> Tags {
+        Tags {
+            physical: tags.first().copied(),
+            geometrical: tags.get(1).copied(),
+            entity_dim: None,
+        }
+    }
 }
 
 fn parse_num<T: std::str::FromStr>(tok: &[u8]) -> Option<T> {
@@ -285,6 +313,7 @@ pub(super) fn parse_msh(bytes: &[u8]) -> Res<ImportedMesh> {
             ("Nodes", Version::V41) => nodes_v41(&mut m, &mut raw)?,
             ("Elements", Version::V2) => elements_v2(&mut m, &mut raw)?,
             ("Elements", Version::V41) => elements_v41(&mut m, &mut raw)?,
+            ("Entities", Version::V41) => entities_v41(&mut m, &mut raw)?,
             ("NodeData", _) => tag_data(&mut m, &mut raw, false)?,
             ("ElementData", _) => tag_data(&mut m, &mut raw, true)?,
             _ => {
@@ -338,7 +367,14 @@ fn nodes_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
     Ok(())
 }
 
-fn push_element(m: &Msh<'_>, raw: &mut Raw, tag: u64, ty: i64, nodes: &[i64]) -> Res<()> {
+fn push_element(
+    m: &Msh<'_>,
+    raw: &mut Raw,
+    tag: u64,
+    ty: i64,
+    nodes: &[i64],
+    tags: Tags,
+) -> Res<()> {
     let kind = gmsh_cell(ty);
     let start = raw.nodes.len();
     if let Cell::Volume { .. } = kind {
@@ -354,6 +390,7 @@ fn push_element(m: &Msh<'_>, raw: &mut Raw, tag: u64, ty: i64, nodes: &[i64]) ->
         }
     }
     raw.cells.push((tag, kind, start, raw.nodes.len() - start));
+    raw.cell_tags.push(tags);
     Ok(())
 }
 
@@ -376,7 +413,8 @@ fn elements_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
                         "element {num} has {ntags} tags but its line is shorter"
                     ))
                 })?;
-            push_element(m, raw, num.unsigned_abs(), ty, nodes)?;
+            let tags = rec.get(3..rec.len() - nodes.len()).unwrap_or_default();
+            push_element(m, raw, num.unsigned_abs(), ty, nodes, Tags::of(tags))?;
         }
         return Ok(());
     }
@@ -412,7 +450,9 @@ fn elements_v2(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
                 rec.push(m.int("an element")?);
             }
             let num = rec.first().copied().unwrap_or(0).unsigned_abs();
-            push_element(m, raw, num, ty, rec.get(words - nn..).unwrap_or_default())?;
+            let tags = Tags::of(rec.get(1..1 + ntags).unwrap_or_default());
+            let nodes = rec.get(words - nn..).unwrap_or_default();
+            push_element(m, raw, num, ty, nodes, tags)?;
         }
         done += follow;
     }
@@ -473,9 +513,14 @@ fn elements_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
     let _max = m.size_t("the maximum element tag")?;
     let mut total = 0usize;
     for _ in 0..blocks {
-        let _dim = m.int("an entity dimension")?;
-        let _entity = m.int("an entity tag")?;
+        let dim = m.int("an entity dimension")?;
+        let entity = m.int("an entity tag")?;
         let ty = m.int("an element type")?;
+        let tags = Tags {
+            physical: None,
+            geometrical: Some(entity),
+            entity_dim: Some(dim),
+        };
         let k = m.count("the number of elements in a block")?;
         if k > n - total {
             return Err(m.bad(format!(
@@ -497,14 +542,14 @@ fn elements_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
                     rec.push(i64::try_from(v).unwrap_or(-1));
                 }
                 let tag = rec.first().copied().unwrap_or(0).unsigned_abs();
-                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default())?;
+                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default(), tags)?;
             }
         } else {
             let _ = m.lx.line();
             for _ in 0..k {
                 let rec = m.record_line("an element")?;
                 let tag = rec.first().copied().unwrap_or(0).unsigned_abs();
-                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default())?;
+                push_element(m, raw, tag, ty, rec.get(1..).unwrap_or_default(), tags)?;
             }
         }
         total += k;
@@ -513,6 +558,44 @@ fn elements_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
         return Err(m.bad(format!(
             "the header announces {n} elements but the blocks hold {total}"
         )));
+    }
+    Ok(())
+}
+
+/// 4.1 `$Entities`: points, curves, surfaces and volumes with their physical tags (the first is
+/// kept); bounding boxes and boundaries are read past.
+fn entities_v41(m: &mut Msh<'_>, raw: &mut Raw) -> Res<()> {
+    let counts = [
+        m.count("the number of points")?,
+        m.count("the number of curves")?,
+        m.count("the number of surfaces")?,
+        m.count("the number of volumes")?,
+    ];
+    for (dim, &n) in counts.iter().enumerate() {
+        // tag, coordinates (a point) or a bounding box, the physical tag count.
+        let least = 4 + if dim == 0 { 24 } else { 48 } + m.size_t;
+        m.need(n, least, "entities")?;
+        for _ in 0..n {
+            let tag = m.int("an entity tag")?;
+            for _ in 0..if dim == 0 { 3 } else { 6 } {
+                m.real("an entity coordinate")?;
+            }
+            let np = m.count("the number of physical tags")?;
+            m.need(np, 4, "physical tags")?;
+            for k in 0..np {
+                let p = m.int("a physical tag")?;
+                if k == 0 {
+                    raw.entities.insert((dim as i64, tag), p);
+                }
+            }
+            if dim > 0 {
+                let nb = m.count("the number of bounding entities")?;
+                m.need(nb, 4, "bounding entities")?;
+                for _ in 0..nb {
+                    m.int("a bounding entity tag")?;
+                }
+            }
+        }
     }
     Ok(())
 }
@@ -709,6 +792,38 @@ fn resolve(raw: Raw) -> Res<ImportedMesh> {
             mesh.cell_data.push(FieldArray { name: unique, ..a });
         }
     }
+    // The physical and geometrical tags, where every volume element has one.
+    let physical = |t: &Tags| match t.entity_dim {
+        Some(dim) => t
+            .geometrical
+            .and_then(|e| raw.entities.get(&(dim, e)).copied()),
+        None => t.physical,
+    };
+    let physicals: Vec<Option<i64>> = raw.cell_tags.iter().map(physical).collect();
+    let geometricals: Vec<Option<i64>> = raw.cell_tags.iter().map(|t| t.geometrical).collect();
+    for (name, tags) in [
+        ("gmsh:physical", physicals),
+        ("gmsh:geometrical", geometricals),
+    ] {
+        let complete = raw
+            .cells
+            .iter()
+            .zip(&tags)
+            .all(|(c, t)| !matches!(c.1, Cell::Volume { .. }) || t.is_some());
+        if !complete || raw.cells.is_empty() {
+            continue;
+        }
+        let values = tags
+            .iter()
+            .map(|t| t.map_or(f64::NAN, |v| v as f64))
+            .collect();
+        let unique = unique_name(name, |u| mesh.cell_data.iter().any(|b| b.name == u));
+        mesh.cell_data.push(FieldArray {
+            name: unique,
+            components: 1,
+            values,
+        });
+    }
     Ok(mesh)
 }
 
@@ -817,7 +932,8 @@ fn parse_msh1(bytes: &[u8]) -> Res<ImportedMesh> {
                             nodes.len()
                         )));
                     }
-                    push_element(&m, &mut raw, num.unsigned_abs(), ty, nodes)?;
+                    let tags = Tags::of(rec.get(2..4).unwrap_or_default());
+                    push_element(&m, &mut raw, num.unsigned_abs(), ty, nodes, tags)?;
                 }
                 expect_end(&mut m, "ELM", "$END")?;
                 has_elements = true;

@@ -198,3 +198,70 @@ fn broken_files_exit_non_zero_with_one_line() {
         expect_error(&fixture(name), &[], needles);
     }
 }
+
+/// Every array constant (a Medit `ref` of zeros): the store is written with a warning on stderr
+/// and in the summary that names the arrays; `--json` lists them.
+#[test]
+fn all_constant_arrays_warn() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("zeros.mesh");
+    std::fs::write(
+        &input,
+        "MeshVersionFormatted 2\nDimension 3\nVertices\n5\n0 0 0 0\n1 0 0 0\n0 1 0 0\n0 0 1 0\n1 1 1 0\n\
+         Tetrahedra\n2\n1 2 3 4 0\n2 3 4 5 0\nEnd\n",
+    )
+    .unwrap();
+    let input = input.to_str().unwrap();
+    let out = out_dir(&d, "o");
+    let (ok, stdout, stderr) = run(&["prepare", input, "--levels", "1", "--out", &out]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("every array of the mesh is constant")
+            && stderr.contains("ref (cell, constant)"),
+        "{stderr}"
+    );
+    assert!(
+        stdout.contains("warning: every array is constant (ref (cell, constant))"),
+        "{stdout}"
+    );
+    let j = prepare(input, &[]);
+    assert_eq!(j["import"]["scalar"], "ref");
+    assert_eq!(j["import"]["arrays"][0]["name"], "ref");
+    assert_eq!(j["import"]["arrays"][0]["source"], "cell");
+    assert_eq!(j["import"]["arrays"][0]["constant"], true);
+}
+
+/// A gmsh 2.2 mesh with two physical groups: `prepare --json` lists `gmsh:physical` and
+/// `gmsh:geometrical`, and `--scalar gmsh:physical` gives the groups' numbers (1 and 2).
+#[test]
+fn gmsh_physical_groups_are_arrays() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("two.msh");
+    std::fs::write(
+        &input,
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 1 1 1\n$EndNodes\n\
+         $Elements\n3\n1 2 2 3 30 2 3 4\n2 4 2 1 10 1 2 3 4\n3 4 2 2 20 2 3 4 5\n$EndElements\n",
+    )
+    .unwrap();
+    let input = input.to_str().unwrap();
+    let j = prepare(input, &["--scalar", "gmsh:physical"]);
+    assert_eq!(j["import"]["scalar"], "gmsh:physical");
+    assert_eq!(j["import"]["scalar_source"], "cell");
+    let names: Vec<&str> = j["import"]["arrays"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["gmsh:physical", "gmsh:geometrical"]);
+    let (lo, hi) = (
+        j["value_range"][0].as_f64().unwrap(),
+        j["value_range"][1].as_f64().unwrap(),
+    );
+    assert!(
+        (lo - 1.0).abs() < 1e-3 && (hi - 2.0).abs() < 1e-3,
+        "{lo} {hi}"
+    );
+    let j = prepare(input, &["--scalar", "gmsh:geometrical"]);
+    assert_eq!(j["import"]["scalar"], "gmsh:geometrical");
+}

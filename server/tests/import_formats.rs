@@ -359,6 +359,105 @@ fn distance_field_for_a_bare_mesh() {
     ));
 }
 
+/// Without `--scalar`, a constant first array (a `node_groups` of zeros) is passed over for the
+/// first array that varies; when every array is constant the first is kept, with a warning that
+/// names them. `arrays` lists them all either way.
+#[test]
+fn default_scalar_skips_constant_arrays() {
+    use tetwave_import::{FieldArray, ScalarArray, TetMesh};
+    let points = cube_points();
+    let mesh = |arrays: Vec<(&str, Vec<f64>)>, cells: Option<Vec<f64>>| {
+        let tm = TetMesh {
+            points: points.clone(),
+            tets: tets(),
+            point_data: arrays
+                .into_iter()
+                .map(|(name, values)| ScalarArray {
+                    name: name.into(),
+                    values,
+                })
+                .collect(),
+            cells_ignored: 0,
+        };
+        let mut m = ImportedMesh::from(tm);
+        if let Some(values) = cells {
+            m.cell_data.push(FieldArray {
+                name: "ref".into(),
+                components: 1,
+                values,
+            });
+        }
+        m
+    };
+    let zeros = vec![0.0; points.len()];
+    let temp: Vec<f64> = points.iter().map(|&p| temperature(p)).collect();
+    let (m, r) = clean_import(
+        mesh(
+            vec![
+                ("node_groups", zeros.clone()),
+                ("temperature", temp.clone()),
+            ],
+            None,
+        ),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "temperature");
+    assert_eq!(m.values, temp);
+    let listed: Vec<(&str, bool)> = r
+        .arrays
+        .iter()
+        .map(|a| (a.name.as_str(), a.constant))
+        .collect();
+    assert_eq!(listed, [("node_groups", true), ("temperature", false)]);
+    assert!(
+        r.notes.iter().any(|n| n.contains("chosen by default") && n.contains("node_groups (point, constant)")),
+        "{:?}",
+        r.notes
+    );
+    // A varying cell array after a constant point array is chosen too.
+    let (_, r) = clean_import(
+        mesh(
+            vec![("node_groups", zeros.clone())],
+            Some((1..=7).map(f64::from).collect()),
+        ),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(
+        (r.scalar.as_str(), r.scalar_source.as_str()),
+        ("ref", "cell")
+    );
+    // Every array constant (Medit's ref of zeros too): the first, with a warning naming them.
+    let (_, r) = clean_import(
+        mesh(vec![("node_groups", zeros.clone())], Some(vec![0.0; 7])),
+        &opts(None),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "node_groups");
+    let warning = r
+        .notes
+        .iter()
+        .find(|n| n.starts_with("warning"))
+        .expect("a warning");
+    assert!(
+        warning.contains("every array is constant")
+            && warning.contains("node_groups (point, constant), ref (cell, constant)"),
+        "{warning}"
+    );
+    // --scalar still picks a constant array without complaint.
+    let (_, r) = clean_import(
+        mesh(vec![("node_groups", zeros), ("temperature", temp)], None),
+        &opts(Some("node_groups")),
+    )
+    .unwrap();
+    assert_eq!(r.scalar, "node_groups");
+    assert!(!r
+        .notes
+        .iter()
+        .any(|n| n.contains("by default") || n.starts_with("warning")));
+}
+
 #[test]
 fn surface_only_mesh_is_refused() {
     let err = clean_import(read("surface_only.msh"), &opts(None))
@@ -415,6 +514,34 @@ fn more_broken_files_fail_with_a_telling_error() {
     }
 }
 
+/// A Medit file whose sections are complete but which lacks `End` is read (meshio reads it); one
+/// cut inside a section, inside the last number, or before its volume elements is still refused.
+#[test]
+fn medit_without_end_is_read_when_every_section_is_complete() {
+    let bytes = std::fs::read(fixture("cube.mesh")).unwrap();
+    let text = String::from_utf8(bytes.clone()).unwrap();
+    let at = text.rfind("End").unwrap();
+    let parse = |b: &[u8]| tetwave_import::parse_mesh(Path::new("cube.mesh"), b, MeshFormat::Medit);
+    let full = parse(&bytes).unwrap();
+    // No End, the file ends with the line end after the last record.
+    let no_end = parse(&bytes[..at]).unwrap();
+    assert_eq!(no_end, full);
+    // The same without the blank line: still a line end after the last record.
+    let trimmed = text[..at].trim_end().to_string() + "\n";
+    assert_eq!(parse(trimmed.as_bytes()).unwrap(), full);
+    // The last number without its line end could be the prefix of a longer one.
+    let err = parse(text[..at].trim_end().as_bytes()).unwrap_err();
+    assert!(err.to_string().contains("no End keyword"), "{err}");
+    // Cut inside the Tetrahedra section (after a whole line): a count is not read in full.
+    let tets_at = text.find("Tetrahedra").unwrap();
+    let line2 = tets_at + text[tets_at..].match_indices('\n').nth(2).unwrap().0 + 1;
+    let err = parse(&bytes[..line2]).unwrap_err();
+    assert!(err.to_string().contains("truncated"), "{err}");
+    // Cut after the vertices, before any volume element: refused.
+    let err = parse(&bytes[..tets_at]).unwrap_err();
+    assert!(err.to_string().contains("no End keyword"), "{err}");
+}
+
 #[test]
 fn new_fixtures_survive_truncation() {
     for name in [
@@ -469,5 +596,216 @@ fn new_fixtures_corrupted_never_panic() {
                 Err(e) => assert!(matches!(e, ImportError::Malformed { .. }), "{e:?}"),
             }
         }
+    }
+}
+
+/// Two tets in two physical groups (1: elementary 10, 2: elementary 20) and a triangle (3, 30),
+/// in every gmsh variant the reader takes, written here byte by byte.
+fn two_groups_msh() -> Vec<(&'static str, Vec<u8>)> {
+    const P: [[f64; 3]; 5] = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 1.0, 1.0],
+    ];
+    let i = |b: &mut Vec<u8>, v: i32| b.extend_from_slice(&v.to_le_bytes());
+    let z = |b: &mut Vec<u8>, v: u64| b.extend_from_slice(&v.to_le_bytes());
+    let f = |b: &mut Vec<u8>, v: f64| b.extend_from_slice(&v.to_le_bytes());
+    let s = |b: &mut Vec<u8>, t: &str| b.extend_from_slice(t.as_bytes());
+    let nodes_ascii: String = P
+        .iter()
+        .enumerate()
+        .map(|(k, p)| format!("{} {} {} {}\n", k + 1, p[0], p[1], p[2]))
+        .collect();
+    let v10 = format!(
+        "$NOD\n5\n{nodes_ascii}$ENDNOD\n$ELM\n3\n1 2 3 30 3 2 3 4\n2 4 1 10 4 1 2 3 4\n3 4 2 20 4 2 3 4 5\n$ENDELM\n"
+    );
+    let v22 = format!(
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$PhysicalNames\n2\n3 1 \"inner\"\n3 2 \"outer\"\n$EndPhysicalNames\n\
+         $Nodes\n5\n{nodes_ascii}$EndNodes\n$Elements\n3\n1 2 2 3 30 2 3 4\n2 4 2 1 10 1 2 3 4\n3 4 2 2 20 2 3 4 5\n$EndElements\n"
+    );
+    let mut b22 = Vec::new();
+    s(&mut b22, "$MeshFormat\n2.2 1 8\n");
+    i(&mut b22, 1);
+    s(&mut b22, "\n$EndMeshFormat\n$Nodes\n5\n");
+    for (k, p) in P.iter().enumerate() {
+        i(&mut b22, k as i32 + 1);
+        p.iter().for_each(|&x| f(&mut b22, x));
+    }
+    s(&mut b22, "\n$EndNodes\n$Elements\n3\n");
+    for v in [
+        vec![2, 1, 2, 1, 3, 30, 2, 3, 4],
+        vec![4, 2, 2, 2, 1, 10, 1, 2, 3, 4, 3, 2, 20, 2, 3, 4, 5],
+    ] {
+        v.iter().for_each(|&x| i(&mut b22, x));
+    }
+    s(&mut b22, "\n$EndElements\n");
+    let v41 = format!(
+        "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Entities\n0 0 1 2\n30 0 0 0 1 1 1 1 3 0\n\
+         10 0 0 0 1 1 1 1 1 1 30\n20 0 0 0 1 1 1 1 2 1 -30\n$EndEntities\n\
+         $Nodes\n1 5 1 5\n3 10 0 5\n1\n2\n3\n4\n5\n{}$EndNodes\n\
+         $Elements\n3 3 1 3\n2 30 2 1\n1 2 3 4\n3 10 4 1\n2 1 2 3 4\n3 20 4 1\n3 2 3 4 5\n$EndElements\n",
+        P.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect::<String>()
+    );
+    let mut b41 = Vec::new();
+    s(&mut b41, "$MeshFormat\n4.1 1 8\n");
+    i(&mut b41, 1);
+    s(&mut b41, "\n$EndMeshFormat\n$Entities\n");
+    [0, 0, 1, 2].iter().for_each(|&n| z(&mut b41, n));
+    for (tag, phys, bound) in [(30, 3, None), (10, 1, Some(30)), (20, 2, Some(-30))] {
+        i(&mut b41, tag);
+        [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
+            .iter()
+            .for_each(|&x| f(&mut b41, x));
+        z(&mut b41, 1);
+        i(&mut b41, phys);
+        match bound {
+            None => z(&mut b41, 0),
+            Some(t) => {
+                z(&mut b41, 1);
+                i(&mut b41, t);
+            }
+        }
+    }
+    s(&mut b41, "\n$EndEntities\n$Nodes\n");
+    [1, 5, 1, 5].iter().for_each(|&n| z(&mut b41, n));
+    [3, 10, 0].iter().for_each(|&n| i(&mut b41, n));
+    z(&mut b41, 5);
+    (1..=5).for_each(|k| z(&mut b41, k));
+    P.iter().flatten().for_each(|&x| f(&mut b41, x));
+    s(&mut b41, "\n$EndNodes\n$Elements\n");
+    [3, 3, 1, 3].iter().for_each(|&n| z(&mut b41, n));
+    for (dim, ent, ty, rec) in [
+        (2, 30, 2, vec![1u64, 2, 3, 4]),
+        (3, 10, 4, vec![2, 1, 2, 3, 4]),
+        (3, 20, 4, vec![3, 2, 3, 4, 5]),
+    ] {
+        [dim, ent, ty].iter().for_each(|&n| i(&mut b41, n));
+        z(&mut b41, 1);
+        rec.iter().for_each(|&n| z(&mut b41, n));
+    }
+    s(&mut b41, "\n$EndElements\n");
+    vec![
+        ("1.0", v10.into_bytes()),
+        ("2.2 ascii", v22.into_bytes()),
+        ("2.2 binary", b22),
+        ("4.1 ascii", v41.into_bytes()),
+        ("4.1 binary", b41),
+    ]
+}
+
+/// gmsh physical and elementary tags become the cell arrays `gmsh:physical` and
+/// `gmsh:geometrical` (one value per element, the triangle's too) in 1.0, 2.2 and 4.1, ascii and
+/// binary; the default scalar is the physical group, which varies.
+#[test]
+fn gmsh_tags_become_cell_arrays() {
+    for (variant, bytes) in two_groups_msh() {
+        let m = tetwave_import::parse_mesh(Path::new("two.msh"), &bytes, MeshFormat::Msh)
+            .unwrap_or_else(|e| panic!("{variant}: {e}"));
+        assert_eq!(m.mesh.tets, [[0, 1, 2, 3], [1, 2, 3, 4]], "{variant}");
+        assert_eq!(m.tet_cells, [1, 2], "{variant}");
+        let names: Vec<&str> = m.cell_data.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names, ["gmsh:physical", "gmsh:geometrical"], "{variant}");
+        assert_eq!(
+            cell_array(&m, "gmsh:physical"),
+            [3.0, 1.0, 2.0],
+            "{variant}"
+        );
+        assert_eq!(
+            cell_array(&m, "gmsh:geometrical"),
+            [30.0, 10.0, 20.0],
+            "{variant}"
+        );
+        let (_, r) = clean_import(m, &opts(None)).unwrap();
+        assert_eq!(r.scalar, "gmsh:physical", "{variant}");
+    }
+}
+
+/// `--field distance` on meshes whose every vertex lies on the boundary (one big tet; a slab of
+/// 6 Kuhn tets): zero at every input vertex, yet the resampled field is the exact distance to the
+/// boundary at every lattice vertex inside, since it is computed there and not interpolated.
+#[test]
+fn distance_field_is_computed_at_the_resampled_vertices() {
+    use tetwave_import::TetMesh;
+    use tetwave_server::resample::unstructured::{bbox, Locator};
+    use tetwave_server::resample::{resample, BaseSpec, Source};
+    let s3 = 3f64.sqrt();
+    let tet = |p: [f64; 3]| (p[0].min(p[1]).min(p[2])).min((1.0 - p[0] - p[1] - p[2]) / s3);
+    let slab = |p: [f64; 3]| {
+        [p[0], 4.0 - p[0], p[1], 4.0 - p[1], p[2], 1.0 - p[2]]
+            .into_iter()
+            .fold(f64::INFINITY, f64::min)
+    };
+    let (slab_points, slab_tets) = tetwave_server::resample::base::box6([0.0; 3], [4.0, 4.0, 1.0]);
+    /// Name, points, tets and the exact distance to the boundary.
+    type Case<'a> = (
+        &'a str,
+        Vec<[f64; 3]>,
+        Vec<[u32; 4]>,
+        &'a dyn Fn([f64; 3]) -> f64,
+    );
+    let cases: [Case; 2] = [
+        (
+            "tet",
+            vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            vec![[0, 1, 2, 3]],
+            &tet,
+        ),
+        ("slab", slab_points, slab_tets, &slab),
+    ];
+    for (name, points, tets, exact) in cases {
+        let m = ImportedMesh::from(TetMesh {
+            points,
+            tets,
+            ..TetMesh::default()
+        });
+        let o = ImportOptions {
+            field: Some("distance"),
+            ..opts(None)
+        };
+        let (clean, _) = clean_import(m, &o).unwrap();
+        assert!(
+            clean.values.iter().all(|&v| v == 0.0),
+            "{name}: every vertex is on the boundary"
+        );
+        let loc = Locator::new(&clean);
+        for p in [
+            [0.1, 0.2, 0.3],
+            [0.2, 0.2, 0.2],
+            [0.25, 0.25, 0.25],
+            [0.05, 0.1, 0.02],
+        ] {
+            let d = loc.sample(p).expect("inside");
+            assert!(
+                (d - exact(p)).abs() < 1e-12,
+                "{name} at {p:?}: {d} vs {}",
+                exact(p)
+            );
+        }
+        assert_eq!(loc.sample([2.0, 2.0, 2.0]), None, "{name}");
+        let bounds = bbox(&clean.points);
+        let r = resample(&Source::Mesh(Box::new(loc), bounds), &BaseSpec::Box6, 3).unwrap();
+        let (mut inside, mut positive) = (0, 0);
+        for (e, _) in r.keys.entities() {
+            r.keys.for_each_in(e, |key, t, w| {
+                let v = r.samples[key as usize];
+                if v.is_nan() {
+                    return;
+                }
+                let p = r.base.position(t, &w);
+                let want = exact(p).max(0.0);
+                assert!(
+                    (f64::from(v) - want).abs() < 1e-6,
+                    "{name}: lattice vertex {p:?}: {v} vs {want}"
+                );
+                inside += 1;
+                positive += usize::from(v > 0.0);
+            });
+        }
+        assert!(
+            positive > 0 && inside > positive,
+            "{name}: {positive} of {inside} positive"
+        );
     }
 }

@@ -2,7 +2,8 @@
 //! `scripts/charts.py` and `scripts/progressive-table.py` on its JSON lines: every run carries its
 //! drawn frames (render ms, PSNR against the full-resolution reference), the chart script turns them
 //! into SVG charts and the table script prints the memory per tet by part.
-//! Needs `python3` (installed by `scripts/setup`); fails if it cannot run.
+//! Needs `python3` and the venv `.venv` with matplotlib (both from `scripts/setup`); fails if they
+//! cannot run.
 
 mod common;
 
@@ -54,27 +55,27 @@ fn render_every_feeds_the_charts() {
     std::fs::write(&jsonl, lines).unwrap();
     let charts = d.path().join("charts");
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/charts.py");
-    let out = Command::new("python3")
+    let python = concat!(env!("CARGO_MANIFEST_DIR"), "/../.venv/bin/python");
+    let out = Command::new(python)
         .args([script, "progressive"])
         .arg(&jsonl)
         .arg(&charts)
         .output()
-        .unwrap_or_else(|e| panic!("python3 cannot run ({e}); scripts/setup installs it"));
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    for name in [
-        "progressive-psnr-vs-frame-ms.svg",
-        "progressive-psnr-by-step.svg",
+        .unwrap_or_else(|e| panic!("{python} cannot run ({e}); scripts/setup creates it"));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    // one point per tolerance, or per drawn frame of every run
+    for (name, points) in [
+        ("progressive-psnr-vs-frame-ms.svg", 3),
+        ("progressive-psnr-by-step.svg", 12),
     ] {
         let svg = std::fs::read_to_string(charts.join(name)).unwrap();
-        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        // one point per tolerance, or per drawn frame of every run
-        let points = svg.matches("<circle").count();
-        let want = if name.contains("by-step") { 12 } else { 3 };
-        assert_eq!(points, want, "{name}");
+        assert!(svg.contains("<svg") && svg.trim_end().ends_with("</svg>"));
+        let line = log
+            .lines()
+            .find(|l| l.contains(name))
+            .unwrap_or_else(|| panic!("no report of {name}:\n{log}"));
+        assert!(line.contains(&format!(": {points} points in ")), "{line}");
     }
 
     // the memory table: mesh, buffer and selector bytes per average tet, and their sum

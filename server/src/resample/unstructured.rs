@@ -1,5 +1,6 @@
 //! Unstructured tetrahedral input: point location through a uniform grid of tet bounding boxes, with
-//! barycentric interpolation. The cleaning (scalar choice, orientation, degenerate tets) is
+//! barycentric interpolation (or, with `--field distance`, the distance to the boundary at each
+//! point). The cleaning (scalar choice, orientation, degenerate tets) is
 //! [`tetwave_import::clean`], shared with `tetwave render <mesh>`.
 //!
 //! Points outside the input's domain (a non-convex mesh leaves parts of its bounding box empty) are
@@ -7,8 +8,9 @@
 //! (see `resample` for the rule).
 
 pub use tetwave_import::clean::{
-    bbox, boundary_distance, clean, clean_import, min_dihedral_deg, CleanError, CleanReport,
-    ImportOptions, ScalarTetMesh, SLIVER_DEGREES,
+    arrays, bbox, boundary_distance, clean, clean_import, default_array, min_dihedral_deg,
+    ArrayInfo, BoundaryDistance, CleanError, CleanReport, ImportOptions, ScalarTetMesh,
+    SLIVER_DEGREES,
 };
 
 /// Point location in a tet mesh: a uniform grid over the bounding box whose cells list the tets whose
@@ -26,6 +28,8 @@ pub struct Locator {
     values: Vec<f64>,
     /// Tolerance on barycentric coordinates for points on faces.
     eps: f64,
+    /// For `--field distance`: the boundary, to which the distance is computed at each point.
+    boundary: Option<BoundaryDistance>,
 }
 
 impl Locator {
@@ -105,10 +109,14 @@ impl Locator {
             tets: mesh.tets.clone(),
             values: mesh.values.clone(),
             eps: 1e-9,
+            boundary: mesh
+                .distance
+                .then(|| BoundaryDistance::new(&mesh.points, &mesh.tets)),
         }
     }
 
-    /// Interpolated value at `p`, or `None` outside the mesh.
+    /// Interpolated value at `p` (with `distance`, the distance from `p` to the boundary), or
+    /// `None` outside the mesh.
     pub fn sample(&self, p: [f64; 3]) -> Option<f64> {
         let mut c = [0usize; 3];
         for a in 0..3 {
@@ -141,6 +149,9 @@ impl Locator {
             }
         }
         let (_, ti, l) = best?;
+        if let Some(b) = &self.boundary {
+            return Some(b.distance(p));
+        }
         let t = self.tets[ti];
         let l = l.map(|x| x.max(0.0));
         let sum: f64 = l.iter().sum();
@@ -189,6 +200,7 @@ mod tests {
             points,
             tets,
             values,
+            distance: false,
         }
     }
 
