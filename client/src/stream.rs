@@ -25,6 +25,7 @@ use tetwave_protocol::wire::{
     decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES, MAX_RANGES,
     PROTOCOL_VERSION,
 };
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::{GpuContext, RenderError};
@@ -302,6 +303,57 @@ struct Net {
     received: Arc<Mutex<BTreeSet<TetId>>>,
 }
 
+/// A server message as the frame loop takes it: node blocks already decoded (on the network
+/// task, so the frame loop never waits on decoding).
+#[derive(Debug, Clone)]
+enum Delivery {
+    Manifest(Box<Manifest>),
+    Base(Box<BaseMesh>),
+    Nodes { seq: u64, nodes: Vec<DetailNode> },
+    End,
+    Error { code: u16, message: String },
+}
+
+/// Decodes node blocks with the coder of the manifest and base mesh that came before them.
+#[derive(Default)]
+struct BlockDecoder {
+    manifest: Option<Box<Manifest>>,
+    coder: Option<(Box<BaseMesh>, BlockCoder)>,
+}
+
+impl BlockDecoder {
+    fn decode(&mut self, m: ServerMsg) -> Result<Delivery, StreamError> {
+        Ok(match m {
+            ServerMsg::Manifest(m) => {
+                self.manifest = Some(m.clone());
+                Delivery::Manifest(m)
+            }
+            ServerMsg::Base(b) => {
+                // a resumed connection sends the same base again: keep its coder
+                if self.coder.as_ref().is_none_or(|(held, _)| **held != *b) {
+                    let m = self
+                        .manifest
+                        .as_ref()
+                        .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
+                    self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding)));
+                }
+                Delivery::Base(b)
+            }
+            ServerMsg::Nodes { seq, block } => {
+                let (_, coder) = self.coder.as_ref().ok_or_else(|| {
+                    StreamError::Protocol("nodes before the base mesh".into())
+                })?;
+                let nodes = coder
+                    .decode(&block)
+                    .map_err(|e| StreamError::BadFrame(format!("batch {seq}: {e}")))?;
+                Delivery::Nodes { seq, nodes }
+            }
+            ServerMsg::End { .. } => Delivery::End,
+            ServerMsg::Error { code, message } => Delivery::Error { code, message },
+        })
+    }
+}
+
 /// Decoded messages (batches, mostly) the network task may queue ahead of the frame loop.
 const INGEST_QUEUE: usize = 256;
 
@@ -312,7 +364,7 @@ async fn network(
     url: String,
     token: Option<String>,
     net: Arc<Net>,
-    tx: mpsc::Sender<(ServerMsg, u64)>,
+    tx: mpsc::Sender<(Delivery, u64)>,
     mut out: mpsc::UnboundedReceiver<ClientMsg>,
     faults: Faults,
     retries: u32,
@@ -321,7 +373,8 @@ async fn network(
     let mut failures = 0u32;
     let mut dropped = false;
     let mut batches = 0u64;
-    let mut held_back: Vec<(ServerMsg, u64)> = Vec::new();
+    let mut held_back: Vec<(Delivery, u64)> = Vec::new();
+    let mut blocks = BlockDecoder::default();
     // why the last connection ended, once one has
     let mut lost: Option<String> = None;
     // a connect that fails for good: after a lost connection, that loss is the cause
@@ -388,8 +441,9 @@ async fn network(
                         let Message::Binary(bytes) = msg else { continue };
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
+                        let m = blocks.decode(m)?;
                         let mut deliver = vec![(m, bytes.len() as u64)];
-                        if let (ServerMsg::Nodes { nodes, .. }, _) = &deliver[0] {
+                        if let (Delivery::Nodes { nodes, .. }, _) = &deliver[0] {
                             batches += 1;
                             if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
                                 deliver.clear();
@@ -415,7 +469,7 @@ async fn network(
                             }
                         } else {
                             // anything else flushes what was held back, in order of arrival
-                            let mut flushed: Vec<(ServerMsg, u64)> = std::mem::take(&mut held_back);
+                            let mut flushed: Vec<(Delivery, u64)> = std::mem::take(&mut held_back);
                             flushed.append(&mut deliver);
                             deliver = flushed;
                         }
@@ -424,7 +478,7 @@ async fn network(
                         // is the backpressure
                         for m in deliver {
                             let ack = match &m.0 {
-                                ServerMsg::Nodes { seq, .. } => Some(*seq),
+                                Delivery::Nodes { seq, .. } => Some(*seq),
                                 _ => None,
                             };
                             if tx.send(m).await.is_err() {
@@ -534,7 +588,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     // decoded messages waiting for the frame loop; the network task acknowledges a batch once it is
     // queued here, so when the queue is full the network waits, the server's window fills and the
     // server slows down (backpressure)
-    let (tx, mut rx) = mpsc::channel::<(ServerMsg, u64)>(INGEST_QUEUE);
+    let (tx, mut rx) = mpsc::channel::<(Delivery, u64)>(INGEST_QUEUE);
     let (out_tx, out_rx) = mpsc::unbounded_channel::<ClientMsg>();
     let t0 = Instant::now();
     let mut task = rt.spawn(network(
@@ -626,16 +680,16 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             got_any = true;
             bytes_applied += nbytes;
             match msg {
-                ServerMsg::Manifest(m) => manifest = Some(*m),
+                Delivery::Manifest(m) => manifest = Some(*m),
                 // a resumed connection sends the base mesh again: keep what is already built
-                ServerMsg::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
-                ServerMsg::Base(_) if state.is_some() => {
+                Delivery::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
+                Delivery::Base(_) if state.is_some() => {
                     failure = Some(StreamError::Protocol(
                         "the server sent a different base mesh on a resumed connection".into(),
                     ));
                     break 'frames;
                 }
-                ServerMsg::Base(b) => {
+                Delivery::Base(b) => {
                     let m = manifest
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
@@ -647,7 +701,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                             .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?,
                     );
                 }
-                ServerMsg::Nodes { nodes, .. } => {
+                Delivery::Nodes { nodes, .. } => {
                     let session = state.as_mut().ok_or_else(|| {
                         StreamError::Protocol("nodes before the base mesh".into())
                     })?;
@@ -664,7 +718,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     }
                     applied += nodes.len();
                 }
-                ServerMsg::End { .. } => {
+                Delivery::End => {
                     // re-request whatever was lost on the way (bounded rounds); the missing ids
                     // are walked as ranges, in time and memory of what arrived, whatever the
                     // hierarchy's size
@@ -687,7 +741,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                         }
                     }
                 }
-                ServerMsg::Error { code, message } => {
+                Delivery::Error { code, message } => {
                     let e = StreamError::Server { code, message };
                     if state.is_none() {
                         return Err(e);

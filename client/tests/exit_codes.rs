@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::shapes::box5;
+use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::store_format::{Counts, Encoding, Manifest};
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::wire::{
@@ -126,6 +127,12 @@ async fn recv(ws: &mut Ws) -> Option<ClientMsg> {
     }
 }
 
+/// A `Nodes` frame carrying `nodes` coded as the server codes them.
+fn nodes_msg(m: &Manifest, base: &BaseMesh, seq: u64, nodes: &[DetailNode]) -> ServerMsg {
+    let block = BlockCoder::new(base, &m.encoding).encode(nodes).unwrap();
+    ServerMsg::Nodes { seq, block }
+}
+
 async fn send(ws: &mut Ws, m: &ServerMsg) {
     let _ = ws.send(Message::Binary(encode(m).unwrap().into())).await;
 }
@@ -219,50 +226,32 @@ async fn client(addr: SocketAddr, dir: &Path, args: &[&str]) -> Run {
     }
 }
 
-/// A node beyond the hierarchy, after valid ones: the session refuses it, and the run fails
-/// although `--until-complete` is not given and frames are left.
+/// A node claiming a vertex another node owns, after valid ones: the session refuses it, and the
+/// run fails although `--until-complete` is not given and frames are left.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_node_the_session_refuses_is_an_error() {
     let (m, base, nodes) = dataset(2);
-    let n = nodes.len() as u64;
     let srv = fake(1, move |_, mut ws| {
         let (m, base, nodes) = (m.clone(), base.clone(), nodes.clone());
         async move {
             open(&mut ws, &m, &base).await;
-            let good = nodes[..10].to_vec();
-            send(
-                &mut ws,
-                &ServerMsg::Nodes {
-                    seq: 0,
-                    nodes: good,
-                },
-            )
-            .await;
+            // the last node that does not own all its edges, after every node below it (the
+            // owners of its other edges among them), then claiming every edge
+            let k = nodes.iter().rposition(|x| x.owned != 0x3f).unwrap();
+            send(&mut ws, &nodes_msg(&m, &base, 0, &nodes[..k])).await;
             let bad = DetailNode {
-                id: n + 3,
-                owned: 0,
-                empty_children: 0,
-                subtree_max_abs: 0.0,
-                coeffs: vec![],
+                owned: 0x3f,
+                coeffs: vec![0.0; 6],
+                ..nodes[k].clone()
             };
-            send(
-                &mut ws,
-                &ServerMsg::Nodes {
-                    seq: 1,
-                    nodes: vec![bad],
-                },
-            )
-            .await;
+            send(&mut ws, &nodes_msg(&m, &base, 1, &[bad])).await;
             idle(&mut ws).await;
         }
     })
     .await;
     let d = tempfile::tempdir().unwrap();
     let r = client(srv.addr, d.path(), &["--frames", "400", "--retries", "0"]).await;
-    r.assert_fails_with(&[
-        "invalid node",
-        &format!("node {} is beyond the hierarchy's {n} nodes", n + 3),
-    ]);
+    r.assert_fails_with(&["invalid node", "which another node already owns"]);
     // the frames before the failure are kept
     assert!(d.path().join("out/frames.jsonl").exists());
 }
@@ -272,13 +261,18 @@ async fn a_node_the_session_refuses_is_an_error() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frame_the_client_cannot_read_is_an_error() {
     let (m, base, nodes) = dataset(2);
+    let n = nodes.len() as u64;
     let srv = fake(1, move |_, mut ws| {
-        let (m, base, mut nodes) = (m.clone(), base.clone(), nodes.clone());
+        let (m, base) = (m.clone(), base.clone());
         async move {
             open(&mut ws, &m, &base).await;
-            nodes[0].owned = 0b11;
-            nodes[0].coeffs = vec![0.5];
-            send(&mut ws, &ServerMsg::Nodes { seq: 0, nodes }).await;
+            // a block whose nodes lie beyond the hierarchy
+            let block = NodeBlock {
+                count: 2,
+                first: n + 3,
+                bytes: vec![],
+            };
+            send(&mut ws, &ServerMsg::Nodes { seq: 0, block }).await;
             idle(&mut ws).await;
         }
     })
@@ -287,7 +281,7 @@ async fn a_frame_the_client_cannot_read_is_an_error() {
     let r = client(srv.addr, d.path(), &["--frames", "400"]).await;
     r.assert_fails_with(&[
         "unreadable frame from the server",
-        "node 0: 1 coefficients for an owned mask of 2",
+        &format!("node id {} is outside the hierarchy's {n} nodes", n + 3),
     ]);
     assert_eq!(srv.conns.load(Ordering::SeqCst), 1, "no reconnect");
 
@@ -320,14 +314,7 @@ async fn a_connection_lost_before_end_is_an_error() {
             open(&mut ws, &m, &base).await;
             if i == 0 {
                 let first = nodes[..20].to_vec();
-                send(
-                    &mut ws,
-                    &ServerMsg::Nodes {
-                        seq: 0,
-                        nodes: first,
-                    },
-                )
-                .await;
+                send(&mut ws, &nodes_msg(&m, &base, 0, &first)).await;
                 // half a frame: a binary frame header announcing 1000 bytes, 10 of them, then
                 // the socket closes without a close handshake
                 let tcp = ws.get_mut();
@@ -356,14 +343,7 @@ async fn a_connection_lost_before_end_is_an_error() {
         let (m, base, nodes) = (m.clone(), base.clone(), nodes.clone());
         async move {
             open(&mut ws, &m, &base).await;
-            send(
-                &mut ws,
-                &ServerMsg::Nodes {
-                    seq: 0,
-                    nodes: nodes[..5].to_vec(),
-                },
-            )
-            .await;
+            send(&mut ws, &nodes_msg(&m, &base, 0, &nodes[..5])).await;
         }
     })
     .await;
@@ -479,14 +459,7 @@ async fn bounded_and_complete_sessions_succeed() {
         let (m, base, nodes) = (m.clone(), base.clone(), nodes.clone());
         async move {
             open(&mut ws, &m, &base).await;
-            send(
-                &mut ws,
-                &ServerMsg::Nodes {
-                    seq: 0,
-                    nodes: nodes[..5].to_vec(),
-                },
-            )
-            .await;
+            send(&mut ws, &nodes_msg(&m, &base, 0, &nodes[..5])).await;
             idle(&mut ws).await;
         }
     })
@@ -502,7 +475,7 @@ async fn bounded_and_complete_sessions_succeed() {
         let (m, base, nodes) = (m.clone(), base.clone(), nodes.clone());
         async move {
             open(&mut ws, &m, &base).await;
-            send(&mut ws, &ServerMsg::Nodes { seq: 0, nodes }).await;
+            send(&mut ws, &nodes_msg(&m, &base, 0, &nodes)).await;
             send(&mut ws, &ServerMsg::End { nodes_sent: 45 }).await;
             let _ = ws.close(None).await;
         }

@@ -1,12 +1,48 @@
 //! What the fuzz targets check, shared by the libFuzzer target and the stable "smoke" runner:
 //! the wire decoders are total (an error value, never a panic, for any bytes), and a frame that
-//! decodes re-encodes to a frame that decodes to the same bytes again (idempotent round trip).
+//! decodes re-encodes to a frame that decodes to the same bytes again (idempotent round trip); a
+//! `Nodes` frame's block decodes (with the coders of a small hierarchy, lossless and quantized) to
+//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes.
 
 use tetwave_protocol::wire::{
     decode_client, decode_server, encode, frame_len, ClientMsg, IdRange, ServerMsg, ViewParams,
     PROTOCOL_VERSION,
 };
-use tetwave_protocol::DetailNode;
+use std::sync::OnceLock;
+use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::shapes::box5;
+use tetwave_protocol::store_format::Encoding;
+use tetwave_protocol::{BaseMesh, DetailNode};
+
+/// A level-3 box5 hierarchy: 2,925 nodes.
+fn base() -> BaseMesh {
+    let (positions, tets) = box5([0.0; 3], [1.0; 3]);
+    BaseMesh {
+        levels: 3,
+        values: vec![0.0; positions.len()],
+        empty: vec![false; tets.len()],
+        positions,
+        tets,
+    }
+}
+
+/// The block coders the checks decode with: lossless and 12-bit quantized.
+fn coders() -> &'static [BlockCoder; 2] {
+    static C: OnceLock<[BlockCoder; 2]> = OnceLock::new();
+    C.get_or_init(|| {
+        let b = base();
+        [
+            BlockCoder::new(&b, &Encoding::F32),
+            BlockCoder::new(
+                &b,
+                &Encoding::Quantized {
+                    bits: 12,
+                    step: 0.01,
+                },
+            ),
+        ]
+    })
+}
 
 /// Runs every check on one input; panics (a finding) only if a property fails.
 pub fn check(data: &[u8]) {
@@ -28,6 +64,18 @@ pub fn check(data: &[u8]) {
             once,
             "server round trip is idempotent"
         );
+        if let ServerMsg::Nodes { block, .. } = &m {
+            for c in coders() {
+                if let Ok(nodes) = c.decode(block) {
+                    assert_eq!(nodes.len(), block.count as usize);
+                    for n in &nodes {
+                        n.validate().expect("decoded nodes are valid");
+                    }
+                    let again = c.encode(&nodes).expect("decoded nodes re-code");
+                    assert_eq!(c.decode(&again).unwrap(), nodes, "block round trip");
+                }
+            }
+        }
     }
 }
 
@@ -69,7 +117,15 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
     let server = [
         ServerMsg::Nodes {
             seq: 1,
-            nodes: vec![node(0, 0b111111), node(5, 0b000101), node(6, 0)],
+            block: coders()[0]
+                .encode(&[node(0, 0b111111), node(5, 0b000101), node(6, 0)])
+                .expect("valid nodes"),
+        },
+        ServerMsg::Nodes {
+            seq: 2,
+            block: coders()[1]
+                .encode(&[node(0, 0b111111), node(9, 0b000101), node(700, 0)])
+                .expect("valid nodes"),
         },
         ServerMsg::End { nodes_sent: 1234 },
         ServerMsg::Error {

@@ -6,12 +6,13 @@
 //! config)`; the length counts the version and payload bytes. Over WebSocket, one binary message
 //! carries exactly one frame.
 
-use crate::node::DetailNode;
+use crate::block::{NodeBlock, MAX_BLOCK_NODES};
 use crate::store_format::Manifest;
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
-pub const PROTOCOL_VERSION: u16 = 1;
+/// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes).
+pub const PROTOCOL_VERSION: u16 = 2;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -59,10 +60,12 @@ pub enum ClientMsg {
 pub enum ServerMsg {
     Manifest(Box<Manifest>),
     Base(Box<BaseMesh>),
-    /// Detail nodes, in the server's order; `seq` increases by one per batch on a connection.
+    /// Detail nodes as one coded block ([`crate::block`]; decode with the
+    /// [`crate::block::BlockCoder`] of the manifest and base mesh); `seq` increases by one per batch
+    /// on a connection.
     Nodes {
         seq: u64,
-        nodes: Vec<DetailNode>,
+        block: NodeBlock,
     },
     /// Everything the client did not already have has been sent.
     End {
@@ -198,14 +201,17 @@ pub fn decode_client(frame: &[u8]) -> Result<ClientMsg, WireError> {
     Ok(msg)
 }
 
-/// Decodes and validates one server frame (nodes and base mesh structurally valid).
+/// Decodes and validates one server frame (base mesh structurally valid, a block's node count
+/// within [`MAX_BLOCK_NODES`]; the block's content is checked when it is decoded).
 pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
     let msg: ServerMsg = decode(frame)?;
     match &msg {
-        ServerMsg::Nodes { nodes, .. } => {
-            for n in nodes {
-                n.validate()
-                    .map_err(|e| WireError::Invalid(e.to_string()))?;
+        ServerMsg::Nodes { block, .. } => {
+            if block.count > MAX_BLOCK_NODES {
+                return Err(WireError::Invalid(format!(
+                    "block of {} nodes (limit {MAX_BLOCK_NODES})",
+                    block.count
+                )));
             }
         }
         ServerMsg::Base(b) => b
@@ -251,13 +257,11 @@ mod tests {
         }
         let n = ServerMsg::Nodes {
             seq: 1,
-            nodes: vec![DetailNode {
-                id: 4,
-                owned: 0b101,
-                empty_children: 0,
-                subtree_max_abs: 0.5,
-                coeffs: vec![1.0, 2.0],
-            }],
+            block: NodeBlock {
+                count: 2,
+                first: 4,
+                bytes: vec![1, 2, 3, 4],
+            },
         };
         assert_eq!(decode_server(&encode(&n).unwrap()).unwrap(), n);
         // the manifest (with both encodings) travels in bincode too
@@ -327,16 +331,14 @@ mod tests {
         let mut k = good.clone();
         k[6] = 200;
         assert!(matches!(decode_client(&k), Err(WireError::Malformed(_))));
-        // a node whose coefficient count disagrees with its mask
+        // a block declaring more nodes than a block may hold
         let bad = ServerMsg::Nodes {
             seq: 0,
-            nodes: vec![DetailNode {
-                id: 1,
-                owned: 0b11,
-                empty_children: 0,
-                subtree_max_abs: 0.0,
-                coeffs: vec![1.0],
-            }],
+            block: NodeBlock {
+                count: MAX_BLOCK_NODES + 1,
+                first: 0,
+                bytes: vec![],
+            },
         };
         assert!(matches!(
             decode_server(&encode(&bad).unwrap()),
@@ -352,14 +354,19 @@ mod tests {
 
     #[test]
     fn huge_inner_length_does_not_allocate() {
-        // a Nodes frame claiming 2^60 nodes inside a small frame
+        // a Nodes frame claiming 2^60 coded bytes inside a small frame
         let mut f = encode(&ServerMsg::Nodes {
             seq: 0,
-            nodes: vec![],
+            block: NodeBlock {
+                count: 0,
+                first: 0,
+                bytes: vec![],
+            },
         })
         .unwrap();
-        // payload: variant tag (2), seq (0), then the vec length varint: replace with a huge u64
-        f.truncate(6 + 2);
+        // payload: variant tag (2), seq (0), count (0), first (0), then the bytes' length varint:
+        // replace it with a huge u64
+        f.truncate(6 + 4);
         f.push(0xfd); // bincode varint marker for u64
         f.extend_from_slice(&(1u64 << 60).to_le_bytes());
         let len = (f.len() - 4) as u32;

@@ -91,7 +91,7 @@ async fn range_floods_cost_ranges_not_ids() {
     });
     // every node at least once, and at most once per Want (a Want applied after nodes went out
     // asks for them again); the per-id code queued 65,536 sends of each
-    let (nodes, end_sent, _) = receive_nodes(&mut ws).await;
+    let (nodes, end_sent, _) = receive_nodes(&mut ws, &coder_for(&store())).await;
     let mut seen = vec![0u32; n as usize];
     for node in &nodes {
         seen[node.id as usize] += 1;
@@ -130,9 +130,9 @@ async fn cancel_then_want_sends_only_the_wanted() {
     )
     .await;
     // the Cancel may end the stream (End) before the Want arrives; the Want brings another End
-    let (mut nodes, _, _) = receive_nodes(&mut ws).await;
+    let (mut nodes, _, _) = receive_nodes(&mut ws, &coder_for(&store())).await;
     if !nodes.iter().any(|d| d.id >= 64) {
-        nodes.extend(receive_nodes(&mut ws).await.0);
+        nodes.extend(receive_nodes(&mut ws, &coder_for(&store())).await.0);
     }
     let after_first: Vec<u64> = nodes.iter().map(|d| d.id).filter(|&i| i >= 64).collect();
     let want: Vec<u64> = (100..300).collect();
@@ -158,9 +158,9 @@ async fn a_view_per_batch_does_not_rescan_per_batch() {
     let mut got = 0u64;
     loop {
         match recv(&mut ws).await {
-            Some(ServerMsg::Nodes { seq, nodes }) => {
+            Some(ServerMsg::Nodes { seq, block }) => {
                 batches += 1;
-                got += nodes.len() as u64;
+                got += block.count as u64;
                 // a slightly different camera every batch
                 let a = batches as f64 * 0.05;
                 let v = view_from([3.0 * a.cos(), 3.0 * a.sin(), 1.0], [0.5, 0.5, 0.5]);

@@ -6,6 +6,7 @@ mod stream_common;
 
 use stream_common::*;
 use tetwave_protocol::view::Camera;
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::wire::{decode_server, ServerMsg};
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;
@@ -41,11 +42,15 @@ async fn manifest_base_and_node_ranges_match_the_store() {
     }
 
     let n = store.manifest.counts.nodes;
+    let coder = BlockCoder::new(&store.base, &store.manifest.encoding);
     for (a, b) in [(0, n), (0, 0), (1, 2), (n / 3, n / 2), (n - 1, n)] {
         let r = get(addr, &format!("/v1/nodes?from={a}&to={b}"), &[]).await;
         assert_eq!(r.status, 200, "{a}..{b}");
         match decode_server(&r.body).unwrap() {
-            ServerMsg::Nodes { nodes, .. } => assert_eq!(nodes, store.read_nodes(a, b).unwrap()),
+            ServerMsg::Nodes { block, .. } => assert_eq!(
+                coder.decode(&block).unwrap(),
+                store.read_nodes(a, b).unwrap()
+            ),
             other => panic!("{other:?}"),
         }
     }

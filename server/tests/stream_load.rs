@@ -75,9 +75,11 @@ fn sixty_four_concurrent_clients_all_complete() {
     let before = health(addr, &rt);
     let n = before["nodes"].as_u64().unwrap();
     let t0 = Instant::now();
+    let coder = std::sync::Arc::new(coder_for(&dir));
     let results = rt.block_on(async move {
         let mut tasks = Vec::new();
         for i in 0..64 {
+            let coder = coder.clone();
             let order = ["level", "magnitude", "view", "random"][i % 4];
             tasks.push(tokio::spawn(async move {
                 let start = Instant::now();
@@ -85,7 +87,7 @@ fn sixty_four_concurrent_clients_all_complete() {
                 send(&mut ws, &hello(None, vec![])).await;
                 assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
                 assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
-                let (nodes, sent, _) = receive_nodes(&mut ws).await;
+                let (nodes, sent, _) = receive_nodes(&mut ws, &coder).await;
                 let _ = ws.close(None).await;
                 let mut ids: Vec<u64> = nodes.iter().map(|x| x.id).collect();
                 ids.sort_unstable();

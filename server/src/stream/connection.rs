@@ -288,11 +288,11 @@ async fn stream_to(
                 let applied = apply(&mut sc, msgs);
                 let frame = (applied && send_now && sc.has_work()).then(|| {
                     let mut ids = sc.next_batch(s2, batch);
-                    s2.fetch(&mut ids)
+                    s2.fetch_block(&mut ids)
                         .map_err(|e| e.to_string())
-                        .and_then(|nodes| {
-                            let k = nodes.len() as u64;
-                            encode(&ServerMsg::Nodes { seq, nodes })
+                        .and_then(|block| {
+                            let k = block.count as u64;
+                            encode(&ServerMsg::Nodes { seq, block })
                                 .map(|f| (f, k))
                                 .map_err(|e| e.to_string())
                         })

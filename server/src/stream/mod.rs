@@ -5,7 +5,7 @@
 //! | `GET /healthz`             | JSON `{status, connections, rss_kib, peak_rss_kib}` (never needs the token) |
 //! | `GET /v1/manifest`         | the store's manifest, JSON                                        |
 //! | `GET /v1/base`             | one wire frame: `ServerMsg::Base`                                 |
-//! | `GET /v1/nodes?from=&to=`  | one wire frame: `ServerMsg::Nodes { seq: 0, nodes: from..to }`    |
+//! | `GET /v1/nodes?from=&to=`  | one wire frame: `ServerMsg::Nodes { seq: 0, block: from..to }`    |
 //! | `GET /v1/stream[?order=]`  | WebSocket: the progressive stream (below)                         |
 //! | `GET /v1/render?…`         | fallback PNG ([`crate::render_service`])                          |
 //! | `GET /`                    | a small page showing fallback images ([`crate::render_service`])  |

@@ -186,8 +186,8 @@ async fn nodes(State(s): State<Arc<Shared>>, Query(q): Query<HashMap<String, Str
     let s2 = s.clone();
     let res = tokio::task::spawn_blocking(move || {
         let mut ids: Vec<TetId> = (from..to).collect();
-        let nodes = s2.fetch(&mut ids)?;
-        encode(&ServerMsg::Nodes { seq: 0, nodes }).map_err(|e| ServeError::Encode(e.to_string()))
+        let block = s2.fetch_block(&mut ids)?;
+        encode(&ServerMsg::Nodes { seq: 0, block }).map_err(|e| ServeError::Encode(e.to_string()))
     })
     .await;
     match res {

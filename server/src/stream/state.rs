@@ -11,6 +11,7 @@ use axum::body::Bytes;
 use glam::DVec3;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, OnceLock};
+use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
@@ -33,6 +34,8 @@ pub struct Shared {
     pub(super) manifest_json: Bytes,
     pub(super) manifest_frame: Bytes,
     pub(super) base_frame: Bytes,
+    /// Codes batches and `/v1/nodes` ranges into blocks.
+    coder: BlockCoder,
     /// Every node, when the store is small enough ([`ServeConfig::cache_limit_bytes`]).
     cache: Option<Vec<DetailNode>>,
     /// `subtree_max_abs` of every node.
@@ -105,6 +108,7 @@ impl Shared {
             "store {} opened for serving",
             dir.display()
         );
+        let coder = BlockCoder::new(&store.base, &store.manifest.encoding);
         let render = RenderService::new(dir);
         let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
@@ -115,6 +119,7 @@ impl Shared {
             manifest_json,
             manifest_frame,
             base_frame,
+            coder,
             cache,
             smax,
             magnitude_perm: OnceLock::new(),
@@ -188,6 +193,14 @@ impl Shared {
     }
 
     /// The nodes `ids` (in that order when cached, else in increasing id order).
+    /// Nodes `ids` (sorted in place) as one coded block.
+    pub(super) fn fetch_block(&self, ids: &mut [TetId]) -> Result<NodeBlock, ServeError> {
+        let nodes = self.fetch(ids)?;
+        self.coder
+            .encode(&nodes)
+            .map_err(|e| ServeError::Encode(e.to_string()))
+    }
+
     pub(super) fn fetch(&self, ids: &mut [TetId]) -> Result<Vec<DetailNode>, StoreError> {
         if let Some(c) = &self.cache {
             return Ok(ids.iter().map(|&i| c[i as usize].clone()).collect());

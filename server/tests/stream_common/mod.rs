@@ -11,6 +11,7 @@ use std::time::Duration;
 use tetwave_protocol::wire::{
     decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
 };
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, ServeConfig, Shared};
@@ -28,6 +29,12 @@ pub fn make_store(levels: u8) -> (tempfile::TempDir, PathBuf) {
     o.levels = levels;
     prepare(&o).unwrap();
     (d, p)
+}
+
+/// The block coder of a store (what a client builds from its manifest and base mesh).
+pub fn coder_for(store: &Path) -> BlockCoder {
+    let s = tetwave_store::Store::open(store).unwrap();
+    BlockCoder::new(&s.base, &s.manifest.encoding)
 }
 
 /// Starts a server on 127.0.0.1:0 in the current runtime.
@@ -208,7 +215,8 @@ pub struct Session {
     /// Nodes in arrival order.
     pub nodes: Vec<DetailNode>,
     pub end_nodes_sent: u64,
-    pub batches: u64,
+    /// Nodes per batch, in arrival order (a batch's nodes arrive in id order, a block's order).
+    pub batches: Vec<usize>,
 }
 
 /// Receives `Manifest`, `Base`, then batches (acking each) until `End`.
@@ -221,7 +229,8 @@ pub async fn receive_all(ws: &mut Ws) -> Session {
         Some(ServerMsg::Base(b)) => *b,
         other => panic!("expected the base mesh, got {other:?}"),
     };
-    let (nodes, end_nodes_sent, batches) = receive_nodes(ws).await;
+    let coder = BlockCoder::new(&base, &manifest.encoding);
+    let (nodes, end_nodes_sent, batches) = receive_nodes(ws, &coder).await;
     Session {
         manifest,
         base,
@@ -231,19 +240,21 @@ pub async fn receive_all(ws: &mut Ws) -> Session {
     }
 }
 
-/// Node batches (acked, `seq` checked to increase by one) until `End`.
-pub async fn receive_nodes(ws: &mut Ws) -> (Vec<DetailNode>, u64, u64) {
+/// Node batches (acked, `seq` checked to increase by one) until `End`: the nodes, `End`'s count
+/// and the batches' sizes.
+pub async fn receive_nodes(ws: &mut Ws, coder: &BlockCoder) -> (Vec<DetailNode>, u64, Vec<usize>) {
     let mut nodes = Vec::new();
     let mut expect_seq: Option<u64> = None;
-    let mut batches = 0;
+    let mut batches = Vec::new();
     loop {
         match recv(ws).await {
-            Some(ServerMsg::Nodes { seq, nodes: n }) => {
+            Some(ServerMsg::Nodes { seq, block }) => {
+                let n = coder.decode(&block).unwrap();
                 if let Some(e) = expect_seq {
                     assert_eq!(seq, e, "seq increases by one");
                 }
                 expect_seq = Some(seq + 1);
-                batches += 1;
+                batches.push(n.len());
                 nodes.extend(n);
                 send(ws, &ClientMsg::Ack { seq }).await;
             }

@@ -1,0 +1,453 @@
+//! Coded blocks of detail nodes: what a `Nodes` frame carries and `/v1/nodes` serves.
+//!
+//! A block is any set of nodes (the server's batch, an id range), entropy-coded on its own
+//! ([`crate::entropy`]: fresh adaptive models per block), so blocks can be sent and applied in any
+//! order. Per node it codes only what the client cannot derive:
+//!
+//! - **ids**: increasing; the first in the header, then each gap to the previous id (runs of
+//!   consecutive ids cost almost nothing);
+//! - **owned mask**: derived from the hierarchy ([`crate::ownership`]); one adaptive flag says
+//!   whether the node's mask differs, and only then are its 6 bits sent;
+//! - **empty children**: an adaptive flag, then the 8 bits where any child is empty;
+//! - **subtree bound** (`subtree_max_abs`): for quantized stores a class `k`, the bit length of the
+//!   subtree's largest code magnitude `m` (`m = 0` when every detail below quantizes to 0); the
+//!   decoded bound is `(2^k − 1) · step ≥ m · step`, an upper bound within a factor 2, which is
+//!   the safe side for the selection's error estimate. Lossless stores send the f32 bits;
+//! - **coefficients**: quantized codes by magnitude under the class `k` (none at all when `k = 0`:
+//!   a zero subtree costs only its class), sign bits raw; lossless stores send the f32 bits.
+//!
+//! Decoding is total: malformed, truncated or oversized blocks are [`BlockError`]s, and the work
+//! is bounded by the node count the header declares (at most [`MAX_BLOCK_NODES`]).
+
+use crate::entropy::{Bit, Decoder, Encoder, EntropyError, UInt};
+use crate::hierarchy::Forest;
+use crate::ownership::Ownership;
+use crate::store_format::Encoding;
+use crate::wavelet::Quantizer;
+use crate::{BaseMesh, DetailNode, TetId};
+use serde::{Deserialize, Serialize};
+
+/// Most nodes one block may hold.
+pub const MAX_BLOCK_NODES: u32 = 1 << 16;
+/// Largest subtree class (bit length of a code magnitude).
+const MAX_CLASS: u32 = 40;
+
+/// A coded set of detail nodes (see the module documentation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NodeBlock {
+    /// Nodes in the block.
+    pub count: u32,
+    /// The lowest id (0 when empty).
+    pub first: TetId,
+    /// The range coder's output.
+    pub bytes: Vec<u8>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum BlockError {
+    #[error("block of {0} nodes exceeds the {MAX_BLOCK_NODES}-node limit")]
+    TooManyNodes(u64),
+    #[error("node id {id} is outside the hierarchy's {nodes} nodes")]
+    IdOutOfRange { id: TetId, nodes: u64 },
+    #[error("node {0} appears twice in one block")]
+    Duplicate(TetId),
+    #[error("node {id}: {reason}")]
+    BadNode { id: TetId, reason: String },
+    #[error("coded block: {0}")]
+    Coding(#[from] EntropyError),
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Coefficients {
+    /// f32 bits as stored.
+    Raw,
+    Quantized(Quantizer),
+}
+
+/// Codes and decodes blocks of one store (its hierarchy and coefficient encoding).
+#[derive(Debug, Clone)]
+pub struct BlockCoder {
+    forest: Forest,
+    /// Nodes in the hierarchy; 0 when its count does not fit in u64 (then no block decodes: such a
+    /// base mesh is refused anyway, and no id arithmetic may overflow).
+    total: u64,
+    ownership: Ownership,
+    coefficients: Coefficients,
+}
+
+/// Every adaptive model of one block.
+struct Models {
+    gap: [UInt; 2],
+    mask_differs: [Bit; 9],
+    empty_any: Bit,
+    empty_bits: [Bit; 8],
+    class: Vec<UInt>,
+    magnitude: Vec<UInt>,
+}
+
+impl Models {
+    fn new() -> Self {
+        Models {
+            gap: Default::default(),
+            mask_differs: [Bit::default(); 9],
+            empty_any: Bit::default(),
+            empty_bits: [Bit::default(); 8],
+            class: vec![UInt::default(); 16],
+            magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
+        }
+    }
+}
+
+impl BlockCoder {
+    pub fn new(base: &BaseMesh, encoding: &Encoding) -> Self {
+        let forest = base.forest();
+        BlockCoder {
+            forest,
+            total: forest.checked_nodes().unwrap_or(0),
+            ownership: Ownership::new(base),
+            coefficients: match encoding.quantizer() {
+                None => Coefficients::Raw,
+                Some(q) => Coefficients::Quantized(q),
+            },
+        }
+    }
+
+    fn child_context(&self, id: TetId) -> usize {
+        self.forest.child_index(id).map_or(8, |c| c)
+    }
+
+    /// Codes `nodes` (any order; ids distinct and within the hierarchy).
+    pub fn encode(&self, nodes: &[DetailNode]) -> Result<NodeBlock, BlockError> {
+        if nodes.len() as u64 > MAX_BLOCK_NODES as u64 {
+            return Err(BlockError::TooManyNodes(nodes.len() as u64));
+        }
+        let total = self.total;
+        let mut order: Vec<&DetailNode> = nodes.iter().collect();
+        order.sort_unstable_by_key(|n| n.id);
+        for w in order.windows(2) {
+            if w[0].id == w[1].id {
+                return Err(BlockError::Duplicate(w[0].id));
+            }
+        }
+        let mut e = Encoder::default();
+        let mut m = Models::new();
+        let mut prev: Option<TetId> = None;
+        let (mut prev_gap_zero, mut prev_class) = (1usize, 0u32);
+        for n in &order {
+            if n.id >= total {
+                return Err(BlockError::IdOutOfRange {
+                    id: n.id,
+                    nodes: total,
+                });
+            }
+            n.validate().map_err(|err| BlockError::BadNode {
+                id: n.id,
+                reason: err.to_string(),
+            })?;
+            if let Some(p) = prev {
+                let gap = n.id - p - 1;
+                e.uint(&mut m.gap[prev_gap_zero], gap)?;
+                prev_gap_zero = (gap == 0) as usize;
+            }
+            prev = Some(n.id);
+            let derived = self.ownership.owned(n.id);
+            let cc = self.child_context(n.id);
+            e.bit(&mut m.mask_differs[cc], n.owned != derived);
+            if n.owned != derived {
+                e.raw(n.owned as u64, 6);
+            }
+            e.bit(&mut m.empty_any, n.empty_children != 0);
+            if n.empty_children != 0 {
+                for (i, b) in m.empty_bits.iter_mut().enumerate() {
+                    e.bit(b, n.empty_children >> i & 1 == 1);
+                }
+            }
+            match self.coefficients {
+                Coefficients::Raw => {
+                    e.raw(n.subtree_max_abs.to_bits() as u64, 32);
+                    for c in &n.coeffs {
+                        e.raw(c.to_bits() as u64, 32);
+                    }
+                }
+                Coefficients::Quantized(q) => {
+                    let codes: Vec<i32> = n.coeffs.iter().map(|&c| q.encode(c)).collect();
+                    let own = codes.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0) as f64;
+                    let below = (n.subtree_max_abs as f64 / q.step as f64).ceil();
+                    let mag = below.max(own);
+                    if !(mag < (1u64 << MAX_CLASS) as f64) {
+                        return Err(BlockError::BadNode {
+                            id: n.id,
+                            reason: format!(
+                                "subtree max {} is beyond {MAX_CLASS} bits of step {}",
+                                n.subtree_max_abs, q.step
+                            ),
+                        });
+                    }
+                    let class = u64::BITS - (mag as u64).leading_zeros();
+                    e.uint(&mut m.class[prev_class.min(15) as usize], class as u64)?;
+                    prev_class = class;
+                    if class > 0 {
+                        for &c in &codes {
+                            e.uint(&mut m.magnitude[class as usize], c.unsigned_abs() as u64)?;
+                            if c != 0 {
+                                e.raw((c < 0) as u64, 1);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(NodeBlock {
+            count: order.len() as u32,
+            first: order.first().map_or(0, |n| n.id),
+            bytes: e.finish(),
+        })
+    }
+
+    /// Decodes a block into its nodes, in increasing id order, each passing
+    /// [`DetailNode::validate`].
+    pub fn decode(&self, block: &NodeBlock) -> Result<Vec<DetailNode>, BlockError> {
+        if block.count > MAX_BLOCK_NODES {
+            return Err(BlockError::TooManyNodes(block.count as u64));
+        }
+        let total = self.total;
+        let mut out = Vec::with_capacity(block.count as usize);
+        if block.count == 0 {
+            return Ok(out);
+        }
+        let mut d = Decoder::new(&block.bytes)?;
+        let mut m = Models::new();
+        let mut id = block.first;
+        let (mut prev_gap_zero, mut prev_class) = (1usize, 0u32);
+        for i in 0..block.count {
+            if i > 0 {
+                let gap = d.uint(&mut m.gap[prev_gap_zero])?;
+                prev_gap_zero = (gap == 0) as usize;
+                id = id
+                    .checked_add(gap)
+                    .and_then(|x| x.checked_add(1))
+                    .ok_or(BlockError::IdOutOfRange { id, nodes: total })?;
+            }
+            if id >= total {
+                return Err(BlockError::IdOutOfRange { id, nodes: total });
+            }
+            let cc = self.child_context(id);
+            let owned = if d.bit(&mut m.mask_differs[cc])? {
+                d.raw(6)? as u8
+            } else {
+                self.ownership.owned(id)
+            };
+            let empty_children = if d.bit(&mut m.empty_any)? {
+                let mut v = 0u8;
+                for (i, b) in m.empty_bits.iter_mut().enumerate() {
+                    v |= (d.bit(b)? as u8) << i;
+                }
+                v
+            } else {
+                0
+            };
+            let n_coeffs = owned.count_ones() as usize;
+            let (subtree_max_abs, coeffs) = match self.coefficients {
+                Coefficients::Raw => {
+                    let smax = f32::from_bits(d.raw(32)? as u32);
+                    let coeffs = (0..n_coeffs)
+                        .map(|_| d.raw(32).map(|b| f32::from_bits(b as u32)))
+                        .collect::<Result<Vec<_>, _>>()?;
+                    (smax, coeffs)
+                }
+                Coefficients::Quantized(q) => {
+                    let class = d.uint(&mut m.class[prev_class.min(15) as usize])?;
+                    if class > MAX_CLASS as u64 {
+                        return Err(BlockError::BadNode {
+                            id,
+                            reason: format!("subtree class {class} exceeds {MAX_CLASS}"),
+                        });
+                    }
+                    let class = class as u32;
+                    prev_class = class;
+                    let mut coeffs = vec![0f32; n_coeffs];
+                    if class > 0 {
+                        let limit = ((1u64 << class) - 1).min(Quantizer::max_code(q.bits) as u64);
+                        for c in coeffs.iter_mut() {
+                            let mag = d.uint(&mut m.magnitude[class as usize])?;
+                            if mag > limit {
+                                return Err(BlockError::BadNode {
+                                    id,
+                                    reason: format!("code {mag} exceeds its class {class}"),
+                                });
+                            }
+                            let negative = mag != 0 && d.raw(1)? == 1;
+                            let code = if negative { -(mag as i32) } else { mag as i32 };
+                            *c = q.decode(code);
+                        }
+                    }
+                    (class_bound(class, q.step), coeffs)
+                }
+            };
+            let node = DetailNode {
+                id,
+                owned,
+                empty_children,
+                subtree_max_abs,
+                coeffs,
+            };
+            node.validate().map_err(|err| BlockError::BadNode {
+                id,
+                reason: err.to_string(),
+            })?;
+            if !(node.subtree_max_abs >= 0.0) {
+                return Err(BlockError::BadNode {
+                    id,
+                    reason: "negative subtree bound".into(),
+                });
+            }
+            out.push(node);
+        }
+        Ok(out)
+    }
+}
+
+/// The decoded subtree bound of class `k`: `(2^k − 1) · step`, rounded up to an f32.
+fn class_bound(k: u32, step: f32) -> f32 {
+    let exact = ((1u64 << k) - 1) as f64 * step as f64;
+    let b = exact as f32;
+    if (b as f64) < exact {
+        b.next_up()
+    } else {
+        b
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes::box6;
+    use crate::testing::{detail_nodes, unsampled_base};
+    use proptest::prelude::*;
+
+    fn harmonic(levels: u8) -> (BaseMesh, Vec<DetailNode>) {
+        detail_nodes(unsampled_base(levels, box6([0.0; 3], [1.0; 3])), |p| {
+            ((p[0] * 3.0).sin() * (p[1] * 2.0).cosh() + p[2] * p[2]) as f32
+        })
+    }
+
+    /// The nodes as a quantized store holds them: codes times the step.
+    fn quantized(nodes: &[DetailNode], q: Quantizer) -> Vec<DetailNode> {
+        nodes
+            .iter()
+            .map(|n| DetailNode {
+                coeffs: n.coeffs.iter().map(|&c| q.decode(q.encode(c))).collect(),
+                ..n.clone()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn lossless_blocks_round_trip_exactly() {
+        let (base, nodes) = harmonic(3);
+        let coder = BlockCoder::new(&base, &Encoding::F32);
+        let block = coder.encode(&nodes).unwrap();
+        assert_eq!(coder.decode(&block).unwrap(), nodes);
+    }
+
+    #[test]
+    fn quantized_blocks_keep_codes_and_bound_subtrees() {
+        let (base, nodes) = harmonic(4);
+        let enc = Encoding::Quantized {
+            bits: 16,
+            step: 1e-3,
+        };
+        let q = enc.quantizer().unwrap();
+        let nodes = quantized(&nodes, q);
+        let coder = BlockCoder::new(&base, &enc);
+        // any subset, in any order
+        let mut some: Vec<DetailNode> = nodes.iter().step_by(3).cloned().collect();
+        some.reverse();
+        let block = coder.encode(&some).unwrap();
+        let back = coder.decode(&block).unwrap();
+        some.sort_by_key(|n| n.id);
+        assert_eq!(back.len(), some.len());
+        for (a, b) in some.iter().zip(&back) {
+            assert_eq!((a.id, a.owned, a.empty_children), (b.id, b.owned, b.empty_children));
+            assert_eq!(a.coeffs, b.coeffs, "node {}", a.id);
+            assert!(b.subtree_max_abs >= a.subtree_max_abs, "node {}", a.id);
+            assert!(b.subtree_max_abs <= 2.0 * a.subtree_max_abs + q.step, "node {}", a.id);
+        }
+        // all nodes: far below the 6-byte record plus 2-byte codes per coefficient
+        let all = coder.encode(&nodes).unwrap();
+        let fixed: usize = nodes.iter().map(|n| 6 + 2 * n.coeffs.len()).sum();
+        assert!(all.bytes.len() * 4 < fixed, "{} vs {fixed}", all.bytes.len());
+    }
+
+    #[test]
+    fn a_mask_that_differs_from_the_hierarchy_still_round_trips() {
+        let (base, mut nodes) = harmonic(2);
+        let coder = BlockCoder::new(&base, &Encoding::F32);
+        nodes[3].owned = 0;
+        nodes[3].coeffs.clear();
+        let block = coder.encode(&nodes[..10]).unwrap();
+        assert_eq!(coder.decode(&block).unwrap(), nodes[..10]);
+    }
+
+    #[test]
+    fn encoder_refuses_duplicates_and_foreign_ids() {
+        let (base, nodes) = harmonic(2);
+        let coder = BlockCoder::new(&base, &Encoding::F32);
+        let dup = vec![nodes[1].clone(), nodes[1].clone()];
+        assert_eq!(coder.encode(&dup), Err(BlockError::Duplicate(nodes[1].id)));
+        let mut far = nodes[0].clone();
+        far.id = base.forest().nodes();
+        assert!(matches!(
+            coder.encode(&[far]),
+            Err(BlockError::IdOutOfRange { .. })
+        ));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #[test]
+        fn decoding_any_block_is_total(count in 0u32..300, first in 0u64..400, bytes in proptest::collection::vec(any::<u8>(), 0..256), quant in any::<bool>()) {
+            let (base, _) = harmonic(2);
+            let enc = if quant { Encoding::Quantized { bits: 12, step: 0.01 } } else { Encoding::F32 };
+            let coder = BlockCoder::new(&base, &enc);
+            if let Ok(nodes) = coder.decode(&NodeBlock { count, first, bytes }) {
+                prop_assert_eq!(nodes.len(), count as usize);
+                for w in nodes.windows(2) { prop_assert!(w[0].id < w[1].id); }
+                for n in &nodes { prop_assert!(n.validate().is_ok()); }
+            }
+        }
+    }
+}
+#[cfg(test)]
+mod scratch {
+    use super::*;
+    use crate::shapes::box6;
+    use crate::testing::{detail_nodes, unsampled_base};
+    #[test]
+    fn sizes() {
+        for levels in [5u8, 6] {
+        let (base, nodes) = detail_nodes(unsampled_base(levels, box6([0.0; 3], [1.0; 3])), |p| {
+            ((p[0] * 3.0).sin() * (p[1] * 2.0).cosh() + p[2] * p[2]) as f32
+        });
+        let (lo, hi) = base.values.iter().fold((f32::MAX, f32::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
+        let range = (hi - lo) as f64;
+        let nv = (1u64 << levels) + 1;
+        let nv = nv * nv * nv;
+        for rel in [1e-2, 1e-3, 1e-4] {
+            // open-loop: step = 2 * bound / levels as a crude stand-in
+            let step = (2.0 * rel * range / levels as f64) as f32;
+            let enc = Encoding::Quantized { bits: 24, step };
+            let q = enc.quantizer().unwrap();
+            let qn: Vec<DetailNode> = nodes.iter().map(|n| DetailNode { coeffs: n.coeffs.iter().map(|&c| q.decode(q.encode(c))).collect(), ..n.clone() }).collect();
+            let coder = BlockCoder::new(&base, &enc);
+            let mut total = 0;
+            for ch in qn.chunks(4096) { total += coder.encode(ch).unwrap().bytes.len(); }
+            let mut z = 0;
+            let zn: Vec<DetailNode> = qn.iter().map(|n| DetailNode { coeffs: vec![0.0; n.coeffs.len()], subtree_max_abs: 0.0, ..n.clone() }).collect();
+            for ch in zn.chunks(4096) { z += coder.encode(ch).unwrap().bytes.len(); }
+            let nz = qn.iter().flat_map(|n| n.coeffs.iter()).filter(|c| **c != 0.0).count();
+            eprintln!("L{levels} rel {rel}: nodes {} verts {nv} bytes {total} ({:.2} bits/vertex), meta-only {z}, nonzero coeffs {nz}, raw f32 {}", qn.len(), total as f64 * 8.0 / nv as f64, nv * 4);
+        }
+        }
+    }
+}
