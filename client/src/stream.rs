@@ -18,6 +18,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::view::Camera;
@@ -25,7 +26,6 @@ use tetwave_protocol::wire::{
     decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES, MAX_RANGES,
     PROTOCOL_VERSION,
 };
-use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::{GpuContext, RenderError};
@@ -340,9 +340,10 @@ impl BlockDecoder {
                 Delivery::Base(b)
             }
             ServerMsg::Nodes { seq, block } => {
-                let (_, coder) = self.coder.as_ref().ok_or_else(|| {
-                    StreamError::Protocol("nodes before the base mesh".into())
-                })?;
+                let (_, coder) = self
+                    .coder
+                    .as_ref()
+                    .ok_or_else(|| StreamError::Protocol("nodes before the base mesh".into()))?;
                 let nodes = coder
                     .decode(&block)
                     .map_err(|e| StreamError::BadFrame(format!("batch {seq}: {e}")))?;

@@ -14,8 +14,8 @@ use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tetwave_protocol::shapes::box5;
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
+use tetwave_protocol::shapes::box5;
 use tetwave_protocol::store_format::{Counts, Encoding, Manifest};
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::wire::{

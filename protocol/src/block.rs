@@ -174,7 +174,7 @@ impl BlockCoder {
                     let own = codes.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0) as f64;
                     let below = (n.subtree_max_abs as f64 / q.step as f64).ceil();
                     let mag = below.max(own);
-                    if !(mag < (1u64 << MAX_CLASS) as f64) {
+                    if mag.is_nan() || mag >= (1u64 << MAX_CLASS) as f64 {
                         return Err(BlockError::BadNode {
                             id: n.id,
                             reason: format!(
@@ -295,7 +295,7 @@ impl BlockCoder {
                 id,
                 reason: err.to_string(),
             })?;
-            if !(node.subtree_max_abs >= 0.0) {
+            if node.subtree_max_abs.is_nan() || node.subtree_max_abs < 0.0 {
                 return Err(BlockError::BadNode {
                     id,
                     reason: "negative subtree bound".into(),
@@ -368,15 +368,26 @@ mod tests {
         some.sort_by_key(|n| n.id);
         assert_eq!(back.len(), some.len());
         for (a, b) in some.iter().zip(&back) {
-            assert_eq!((a.id, a.owned, a.empty_children), (b.id, b.owned, b.empty_children));
+            assert_eq!(
+                (a.id, a.owned, a.empty_children),
+                (b.id, b.owned, b.empty_children)
+            );
             assert_eq!(a.coeffs, b.coeffs, "node {}", a.id);
             assert!(b.subtree_max_abs >= a.subtree_max_abs, "node {}", a.id);
-            assert!(b.subtree_max_abs <= 2.0 * a.subtree_max_abs + q.step, "node {}", a.id);
+            assert!(
+                b.subtree_max_abs <= 2.0 * a.subtree_max_abs + q.step,
+                "node {}",
+                a.id
+            );
         }
         // all nodes: far below the 6-byte record plus 2-byte codes per coefficient
         let all = coder.encode(&nodes).unwrap();
         let fixed: usize = nodes.iter().map(|n| 6 + 2 * n.coeffs.len()).sum();
-        assert!(all.bytes.len() * 4 < fixed, "{} vs {fixed}", all.bytes.len());
+        assert!(
+            all.bytes.len() * 4 < fixed,
+            "{} vs {fixed}",
+            all.bytes.len()
+        );
     }
 
     #[test]
@@ -415,39 +426,6 @@ mod tests {
                 for w in nodes.windows(2) { prop_assert!(w[0].id < w[1].id); }
                 for n in &nodes { prop_assert!(n.validate().is_ok()); }
             }
-        }
-    }
-}
-#[cfg(test)]
-mod scratch {
-    use super::*;
-    use crate::shapes::box6;
-    use crate::testing::{detail_nodes, unsampled_base};
-    #[test]
-    fn sizes() {
-        for levels in [5u8, 6] {
-        let (base, nodes) = detail_nodes(unsampled_base(levels, box6([0.0; 3], [1.0; 3])), |p| {
-            ((p[0] * 3.0).sin() * (p[1] * 2.0).cosh() + p[2] * p[2]) as f32
-        });
-        let (lo, hi) = base.values.iter().fold((f32::MAX, f32::MIN), |a, &v| (a.0.min(v), a.1.max(v)));
-        let range = (hi - lo) as f64;
-        let nv = (1u64 << levels) + 1;
-        let nv = nv * nv * nv;
-        for rel in [1e-2, 1e-3, 1e-4] {
-            // open-loop: step = 2 * bound / levels as a crude stand-in
-            let step = (2.0 * rel * range / levels as f64) as f32;
-            let enc = Encoding::Quantized { bits: 24, step };
-            let q = enc.quantizer().unwrap();
-            let qn: Vec<DetailNode> = nodes.iter().map(|n| DetailNode { coeffs: n.coeffs.iter().map(|&c| q.decode(q.encode(c))).collect(), ..n.clone() }).collect();
-            let coder = BlockCoder::new(&base, &enc);
-            let mut total = 0;
-            for ch in qn.chunks(4096) { total += coder.encode(ch).unwrap().bytes.len(); }
-            let mut z = 0;
-            let zn: Vec<DetailNode> = qn.iter().map(|n| DetailNode { coeffs: vec![0.0; n.coeffs.len()], subtree_max_abs: 0.0, ..n.clone() }).collect();
-            for ch in zn.chunks(4096) { z += coder.encode(ch).unwrap().bytes.len(); }
-            let nz = qn.iter().flat_map(|n| n.coeffs.iter()).filter(|c| **c != 0.0).count();
-            eprintln!("L{levels} rel {rel}: nodes {} verts {nv} bytes {total} ({:.2} bits/vertex), meta-only {z}, nonzero coeffs {nz}, raw f32 {}", qn.len(), total as f64 * 8.0 / nv as f64, nv * 4);
-        }
         }
     }
 }

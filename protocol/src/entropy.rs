@@ -189,7 +189,8 @@ impl Decoder {
             .chunks_exact(4)
             .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
-        let coder = DefaultRangeDecoder::from_compressed(words).map_err(|_| EntropyError::Invalid)?;
+        let coder =
+            DefaultRangeDecoder::from_compressed(words).map_err(|_| EntropyError::Invalid)?;
         Ok(Decoder { coder })
     }
 

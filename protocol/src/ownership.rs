@@ -260,13 +260,11 @@ mod tests {
 
     #[test]
     fn every_child_face_on_a_parent_face_or_a_sibling() {
-        for c in 0..8 {
-            for f in 0..4 {
-                if let Site::Inside(s) = CHILD_FACES[c][f] {
+        for (c, faces) in CHILD_FACES.iter().enumerate() {
+            for site in faces {
+                if let Site::Inside(s) = *site {
                     // the sibling sees the same face, with this child across it
-                    assert!(CHILD_FACES[s as usize]
-                        .iter()
-                        .any(|x| *x == Site::Inside(c as u8)));
+                    assert!(CHILD_FACES[s as usize].contains(&Site::Inside(c as u8)));
                 }
             }
         }

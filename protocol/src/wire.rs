@@ -206,13 +206,11 @@ pub fn decode_client(frame: &[u8]) -> Result<ClientMsg, WireError> {
 pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
     let msg: ServerMsg = decode(frame)?;
     match &msg {
-        ServerMsg::Nodes { block, .. } => {
-            if block.count > MAX_BLOCK_NODES {
-                return Err(WireError::Invalid(format!(
-                    "block of {} nodes (limit {MAX_BLOCK_NODES})",
-                    block.count
-                )));
-            }
+        ServerMsg::Nodes { block, .. } if block.count > MAX_BLOCK_NODES => {
+            return Err(WireError::Invalid(format!(
+                "block of {} nodes (limit {MAX_BLOCK_NODES})",
+                block.count
+            )));
         }
         ServerMsg::Base(b) => b
             .validate()

@@ -5,8 +5,8 @@
 mod stream_common;
 
 use stream_common::*;
-use tetwave_protocol::view::Camera;
 use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{decode_server, ServerMsg};
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;

@@ -8,10 +8,10 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::wire::{
     decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
 };
-use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, ServeConfig, Shared};
