@@ -81,6 +81,31 @@ impl DecoderModel<PRECISION> for Binary {
 
 const EVEN: Binary = Binary(ONE / 2);
 
+/// 16 equiprobable bits as one symbol (raw bits cost one coder step per 16).
+#[derive(Debug, Clone, Copy)]
+struct Raw16;
+
+impl EntropyModel<PRECISION> for Raw16 {
+    type Symbol = u32;
+    type Probability = u32;
+}
+
+impl EncoderModel<PRECISION> for Raw16 {
+    fn left_cumulative_and_probability(
+        &self,
+        symbol: impl Borrow<u32>,
+    ) -> Option<(u32, NonZeroU32)> {
+        let s = *symbol.borrow();
+        (s < ONE).then_some((s, NonZeroU32::MIN))
+    }
+}
+
+impl DecoderModel<PRECISION> for Raw16 {
+    fn quantile_function(&self, quantile: u32) -> (u32, u32, NonZeroU32) {
+        (quantile, quantile, NonZeroU32::MIN)
+    }
+}
+
 /// The models of an unsigned integer: adaptive unary bit-length (up to [`UInt::MAX_BITS`]), then
 /// the mantissa bits below the leading one, the first [`UInt::MODELLED`] of them adaptive.
 #[derive(Debug, Clone)]
@@ -133,9 +158,17 @@ impl Encoder {
         model.update(bit);
     }
 
-    /// `n` bits of `v` (low bits first), each with probability 1/2.
+    /// The low `n` bits of `v` (at most 64), each with probability 1/2: 16 at a time, then one
+    /// at a time.
     pub fn raw(&mut self, v: u64, n: u32) {
-        for i in 0..n {
+        let mut i = 0;
+        while i + 16 <= n {
+            self.coder
+                .encode_symbol((v >> i & 0xffff) as u32, Raw16)
+                .expect("every 16-bit value has nonzero probability");
+            i += 16;
+        }
+        for i in i..n {
             self.coder
                 .encode_symbol(v >> i & 1 == 1, EVEN)
                 .expect("both symbols have nonzero probability");
@@ -205,7 +238,16 @@ impl Decoder {
 
     pub fn raw(&mut self, n: u32) -> Result<u64, EntropyError> {
         let mut v = 0u64;
-        for i in 0..n {
+        let mut i = 0;
+        while i + 16 <= n {
+            let w = self
+                .coder
+                .decode_symbol(Raw16)
+                .map_err(|_| EntropyError::Invalid)?;
+            v |= (w as u64) << i;
+            i += 16;
+        }
+        for i in i..n {
             let b = self
                 .coder
                 .decode_symbol(EVEN)
@@ -244,18 +286,23 @@ mod tests {
 
     proptest! {
         #[test]
-        fn integers_and_bits_round_trip(vals in proptest::collection::vec(0u64..(1 << 47), 0..200), bits in proptest::collection::vec(any::<bool>(), 0..200)) {
+        fn integers_and_bits_round_trip(vals in proptest::collection::vec(0u64..(1 << 47), 0..200), bits in proptest::collection::vec(any::<bool>(), 0..200), raws in proptest::collection::vec((any::<u64>(), 0u32..=64), 0..20)) {
             let (mut mu, mut mb) = (UInt::default(), Bit::default());
             let mut e = Encoder::default();
             for &v in &vals { e.uint(&mut mu, v).unwrap(); }
             for &b in &bits { e.bit(&mut mb, b); }
             e.raw(0xdead_beef, 32);
+            for &(v, n) in &raws { e.raw(v, n); }
             let bytes = e.finish();
             let (mut mu, mut mb) = (UInt::default(), Bit::default());
             let mut d = Decoder::new(&bytes).unwrap();
             for &v in &vals { prop_assert_eq!(d.uint(&mut mu).unwrap(), v); }
             for &b in &bits { prop_assert_eq!(d.bit(&mut mb).unwrap(), b); }
             prop_assert_eq!(d.raw(32).unwrap(), 0xdead_beef);
+            for &(v, n) in &raws {
+                let mask = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+                prop_assert_eq!(d.raw(n).unwrap(), v & mask);
+            }
         }
 
         #[test]

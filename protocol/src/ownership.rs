@@ -162,6 +162,26 @@ impl TetOwnership {
     }
 }
 
+/// [`TetOwnership::child`] as a table: per child index and parent state (`owned | faces << 6`),
+/// the child's state in the same packing.
+fn child_table() -> &'static [[u16; 1024]; 8] {
+    static T: std::sync::OnceLock<Box<[[u16; 1024]; 8]>> = std::sync::OnceLock::new();
+    T.get_or_init(|| {
+        let mut t = Box::new([[0u16; 1024]; 8]);
+        for (c, row) in t.iter_mut().enumerate() {
+            for (p, out) in row.iter_mut().enumerate() {
+                let parent = TetOwnership {
+                    owned: (p & 0x3f) as u8,
+                    faces: (p >> 6) as u8,
+                };
+                let s = parent.child(c);
+                *out = s.owned as u16 | (s.faces as u16) << 6;
+            }
+        }
+        t
+    })
+}
+
 /// Ownership of every node of a forest, from its base mesh.
 #[derive(Debug, Clone)]
 pub struct Ownership {
@@ -219,15 +239,21 @@ impl Ownership {
         }
     }
 
-    /// The state of tet `id` (which must be in the forest).
+    /// The state of tet `id` (which must be in the forest): one table lookup per level.
     pub fn of(&self, id: TetId) -> TetOwnership {
         let k = self.forest.level(id);
         let local = id - self.forest.level_start(k);
-        let mut s = self.base[(local >> (3 * k as u32)) as usize];
+        let s = self.base[(local >> (3 * k as u32)) as usize];
+        let table = child_table();
+        let mut state = s.owned as usize | (s.faces as usize) << 6;
         for j in 0..k {
-            s = s.child(((local >> (3 * (k - 1 - j) as u32)) & 7) as usize);
+            let c = ((local >> (3 * (k - 1 - j) as u32)) & 7) as usize;
+            state = table[c][state] as usize;
         }
-        s
+        TetOwnership {
+            owned: (state & 0x3f) as u8,
+            faces: (state >> 6) as u8,
+        }
     }
 
     /// The owned-edge mask of node `id`.
