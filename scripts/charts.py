@@ -27,9 +27,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def chart(path, title, xlabel, ylabel, series, labels=False):
+def chart(path, title, xlabel, ylabel, series, labels=False, xlog=False):
     """One chart: `series` is [(name, [(x, y, label or None), ...]), ...], drawn as lines with
-    markers; labels (e.g. tolerances) annotate their points. Prints what it drew."""
+    markers; labels (e.g. tolerances) annotate their points; `xlog`: logarithmic x axis. Prints
+    what it drew."""
     fig, ax = plt.subplots(figsize=(7.2, 4.5), dpi=100)
     points = 0
     for name, pts in series:
@@ -43,6 +44,8 @@ def chart(path, title, xlabel, ylabel, series, labels=False):
             for x, y, lab in pts:
                 if lab is not None:
                     ax.annotate(str(lab), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    if xlog:
+        ax.set_xscale("log")
     ax.set_title(title, fontsize=11)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)

@@ -257,6 +257,8 @@ pub struct VerifyReport {
     pub nodes: u64,
     pub max_abs_error: f64,
     pub max_error_bound: f64,
+    /// Root-mean-square of synthesis − sample over every vertex (for PSNR against the samples).
+    pub rms_error: f64,
     pub exact_vertices: u64,
     pub seconds: f64,
 }
@@ -295,12 +297,15 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
     }
     let reference = store.read_reference()?;
     let mut max_err = 0f64;
+    let mut sum_sq = 0f64;
     let mut exact = 0u64;
     for (a, b) in values.iter().zip(&reference) {
         if a == b {
             exact += 1;
         }
-        max_err = max_err.max((*a as f64 - *b as f64).abs());
+        let d = *a as f64 - *b as f64;
+        max_err = max_err.max(d.abs());
+        sum_sq += d * d;
     }
     let bound = store.manifest.max_error_bound;
     if max_err > bound || max_err.is_nan() {
@@ -316,6 +321,7 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
         nodes,
         max_abs_error: max_err,
         max_error_bound: bound,
+        rms_error: (sum_sq / n.max(1) as f64).sqrt(),
         exact_vertices: exact,
         seconds: t0.elapsed().as_secs_f64(),
     })

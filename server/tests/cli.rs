@@ -110,6 +110,12 @@ fn quantized_12_bits_within_manifest_bound() {
     assert!(r.ok, "{}", r.stderr);
     let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
     assert!(v["max_abs_error"].as_f64().unwrap() <= bound);
+    // the RMS error (PSNR's) is positive for a quantized store and at most the largest error
+    let rms = v["rms_error"].as_f64().unwrap();
+    assert!(
+        rms > 0.0 && rms <= v["max_abs_error"].as_f64().unwrap(),
+        "{v}"
+    );
     // 12-bit codes take 2 bytes: the coefficient file is half the lossless one
     let m: Value =
         serde_json::from_str(&std::fs::read_to_string(store.join("manifest.json")).unwrap())
