@@ -77,7 +77,8 @@ pub struct BlockCoder {
 
 /// Every adaptive model of one block.
 struct Models {
-    gap: [UInt; 2],
+    /// By the bit length of the previous gap (capped).
+    gap: Vec<UInt>,
     mask_differs: [Bit; 9],
     empty_any: Bit,
     empty_bits: [Bit; 8],
@@ -88,7 +89,7 @@ struct Models {
 impl Models {
     fn new() -> Self {
         Models {
-            gap: Default::default(),
+            gap: vec![UInt::default(); GAP_CONTEXTS],
             mask_differs: [Bit::default(); 9],
             empty_any: Bit::default(),
             empty_bits: [Bit::default(); 8],
@@ -132,7 +133,7 @@ impl BlockCoder {
         let mut e = Encoder::default();
         let mut m = Models::new();
         let mut prev: Option<TetId> = None;
-        let (mut prev_gap_zero, mut prev_class) = (1usize, 0u32);
+        let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
         for n in &order {
             if n.id >= total {
                 return Err(BlockError::IdOutOfRange {
@@ -146,8 +147,8 @@ impl BlockCoder {
             })?;
             if let Some(p) = prev {
                 let gap = n.id - p - 1;
-                e.uint(&mut m.gap[prev_gap_zero], gap)?;
-                prev_gap_zero = (gap == 0) as usize;
+                e.uint(&mut m.gap[gap_ctx], gap)?;
+                gap_ctx = gap_context(gap);
             }
             prev = Some(n.id);
             let derived = self.ownership.owned(n.id);
@@ -218,11 +219,11 @@ impl BlockCoder {
         let mut d = Decoder::new(&block.bytes)?;
         let mut m = Models::new();
         let mut id = block.first;
-        let (mut prev_gap_zero, mut prev_class) = (1usize, 0u32);
+        let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
         for i in 0..block.count {
             if i > 0 {
-                let gap = d.uint(&mut m.gap[prev_gap_zero])?;
-                prev_gap_zero = (gap == 0) as usize;
+                let gap = d.uint(&mut m.gap[gap_ctx])?;
+                gap_ctx = gap_context(gap);
                 id = id
                     .checked_add(gap)
                     .and_then(|x| x.checked_add(1))
@@ -305,6 +306,13 @@ impl BlockCoder {
         }
         Ok(out)
     }
+}
+
+/// Gap contexts: the previous gap's bit length, 0..=11 (longer gaps share the last).
+const GAP_CONTEXTS: usize = 12;
+
+fn gap_context(gap: u64) -> usize {
+    ((u64::BITS - gap.leading_zeros()) as usize).min(GAP_CONTEXTS - 1)
 }
 
 /// The decoded subtree bound of class `k`: `(2^k − 1) · step`, rounded up to an f32.

@@ -313,7 +313,23 @@ impl Schedule {
                         self.rescans += 1;
                     }
                     match p.chunk.pop() {
-                        Some(i) => i,
+                        Some(i) => {
+                            // with its unsent siblings: they lie beside it (about the same
+                            // priority), and a batch of whole sibling groups codes its ids as
+                            // runs (protocol::block) instead of scattered gaps
+                            self.mark_done(i);
+                            out.push(i);
+                            if let Some(c) = s.forest().child_index(i) {
+                                let first = i - c as u64;
+                                for j in first..first + 8 {
+                                    if out.len() < max && !self.done.get(j) {
+                                        self.mark_done(j);
+                                        out.push(j);
+                                    }
+                                }
+                            }
+                            continue;
+                        }
                         None => break,
                     }
                 }

@@ -193,6 +193,10 @@ impl Shared {
     }
 
     /// The nodes `ids` (in that order when cached, else in increasing id order).
+    pub(super) fn forest(&self) -> Forest {
+        self.forest
+    }
+
     /// Nodes `ids` (sorted in place) as one coded block.
     pub(super) fn fetch_block(&self, ids: &mut [TetId]) -> Result<NodeBlock, ServeError> {
         let nodes = self.fetch(ids)?;
