@@ -231,8 +231,10 @@ async fn view_order_follows_the_camera() {
         100.0 * fb
     );
     assert!(na > 100 && nb > 100, "enough fine nodes to judge");
-    assert!(fa > 0.8, "view A: {fa}");
-    assert!(fb > 0.8, "view B: {fb}");
+    // (a node goes with its unsent siblings, for the coding of ids: a few of those lie across the
+    // bisector of the two eyes, so the bar is 3 in 4 rather than 4 in 5; a random order gives 1 in 2)
+    assert!(fa > 0.75, "view A: {fa}");
+    assert!(fb > 0.75, "view B: {fb}");
     // and the session still completes with everything exactly once
     let (rest, _, _) = receive_nodes(&mut ws, &coder_for(&dir)).await;
     let _ = ws.close(None).await;
