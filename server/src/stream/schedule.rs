@@ -141,6 +141,8 @@ struct ViewPlan {
     stale: bool,
     /// When the last rescan ended, and what it cost.
     last: Option<(Instant, Duration)>,
+    /// The client has sent a `View` (before that, `view` is the default one).
+    client_view: bool,
 }
 
 impl ViewPlan {
@@ -204,6 +206,7 @@ impl Schedule {
                 chunk: Vec::new(),
                 stale: true,
                 last: None,
+                client_view: false,
             }),
         };
         Schedule {
@@ -256,6 +259,12 @@ impl Schedule {
         if let Plan::View(p) = &mut self.plan {
             p.view = v;
             p.stale = true;
+            if !p.client_view {
+                // the client's first view replaces the default at once: the rate limit is for
+                // re-prioritising, and the default view's chunk is nobody's camera
+                p.client_view = true;
+                p.last = None;
+            }
         }
     }
 
