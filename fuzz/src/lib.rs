@@ -2,19 +2,20 @@
 //! the wire decoders are total (an error value, never a panic, for any bytes), and a frame that
 //! decodes re-encodes to a frame that decodes to the same bytes again (idempotent round trip); a
 //! `Nodes` frame's block decodes (with the coders of a small hierarchy, lossless and quantized) to
-//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes.
+//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes; and
+//! every input is also fed to the block decoder directly as a block's coded bytes.
 
+use std::sync::OnceLock;
+use tetwave_protocol::block::{BlockCoder, NodeBlock};
+use tetwave_protocol::shapes::box5;
+use tetwave_protocol::store_format::Encoding;
 use tetwave_protocol::wire::{
     decode_client, decode_server, encode, frame_len, ClientMsg, IdRange, ServerMsg, ViewParams,
     PROTOCOL_VERSION,
 };
-use std::sync::OnceLock;
-use tetwave_protocol::block::BlockCoder;
-use tetwave_protocol::shapes::box5;
-use tetwave_protocol::store_format::Encoding;
 use tetwave_protocol::{BaseMesh, DetailNode};
 
-/// A level-3 box5 hierarchy: 2,925 nodes.
+/// A level-3 box5 hierarchy: 365 nodes.
 fn base() -> BaseMesh {
     let (positions, tets) = box5([0.0; 3], [1.0; 3]);
     BaseMesh {
@@ -65,16 +66,34 @@ pub fn check(data: &[u8]) {
             "server round trip is idempotent"
         );
         if let ServerMsg::Nodes { block, .. } = &m {
-            for c in coders() {
-                if let Ok(nodes) = c.decode(block) {
-                    assert_eq!(nodes.len(), block.count as usize);
-                    for n in &nodes {
-                        n.validate().expect("decoded nodes are valid");
-                    }
-                    let again = c.encode(&nodes).expect("decoded nodes re-code");
-                    assert_eq!(c.decode(&again).unwrap(), nodes, "block round trip");
-                }
+            check_block(block);
+        }
+    }
+    // the same bytes as a block's coded data, straight into the block decoder: the first byte a
+    // node count (0..=255), the next a first id (0..=255), the rest the range coder's bytes
+    if data.len() >= 2 {
+        let mut bytes = data[2..].to_vec();
+        bytes.truncate(bytes.len() / 4 * 4);
+        check_block(&NodeBlock {
+            count: data[0] as u32,
+            first: data[1] as u64,
+            bytes,
+        });
+    }
+}
+
+/// A block decodes, with each coder, to valid nodes in increasing id order that re-code to the
+/// same nodes, or to an error.
+fn check_block(block: &NodeBlock) {
+    for c in coders() {
+        if let Ok(nodes) = c.decode(block) {
+            assert_eq!(nodes.len(), block.count as usize);
+            for n in &nodes {
+                n.validate().expect("decoded nodes are valid");
             }
+            assert!(nodes.windows(2).all(|w| w[0].id < w[1].id), "ids increase");
+            let again = c.encode(&nodes).expect("decoded nodes re-code");
+            assert_eq!(c.decode(&again).unwrap(), nodes, "block round trip");
         }
     }
 }
@@ -124,7 +143,7 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
         ServerMsg::Nodes {
             seq: 2,
             block: coders()[1]
-                .encode(&[node(0, 0b111111), node(9, 0b000101), node(700, 0)])
+                .encode(&[node(0, 0b111111), node(9, 0b000101), node(300, 0)])
                 .expect("valid nodes"),
         },
         ServerMsg::End { nodes_sent: 1234 },

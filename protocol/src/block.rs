@@ -172,19 +172,23 @@ impl BlockCoder {
                 }
                 Coefficients::Quantized(q) => {
                     let codes: Vec<i32> = n.coeffs.iter().map(|&c| q.encode(c)).collect();
-                    let own = codes.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0) as f64;
-                    let below = (n.subtree_max_abs as f64 / q.step as f64).ceil();
-                    let mag = below.max(own);
-                    if mag.is_nan() || mag >= (1u64 << MAX_CLASS) as f64 {
-                        return Err(BlockError::BadNode {
+                    // the smallest class whose decoded bound covers the subtree max and whose
+                    // magnitudes cover the node's own codes (so a decoded node re-codes to the
+                    // same class)
+                    let own = codes.iter().map(|c| c.unsigned_abs()).max().unwrap_or(0);
+                    let min_class = u32::BITS - own.leading_zeros();
+                    let class = (min_class..=MAX_CLASS)
+                        .find(|&k| {
+                            let b = class_bound(k, q.step);
+                            b.is_finite() && b >= n.subtree_max_abs
+                        })
+                        .ok_or_else(|| BlockError::BadNode {
                             id: n.id,
                             reason: format!(
                                 "subtree max {} is beyond {MAX_CLASS} bits of step {}",
                                 n.subtree_max_abs, q.step
                             ),
-                        });
-                    }
-                    let class = u64::BITS - (mag as u64).leading_zeros();
+                        })?;
                     e.uint(&mut m.class[prev_class.min(15) as usize], class as u64)?;
                     prev_class = class;
                     if class > 0 {
@@ -388,6 +392,8 @@ mod tests {
                 a.id
             );
         }
+        // what decodes re-codes to itself (the classes of decoded bounds are stable)
+        assert_eq!(coder.decode(&coder.encode(&back).unwrap()).unwrap(), back);
         // all nodes: far below the 6-byte record plus 2-byte codes per coefficient
         let all = coder.encode(&nodes).unwrap();
         let fixed: usize = nodes.iter().map(|n| 6 + 2 * n.coeffs.len()).sum();
