@@ -69,8 +69,12 @@ fn xvfb_run() -> &'static str {
     "xvfb-run"
 }
 
+/// One Xvfb at a time: `xvfb-run -a` picks a free display number, racily when two start at once.
+static XVFB: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// `tetwave view ARGS` in a 24-bit Xvfb screen, killed after `limit_s` seconds.
 fn view_under_xvfb(args: &[&str], limit_s: u32) -> Output {
+    let _one = XVFB.lock().unwrap_or_else(|e| e.into_inner());
     let out = Command::new("timeout")
         .arg(limit_s.to_string())
         .args([xvfb_run(), "-a", "-s", "-screen 0 1024x768x24"])
@@ -151,8 +155,42 @@ fn view_with_an_unreachable_display_fails_with_one_clear_line() {
         .expect("tetwave runs");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(err.contains("cannot open the viewer's window"), "{err}");
+    // the GPU driver may print its own lines first (Mesa's Vulkan WSI complains about an unset
+    // XDG_RUNTIME_DIR); the viewer's own message is one line, the last
+    let ours: Vec<&str> = err.lines().filter(|l| l.contains("viewer")).collect();
+    assert_eq!(ours.len(), 1, "one line: {err}");
+    assert_eq!(err.trim().lines().last(), Some(ours[0]), "{err}");
+    assert!(
+        ours[0].starts_with("error: cannot open the viewer's window"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn view_without_a_gpu_adapter_fails_with_one_clear_line() {
+    let (_d, s) = store(2);
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("view")
+        .arg(&s)
+        .args(["--frames", "1"])
+        // a display is set (none needs to listen: the adapter is looked for first), and the
+        // Vulkan loader finds no driver
+        .env("DISPLAY", ":987")
+        .env("WGPU_BACKEND", "vulkan")
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    // wgpu logs the loader's own complaints first; the viewer's message is the last line
+    let last = err.trim().lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("error: cannot start the viewer: no GPU adapter found"),
+        "{err}"
+    );
+    assert_eq!(err.matches("cannot start the viewer").count(), 1, "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
 
@@ -239,9 +277,21 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
         ps >= 40.0,
         "the server image as shown vs the client's: {ps:.2} dB"
     );
+    // the orbit changes the frame: the two differ far beyond the agreement threshold, on many
+    // pixels
+    let changed = ia
+        .pixels
+        .iter()
+        .zip(&ib.pixels)
+        .filter(|(p, q)| (0..3).any(|k| p[k].abs_diff(q[k]) > 8))
+        .count();
+    eprintln!(
+        "pixels changed by the orbit: {changed} of {}",
+        ia.pixels.len()
+    );
     assert!(
-        pab < 30.0,
-        "the orbit should change the frame: {pab:.2} dB between the two"
+        pab < 36.0 && changed > ia.pixels.len() / 20,
+        "the orbit should change the frame: {pab:.2} dB, {changed} pixels changed"
     );
     // not blank: the volume covers a good part of the view
     let lit = ia.pixels.iter().filter(|p| p[..3] != [0, 0, 0]).count();

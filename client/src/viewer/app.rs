@@ -97,6 +97,8 @@ pub struct ViewerApp {
     closing: bool,
     status: String,
     report: Arc<Mutex<ViewReport>>,
+    /// The editor's file for loading and saving the transfer function.
+    tf_path: String,
     screenshots: Vec<String>,
     server_psnr_db: Option<f64>,
     errors: Vec<String>,
@@ -161,6 +163,11 @@ impl ViewerApp {
             closing: false,
             status: String::new(),
             report,
+            tf_path: if args.tf.ends_with(".json") {
+                args.tf.clone()
+            } else {
+                "tf.json".into()
+            },
             screenshots: Vec::new(),
             server_psnr_db: None,
             errors: Vec::new(),
@@ -193,16 +200,15 @@ impl ViewerApp {
         self.orbit.zoom(factor, 1e-3 * diag, 100.0 * diag);
     }
 
-    fn set_tf(&mut self, spec: &str) {
-        match TransferFunction::load(spec) {
-            Ok(tf) => {
-                self.tf = tf;
-                self.tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
-                self.image_dirty = true;
-                self.server = ServerImage::None;
-            }
-            Err(e) => self.fail(format!("transfer function {spec}: {e}")),
-        }
+    /// Loads a preset or a `.json` file as the transfer function.
+    fn set_tf(&mut self, spec: &str) -> Result<(), String> {
+        let tf =
+            TransferFunction::load(spec).map_err(|e| format!("transfer function {spec}: {e}"))?;
+        self.tf = tf;
+        self.tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
+        self.image_dirty = true;
+        self.server = ServerImage::None;
+        Ok(())
     }
 
     /// Saves the view's part of a window screenshot.
@@ -380,7 +386,9 @@ impl ViewerApp {
                     changes_view = true;
                 }
                 Action::Tf(spec) => {
-                    self.set_tf(spec);
+                    if let Err(e) = self.set_tf(spec) {
+                        self.fail(e);
+                    }
                     changes_view = true;
                 }
                 Action::Tol(t) => {
@@ -570,10 +578,11 @@ impl ViewerApp {
                 ui.radio_value(&mut self.mode, m, m.name());
             }
         });
-        let mut preset = self
+        let shown = self
             .tf_preset
             .clone()
             .unwrap_or_else(|| self.tf.name.clone());
+        let mut preset = shown.clone();
         egui::ComboBox::from_label("transfer function")
             .selected_text(preset.clone())
             .show_ui(ui, |ui| {
@@ -581,9 +590,35 @@ impl ViewerApp {
                     ui.selectable_value(&mut preset, p.to_string(), p);
                 }
             });
-        if Some(&preset) != self.tf_preset.as_ref() && PRESETS.contains(&preset.as_str()) {
-            self.set_tf(&preset);
+        // a preset picked in the box (not a loaded or edited function that bears a preset's name)
+        if preset != shown && PRESETS.contains(&preset.as_str()) {
+            if let Err(e) = self.set_tf(&preset) {
+                self.status = e;
+            }
         }
+        egui::CollapsingHeader::new("transfer function editor").show(ui, |ui| {
+            if super::tf_edit::edit(ui, &mut self.tf) {
+                self.tf_preset = None;
+                self.image_dirty = true;
+                self.server = ServerImage::None;
+            }
+            ui.horizontal(|ui| {
+                ui.add(egui::TextEdit::singleline(&mut self.tf_path).desired_width(120.0));
+                if ui.button("load").clicked() {
+                    let p = self.tf_path.clone();
+                    self.status = match self.set_tf(&p) {
+                        Ok(()) => format!("loaded {p}"),
+                        Err(e) => e,
+                    };
+                }
+                if ui.button("save").clicked() {
+                    match super::tf_edit::save(&self.tf, std::path::Path::new(&self.tf_path)) {
+                        Ok(()) => self.status = format!("saved {}", self.tf_path),
+                        Err(e) => self.status = format!("cannot save: {e}"),
+                    }
+                }
+            });
+        });
         ui.horizontal(|ui| {
             if ui.button("Reset view").clicked() {
                 if let Some(h) = self.home {

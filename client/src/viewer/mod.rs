@@ -9,6 +9,7 @@
 //! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
 //! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
 //!   screenshots).
+//! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
 //! - [`app`]: the window's frame loop and side panel.
 //!
 //! Failures to start (no display, no GPU adapter, a bad source or script) are one-line errors;
@@ -20,11 +21,12 @@ pub mod data;
 pub mod gpu;
 pub mod orbit;
 pub mod script;
+pub mod tf_edit;
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use tetwave_render::gpu::GpuContext;
+use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::transfer::TransferFunction;
 
 /// Refinement modes of the viewer.
@@ -186,7 +188,14 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         ));
     }
     let source = data::Source::parse(&args.source);
-    let ctx = GpuContext::new().map_err(|e| start(format!("cannot start the viewer: {e}")))?;
+    let ctx = GpuContext::new().map_err(|e| match e {
+        RenderError::NoAdapter => start(
+            "cannot start the viewer: no GPU adapter found (wgpu saw none for Vulkan or GL; on \
+             Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver)"
+                .into(),
+        ),
+        e => start(format!("cannot start the viewer: {e}")),
+    })?;
     let data = data::Data::open(
         &source,
         args.token.clone(),
