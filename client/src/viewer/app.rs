@@ -549,7 +549,8 @@ impl ViewerApp {
                 format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
             );
             row("refine", format!("{:.2} ms", self.refine_ms));
-            row("render", format!("{:.2} ms", self.render_ms));
+            // the CPU side of a frame's draw: sort, exit faces, submission
+            row("render (CPU)", format!("{:.2} ms", self.render_ms));
             row("FPS", format!("{:.1}", self.fps));
             row("view", format!("{}×{}", self.view_px.0, self.view_px.1));
         });
@@ -573,7 +574,7 @@ impl ViewerApp {
                 .step_by(0.25),
         );
         self.tol = tol;
-        ui.horizontal(|ui| {
+        ui.horizontal_wrapped(|ui| {
             for m in ViewMode::ALL {
                 ui.radio_value(&mut self.mode, m, m.name());
             }
