@@ -300,6 +300,59 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
     assert!(psnr(&png(&last), &ib) >= 40.0);
 }
 
+/// The tolerance drives refinement: a coarse tolerance draws fewer tets and a worse image, 0
+/// draws the finest level, which agrees with the offscreen render.
+#[test]
+fn view_tolerance_coarsens_and_refines() {
+    let (d, s) = store(3);
+    let srv = serve(&s);
+    let dir = d.path();
+    let (coarse, fine) = (dir.join("coarse.png"), dir.join("fine.png"));
+    let script = serde_json::json!([
+        {"wait": "complete"},
+        {"screenshot": coarse},
+        {"tol": 0},
+        {"wait": "complete"},
+        {"screenshot": fine},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            &srv.1,
+            "--size",
+            "160x160",
+            "--mode",
+            "progressive",
+            "--tol",
+            "1000",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "5000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}");
+    // 5 base tets × 8³ at the finest of 3 levels; fewer at the coarse tolerance
+    assert_eq!(r["tets"], 2560, "{r}");
+    let coarse_tets = r["screenshot_tets"][0].as_u64().unwrap();
+    assert!(coarse_tets < 2560, "{r}");
+    let reference = offscreen(&s, 35.0, 25.0, (160, 160), &dir.join("ref.png"));
+    let (pc, pf) = (
+        psnr(&png(&coarse), &reference),
+        psnr(&png(&fine), &reference),
+    );
+    eprintln!("tolerance 1000 px: {pc:.2} dB, 0 px: {pf:.2} dB against the finest level");
+    assert!(pf >= 40.0, "tolerance 0: {pf:.2} dB");
+    assert!(pc < pf && pc < 40.0, "tolerance 1000 px: {pc:.2} dB");
+}
+
 /// A local store and a mesh file open too (no server), and `--frames` ends the run.
 #[test]
 fn view_opens_a_store_and_a_mesh_file() {

@@ -100,6 +100,7 @@ pub struct ViewerApp {
     /// The editor's file for loading and saving the transfer function.
     tf_path: String,
     screenshots: Vec<String>,
+    screenshot_tets: Vec<u64>,
     server_psnr_db: Option<f64>,
     errors: Vec<String>,
 }
@@ -169,6 +170,7 @@ impl ViewerApp {
                 "tf.json".into()
             },
             screenshots: Vec::new(),
+            screenshot_tets: Vec::new(),
             server_psnr_db: None,
             errors: Vec::new(),
             gpu,
@@ -233,7 +235,10 @@ impl ViewerApp {
             }
         }
         match out.save(&path) {
-            Ok(()) => self.screenshots.push(path.display().to_string()),
+            Ok(()) => {
+                self.screenshots.push(path.display().to_string());
+                self.screenshot_tets.push(self.tets);
+            }
             Err(e) => self.fail(format!("screenshot {}: {e}", path.display())),
         }
     }
@@ -569,7 +574,9 @@ impl ViewerApp {
         ui.separator();
         let mut tol = self.tol;
         ui.add(
+            // the slider spans 0..=32 px; `--tol` and the script may set more, which it keeps
             egui::Slider::new(&mut tol, 0.0..=32.0)
+                .clamping(egui::SliderClamping::Never)
                 .text("tolerance (px)")
                 .step_by(0.25),
         );
@@ -684,6 +691,7 @@ impl ViewerApp {
             mode: self.mode,
             tol_px: self.tol,
             screenshots: self.screenshots.clone(),
+            screenshot_tets: self.screenshot_tets.clone(),
             server_psnr_db: self.server_psnr_db,
             script_steps: [self.step, self.steps.len()],
             errors,

@@ -146,6 +146,8 @@ pub struct ViewReport {
     pub mode: ViewMode,
     pub tol_px: f64,
     pub screenshots: Vec<String>,
+    /// Tets drawn in each screenshot's view.
+    pub screenshot_tets: Vec<u64>,
     /// PSNR of the server's image against the client's render of the same camera, transfer
     /// function and mesh (the last server image shown).
     pub server_psnr_db: Option<f64>,
