@@ -2,7 +2,7 @@
 //!
 //! The client side of tetwave: the [`detail_buffer`] (every node that has arrived), the adaptive
 //! red/green [`mesh`], view-dependent [`select`]ion, the leaf mesh as renderers [`draw`] it, the
-//! stream client ([`stream`]), the progressive benchmark ([`progressive`]) and the CLI's render and
+//! stream client ([`stream`]), the interactive [`viewer`] (`tetwave view`), the progressive benchmark ([`progressive`]) and the CLI's render and
 //! store commands. Rendering itself is `tetwave-render`'s; stores are read through `tetwave-store`.
 
 pub mod camera_arg;
@@ -17,3 +17,4 @@ pub mod select;
 pub mod session;
 pub mod store_info;
 pub mod stream;
+pub mod viewer;

@@ -32,6 +32,12 @@ enum Cmd {
     /// fails before every node has arrived (a refused node or frame, a lost connection, nodes the
     /// server never sends, a hierarchy over --max-nodes) exits with status 1.
     Stream(tetwave_client::stream::StreamArgs),
+    /// The interactive viewer: a window that streams from a server (or reads a store, or a mesh
+    /// file), refines and renders as the camera moves, and shows the server's `/v1/render` image
+    /// on request. Orbit/pan/zoom with the mouse and keys; `--script`, `--screenshot` and
+    /// `--frames` for scripted runs. Needs a display (X11; `xvfb-run -a` headless) and a GPU
+    /// adapter (lavapipe works).
+    View(tetwave_client::viewer::ViewArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -67,10 +73,39 @@ fn bench_progressive(args: &tetwave_client::progressive::BenchArgs) -> ExitCode 
     }
 }
 
+fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
+    use tetwave_client::viewer::{run, ViewError, ViewReport};
+    let summary = |r: &ViewReport| {
+        if args.json {
+            println!("{}", serde_json::to_string(r).expect("serializes"));
+        } else {
+            eprintln!(
+                "view: {} frames ({:.1} fps), {}/{} nodes, {} tets, {} bytes",
+                r.frames, r.fps, r.nodes, r.nodes_total, r.tets, r.bytes_received
+            );
+        }
+    };
+    match run(args) {
+        Ok(r) => {
+            summary(&r);
+            ExitCode::SUCCESS
+        }
+        Err(ViewError::Run(errors, r)) => {
+            summary(&r);
+            eprintln!("error: {}", errors.join("; "));
+            ExitCode::FAILURE
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter("warn")
+        .with_env_filter("warn,winit=error")
         .init();
     match Cli::parse().cmd {
         Cmd::Stream(args) => match tetwave_client::stream::run(&args) {
@@ -99,6 +134,7 @@ fn main() -> ExitCode {
         Cmd::Bench {
             which: BenchCmd::Progressive(args),
         } => bench_progressive(&args),
+        Cmd::View(args) => view(&args),
         Cmd::Render(args) => match tetwave_client::render_cli::run(&args) {
             Ok(r) => {
                 if args.json {

@@ -98,6 +98,14 @@ impl Session {
         self.sel.converge(&mut self.mesh, &self.buf, cam, mode)
     }
 
+    /// Changes the selector's tolerance; the next frame looks at the whole mesh again.
+    pub fn set_tolerance(&mut self, tol: crate::select::Tolerance) {
+        if self.sel.params.tol != tol {
+            self.sel.params.tol = tol;
+            self.sel.notify_arrivals();
+        }
+    }
+
     /// Whether the last frame left nothing to do for its camera and the nodes held.
     pub fn is_converged(&self) -> bool {
         self.sel.is_converged()

@@ -271,7 +271,7 @@ pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
     out
 }
 
-fn ws_url(url: &str) -> Result<String, StreamError> {
+pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
     let rest = url
         .strip_prefix("http://")
         .or_else(|| url.strip_prefix("ws://"))
@@ -296,11 +296,23 @@ pub struct Faults {
     pub reverse_groups: Option<usize>,
 }
 
-struct Net {
-    bytes: Arc<AtomicU64>,
-    reconnects: Arc<AtomicU64>,
+/// The network task's counters, shared with the session that reads them (this module's frame
+/// loop, or the viewer's).
+pub(crate) struct Net {
+    pub(crate) bytes: Arc<AtomicU64>,
+    pub(crate) reconnects: Arc<AtomicU64>,
     /// Node ids received over the wire (for resume), whether or not applied yet.
-    received: Arc<Mutex<BTreeSet<TetId>>>,
+    pub(crate) received: Arc<Mutex<BTreeSet<TetId>>>,
+}
+
+impl Net {
+    pub(crate) fn new() -> Self {
+        Net {
+            bytes: Arc::new(AtomicU64::new(0)),
+            reconnects: Arc::new(AtomicU64::new(0)),
+            received: Arc::new(Mutex::new(BTreeSet::new())),
+        }
+    }
 }
 
 /// A server message as the frame loop takes it: node blocks already decoded (on the network
@@ -356,12 +368,12 @@ impl BlockDecoder {
 }
 
 /// Decoded messages (batches, mostly) the network task may queue ahead of the frame loop.
-const INGEST_QUEUE: usize = 256;
+pub(crate) const INGEST_QUEUE: usize = 256;
 
 /// Waits between reconnect attempts: none before the first, then 100 ms times the attempts before.
 const RETRY_STEP: Duration = Duration::from_millis(100);
 
-async fn network(
+pub(crate) async fn network(
     url: String,
     token: Option<String>,
     net: Arc<Net>,
@@ -581,11 +593,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         r.warm_up(&ctx, &tf)?;
         Some((ctx, r))
     };
-    let net = Arc::new(Net {
-        bytes: Arc::new(AtomicU64::new(0)),
-        reconnects: Arc::new(AtomicU64::new(0)),
-        received: Arc::new(Mutex::new(BTreeSet::new())),
-    });
+    let net = Arc::new(Net::new());
     // decoded messages waiting for the frame loop; the network task acknowledges a batch once it is
     // queued here, so when the queue is full the network waits, the server's window fills and the
     // server slows down (backpressure)

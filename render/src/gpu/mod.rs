@@ -21,6 +21,9 @@ pub enum RenderError {
 
 /// Instance, adapter, device and queue, created once and shared.
 pub struct GpuContext {
+    /// The instance the adapter came from: a window's surface must be created from it to be
+    /// presentable with this device (the viewer shares the device with its window).
+    pub instance: wgpu::Instance,
     pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
@@ -48,11 +51,11 @@ impl GpuContext {
             let instance = wgpu::Instance::new(desc);
             let adapters = pollster::block_on(instance.enumerate_adapters(backends));
             if let Some(a) = adapters.into_iter().next() {
-                found = Some(a);
+                found = Some((instance, a));
                 break;
             }
         }
-        let adapter = found.ok_or(RenderError::NoAdapter)?;
+        let (instance, adapter) = found.ok_or(RenderError::NoAdapter)?;
         // the transfer-function table is one 64 KiB uniform binding (see `pt::TF_TABLE_INTERVALS`)
         let uniform = adapter.limits().max_uniform_buffer_binding_size;
         if uniform < pt::TF_TABLE_BYTES {
@@ -81,6 +84,7 @@ impl GpuContext {
         .map_err(|e| RenderError::Device(e.to_string()))?;
         tracing::info!(adapter = %adapter.get_info().name, backend = ?adapter.get_info().backend, "GPU adapter");
         Ok(GpuContext {
+            instance,
             adapter,
             device,
             queue,

@@ -1,0 +1,879 @@
+//! The viewer's frame loop (an eframe app). Each frame, in order: screenshots and server images
+//! that arrived are taken in; what the network delivered is applied within [`INGEST_BUDGET`]; the
+//! panel and the mouse and keys act; the script plays its next steps; the mesh is refined for the
+//! camera under the selector's budget for the mode; the leaf mesh is uploaded if it changed and
+//! drawn into the offscreen target if anything it shows changed; the target (or the server's
+//! image) is copied into the view.
+
+use super::data::Data;
+use super::gpu::{Blit, BlitCallback, Target};
+use super::orbit::Orbit;
+use super::script::{Action, Step, WaitFor};
+use super::{ViewArgs, ViewMode, ViewReport};
+use crate::select::{Mode, Tolerance};
+use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
+use eframe::egui_wgpu;
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::pt::{Accumulation, PtRenderer, TetDrawData, VisibilityOrder};
+use tetwave_render::gpu::GpuContext;
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_render::transfer::TransferFunction;
+
+/// Width of the side panel, in points.
+pub const PANEL_WIDTH: f32 = 260.0;
+
+/// Time per frame for applying arrived nodes (refinement has the selector's own budget).
+pub const INGEST_BUDGET: Duration = Duration::from_millis(8);
+
+/// The transfer-function presets (what the server's `/v1/render` knows too).
+const PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
+
+/// Degrees of rotation per pixel dragged, and per arrow key.
+const DEG_PER_PX: f64 = 0.4;
+const DEG_PER_KEY: f64 = 5.0;
+
+/// The server's image of a view.
+enum ServerImage {
+    None,
+    /// Requested for `cam`; the answer comes on `rx`.
+    Pending {
+        cam: Camera,
+        rx: mpsc::Receiver<Result<Rgba8Image, String>>,
+    },
+    /// Shown until the camera (or what the view shows) changes.
+    Shown {
+        target: Target,
+        psnr_db: f64,
+    },
+}
+
+pub struct ViewerApp {
+    args: ViewArgs,
+    gpu: Arc<GpuContext>,
+    renderer: PtRenderer,
+    blit: Blit,
+    data: Data,
+    tf: TransferFunction,
+    /// The preset the transfer function is, if it is one (the server knows only presets).
+    tf_preset: Option<String>,
+    tol: f64,
+    mode: ViewMode,
+    orbit: Orbit,
+    home: Option<Orbit>,
+    /// The view's rectangle (points) and size (pixels) in the last frame.
+    view_rect: Rect,
+    view_px: (u32, u32),
+    target: Option<Target>,
+    draw_data: Option<TetDrawData>,
+    tets: u64,
+    mesh_dirty: bool,
+    image_dirty: bool,
+    last_cam: Option<Camera>,
+    /// The camera moved in this frame (by the mouse, keys or the script).
+    moving: bool,
+    refine_ms: f64,
+    render_ms: f64,
+    fps: f64,
+    last_frame: Instant,
+    started: Instant,
+    frames: u64,
+    /// The last frame at whose end the mesh was converged for the camera and drawn, and whether
+    /// every node was held then.
+    settled: Option<(u64, bool)>,
+    steps: Vec<Step>,
+    step: usize,
+    /// The frame the current step began in.
+    step_frame: Option<u64>,
+    quit: bool,
+    shot_tx: mpsc::Sender<(PathBuf, Rect, f32, Arc<egui::ColorImage>)>,
+    shot_rx: mpsc::Receiver<(PathBuf, Rect, f32, Arc<egui::ColorImage>)>,
+    /// A screenshot requested and not yet written.
+    pending_shot: Option<PathBuf>,
+    server: ServerImage,
+    closing: bool,
+    status: String,
+    report: Arc<Mutex<ViewReport>>,
+    /// The editor's file for loading and saving the transfer function.
+    tf_path: String,
+    screenshots: Vec<String>,
+    screenshot_tets: Vec<u64>,
+    server_psnr_db: Option<f64>,
+    errors: Vec<String>,
+}
+
+impl ViewerApp {
+    pub fn new(
+        args: ViewArgs,
+        gpu: Arc<GpuContext>,
+        rs: &egui_wgpu::RenderState,
+        data: Data,
+        tf: TransferFunction,
+        steps: Vec<Step>,
+        report: Arc<Mutex<ViewReport>>,
+    ) -> Result<Self, String> {
+        let renderer = PtRenderer::with_accumulation(&gpu, Accumulation::Best);
+        renderer.warm_up(&gpu, &tf).map_err(|e| e.to_string())?;
+        let blit = Blit::new(&rs.device, rs.target_format);
+        let (shot_tx, shot_rx) = mpsc::channel();
+        let tf_preset = PRESETS.contains(&args.tf.as_str()).then(|| args.tf.clone());
+        let orbit = Orbit {
+            target: glam::DVec3::ZERO,
+            azimuth: args.azimuth,
+            elevation: args.elevation,
+            distance: args.distance.unwrap_or(1.0),
+            fov: args.fov,
+        };
+        Ok(ViewerApp {
+            tol: args.tol,
+            mode: args.mode,
+            renderer,
+            blit,
+            data,
+            tf,
+            tf_preset,
+            orbit,
+            home: None,
+            view_rect: Rect::NOTHING,
+            view_px: (args.size.0, args.size.1),
+            target: None,
+            draw_data: None,
+            tets: 0,
+            mesh_dirty: true,
+            image_dirty: true,
+            last_cam: None,
+            moving: false,
+            refine_ms: 0.0,
+            render_ms: 0.0,
+            fps: 0.0,
+            last_frame: Instant::now(),
+            started: Instant::now(),
+            frames: 0,
+            settled: None,
+            steps,
+            step: 0,
+            step_frame: None,
+            quit: false,
+            shot_tx,
+            shot_rx,
+            pending_shot: None,
+            server: ServerImage::None,
+            closing: false,
+            status: String::new(),
+            report,
+            tf_path: if args.tf.ends_with(".json") {
+                args.tf.clone()
+            } else {
+                "tf.json".into()
+            },
+            screenshots: Vec::new(),
+            screenshot_tets: Vec::new(),
+            server_psnr_db: None,
+            errors: Vec::new(),
+            gpu,
+            args,
+        })
+    }
+
+    fn fail(&mut self, e: String) {
+        tracing::error!("{e}");
+        self.status = e.clone();
+        self.errors.push(e);
+    }
+
+    /// The initial view once the dataset's box is known: the orbit around its centre at the
+    /// distance `tetwave render` uses (1.6 × the diagonal unless given).
+    fn init_home(&mut self) {
+        if self.home.is_some() {
+            return;
+        }
+        if let Some((center, diag)) = self.data.frame {
+            self.orbit.target = center;
+            self.orbit.distance = self.args.distance.unwrap_or(1.6 * diag);
+            self.home = Some(self.orbit);
+        }
+    }
+
+    fn zoom(&mut self, factor: f64) {
+        let diag = self.data.frame.map_or(1.0, |(_, d)| d);
+        self.orbit.zoom(factor, 1e-3 * diag, 100.0 * diag);
+    }
+
+    /// Loads a preset or a `.json` file as the transfer function.
+    fn set_tf(&mut self, spec: &str) -> Result<(), String> {
+        let tf =
+            TransferFunction::load(spec).map_err(|e| format!("transfer function {spec}: {e}"))?;
+        self.tf = tf;
+        self.tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
+        self.image_dirty = true;
+        self.server = ServerImage::None;
+        Ok(())
+    }
+
+    /// Saves the view's part of a window screenshot.
+    fn save_shot(&mut self, path: PathBuf, rect: Rect, ppp: f32, img: &egui::ColorImage) {
+        let [iw, ih] = img.size;
+        let x0 = ((rect.min.x * ppp).round().max(0.0) as usize).min(iw);
+        let y0 = ((rect.min.y * ppp).round().max(0.0) as usize).min(ih);
+        let x1 = ((rect.max.x * ppp).round().max(0.0) as usize).min(iw);
+        let y1 = ((rect.max.y * ppp).round().max(0.0) as usize).min(ih);
+        if x1 <= x0 || y1 <= y0 {
+            self.fail(format!("screenshot {}: the view is empty", path.display()));
+            return;
+        }
+        let mut out = image::RgbaImage::new((x1 - x0) as u32, (y1 - y0) as u32);
+        for (y, row) in (y0..y1).enumerate() {
+            for (x, col) in (x0..x1).enumerate() {
+                out.put_pixel(
+                    x as u32,
+                    y as u32,
+                    image::Rgba(img.pixels[row * iw + col].to_array()),
+                );
+            }
+        }
+        match out.save(&path) {
+            Ok(()) => {
+                self.screenshots.push(path.display().to_string());
+                self.screenshot_tets.push(self.tets);
+            }
+            Err(e) => self.fail(format!("screenshot {}: {e}", path.display())),
+        }
+    }
+
+    /// Asks for a screenshot of the view (or of the whole window), written when it arrives.
+    fn request_shot(&mut self, ctx: &egui::Context, path: PathBuf, whole: bool) {
+        let tx = self.shot_tx.clone();
+        let rect = if whole {
+            Rect::EVERYTHING
+        } else {
+            self.view_rect
+        };
+        let ppp = ctx.pixels_per_point();
+        let p = path.clone();
+        ctx.request_screenshot(move |img| {
+            let _ = tx.send((p, rect, ppp, img));
+        });
+        self.pending_shot = Some(path);
+    }
+
+    /// Asks the server for its image of the current view (same camera, transfer function, the
+    /// finest level) on a thread of its own.
+    fn request_server_image(&mut self) {
+        let Some(server) = self.data.server().map(str::to_string) else {
+            self.fail("server image: the view is not of a stream (give a server's URL)".into());
+            return;
+        };
+        let Some(tf) = self.tf_preset.clone() else {
+            self.fail(format!(
+                "server image: the server renders only the presets {PRESETS:?}, not {:?}",
+                self.tf.name
+            ));
+            return;
+        };
+        if self.home.is_some_and(|h| h.target != self.orbit.target) {
+            self.fail(
+                "server image: the server orbits the volume's centre; reset the pan first".into(),
+            );
+            return;
+        }
+        let (w, h) = self.view_px;
+        let o = self.orbit;
+        let url = format!(
+            "{server}/v1/render?width={w}&height={h}&azimuth={}&elevation={}&distance={}&fov={}&tf={tf}&level={}",
+            o.azimuth, o.elevation, o.distance, o.fov, self.data.levels
+        );
+        let token = self.args.token.clone();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(fetch_png(&url, token.as_deref()));
+        });
+        self.status = "server image requested".into();
+        self.server = ServerImage::Pending {
+            cam: o.camera(w, h),
+            rx,
+        };
+    }
+
+    fn take_server_image(&mut self) {
+        let ServerImage::Pending { cam, rx } = &self.server else {
+            return;
+        };
+        let res = match rx.try_recv() {
+            Ok(r) => r,
+            Err(mpsc::TryRecvError::Empty) => return,
+            Err(mpsc::TryRecvError::Disconnected) => Err("the request thread ended".into()),
+        };
+        let cam = *cam;
+        self.server = ServerImage::None;
+        let img = match res {
+            Ok(img) => img,
+            Err(e) => {
+                self.fail(format!("server image: {e}"));
+                return;
+            }
+        };
+        if self.last_cam != Some(cam) || (img.width, img.height) != (cam.width, cam.height) {
+            self.status = "server image dropped: the view changed meanwhile".into();
+            return;
+        }
+        // the client's own render of this camera, for the comparison
+        let client = match &self.target {
+            Some(t) => self.renderer.read_texture(&self.gpu, &t.texture),
+            None => {
+                self.status = "server image dropped: nothing drawn yet".into();
+                return;
+            }
+        };
+        let p = match client {
+            Ok(c) => psnr(&c, &img).min(99.0),
+            Err(e) => {
+                self.fail(format!("server image: reading the client's render: {e}"));
+                return;
+            }
+        };
+        self.server_psnr_db = Some(p);
+        self.status = format!("server image shown: {p:.2} dB against the client's render");
+        self.server = ServerImage::Shown {
+            target: Target::from_image(&self.gpu, &self.blit, &img),
+            psnr_db: p,
+        };
+    }
+
+    /// Plays script steps until one has to wait. Steps that change the view end the frame's
+    /// steps, so that a following `wait` sees a frame of the new view.
+    fn run_script(&mut self, ctx: &egui::Context) {
+        while self.step < self.steps.len() && !self.closing {
+            let step = self.steps[self.step].clone();
+            if step
+                .at
+                .is_some_and(|at| self.started.elapsed().as_secs_f64() < at)
+            {
+                return;
+            }
+            // the frame the step's action began in (after its `at`)
+            let first = *self.step_frame.get_or_insert(self.frames);
+            let mut changes_view = false;
+            match &step.action {
+                Action::Camera(c) => {
+                    if let Some(v) = c.azimuth {
+                        self.orbit.azimuth = v;
+                    }
+                    if let Some(v) = c.elevation {
+                        self.orbit.elevation = v;
+                    }
+                    if let Some(v) = c.distance {
+                        self.orbit.distance = v;
+                    }
+                    if let Some(v) = c.fov {
+                        self.orbit.fov = v;
+                    }
+                    changes_view = true;
+                }
+                Action::Orbit(d) => {
+                    self.orbit.rotate(*d, 0.0);
+                    changes_view = true;
+                }
+                Action::Elevate(d) => {
+                    self.orbit.rotate(0.0, *d);
+                    changes_view = true;
+                }
+                Action::Zoom(f) => {
+                    self.zoom(*f);
+                    changes_view = true;
+                }
+                Action::Reset => {
+                    if let Some(h) = self.home {
+                        self.orbit = h;
+                    }
+                    changes_view = true;
+                }
+                Action::Tf(spec) => {
+                    if let Err(e) = self.set_tf(spec) {
+                        self.fail(e);
+                    }
+                    changes_view = true;
+                }
+                Action::Tol(t) => {
+                    self.tol = *t;
+                    changes_view = true;
+                }
+                Action::Mode(m) => {
+                    self.mode = *m;
+                    changes_view = true;
+                }
+                Action::Wait(w) => {
+                    // a frame that began after this step ended settled (with everything held)
+                    let ok = self.settled.is_some_and(|(f, complete)| {
+                        f > first && (complete || *w == WaitFor::Converged)
+                    });
+                    if !ok && self.data.error.is_none() {
+                        return;
+                    }
+                }
+                Action::Frames(n) => {
+                    if self.frames < first + *n as u64 {
+                        return;
+                    }
+                }
+                Action::ServerImage => {
+                    if self.frames == first {
+                        self.request_server_image();
+                    }
+                    if matches!(self.server, ServerImage::Pending { .. }) {
+                        return;
+                    }
+                }
+                Action::Screenshot(p) | Action::WindowScreenshot(p) => {
+                    if self.frames == first {
+                        let whole = matches!(step.action, Action::WindowScreenshot(_));
+                        self.request_shot(ctx, p.clone(), whole);
+                    }
+                    if self.pending_shot.is_some() {
+                        return;
+                    }
+                }
+                Action::Quit => self.quit = true,
+            }
+            self.step += 1;
+            self.step_frame = None;
+            if changes_view {
+                return;
+            }
+        }
+    }
+
+    /// Refines, uploads and draws for the current camera.
+    fn refine_and_draw(&mut self) {
+        let (w, h) = self.view_px;
+        let cam = self.orbit.camera(w, h);
+        self.moving = self.last_cam.is_some_and(|c| c != cam);
+        if self.last_cam != Some(cam) {
+            self.image_dirty = true;
+            if matches!(self.server, ServerImage::Shown { .. }) {
+                self.server = ServerImage::None;
+                self.status = "back to the client's render".into();
+            }
+        }
+        self.data.send_view(&cam, self.tol);
+        let mut converged = true;
+        if let Some(s) = self.data.session.as_mut() {
+            s.set_tolerance(Tolerance::Pixels(self.tol));
+            let mode = match self.mode {
+                ViewMode::Interactive => Mode::Interactive,
+                ViewMode::Progressive if self.moving => Mode::Interactive,
+                ViewMode::Progressive => Mode::Progressive,
+                ViewMode::Complete => Mode::Complete,
+            };
+            let t = Instant::now();
+            match s.frame(&cam, mode) {
+                Ok(st) => {
+                    if st.splits + st.merges > 0 {
+                        self.mesh_dirty = true;
+                    }
+                    converged = s.is_converged();
+                }
+                Err(e) => {
+                    let e = format!("refinement: {e}");
+                    self.fail(e);
+                }
+            }
+            self.refine_ms = t.elapsed().as_secs_f64() * 1e3;
+        }
+        if self.data.take_changed() {
+            self.mesh_dirty = true;
+        }
+        if self.mesh_dirty {
+            let mesh = match (&self.data.session, &self.data.mesh) {
+                (Some(s), _) => Some(s.leaf_mesh(self.data.value_range)),
+                (None, Some(m)) => Some(m.clone()),
+                (None, None) => None,
+            };
+            if let Some(m) = mesh {
+                match self.renderer.upload(&self.gpu, &m) {
+                    Ok(d) => {
+                        self.tets = d.tet_count as u64;
+                        self.draw_data = Some(d);
+                    }
+                    Err(e) => self.fail(format!("upload: {e}")),
+                }
+                self.image_dirty = true;
+            }
+            self.mesh_dirty = false;
+        }
+        if self.target.as_ref().map(Target::size) != Some((w, h)) {
+            self.target = Some(Target::new(
+                &self.gpu,
+                &self.blit,
+                self.renderer.format(),
+                w,
+                h,
+            ));
+            self.image_dirty = true;
+        }
+        if self.image_dirty {
+            if let (Some(d), Some(t)) = (&self.draw_data, &self.target) {
+                let times = self.renderer.draw_into(
+                    &self.gpu,
+                    d,
+                    &cam,
+                    &self.tf,
+                    VisibilityOrder::Centroid,
+                    &t.view,
+                    true,
+                );
+                self.render_ms = times.total_ms;
+                self.image_dirty = false;
+            }
+        }
+        self.last_cam = Some(cam);
+        let drawn = !self.image_dirty && self.draw_data.is_some();
+        if converged && drawn {
+            // converged for the nodes held at this frame's start, which may be all of them
+            self.settled = Some((self.frames, self.data.is_complete()));
+        }
+    }
+
+    fn panel(&mut self, ui: &mut egui::Ui) {
+        ui.heading("tetwave view");
+        ui.label(egui::RichText::new(&self.args.source).small());
+        ui.separator();
+        let (held, total) = self.data.progress();
+        egui::Grid::new("stats").num_columns(2).show(ui, |ui| {
+            let mut row = |k: &str, v: String| {
+                ui.label(k);
+                ui.monospace(v);
+                ui.end_row();
+            };
+            row("tets drawn", self.tets.to_string());
+            row("nodes held", format!("{held} / {total}"));
+            row(
+                "bytes received",
+                format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
+            );
+            row("refine", format!("{:.2} ms", self.refine_ms));
+            // the CPU side of a frame's draw: sort, exit faces, submission
+            row("render (CPU)", format!("{:.2} ms", self.render_ms));
+            row("FPS", format!("{:.1}", self.fps));
+            row("view", format!("{}×{}", self.view_px.0, self.view_px.1));
+        });
+        let frac = if total > 0 {
+            held as f32 / total as f32
+        } else if self.data.is_complete() {
+            1.0
+        } else {
+            0.0
+        };
+        ui.add(
+            egui::ProgressBar::new(frac)
+                .show_percentage()
+                .text(format!("stream {:.0}%", 100.0 * frac)),
+        );
+        ui.separator();
+        let mut tol = self.tol;
+        ui.add(
+            // the slider spans 0..=32 px; `--tol` and the script may set more, which it keeps
+            egui::Slider::new(&mut tol, 0.0..=32.0)
+                .clamping(egui::SliderClamping::Never)
+                .text("tolerance (px)")
+                .step_by(0.25),
+        );
+        self.tol = tol;
+        ui.horizontal_wrapped(|ui| {
+            for m in ViewMode::ALL {
+                ui.radio_value(&mut self.mode, m, m.name());
+            }
+        });
+        let shown = self
+            .tf_preset
+            .clone()
+            .unwrap_or_else(|| self.tf.name.clone());
+        let mut preset = shown.clone();
+        egui::ComboBox::from_label("transfer function")
+            .selected_text(preset.clone())
+            .show_ui(ui, |ui| {
+                for p in PRESETS {
+                    ui.selectable_value(&mut preset, p.to_string(), p);
+                }
+            });
+        // a preset picked in the box (not a loaded or edited function that bears a preset's name)
+        if preset != shown && PRESETS.contains(&preset.as_str()) {
+            if let Err(e) = self.set_tf(&preset) {
+                self.status = e;
+            }
+        }
+        egui::CollapsingHeader::new("transfer function editor").show(ui, |ui| {
+            if super::tf_edit::edit(ui, &mut self.tf) {
+                self.tf_preset = None;
+                self.image_dirty = true;
+                self.server = ServerImage::None;
+            }
+            ui.horizontal(|ui| {
+                ui.add(egui::TextEdit::singleline(&mut self.tf_path).desired_width(120.0));
+                if ui.button("load").clicked() {
+                    let p = self.tf_path.clone();
+                    self.status = match self.set_tf(&p) {
+                        Ok(()) => format!("loaded {p}"),
+                        Err(e) => e,
+                    };
+                }
+                if ui.button("save").clicked() {
+                    match super::tf_edit::save(&self.tf, std::path::Path::new(&self.tf_path)) {
+                        Ok(()) => self.status = format!("saved {}", self.tf_path),
+                        Err(e) => self.status = format!("cannot save: {e}"),
+                    }
+                }
+            });
+        });
+        ui.horizontal(|ui| {
+            if ui.button("Reset view").clicked() {
+                if let Some(h) = self.home {
+                    self.orbit = h;
+                }
+            }
+            let can = self.data.server().is_some();
+            if ui
+                .add_enabled(can, egui::Button::new("Server image"))
+                .on_hover_text("the server's /v1/render image of this view (complete mode)")
+                .clicked()
+            {
+                self.request_server_image();
+            }
+        });
+        if let ServerImage::Shown { psnr_db, .. } = &self.server {
+            ui.label(format!(
+                "showing the server's image ({psnr_db:.1} dB vs client)"
+            ));
+        }
+        if let Some(e) = &self.data.error {
+            ui.colored_label(Color32::LIGHT_RED, format!("stream: {e}"));
+        }
+        if !self.status.is_empty() {
+            ui.label(egui::RichText::new(&self.status).small());
+        }
+        ui.separator();
+        ui.label(
+            egui::RichText::new(
+                "drag: orbit · right/shift-drag: pan · wheel: zoom\narrows: orbit · +/−: zoom · R: reset",
+            )
+            .small(),
+        );
+    }
+
+    fn publish(&self) {
+        let (nodes, nodes_total) = self.data.progress();
+        let elapsed = self.started.elapsed().as_secs_f64();
+        let mut errors = self.errors.clone();
+        if let Some(e) = &self.data.error {
+            errors.push(format!("stream: {e}"));
+        }
+        let r = ViewReport {
+            frames: self.frames,
+            nodes,
+            nodes_total,
+            tets: self.tets,
+            bytes_received: self.data.bytes_received(),
+            complete: self.data.is_complete(),
+            fps: if elapsed > 0.0 {
+                self.frames as f64 / elapsed
+            } else {
+                0.0
+            },
+            refine_ms: self.refine_ms,
+            render_ms: self.render_ms,
+            view: [self.view_px.0, self.view_px.1],
+            azimuth: self.orbit.azimuth,
+            elevation: self.orbit.elevation,
+            distance: self.orbit.distance,
+            fov: self.orbit.fov,
+            mode: self.mode,
+            tol_px: self.tol,
+            screenshots: self.screenshots.clone(),
+            screenshot_tets: self.screenshot_tets.clone(),
+            server_psnr_db: self.server_psnr_db,
+            script_steps: [self.step, self.steps.len()],
+            errors,
+        };
+        *self.report.lock().unwrap_or_else(|e| e.into_inner()) = r;
+    }
+}
+
+/// GET a PNG and decode it.
+fn fetch_png(url: &str, token: Option<&str>) -> Result<Rgba8Image, String> {
+    let mut req = ureq::get(url);
+    if let Some(t) = token {
+        req = req.header("Authorization", &format!("Bearer {t}"));
+    }
+    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
+    let bytes = resp
+        .body_mut()
+        .with_config()
+        .limit(256 << 20)
+        .read_to_vec()
+        .map_err(|e| format!("GET {url}: {e}"))?;
+    let img = image::load_from_memory(&bytes)
+        .map_err(|e| format!("the server's PNG: {e}"))?
+        .to_rgba8();
+    Ok(Rgba8Image {
+        width: img.width(),
+        height: img.height(),
+        pixels: img.pixels().map(|p| p.0).collect(),
+    })
+}
+
+impl eframe::App for ViewerApp {
+    fn clear_color(&self, _visuals: &egui::Visuals) -> [f32; 4] {
+        [0.0, 0.0, 0.0, 1.0]
+    }
+
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        self.frames += 1;
+        let now = Instant::now();
+        let dt = now.duration_since(self.last_frame).as_secs_f64();
+        self.last_frame = now;
+        if dt > 0.0 {
+            self.fps = if self.fps == 0.0 {
+                1.0 / dt
+            } else {
+                0.9 * self.fps + 0.1 / dt
+            };
+        }
+        while let Ok((path, rect, ppp, img)) = self.shot_rx.try_recv() {
+            self.save_shot(path, rect, ppp, &img);
+            self.pending_shot = None;
+        }
+        self.take_server_image();
+        self.data.ingest(INGEST_BUDGET, Tolerance::Pixels(self.tol));
+        self.init_home();
+
+        egui::Panel::left("tetwave-panel")
+            .exact_size(PANEL_WIDTH)
+            .resizable(false)
+            .show(ui, |ui| self.panel(ui));
+        let mut drag = egui::Vec2::ZERO;
+        let mut pan = egui::Vec2::ZERO;
+        let mut scroll = 0.0f32;
+        let mut reset = false;
+        egui::CentralPanel::default()
+            .frame(egui::Frame::NONE.fill(Color32::BLACK))
+            .show(ui, |ui| {
+                let (rect, resp) =
+                    ui.allocate_exact_size(ui.available_size(), Sense::click_and_drag());
+                self.view_rect = rect;
+                let shift = ui.input(|i| i.modifiers.shift);
+                if resp.dragged_by(PointerButton::Primary) && !shift {
+                    drag = resp.drag_delta();
+                } else if resp.dragged_by(PointerButton::Secondary)
+                    || resp.dragged_by(PointerButton::Middle)
+                    || (resp.dragged_by(PointerButton::Primary) && shift)
+                {
+                    pan = resp.drag_delta();
+                }
+                if resp.hovered() {
+                    scroll = ui.input(|i| i.smooth_scroll_delta.y);
+                }
+                reset = resp.double_clicked();
+            });
+        let ppp = ctx.pixels_per_point();
+        let r = self.view_rect;
+        self.view_px = (
+            ((r.width() * ppp).round() as u32).max(1),
+            ((r.height() * ppp).round() as u32).max(1),
+        );
+        if drag != egui::Vec2::ZERO {
+            self.orbit
+                .rotate(-drag.x as f64 * DEG_PER_PX, drag.y as f64 * DEG_PER_PX);
+        }
+        if pan != egui::Vec2::ZERO {
+            self.orbit
+                .pan((pan.x * ppp) as f64, (pan.y * ppp) as f64, self.view_px.1);
+        }
+        if scroll != 0.0 {
+            self.zoom((-scroll as f64 * 0.002).exp());
+        }
+        if !ctx.egui_wants_keyboard_input() {
+            let keys = ctx.input(|i| {
+                [
+                    i.key_pressed(egui::Key::ArrowLeft),
+                    i.key_pressed(egui::Key::ArrowRight),
+                    i.key_pressed(egui::Key::ArrowUp),
+                    i.key_pressed(egui::Key::ArrowDown),
+                    i.key_pressed(egui::Key::Plus) || i.key_pressed(egui::Key::Equals),
+                    i.key_pressed(egui::Key::Minus),
+                    i.key_pressed(egui::Key::R),
+                ]
+            });
+            if keys[0] {
+                self.orbit.rotate(-DEG_PER_KEY, 0.0);
+            }
+            if keys[1] {
+                self.orbit.rotate(DEG_PER_KEY, 0.0);
+            }
+            if keys[2] {
+                self.orbit.rotate(0.0, DEG_PER_KEY);
+            }
+            if keys[3] {
+                self.orbit.rotate(0.0, -DEG_PER_KEY);
+            }
+            if keys[4] {
+                self.zoom(0.9);
+            }
+            if keys[5] {
+                self.zoom(1.0 / 0.9);
+            }
+            reset |= keys[6];
+        }
+        if reset {
+            if let Some(h) = self.home {
+                self.orbit = h;
+            }
+        }
+        self.run_script(&ctx);
+        self.refine_and_draw();
+
+        let bind = match &self.server {
+            ServerImage::Shown { target, .. } => Some(target.bind.clone()),
+            _ => self.target.as_ref().map(|t| t.bind.clone()),
+        };
+        if let Some(bind) = bind {
+            ui.painter().add(egui_wgpu::Callback::new_paint_callback(
+                self.view_rect,
+                BlitCallback {
+                    blit: self.blit.clone(),
+                    bind,
+                },
+            ));
+        }
+
+        let out_of_frames = self.args.frames.is_some_and(|n| self.frames >= n);
+        if (out_of_frames || self.quit) && !self.closing {
+            self.closing = true;
+            if let Some(p) = self.args.screenshot.clone() {
+                self.request_shot(&ctx, p, false);
+            }
+        }
+        self.publish();
+        if self.closing && self.pending_shot.is_none() {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        let busy = self.closing
+            || self.step < self.steps.len()
+            || self.args.frames.is_some()
+            || self.pending_shot.is_some()
+            || !matches!(self.server, ServerImage::None | ServerImage::Shown { .. })
+            || self.settled.is_none_or(|(f, _)| f != self.frames);
+        if busy {
+            ctx.request_repaint();
+        } else if !self.data.is_complete() && self.data.error.is_none() {
+            ctx.request_repaint_after(Duration::from_millis(16));
+        }
+    }
+
+    fn on_exit(&mut self) {
+        self.data.close();
+        self.publish();
+    }
+}

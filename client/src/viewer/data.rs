@@ -1,0 +1,363 @@
+//! What the viewer shows: a stream from a server (the network on its own thread, through the
+//! streaming client's network task), a local store fed to the same [`Session`] a chunk at a time,
+//! or a mesh file drawn as it is. Each frame takes what has arrived within a time budget, so the
+//! window never waits on the network or on a large arrival.
+
+use crate::select::{SelectParams, Tolerance};
+use crate::session::Session;
+use crate::stream::{check_hierarchy, network, ws_url, Faults, Net, StreamError, INGEST_QUEUE};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tetwave_protocol::store_format::Manifest;
+use tetwave_protocol::view::Camera;
+use tetwave_protocol::wire::{ClientMsg, IdRange, ServerMsg, ViewParams, MAX_RANGES};
+use tetwave_protocol::{BaseMesh, DetailNode};
+use tetwave_render::render_mesh::RenderMesh;
+use tokio::sync::mpsc;
+
+/// What `tetwave view` was given.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Source {
+    /// `http://host:port` or `ws://host:port` of a `tetwave-server serve`.
+    Url(String),
+    /// A store directory.
+    Store(PathBuf),
+    /// A mesh file (`.vtu`, `.vtk`, `.msh`, `.mesh`), drawn as it is.
+    Mesh(PathBuf),
+}
+
+impl Source {
+    pub fn parse(s: &str) -> Source {
+        if s.starts_with("http://") || s.starts_with("ws://") {
+            Source::Url(s.to_string())
+        } else if crate::render_cli::is_mesh_input(Path::new(s), None) {
+            Source::Mesh(s.into())
+        } else {
+            Source::Store(s.into())
+        }
+    }
+}
+
+/// Nodes of a local store fed to the session per chunk (the clock is read between chunks).
+const LOCAL_CHUNK: usize = 512;
+
+/// Messages re-requesting lost nodes after `End` before the stream counts as failed (as the
+/// headless client's [`crate::stream::MAX_WANT_ROUNDS`]).
+const MAX_WANT_ROUNDS: u32 = crate::stream::MAX_WANT_ROUNDS;
+
+struct Remote {
+    /// The runtime whose one worker runs the network task (dropped with the viewer).
+    rt: tokio::runtime::Runtime,
+    task: tokio::task::JoinHandle<Result<(), StreamError>>,
+    rx: mpsc::Receiver<(ServerMsg, u64)>,
+    out: mpsc::UnboundedSender<ClientMsg>,
+    net: Arc<Net>,
+    manifest: Option<Manifest>,
+    ended: bool,
+    want_rounds: u32,
+    max_nodes: u64,
+    last_view: Option<ViewParams>,
+    /// The server's HTTP address (`http://host:port`), for `/v1/render`.
+    http: String,
+}
+
+enum Kind {
+    Remote(Box<Remote>),
+    Local { nodes: Vec<DetailNode>, next: usize },
+    Mesh,
+}
+
+/// The data behind the view.
+pub struct Data {
+    kind: Kind,
+    pub session: Option<Session>,
+    /// A mesh file's mesh (no session).
+    pub mesh: Option<RenderMesh>,
+    pub value_range: [f32; 2],
+    /// Centre and diagonal of the dataset's bounding box, once known.
+    pub frame: Option<(DVec3, f64)>,
+    /// Wire bytes applied (remote), or 0.
+    pub bytes_applied: u64,
+    /// Why the data stopped (a failed connection, a refused node, …): shown, and the exit status.
+    pub error: Option<String>,
+    /// Nodes were applied since [`Self::take_changed`].
+    changed: bool,
+    /// Number of levels of the hierarchy (0 for a mesh file).
+    pub levels: u8,
+}
+
+impl Data {
+    /// Opens a source: a store or mesh file is read now; a stream connects on its own thread.
+    pub fn open(
+        source: &Source,
+        token: Option<String>,
+        tol: Tolerance,
+        max_nodes: u64,
+    ) -> Result<Data, String> {
+        let empty = |kind| Data {
+            kind,
+            session: None,
+            mesh: None,
+            value_range: [0.0, 1.0],
+            frame: None,
+            bytes_applied: 0,
+            error: None,
+            changed: true,
+            levels: 0,
+        };
+        match source {
+            Source::Url(url) => {
+                let ws = ws_url(url).map_err(|e| e.to_string())?;
+                let http = format!(
+                    "http://{}",
+                    ws.trim_start_matches("ws://")
+                        .trim_end_matches("/v1/stream")
+                );
+                let rt = tokio::runtime::Builder::new_multi_thread()
+                    .worker_threads(1)
+                    .thread_name("tetwave-view-net")
+                    .enable_all()
+                    .build()
+                    .map_err(|e| format!("network runtime: {e}"))?;
+                let net = Arc::new(Net::new());
+                let (tx, rx) = mpsc::channel(INGEST_QUEUE);
+                let (out, out_rx) = mpsc::unbounded_channel();
+                let task = rt.spawn(network(
+                    ws,
+                    token,
+                    net.clone(),
+                    tx,
+                    out_rx,
+                    Faults::default(),
+                    5,
+                ));
+                Ok(empty(Kind::Remote(Box::new(Remote {
+                    rt,
+                    task,
+                    rx,
+                    out,
+                    net,
+                    manifest: None,
+                    ended: false,
+                    want_rounds: 0,
+                    max_nodes,
+                    last_view: None,
+                    http,
+                }))))
+            }
+            Source::Store(dir) => {
+                let store = tetwave_store::Store::open(dir).map_err(|e| e.to_string())?;
+                let m = &store.manifest;
+                let nodes = store
+                    .read_nodes(0, m.counts.nodes)
+                    .map_err(|e| e.to_string())?;
+                let mut d = empty(Kind::Local { nodes, next: 0 });
+                d.value_range = m.value_range;
+                d.start_session(store.base.clone(), tol)?;
+                Ok(d)
+            }
+            Source::Mesh(path) => {
+                let options = tetwave_import::clean::ImportOptions {
+                    scalar: None,
+                    field: None,
+                    nan_as: None,
+                };
+                let (mesh, _) = crate::render_cli::file_mesh(path, None, &options)
+                    .map_err(|e| e.to_string())?;
+                let mut d = empty(Kind::Mesh);
+                d.value_range = [mesh.value_range.0, mesh.value_range.1];
+                d.frame = Some((mesh.center(), mesh.diagonal()));
+                d.mesh = Some(mesh);
+                Ok(d)
+            }
+        }
+    }
+
+    fn start_session(&mut self, base: BaseMesh, tol: Tolerance) -> Result<(), String> {
+        let (lo, hi) = base.bounds();
+        let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
+        self.frame = Some(((lo + hi) * 0.5, hi.distance(lo)));
+        self.levels = base.levels;
+        let params = SelectParams::new(tol, self.value_range);
+        self.session = Some(Session::new(base, params).map_err(|e| format!("base mesh: {e}"))?);
+        Ok(())
+    }
+
+    /// The server's HTTP address, for a stream.
+    pub fn server(&self) -> Option<&str> {
+        match &self.kind {
+            Kind::Remote(r) => Some(&r.http),
+            _ => None,
+        }
+    }
+
+    /// Nodes held and in total (a mesh file: 0 of 0).
+    pub fn progress(&self) -> (u64, u64) {
+        self.session.as_ref().map_or((0, 0), Session::progress)
+    }
+
+    /// Every node held (or a mesh file).
+    pub fn is_complete(&self) -> bool {
+        match &self.kind {
+            Kind::Mesh => true,
+            _ => self.session.as_ref().is_some_and(Session::is_complete),
+        }
+    }
+
+    /// Bytes received over the wire (remote), or 0.
+    pub fn bytes_received(&self) -> u64 {
+        match &self.kind {
+            Kind::Remote(r) => r.net.bytes.load(Ordering::Relaxed),
+            _ => 0,
+        }
+    }
+
+    /// Whether nodes were applied since the last call.
+    pub fn take_changed(&mut self) -> bool {
+        std::mem::take(&mut self.changed)
+    }
+
+    /// Tells the server the view (a stream only; sent when it changed).
+    pub fn send_view(&mut self, cam: &Camera, tol_px: f64) {
+        if let Kind::Remote(r) = &mut self.kind {
+            let view = cam.view_params(tol_px);
+            if r.last_view != Some(view) {
+                let _ = r.out.send(ClientMsg::View(view));
+                r.last_view = Some(view);
+            }
+        }
+    }
+
+    /// Applies what has arrived, for at most about `budget`. Returns the nodes applied.
+    pub fn ingest(&mut self, budget: Duration, tol: Tolerance) -> usize {
+        if self.error.is_some() {
+            return 0;
+        }
+        let t0 = Instant::now();
+        let mut applied = 0;
+        match &mut self.kind {
+            Kind::Mesh => {}
+            Kind::Local { nodes, next } => {
+                let session = self.session.as_mut().expect("a store has a session");
+                while *next < nodes.len() && t0.elapsed() < budget {
+                    let end = (*next + LOCAL_CHUNK).min(nodes.len());
+                    if let Err(e) = session.insert(&nodes[*next..end]) {
+                        self.error = Some(e.to_string());
+                        break;
+                    }
+                    applied += end - *next;
+                    *next = end;
+                }
+                if *next == nodes.len() {
+                    // held by the session now
+                    *nodes = Vec::new();
+                    *next = 0;
+                }
+            }
+            Kind::Remote(_) => match self.ingest_remote(t0, budget, tol) {
+                Ok(n) => applied = n,
+                Err(e) => self.error = Some(e),
+            },
+        }
+        if applied > 0 {
+            self.changed = true;
+        }
+        applied
+    }
+
+    fn ingest_remote(
+        &mut self,
+        t0: Instant,
+        budget: Duration,
+        tol: Tolerance,
+    ) -> Result<usize, String> {
+        let mut applied = 0;
+        loop {
+            let Kind::Remote(r) = &mut self.kind else {
+                unreachable!("remote")
+            };
+            if t0.elapsed() >= budget {
+                return Ok(applied);
+            }
+            let (msg, nbytes) = match r.rx.try_recv() {
+                Ok(m) => m,
+                Err(mpsc::error::TryRecvError::Empty) => return Ok(applied),
+                Err(mpsc::error::TryRecvError::Disconnected) => {
+                    if self.session.as_ref().is_some_and(Session::is_complete) {
+                        return Ok(applied);
+                    }
+                    // the network task ended: why (it has finished, so this does not wait)
+                    let why = r.rt.block_on(&mut r.task);
+                    return Err(match why {
+                        Ok(Err(e)) => e.to_string(),
+                        Ok(Ok(())) => "the network task ended".into(),
+                        Err(e) => format!("the network task failed: {e}"),
+                    });
+                }
+            };
+            self.bytes_applied += nbytes;
+            match msg {
+                ServerMsg::Manifest(m) => {
+                    self.value_range = m.value_range;
+                    r.manifest = Some(*m);
+                }
+                ServerMsg::Base(b) => {
+                    if let Some(s) = &self.session {
+                        if *s.base() != *b {
+                            return Err(
+                                "the server sent a different base mesh on a resumed connection"
+                                    .into(),
+                            );
+                        }
+                        continue;
+                    }
+                    let m = r
+                        .manifest
+                        .as_ref()
+                        .ok_or("protocol: base before manifest")?;
+                    check_hierarchy(&b, m, r.max_nodes).map_err(|e| e.to_string())?;
+                    self.start_session(*b, tol)?;
+                    self.changed = true;
+                }
+                ServerMsg::Nodes { nodes, .. } => {
+                    let s = self
+                        .session
+                        .as_mut()
+                        .ok_or("protocol: nodes before the base mesh")?;
+                    s.insert(&nodes).map_err(|e| e.to_string())?;
+                    applied += nodes.len();
+                }
+                ServerMsg::End { .. } => {
+                    let Some(s) = &self.session else { continue };
+                    let (held, total) = s.progress();
+                    if held == total {
+                        r.ended = true;
+                    } else if r.want_rounds < MAX_WANT_ROUNDS {
+                        r.want_rounds += 1;
+                        let want: Vec<IdRange> =
+                            s.buffer().missing_ranges().take(MAX_RANGES).collect();
+                        let _ = r.out.send(ClientMsg::Want(want));
+                    } else {
+                        return Err(format!(
+                            "the server ended the stream with {} of {total} nodes missing",
+                            total - held
+                        ));
+                    }
+                }
+                ServerMsg::Error { code, message } => {
+                    return Err(format!("server error {code}: {message}"));
+                }
+            }
+        }
+    }
+
+    /// Stops the network task (the viewer is closing).
+    pub fn close(&mut self) {
+        if let Kind::Remote(r) = &mut self.kind {
+            r.task.abort();
+        }
+    }
+}

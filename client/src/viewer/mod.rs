@@ -1,0 +1,244 @@
+//! `tetwave view`: the interactive client. A native window (winit and egui through egui-wgpu, by
+//! eframe) that streams from a server (or reads a store, or a mesh file), refines the adaptive
+//! mesh for the camera every frame under a time budget, and draws it with the projected
+//! tetrahedra renderer on the window's own wgpu device.
+//!
+//! - [`data`]: the source; a stream's network runs on its own thread (the headless client's
+//!   network task), and each frame applies what has arrived within a budget.
+//! - [`orbit`]: the camera (orbit, pan, zoom), parametrized like `tetwave render` and `/v1/render`.
+//! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
+//! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
+//!   screenshots).
+//! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
+//! - [`app`]: the window's frame loop and side panel.
+//!
+//! Failures to start (no display, no GPU adapter, a bad source or script) are one-line errors;
+//! failures after the window opened (a lost stream, a refused server image, a screenshot that
+//! cannot be written) are shown in the panel and make the command exit with status 1.
+
+pub mod app;
+pub mod data;
+pub mod gpu;
+pub mod orbit;
+pub mod script;
+pub mod tf_edit;
+
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_render::transfer::TransferFunction;
+
+/// Refinement modes of the viewer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewMode {
+    /// The interactive budget every frame (8 ms of refinement), moving or not.
+    Interactive,
+    /// The interactive budget while the camera moves, the progressive one (50 ms) at rest.
+    #[default]
+    Progressive,
+    /// Everything that has arrived, whatever the view (no tolerance, no frustum): the full
+    /// level once the stream is complete, the same mesh the server's `/v1/render` draws.
+    Complete,
+}
+
+impl ViewMode {
+    pub const ALL: [ViewMode; 3] = [
+        ViewMode::Interactive,
+        ViewMode::Progressive,
+        ViewMode::Complete,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ViewMode::Interactive => "interactive",
+            ViewMode::Progressive => "progressive",
+            ViewMode::Complete => "complete",
+        }
+    }
+}
+
+/// `tetwave view` options.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ViewArgs {
+    /// A server (`http://host:port`), a store directory, or a mesh file (`.vtu`, `.vtk`, `.msh`,
+    /// `.mesh`, drawn as it is).
+    #[arg(value_name = "URL|STORE|MESH")]
+    pub source: String,
+    /// Size of the view (the window adds the side panel), `WxH` pixels.
+    #[arg(long, default_value = "640x480", value_parser = crate::render_cli::parse_size)]
+    pub size: (u32, u32),
+    /// Transfer function: a preset (default, transparent, opaque, shells) or a .json file.
+    #[arg(long, default_value = "default")]
+    pub tf: String,
+    /// Screen-space tolerance in pixels (0: refine everything visible to the finest level).
+    #[arg(long, default_value_t = 2.0, value_parser = tol_px)]
+    pub tol: f64,
+    #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
+    pub mode: ViewMode,
+    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
+    pub azimuth: f64,
+    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
+    pub elevation: f64,
+    /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
+    #[arg(long, value_parser = crate::camera_arg::distance)]
+    pub distance: Option<f64>,
+    /// Vertical field of view in degrees.
+    #[arg(long, default_value_t = 40.0, value_parser = crate::camera_arg::fov)]
+    pub fov: f64,
+    /// A JSON script of timestamped steps (see `viewer::script`).
+    #[arg(long)]
+    pub script: Option<PathBuf>,
+    /// Write the view (the volume, without the panel) to this PNG when the run ends.
+    #[arg(long)]
+    pub screenshot: Option<PathBuf>,
+    /// Close after this many frames (after the script's `quit` if that comes first).
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Print the run's summary as one JSON object on exit.
+    #[arg(long)]
+    pub json: bool,
+    /// Bearer token for the server.
+    #[arg(long, env = "TETWAVE_TOKEN")]
+    pub token: Option<String>,
+    /// Refuse a stream whose hierarchy has more detail nodes than this (as `tetwave stream`).
+    #[arg(long, default_value_t = crate::stream::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_nodes: u64,
+}
+
+fn tol_px(s: &str) -> Result<f64, String> {
+    let s = s.trim();
+    let v: f64 = s
+        .strip_suffix("px")
+        .unwrap_or(s)
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a number of pixels, got {s:?}"))?;
+    if v.is_finite() && (0.0..=1000.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} pixels is outside 0..=1000"))
+    }
+}
+
+/// What a run did: printed with `--json`.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ViewReport {
+    pub frames: u64,
+    pub nodes: u64,
+    pub nodes_total: u64,
+    /// Tets drawn in the last frame.
+    pub tets: u64,
+    pub bytes_received: u64,
+    pub complete: bool,
+    /// Frames per second over the run.
+    pub fps: f64,
+    /// Last frame's refinement and render (sort + draw submission) time.
+    pub refine_ms: f64,
+    pub render_ms: f64,
+    /// The view's size in pixels.
+    pub view: [u32; 2],
+    pub azimuth: f64,
+    pub elevation: f64,
+    pub distance: f64,
+    pub fov: f64,
+    pub mode: ViewMode,
+    pub tol_px: f64,
+    pub screenshots: Vec<String>,
+    /// Tets drawn in each screenshot's view.
+    pub screenshot_tets: Vec<u64>,
+    /// PSNR of the server's image against the client's render of the same camera, transfer
+    /// function and mesh (the last server image shown).
+    pub server_psnr_db: Option<f64>,
+    /// Script steps done, of the total.
+    pub script_steps: [usize; 2],
+    /// Failures after the window opened (also shown in the panel).
+    pub errors: Vec<String>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    #[error("{0}")]
+    Start(String),
+    #[error("the viewer ran into errors: {}", .0.join("; "))]
+    Run(Vec<String>, Box<ViewReport>),
+}
+
+/// Whether a display to open a window on is set (this build speaks X11, under Wayland through
+/// XWayland's `DISPLAY`).
+fn display_set() -> bool {
+    std::env::var_os("DISPLAY").is_some_and(|d| !d.is_empty())
+}
+
+/// One line: eframe's and winit's errors may span several.
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
+pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
+    let start = |s: String| ViewError::Start(one_line(&s));
+    let tf = TransferFunction::load(&args.tf).map_err(|e| start(e.to_string()))?;
+    let steps = match &args.script {
+        Some(p) => script::load(p).map_err(|e| start(e.to_string()))?,
+        None => Vec::new(),
+    };
+    if !display_set() {
+        return Err(start(
+            "cannot open the viewer's window: no display (DISPLAY is not set); run it on a desktop, or headless under `xvfb-run -a tetwave view …`".into(),
+        ));
+    }
+    let source = data::Source::parse(&args.source);
+    let ctx = GpuContext::new().map_err(|e| match e {
+        RenderError::NoAdapter => start(
+            "cannot start the viewer: no GPU adapter found (wgpu saw none for Vulkan or GL; on \
+             Debian, `apt-get install mesa-vulkan-drivers` gives the lavapipe CPU driver)"
+                .into(),
+        ),
+        e => start(format!("cannot start the viewer: {e}")),
+    })?;
+    let data = data::Data::open(
+        &source,
+        args.token.clone(),
+        crate::select::Tolerance::Pixels(args.tol),
+        args.max_nodes,
+    )
+    .map_err(|e| start(format!("{}: {e}", args.source)))?;
+    let report = Arc::new(Mutex::new(ViewReport::default()));
+    let mut options = eframe::NativeOptions {
+        viewport: eframe::egui::ViewportBuilder::default()
+            .with_title(format!("tetwave view {}", args.source))
+            .with_inner_size([args.size.0 as f32 + app::PANEL_WIDTH, args.size.1 as f32]),
+        renderer: eframe::Renderer::Wgpu,
+        // egui's dithering would add noise to the view's black background
+        dithering: false,
+        ..Default::default()
+    };
+    options.wgpu_options.wgpu_setup = gpu::shared_setup(&ctx);
+    let ctx = Arc::new(ctx);
+    let shared = report.clone();
+    let app_args = args.clone();
+    let res = eframe::run_native(
+        "tetwave view",
+        options,
+        Box::new(move |cc| {
+            let rs = cc
+                .wgpu_render_state
+                .as_ref()
+                .ok_or("eframe started without its wgpu renderer")?;
+            Ok(Box::new(app::ViewerApp::new(
+                app_args, ctx, rs, data, tf, steps, shared,
+            )?))
+        }),
+    );
+    if let Err(e) = res {
+        return Err(start(format!("cannot open the viewer's window: {e}")));
+    }
+    let report = report.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    if report.errors.is_empty() {
+        Ok(report)
+    } else {
+        Err(ViewError::Run(report.errors.clone(), Box::new(report)))
+    }
+}

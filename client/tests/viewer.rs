@@ -1,0 +1,407 @@
+//! `tetwave view`, the interactive client, as a user runs it: a real window on an X server
+//! (`xvfb-run`, which `scripts/setup` installs) drawn by lavapipe, streaming from a server on
+//! loopback. A test that needs Xvfb fails, with the reason, when `xvfb-run` is missing: it never
+//! skips. Every run is bounded (`timeout`, `--frames`).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Duration;
+use tetwave_render::image_metrics::{psnr, Rgba8Image};
+use tetwave_server::prepare::{prepare, PrepareOptions};
+use tetwave_server::stream::{serve_on, ServeConfig, Shared};
+
+/// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
+struct Server(Option<tokio::sync::oneshot::Sender<()>>, String);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Some(stop) = self.0.take() {
+            let _ = stop.send(());
+        }
+    }
+}
+
+fn serve(store: &Path) -> Server {
+    let shared = Shared::open(store, ServeConfig::default()).expect("store opens");
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+            addr_tx.send(listener.local_addr().unwrap()).unwrap();
+            tokio::select! {
+                _ = serve_on(listener, shared) => {}
+                _ = stop_rx => {}
+            }
+        });
+    });
+    let addr = addr_rx
+        .recv_timeout(Duration::from_secs(20))
+        .expect("server listens");
+    Server(Some(stop_tx), format!("http://{addr}"))
+}
+
+/// The default dataset (`synthetic:harmonic`) with `levels` levels, in `<dir>/s`.
+fn store(levels: u8) -> (tempfile::TempDir, PathBuf) {
+    let d = tempfile::tempdir().unwrap();
+    let s = d.path().join("s");
+    let mut o = PrepareOptions::new("synthetic:harmonic", &s);
+    o.levels = levels;
+    prepare(&o).unwrap();
+    (d, s)
+}
+
+fn xvfb_run() -> &'static str {
+    let found = Command::new("sh")
+        .args(["-c", "command -v xvfb-run"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        found,
+        "xvfb-run is missing: the viewer's window tests need Xvfb (scripts/setup installs the \
+         xvfb and xauth packages; `apt-get install xvfb xauth`)"
+    );
+    "xvfb-run"
+}
+
+/// One Xvfb at a time: `xvfb-run -a` picks a free display number, racily when two start at once.
+static XVFB: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// `tetwave view ARGS` in a 24-bit Xvfb screen, killed after `limit_s` seconds.
+fn view_under_xvfb(args: &[&str], limit_s: u32) -> Output {
+    let _one = XVFB.lock().unwrap_or_else(|e| e.into_inner());
+    let out = Command::new("timeout")
+        .arg(limit_s.to_string())
+        .args([xvfb_run(), "-a", "-s", "-screen 0 1024x768x24"])
+        .arg(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("view")
+        .args(args)
+        .output()
+        .expect("timeout and xvfb-run run");
+    eprintln!(
+        "tetwave view {}: {}\nstderr:\n{}",
+        args.join(" "),
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn png(path: &Path) -> Rgba8Image {
+    let img = image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgba8();
+    Rgba8Image {
+        width: img.width(),
+        height: img.height(),
+        pixels: img.pixels().map(|p| p.0).collect(),
+    }
+}
+
+/// `tetwave render STORE` (the offscreen GPU renderer, full level) for an orbit camera.
+fn offscreen(store: &Path, az: f64, el: f64, size: (u32, u32), out: &Path) -> Rgba8Image {
+    let o = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("render")
+        .arg(store)
+        .args(["--azimuth", &az.to_string(), "--elevation", &el.to_string()])
+        .args(["--size", &format!("{}x{}", size.0, size.1)])
+        .arg("-o")
+        .arg(out)
+        .output()
+        .expect("tetwave render runs");
+    assert!(
+        o.status.success(),
+        "tetwave render: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    png(out)
+}
+
+#[test]
+fn view_without_a_display_fails_with_one_clear_line() {
+    let (_d, s) = store(2);
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("view")
+        .arg(&s)
+        .args(["--frames", "1"])
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "no display yet success: {err}");
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(err.contains("no display"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn view_with_an_unreachable_display_fails_with_one_clear_line() {
+    let (_d, s) = store(2);
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("view")
+        .arg(&s)
+        .args(["--frames", "1"])
+        // no X server listens on display 987
+        .env("DISPLAY", ":987")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    // the GPU driver may print its own lines first (Mesa's Vulkan WSI complains about an unset
+    // XDG_RUNTIME_DIR); the viewer's own message is one line, the last
+    let ours: Vec<&str> = err.lines().filter(|l| l.contains("viewer")).collect();
+    assert_eq!(ours.len(), 1, "one line: {err}");
+    assert_eq!(err.trim().lines().last(), Some(ours[0]), "{err}");
+    assert!(
+        ours[0].starts_with("error: cannot open the viewer's window"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn view_without_a_gpu_adapter_fails_with_one_clear_line() {
+    let (_d, s) = store(2);
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("view")
+        .arg(&s)
+        .args(["--frames", "1"])
+        // a display is set (none needs to listen: the adapter is looked for first), and the
+        // Vulkan loader finds no driver
+        .env("DISPLAY", ":987")
+        .env("WGPU_BACKEND", "vulkan")
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    // wgpu logs the loader's own complaints first; the viewer's message is the last line
+    let last = err.trim().lines().last().unwrap_or_default();
+    assert!(
+        last.starts_with("error: cannot start the viewer: no GPU adapter found"),
+        "{err}"
+    );
+    assert_eq!(err.matches("cannot start the viewer").count(), 1, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// The window opens on the default dataset streamed from a server on loopback; the script waits
+/// for the whole stream, screenshots, asks the server for its image of the same view, orbits and
+/// screenshots again. Each screenshot agrees with the offscreen renderer's image of the same mesh
+/// and camera, the server's image with the client's render, and the orbit changed the frame.
+#[test]
+fn view_streams_orbits_and_matches_offscreen_and_server_images() {
+    let (d, s) = store(3);
+    let srv = serve(&s);
+    let dir = d.path();
+    let (a, b, server, last) = (
+        dir.join("a.png"),
+        dir.join("b.png"),
+        dir.join("server.png"),
+        dir.join("last.png"),
+    );
+    let script = serde_json::json!([
+        {"mode": "complete"},
+        {"wait": "complete"},
+        {"screenshot": a},
+        {"server_image": true},
+        {"screenshot": server},
+        {"orbit": 70},
+        {"wait": "complete"},
+        {"screenshot": b},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            &srv.1,
+            "--size",
+            "256x224",
+            "--script",
+            sp.to_str().unwrap(),
+            "--screenshot",
+            last.to_str().unwrap(),
+            "--frames",
+            "5000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let r: serde_json::Value = serde_json::from_str(stdout.trim()).expect(&stdout);
+    eprintln!("{r}");
+    assert_eq!(r["complete"], true, "{r}");
+    assert!(r["nodes_total"].as_u64().unwrap() > 0);
+    assert_eq!(r["nodes"], r["nodes_total"]);
+    assert!(r["bytes_received"].as_u64().unwrap() > 0);
+    assert_eq!(r["script_steps"], serde_json::json!([9, 9]), "{r}");
+    assert_eq!(r["view"], serde_json::json!([256, 224]), "{r}");
+    assert_eq!(r["screenshots"].as_array().unwrap().len(), 4, "{r}");
+    let server_psnr = r["server_psnr_db"].as_f64().expect("a server image");
+    assert!(
+        server_psnr >= 40.0,
+        "server image vs client render {server_psnr:.2} dB"
+    );
+
+    let (ia, ib, is) = (png(&a), png(&b), png(&server));
+    assert_eq!((ia.width, ia.height), (256, 224));
+    let ra = offscreen(&s, 35.0, 25.0, (256, 224), &dir.join("ref_a.png"));
+    let rb = offscreen(&s, 105.0, 25.0, (256, 224), &dir.join("ref_b.png"));
+    let (pa, pb, ps, pab) = (
+        psnr(&ia, &ra),
+        psnr(&ib, &rb),
+        psnr(&is, &ia),
+        psnr(&ia, &ib),
+    );
+    eprintln!(
+        "window vs offscreen: {pa:.2} dB (azimuth 35), {pb:.2} dB (azimuth 105); \
+         server image shown vs client view {ps:.2} dB; frame before vs after the orbit {pab:.2} dB"
+    );
+    assert!(pa >= 40.0, "screenshot vs offscreen render: {pa:.2} dB");
+    assert!(
+        pb >= 40.0,
+        "screenshot after the orbit vs offscreen: {pb:.2} dB"
+    );
+    assert!(
+        ps >= 40.0,
+        "the server image as shown vs the client's: {ps:.2} dB"
+    );
+    // the orbit changes the frame: the two differ far beyond the agreement threshold, on many
+    // pixels
+    let changed = ia
+        .pixels
+        .iter()
+        .zip(&ib.pixels)
+        .filter(|(p, q)| (0..3).any(|k| p[k].abs_diff(q[k]) > 8))
+        .count();
+    eprintln!(
+        "pixels changed by the orbit: {changed} of {}",
+        ia.pixels.len()
+    );
+    assert!(
+        pab < 36.0 && changed > ia.pixels.len() / 20,
+        "the orbit should change the frame: {pab:.2} dB, {changed} pixels changed"
+    );
+    // not blank: the volume covers a good part of the view
+    let lit = ia.pixels.iter().filter(|p| p[..3] != [0, 0, 0]).count();
+    assert!(lit > ia.pixels.len() / 10, "{lit} lit pixels");
+    // `--screenshot` at the end: the last view, after the orbit
+    assert!(psnr(&png(&last), &ib) >= 40.0);
+}
+
+/// The tolerance drives refinement: a coarse tolerance draws fewer tets and a worse image, 0
+/// draws the finest level, which agrees with the offscreen render.
+#[test]
+fn view_tolerance_coarsens_and_refines() {
+    let (d, s) = store(3);
+    let srv = serve(&s);
+    let dir = d.path();
+    let (coarse, fine) = (dir.join("coarse.png"), dir.join("fine.png"));
+    let script = serde_json::json!([
+        {"wait": "complete"},
+        {"screenshot": coarse},
+        {"tol": 0},
+        {"wait": "complete"},
+        {"screenshot": fine},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            &srv.1,
+            "--size",
+            "160x160",
+            "--mode",
+            "progressive",
+            "--tol",
+            "1000",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "5000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}");
+    // 5 base tets × 8³ at the finest of 3 levels; fewer at the coarse tolerance
+    assert_eq!(r["tets"], 2560, "{r}");
+    let coarse_tets = r["screenshot_tets"][0].as_u64().unwrap();
+    assert!(coarse_tets < 2560, "{r}");
+    let reference = offscreen(&s, 35.0, 25.0, (160, 160), &dir.join("ref.png"));
+    let (pc, pf) = (
+        psnr(&png(&coarse), &reference),
+        psnr(&png(&fine), &reference),
+    );
+    eprintln!("tolerance 1000 px: {pc:.2} dB, 0 px: {pf:.2} dB against the finest level");
+    assert!(pf >= 40.0, "tolerance 0: {pf:.2} dB");
+    assert!(pc < pf && pc < 40.0, "tolerance 1000 px: {pc:.2} dB");
+}
+
+/// A local store and a mesh file open too (no server), and `--frames` ends the run.
+#[test]
+fn view_opens_a_store_and_a_mesh_file() {
+    let (d, s) = store(2);
+    let shot = d.path().join("store.png");
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "128x128",
+            "--mode",
+            "complete",
+            "--frames",
+            "40",
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--json",
+        ],
+        120,
+    );
+    assert!(out.status.success(), "store: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    assert!(r["frames"].as_u64().unwrap() >= 40, "{r}");
+    assert_eq!(r["nodes"], r["nodes_total"], "{r}");
+    let img = png(&shot);
+    assert_eq!((img.width, img.height), (128, 128));
+    let reference = offscreen(&s, 35.0, 25.0, (128, 128), &d.path().join("ref.png"));
+    let p = psnr(&img, &reference);
+    eprintln!("store view vs offscreen: {p:.2} dB");
+    assert!(p >= 40.0, "store view vs offscreen: {p:.2} dB");
+
+    let mesh = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../server/tests/fixtures/cube.mesh");
+    let shot = d.path().join("mesh.png");
+    let out = view_under_xvfb(
+        &[
+            mesh.to_str().unwrap(),
+            "--size",
+            "96x96",
+            "--frames",
+            "5",
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--json",
+        ],
+        120,
+    );
+    assert!(out.status.success(), "mesh: {}", out.status);
+    let img = png(&shot);
+    let lit = img.pixels.iter().filter(|p| p[..3] != [0, 0, 0]).count();
+    assert!(lit > 0, "the mesh file's view is blank");
+}
