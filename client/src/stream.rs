@@ -318,7 +318,7 @@ impl Net {
 /// A server message as the frame loop takes it: node blocks already decoded (on the network
 /// task, so the frame loop never waits on decoding).
 #[derive(Debug, Clone)]
-enum Delivery {
+pub(crate) enum Delivery {
     Manifest(Box<Manifest>),
     Base(Box<BaseMesh>),
     Nodes { seq: u64, nodes: Vec<DetailNode> },

@@ -5,7 +5,9 @@
 
 use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
-use crate::stream::{check_hierarchy, network, ws_url, Faults, Net, StreamError, INGEST_QUEUE};
+use crate::stream::{
+    check_hierarchy, network, ws_url, Delivery, Faults, Net, StreamError, INGEST_QUEUE,
+};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
@@ -13,7 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::wire::{ClientMsg, IdRange, ServerMsg, ViewParams, MAX_RANGES};
+use tetwave_protocol::wire::{ClientMsg, IdRange, ViewParams, MAX_RANGES};
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::render_mesh::RenderMesh;
 use tokio::sync::mpsc;
@@ -52,7 +54,7 @@ struct Remote {
     /// The runtime whose one worker runs the network task (dropped with the viewer).
     rt: tokio::runtime::Runtime,
     task: tokio::task::JoinHandle<Result<(), StreamError>>,
-    rx: mpsc::Receiver<(ServerMsg, u64)>,
+    rx: mpsc::Receiver<(Delivery, u64)>,
     out: mpsc::UnboundedSender<ClientMsg>,
     net: Arc<Net>,
     manifest: Option<Manifest>,
@@ -300,11 +302,11 @@ impl Data {
             };
             self.bytes_applied += nbytes;
             match msg {
-                ServerMsg::Manifest(m) => {
+                Delivery::Manifest(m) => {
                     self.value_range = m.value_range;
                     r.manifest = Some(*m);
                 }
-                ServerMsg::Base(b) => {
+                Delivery::Base(b) => {
                     if let Some(s) = &self.session {
                         if *s.base() != *b {
                             return Err(
@@ -322,7 +324,7 @@ impl Data {
                     self.start_session(*b, tol)?;
                     self.changed = true;
                 }
-                ServerMsg::Nodes { nodes, .. } => {
+                Delivery::Nodes { nodes, .. } => {
                     let s = self
                         .session
                         .as_mut()
@@ -330,7 +332,7 @@ impl Data {
                     s.insert(&nodes).map_err(|e| e.to_string())?;
                     applied += nodes.len();
                 }
-                ServerMsg::End { .. } => {
+                Delivery::End => {
                     let Some(s) = &self.session else { continue };
                     let (held, total) = s.progress();
                     if held == total {
@@ -347,7 +349,7 @@ impl Data {
                         ));
                     }
                 }
-                ServerMsg::Error { code, message } => {
+                Delivery::Error { code, message } => {
                     return Err(format!("server error {code}: {message}"));
                 }
             }
