@@ -148,7 +148,6 @@ pub trait StoreFiles {
     fn read_at(&self, file: &str, offset: u64, buf: &mut [u8]) -> Result<(), Self::Error>;
 }
 
-
 /// The parts of a store a reader keeps in memory.
 #[derive(Debug, Clone)]
 pub struct StoreHead {

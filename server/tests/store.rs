@@ -64,7 +64,10 @@ fn quantized_widths_round_trip() {
         let width = (bits as u64).div_ceil(8);
         let fixed = store.manifest.counts.coefficients * width;
         let coded = store.manifest.files["blocks.bin"].bytes;
-        assert!(bits > 16 || coded < fixed, "bits {bits}: {coded} vs {fixed}");
+        assert!(
+            bits > 16 || coded < fixed,
+            "bits {bits}: {coded} vs {fixed}"
+        );
         let r = verify(d.path()).unwrap();
         assert!(r.max_abs_error <= r.max_error_bound, "bits {bits}");
         // more bits, smaller bound

@@ -168,9 +168,7 @@ pub(crate) fn structure(dir: &Path, head: &StoreHead) -> Result<(), StoreError> 
         return Err(corrupt(
             dir,
             "blocks.bin",
-            format!(
-                "the blocks own {owned} coefficients, counts.coefficients is {coefficients}"
-            ),
+            format!("the blocks own {owned} coefficients, counts.coefficients is {coefficients}"),
         ));
     }
     Ok(())

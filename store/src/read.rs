@@ -128,18 +128,19 @@ impl Store {
             });
         }
         let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
-        let head = StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(|source| {
-            match source {
-                FormatError::BadIndex(reason) => StoreError::Corrupt {
-                    path: ipath.clone(),
-                    reason,
+        let head =
+            StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(
+                |source| match source {
+                    FormatError::BadIndex(reason) => StoreError::Corrupt {
+                        path: ipath.clone(),
+                        reason,
+                    },
+                    source => StoreError::Format {
+                        path: dir.to_path_buf(),
+                        source,
+                    },
                 },
-                source => StoreError::Format {
-                    path: dir.to_path_buf(),
-                    source,
-                },
-            }
-        })?;
+            )?;
         crate::check::structure(dir, &head)?;
         let store = Store {
             dir: dir.to_path_buf(),

@@ -6,11 +6,11 @@
 //! ([`OpenOptions::verify_checksums`]).
 
 use std::path::Path;
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
-use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::DetailNode;
 use tetwave_store::{
     write, Encoding, OpenOptions, Store, StoreContent, StoreError, StoreMeta, BLOCK,
@@ -144,7 +144,9 @@ fn an_index_entry_that_would_overreach_is_refused() {
     let last = ix.len() - 1;
     ix[last] += 1;
     write_index(d.path(), &ix);
-    let len = std::fs::metadata(d.path().join("blocks.bin")).unwrap().len();
+    let len = std::fs::metadata(d.path().join("blocks.bin"))
+        .unwrap()
+        .len();
     refused(
         d.path(),
         "block_index.bin",
@@ -157,7 +159,11 @@ fn an_index_entry_that_would_overreach_is_refused() {
     ix[last] += 1 << 62;
     assert!(ix[last] - ix[last - 1] > MAX_BLOCK_BYTES);
     write_index(d.path(), &ix);
-    refused(d.path(), "block_index.bin", &[&format!("block {} spans", last - 1)]);
+    refused(
+        d.path(),
+        "block_index.bin",
+        &[&format!("block {} spans", last - 1)],
+    );
 }
 
 #[test]
@@ -262,7 +268,11 @@ fn a_truncated_blocks_file_is_refused() {
     refused(d.path(), "blocks.bin", &["manifest says"]);
     // with the manifest edited to the new size, the index still disagrees
     resize_in_manifest(d.path(), "blocks.bin");
-    refused(d.path(), "block_index.bin", &["is not the length of blocks.bin"]);
+    refused(
+        d.path(),
+        "block_index.bin",
+        &["is not the length of blocks.bin"],
+    );
 }
 
 /// A store of format version 1 (fixed-width node records) is refused with what to do about it,
@@ -279,7 +289,11 @@ fn a_version_1_store_is_refused_with_what_to_do() {
     refused(
         d.path(),
         "manifest.json",
-        &["v1", "expected tetwave-store v2", "re-run `tetwave-server prepare`"],
+        &[
+            "v1",
+            "expected tetwave-store v2",
+            "re-run `tetwave-server prepare`",
+        ],
     );
 }
 

@@ -9,8 +9,8 @@ use super::error::ServeError;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
 use glam::DVec3;
-use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::order::shuffle;
@@ -222,12 +222,13 @@ impl Shared {
             let block = self.block(b)?;
             let first = b * BLOCK;
             while i < ids.len() && ids[i] / BLOCK == b {
-                let node = block
-                    .get((ids[i] - first) as usize)
-                    .ok_or_else(|| StoreError::Corrupt {
-                        path: self.store.dir.join("blocks.bin"),
-                        reason: format!("node {} is outside block {b}", ids[i]),
-                    })?;
+                let node =
+                    block
+                        .get((ids[i] - first) as usize)
+                        .ok_or_else(|| StoreError::Corrupt {
+                            path: self.store.dir.join("blocks.bin"),
+                            reason: format!("node {} is outside block {b}", ids[i]),
+                        })?;
                 out.push(node.clone());
                 i += 1;
             }
@@ -250,7 +251,10 @@ impl Shared {
         // decoded outside the lock: two connections may decode the same block at once, which
         // costs time but never a wrong answer
         let from = b * BLOCK;
-        let nodes = Arc::new(self.store.read_nodes(from, (from + BLOCK).min(self.nodes))?);
+        let nodes = Arc::new(
+            self.store
+                .read_nodes(from, (from + BLOCK).min(self.nodes))?,
+        );
         let mut recent = lock();
         if recent.len() >= BLOCK_CACHE {
             recent.pop_front();
