@@ -1,29 +1,39 @@
 //! The on-disk store format, shared by the server (which writes and serves it) and the client (which
-//! may read a local store): the manifest's types, the node record and coefficient encodings, and the
-//! arithmetic of random access by node-id range. No I/O: readers supply the bytes through
-//! [`StoreFiles`].
+//! may read a local store): the manifest's types, the coefficient encodings, and random access by
+//! node-id range over coded blocks. No I/O: readers supply the bytes through [`StoreFiles`].
 //!
 //! | file              | contents                                                                  |
 //! |-------------------|---------------------------------------------------------------------------|
 //! | `manifest.json`   | [`Manifest`]                                                              |
 //! | `base.bin`        | bincode [`BaseMesh`]                                                      |
-//! | `nodes.bin`       | per node 6 bytes: owned mask u8, empty children u8, subtree max |d| f32 LE |
-//! | `coeffs.bin`      | owned coefficients, node order then edge order: f32 LE, or quantized codes |
-//! |                   | as signed little-endian integers of `ceil(bits/8)` bytes                   |
-//! | `coeff_index.bin` | u64 LE per block of [`BLOCK`] nodes: coefficients before the block         |
+//! | `blocks.bin`      | per block of [`BLOCK`] consecutive ids, the bytes of a [`NodeBlock`]:     |
+//! |                   | [`BlockCoder::encode`] of those nodes, concatenated                        |
+//! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then its length         |
 //! | `reference.f32`   | the sampled value of every vertex (for verification; not streamed)         |
+//!
+//! Block `b` holds ids `b·BLOCK .. min((b+1)·BLOCK, nodes)`: its node count and first id are
+//! implied, so a block on disk is only the range coder's bytes, exactly what a `Nodes` frame would
+//! carry for that id range. Reading nodes `a..b` reads the index entries of the covering blocks
+//! (held in memory), the blocks' bytes (one contiguous read) and decodes them.
 
+use crate::block::{BlockCoder, NodeBlock};
 use crate::node::DetailNode;
 use crate::wavelet::Quantizer;
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
-/// Nodes per index block.
+/// Nodes per coded block of `blocks.bin`: small enough that reading one node costs little more
+/// than decoding 4096 (a few kilobytes read, well under a millisecond), large enough that the
+/// adaptive models of a block learn its statistics and an index entry (8 bytes) is negligible.
 pub const BLOCK: u64 = 4096;
-/// Bytes per node record in `nodes.bin`.
-pub const NODE_RECORD: u64 = 6;
+/// Most bytes one block of `blocks.bin` may take: far beyond what [`BlockCoder::encode`] writes for
+/// [`BLOCK`] nodes (a lossless node takes at most about 33 bytes), and a bound on what one block's
+/// read allocates whatever the index says.
+pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
-pub const STORE_VERSION: u32 = 1;
+/// 2: coded blocks (`blocks.bin`, `block_index.bin`); 1 had fixed-width records (`nodes.bin`,
+/// `coeffs.bin`, `coeff_index.bin`) and is not read.
+pub const STORE_VERSION: u32 = 2;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 
@@ -72,40 +82,10 @@ impl Encoding {
         }
     }
 
-    /// Bytes per stored coefficient.
-    pub fn width(&self) -> usize {
-        match self {
-            Encoding::F32 => 4,
-            Encoding::Quantized { bits, .. } => (*bits as usize).div_ceil(8),
-        }
-    }
-
     pub fn quantizer(&self) -> Option<Quantizer> {
         match *self {
             Encoding::F32 => None,
             Encoding::Quantized { bits, step } => Some(Quantizer { bits, step }),
-        }
-    }
-
-    /// Bytes of one coefficient (the dequantized value `d` for quantized encodings is re-encoded).
-    pub fn encode(&self, d: f32, out: &mut Vec<u8>) {
-        match self.quantizer() {
-            None => out.extend_from_slice(&d.to_le_bytes()),
-            Some(q) => out.extend_from_slice(&q.encode(d).to_le_bytes()[..self.width()]),
-        }
-    }
-
-    /// One coefficient from `width()` bytes.
-    pub fn decode(&self, c: &[u8]) -> f32 {
-        match self.quantizer() {
-            None => f32::from_le_bytes([c[0], c[1], c[2], c[3]]),
-            Some(q) => {
-                let mut b = [0u8; 4];
-                b[..c.len()].copy_from_slice(c);
-                // sign-extend from width bytes
-                let shift = 32 - 8 * c.len() as u32;
-                q.decode((i32::from_le_bytes(b) << shift) >> shift)
-            }
         }
     }
 }
@@ -137,19 +117,11 @@ pub struct Manifest {
     pub files: std::collections::BTreeMap<String, FileSum>,
 }
 
-/// A node's 6-byte record.
-pub fn encode_node_record(owned: u8, empty_children: u8, subtree_max_abs: f32) -> [u8; 6] {
-    let mut rec = [0u8; 6];
-    rec[0] = owned;
-    rec[1] = empty_children;
-    rec[2..6].copy_from_slice(&subtree_max_abs.to_le_bytes());
-    rec
-}
-
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FormatError {
     #[error(
-        "not a tetwave store: format {format} v{version}, expected {STORE_FORMAT} v{STORE_VERSION}"
+        "not a tetwave store of this version: format {format} v{version}, expected \
+         {STORE_FORMAT} v{STORE_VERSION}; re-run `tetwave-server prepare` to write it again"
     )]
     Version { format: String, version: u32 },
     #[error("base.bin: {0}")]
@@ -158,8 +130,15 @@ pub enum FormatError {
     Inconsistent(String),
     #[error("node range {from}..{to} is outside 0..{nodes}")]
     RangeOutOfBounds { from: u64, to: u64, nodes: u64 },
-    #[error("nodes.bin: {0}")]
-    BadNode(String),
+    #[error("block_index.bin: {0}")]
+    BadIndex(String),
+    #[error("blocks.bin: block {block} (nodes {from}..{to}): {reason}")]
+    BadBlock {
+        block: u64,
+        from: TetId,
+        to: TetId,
+        reason: String,
+    },
 }
 
 /// Random-access reads of a store's files (a directory, an HTTP range source, a test double).
@@ -174,12 +153,16 @@ pub trait StoreFiles {
 pub struct StoreHead {
     pub manifest: Manifest,
     pub base: BaseMesh,
-    /// Coefficients before each block of [`BLOCK`] nodes.
+    /// Byte offset of each block in `blocks.bin`, then its length: `nblocks + 1` entries, the first
+    /// 0, never decreasing (checked by [`StoreHead::decode`]).
     pub index: Vec<u64>,
+    /// Decodes the blocks (built once from the base mesh and the encoding).
+    pub coder: BlockCoder,
 }
 
 impl StoreHead {
-    /// Checks and decodes a store's manifest, `base.bin` and `coeff_index.bin`.
+    /// Checks and decodes a store's manifest, `base.bin` and `block_index.bin`. Whether the index's
+    /// last entry is `blocks.bin`'s length is the reader's to check (it knows the file).
     pub fn decode(
         manifest: Manifest,
         base_bytes: &[u8],
@@ -218,26 +201,92 @@ impl StoreHead {
                 "base mesh disagrees with the manifest".into(),
             ));
         }
-        if !index_bytes.len().is_multiple_of(8)
-            || (index_bytes.len() / 8) as u64 != nodes.div_ceil(BLOCK)
-        {
-            return Err(FormatError::Inconsistent(
-                "coeff_index.bin size disagrees with the node count".into(),
-            ));
+        let entries = nodes.div_ceil(BLOCK) + 1;
+        if !index_bytes.len().is_multiple_of(8) || (index_bytes.len() / 8) as u64 != entries {
+            return Err(FormatError::BadIndex(format!(
+                "{} bytes, the {nodes} nodes need {entries} entries of 8 bytes",
+                index_bytes.len()
+            )));
         }
-        let index = index_bytes
+        let index: Vec<u64> = index_bytes
             .chunks_exact(8)
             .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
             .collect();
+        // read_nodes subtracts neighbouring entries: they must not decrease, and no block may
+        // claim more than a block can take
+        if index[0] != 0 {
+            return Err(FormatError::BadIndex(format!(
+                "entry 0 is {}, the first block starts at byte 0",
+                index[0]
+            )));
+        }
+        for (b, w) in index.windows(2).enumerate() {
+            if w[1] < w[0] || w[1] - w[0] > MAX_BLOCK_BYTES {
+                return Err(FormatError::BadIndex(format!(
+                    "block {b} spans bytes {}..{} (entries {b} and {}: they may not decrease \
+                     nor differ by more than {MAX_BLOCK_BYTES})",
+                    w[0],
+                    w[1],
+                    b + 1
+                )));
+            }
+        }
+        let coder = BlockCoder::new(&base, &manifest.encoding);
         Ok(StoreHead {
             manifest,
             base,
             index,
+            coder,
         })
     }
 
-    /// Nodes `from..to`: reads one block's worth of records before `from` at most, the range's records
-    /// and its coefficients.
+    /// Number of blocks of `blocks.bin`.
+    pub fn blocks(&self) -> u64 {
+        self.index.len() as u64 - 1
+    }
+
+    /// Ids of block `b`: `b·BLOCK .. min((b+1)·BLOCK, nodes)`.
+    pub fn block_ids(&self, b: u64) -> (TetId, TetId) {
+        let nodes = self.manifest.counts.nodes;
+        let from = (b * BLOCK).min(nodes);
+        (from, (from + BLOCK).min(nodes))
+    }
+
+    /// Decodes block `b` from its bytes: exactly its node count, ids `block_ids(b)` in order.
+    pub fn decode_block(&self, b: u64, bytes: &[u8]) -> Result<Vec<DetailNode>, FormatError> {
+        let (from, to) = self.block_ids(b);
+        let bad = |reason: String| FormatError::BadBlock {
+            block: b,
+            from,
+            to,
+            reason,
+        };
+        let block = NodeBlock {
+            count: (to - from) as u32,
+            first: from,
+            bytes: bytes.to_vec(),
+        };
+        let nodes = self.coder.decode(&block).map_err(|e| bad(e.to_string()))?;
+        // the decoder returns `count` nodes of increasing ids from `first`: they are the block's
+        // ids exactly when the last is `to - 1` (no gap was coded)
+        if nodes.len() as u64 != to - from || nodes.last().is_some_and(|n| n.id != to - 1) {
+            return Err(bad(format!(
+                "decodes to nodes {}..={}, not the block's ids",
+                nodes.first().map_or(0, |n| n.id),
+                nodes.last().map_or(0, |n| n.id)
+            )));
+        }
+        if let Some(n) = nodes.iter().find(|n| !n.subtree_max_abs.is_finite()) {
+            return Err(bad(format!(
+                "node {}: subtree max |d| {} is not finite",
+                n.id, n.subtree_max_abs
+            )));
+        }
+        Ok(nodes)
+    }
+
+    /// Nodes `from..to`: reads the covering blocks' bytes (one contiguous read of `blocks.bin`),
+    /// decodes them and keeps the range.
     pub fn read_nodes<F: StoreFiles>(
         &self,
         files: &F,
@@ -251,59 +300,25 @@ impl StoreHead {
         if from == to {
             return Ok(Vec::new());
         }
-        // offsets and lengths in checked arithmetic: the index comes from a file, and a wrapped
-        // product would read another node's coefficients
-        let overflow = |what: &str| FormatError::Inconsistent(format!("{what} overflows"));
-        let block = from / BLOCK;
-        let block_start = block * BLOCK;
-        let recs_len = (to - block_start)
-            .checked_mul(NODE_RECORD)
-            .and_then(|n| usize::try_from(n).ok())
-            .ok_or_else(|| overflow("nodes.bin: the range's length"))?;
-        let mut recs = vec![0u8; recs_len];
-        let recs_at = block_start
-            .checked_mul(NODE_RECORD)
-            .ok_or_else(|| overflow("nodes.bin: the range's offset"))?;
-        files.read_at("nodes.bin", recs_at, &mut recs)?;
-        let skip = ((from - block_start) * NODE_RECORD) as usize;
-        let entry = *self.index.get(block as usize).ok_or_else(|| {
-            FormatError::Inconsistent(format!("coeff_index.bin: no entry for block {block}"))
+        let (b0, b1) = (from / BLOCK, (to - 1) / BLOCK);
+        // decode checked the index: entries exist for every block and never decrease
+        let (start, end) = (self.index[b0 as usize], self.index[b1 as usize + 1]);
+        let len = usize::try_from(end - start).map_err(|_| {
+            FormatError::Inconsistent(format!(
+                "blocks.bin: bytes {start}..{end} do not fit in memory"
+            ))
         })?;
-        let coeff_at = entry
-            .checked_add(
-                recs[..skip]
-                    .chunks_exact(6)
-                    .map(|r| r[0].count_ones() as u64)
-                    .sum::<u64>(),
-            )
-            .ok_or_else(|| overflow("coeff_index.bin: a coefficient offset"))?;
-        let recs = &recs[skip..];
-        let count: u64 = recs.chunks_exact(6).map(|r| r[0].count_ones() as u64).sum();
-        let enc = &self.manifest.encoding;
-        let width = enc.width() as u64;
-        let cb_len = count
-            .checked_mul(width)
-            .and_then(|n| usize::try_from(n).ok())
-            .ok_or_else(|| overflow("coeffs.bin: the range's length"))?;
-        let mut cb = vec![0u8; cb_len];
-        let cb_at = coeff_at
-            .checked_mul(width)
-            .ok_or_else(|| overflow("coeffs.bin: the range's offset"))?;
-        files.read_at("coeffs.bin", cb_at, &mut cb)?;
-        let mut coeffs = cb.chunks_exact(width as usize).map(|c| enc.decode(c));
+        let mut bytes = vec![0u8; len];
+        files.read_at("blocks.bin", start, &mut bytes)?;
         let mut out = Vec::with_capacity((to - from) as usize);
-        for (j, r) in recs.chunks_exact(6).enumerate() {
-            let owned = r[0];
-            let node = DetailNode {
-                id: from + j as u64,
-                owned,
-                empty_children: r[1],
-                subtree_max_abs: f32::from_le_bytes([r[2], r[3], r[4], r[5]]),
-                coeffs: coeffs.by_ref().take(owned.count_ones() as usize).collect(),
-            };
-            node.validate()
-                .map_err(|e| FormatError::BadNode(e.to_string()))?;
-            out.push(node);
+        for b in b0..=b1 {
+            let at = (self.index[b as usize] - start) as usize;
+            let until = (self.index[b as usize + 1] - start) as usize;
+            let (bf, _) = self.block_ids(b);
+            let decoded = self.decode_block(b, &bytes[at..until])?;
+            let lo = from.saturating_sub(bf) as usize;
+            let hi = ((to - bf) as usize).min(decoded.len());
+            out.extend(decoded.into_iter().take(hi).skip(lo));
         }
         Ok(out)
     }

@@ -59,10 +59,14 @@ fn quantized_widths_round_trip() {
     for bits in [8u8, 12, 16, 20, 24] {
         let d = tempfile::tempdir().unwrap();
         let store = make_store(d.path(), 3, Some(bits));
+        // coded: up to 16 bits, below the fixed-width codes alone of store format 1 (at 20 and 24
+        // bits the low bits of each code are noise, which no entropy coder shrinks)
         let width = (bits as u64).div_ceil(8);
-        assert_eq!(
-            store.manifest.files["coeffs.bin"].bytes,
-            store.manifest.counts.coefficients * width
+        let fixed = store.manifest.counts.coefficients * width;
+        let coded = store.manifest.files["blocks.bin"].bytes;
+        assert!(
+            bits > 16 || coded < fixed,
+            "bits {bits}: {coded} vs {fixed}"
         );
         let r = verify(d.path()).unwrap();
         assert!(r.max_abs_error <= r.max_error_bound, "bits {bits}");
@@ -94,11 +98,15 @@ fn verify_fails_beyond_the_bound() {
 fn truncated_store_files_are_refused() {
     let d = tempfile::tempdir().unwrap();
     make_store(d.path(), 3, None);
-    let p = d.path().join("nodes.bin");
-    let b = std::fs::read(&p).unwrap();
-    std::fs::write(&p, &b[..b.len() - 6]).unwrap();
-    let e = Store::open(d.path()).err().expect("refused");
-    assert!(e.to_string().contains("nodes.bin"), "{e}");
+    for file in ["blocks.bin", "block_index.bin"] {
+        let p = d.path().join(file);
+        let b = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &b[..b.len() - 6]).unwrap();
+        let e = Store::open(d.path()).err().expect("refused");
+        assert!(e.to_string().contains(file), "{e}");
+        std::fs::write(&p, &b).unwrap();
+        Store::open(d.path()).unwrap();
+    }
 }
 
 /// A manifest whose quantized encoding the decoders cannot read (0 or more than 24 bits, a step
@@ -161,26 +169,26 @@ fn verify_needs_every_checksum() {
     let mpath = d.path().join("manifest.json");
     let mut m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
-    m["files"].as_object_mut().unwrap().remove("coeffs.bin");
+    m["files"].as_object_mut().unwrap().remove("blocks.bin");
     std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
     let e = verify(d.path()).expect_err("refused");
-    assert!(e.to_string().contains("no checksum for coeffs.bin"), "{e}");
+    assert!(e.to_string().contains("no checksum for blocks.bin"), "{e}");
 }
 
-/// Preparing over an existing store that fails half way (here `coeffs.bin` cannot be written)
+/// Preparing over an existing store that fails half way (here `blocks.bin` cannot be written)
 /// leaves a directory that does not open as a store, instead of the old manifest over a mix of new
 /// and old files; a prepare that succeeds replaces the store whole.
 #[test]
 fn a_failed_rewrite_leaves_no_store() {
     let d = tempfile::tempdir().unwrap();
     make_store(d.path(), 2, None);
-    let coeffs = d.path().join("coeffs.bin");
+    let coeffs = d.path().join("blocks.bin");
     std::fs::remove_file(&coeffs).unwrap();
     std::fs::create_dir(&coeffs).unwrap();
     let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
     o.levels = 3;
-    let e = prepare(&o).expect_err("coeffs.bin is a directory");
-    assert!(e.to_string().contains("coeffs.bin"), "{e}");
+    let e = prepare(&o).expect_err("blocks.bin is a directory");
+    assert!(e.to_string().contains("blocks.bin"), "{e}");
     let e = Store::open(d.path()).err().expect("no store");
     assert!(e.to_string().contains("manifest.json"), "{e}");
     std::fs::remove_dir(&coeffs).unwrap();

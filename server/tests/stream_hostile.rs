@@ -495,7 +495,7 @@ async fn idle_and_internal_failures_close_with_codes() {
     assert_eq!(close_code(&mut ws).await, Some(CloseCode::Away));
     assert!(t0.elapsed() >= Duration::from_secs(1));
 
-    // internal: nodes are read from disk (no cache), and the coefficients vanish after opening
+    // internal: nodes are read from disk (no cache), and the blocks vanish after opening
     let d = tempfile::tempdir().unwrap();
     let copy = d.path().join("store");
     std::fs::create_dir(&copy).unwrap();
@@ -508,7 +508,7 @@ async fn idle_and_internal_failures_close_with_codes() {
         ..ServeConfig::default()
     };
     let (addr, _) = start(&copy, config).await;
-    std::fs::write(copy.join("coeffs.bin"), b"").unwrap();
+    std::fs::write(copy.join("blocks.bin"), b"").unwrap();
     let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
     send(&mut ws, &hello(None, vec![])).await;
     let mut error = None;

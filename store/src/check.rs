@@ -1,23 +1,21 @@
-//! The structural checks [`Store::open`](crate::Store::open) runs: cheap (one pass over the node
-//! records, no coefficient read), and enough that a read by node range can neither wrap an offset
-//! nor land on another node's coefficients.
+//! The structural checks [`Store::open`](crate::Store::open) runs: one pass decoding every block
+//! of `blocks.bin`, enough that a read by node range can neither read past a file nor return
+//! another block's nodes.
 //!
 //! - the counts of the manifest agree with the base mesh's hierarchy (tets, leaves, vertices);
-//! - each file's size on disk is what the counts need (`nodes.bin` 6 bytes a node, `coeffs.bin`
-//!   the coefficient width per coefficient, `reference.f32` 4 bytes a vertex), in checked
-//!   arithmetic;
-//! - `coeff_index.bin` starts at 0, never decreases and stays within the coefficient count;
-//! - every owned mask of `nodes.bin` names edges only (6 bits), every subtree max |d| is finite,
-//!   and the masks of each block of [`BLOCK`] nodes own exactly the coefficients the index puts
-//!   between that block and the next (the last block: up to the manifest's coefficient count).
+//! - `block_index.bin` has `nblocks + 1` entries, starts at 0 and never decreases (checked by
+//!   [`StoreHead::decode`]), and its last entry is `blocks.bin`'s length;
+//! - `reference.f32` holds 4 bytes a vertex;
+//! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
+//!   subtree bound, and the blocks together own the manifest's coefficient count.
 //!
-//! A mask changed so that the count stays the same (a bit moved inside one block) passes; it is
-//! refused when the node is read (a vertex owned twice) or by `verify`'s checksums.
+//! A flipped byte inside a block usually fails to decode (or decodes to the wrong count); one that
+//! still decodes to plausible nodes is found by `verify`'s checksums.
 
 use crate::{io_err, StoreError};
 use std::io::{BufReader, Read};
 use std::path::Path;
-use tetwave_protocol::store_format::{StoreHead, BLOCK, NODE_RECORD};
+use tetwave_protocol::store_format::{FormatError, StoreHead};
 
 fn corrupt(dir: &Path, file: &str, reason: String) -> StoreError {
     StoreError::Corrupt {
@@ -119,104 +117,59 @@ pub(crate) fn structure(dir: &Path, head: &StoreHead) -> Result<(), StoreError> 
         ));
     }
     // file sizes
-    let nodes = m.counts.nodes;
-    expect_size(dir, "nodes.bin", nodes, NODE_RECORD, "nodes")?;
-    let width = m.encoding.width() as u64;
-    expect_size(dir, "coeffs.bin", coefficients, width, "coefficients")?;
     if size_of(dir, "reference.f32")?.is_some() || m.files.contains_key("reference.f32") {
         expect_size(dir, "reference.f32", vertices, 4, "vertices")?;
     }
-    // the index
-    let ipath = "coeff_index.bin";
+    let bpath = dir.join("blocks.bin");
+    let Some(len) = size_of(dir, "blocks.bin")? else {
+        return Err(io_err(&bpath)(std::io::ErrorKind::NotFound.into()));
+    };
     let index = &head.index;
-    if let Some(&first) = index.first() {
-        if first != 0 {
-            return Err(corrupt(
-                dir,
-                ipath,
-                format!("entry 0 is {first}, the first block starts at coefficient 0"),
-            ));
-        }
-    }
-    for (i, w) in index.windows(2).enumerate() {
-        if w[1] < w[0] {
-            return Err(corrupt(
-                dir,
-                ipath,
-                format!("entry {} ({}) is below entry {i} ({})", i + 1, w[1], w[0]),
-            ));
-        }
-    }
-    if let Some(&last) = index.last() {
-        if last > coefficients {
-            return Err(corrupt(
-                dir,
-                ipath,
-                format!(
-                    "entry {} ({last}) is beyond the manifest's {coefficients} coefficients",
-                    index.len() - 1
-                ),
-            ));
-        }
-    }
-    if index.is_empty() && coefficients != 0 {
+    let last = *index.last().expect("decode checked nblocks + 1 entries");
+    if last != len {
         return Err(corrupt(
             dir,
-            mpath,
-            format!("counts.coefficients is {coefficients}, a hierarchy without nodes has none"),
+            "block_index.bin",
+            format!(
+                "entry {} ({last}) is not the length of blocks.bin ({len} bytes)",
+                index.len() - 1
+            ),
         ));
     }
-    // the node records, one block at a time
-    let npath = dir.join("nodes.bin");
-    let file = std::fs::File::open(&npath).map_err(io_err(&npath))?;
+    // every block, in order
+    let file = std::fs::File::open(&bpath).map_err(io_err(&bpath))?;
     let mut r = BufReader::with_capacity(1 << 20, file);
-    let mut recs = vec![0u8; (BLOCK * NODE_RECORD) as usize];
-    for (b, &before) in index.iter().enumerate() {
-        let start = b as u64 * BLOCK;
-        let end = (start + BLOCK).min(nodes);
-        let recs = &mut recs[..((end - start) * NODE_RECORD) as usize];
-        r.read_exact(recs).map_err(io_err(&npath))?;
-        let mut owned = 0u64;
-        for (j, rec) in recs.chunks_exact(NODE_RECORD as usize).enumerate() {
-            let id = start + j as u64;
-            if rec[0] & !0x3f != 0 {
-                return Err(corrupt(
-                    dir,
-                    "nodes.bin",
-                    format!(
-                        "node {id}: owned mask {:#04x} has bits beyond the 6 edges",
-                        rec[0]
-                    ),
-                ));
-            }
-            let smax = f32::from_le_bytes([rec[2], rec[3], rec[4], rec[5]]);
-            if !smax.is_finite() {
-                return Err(corrupt(
-                    dir,
-                    "nodes.bin",
-                    format!("node {id}: subtree max |d| {smax} is not finite"),
-                ));
-            }
-            owned += rec[0].count_ones() as u64;
-        }
-        let (next, said) = match index.get(b + 1) {
-            Some(&n) => (n, format!("coeff_index.bin entries {b} and {}", b + 1)),
-            None => (
-                coefficients,
-                format!("coeff_index.bin entry {b} and the manifest's coefficient count"),
-            ),
-        };
-        // before ≤ next: the index is monotone and within the count
-        if owned != next - before {
-            return Err(corrupt(
+    let mut buf = Vec::new();
+    let mut owned = 0u64;
+    for b in 0..head.blocks() {
+        let (at, until) = (index[b as usize], index[b as usize + 1]);
+        // decode bounded every block's length by MAX_BLOCK_BYTES
+        buf.resize((until - at) as usize, 0);
+        r.read_exact(&mut buf).map_err(io_err(&bpath))?;
+        let nodes = head.decode_block(b, &buf).map_err(|e| match e {
+            FormatError::BadBlock {
+                block,
+                from,
+                to,
+                reason,
+            } => corrupt(
                 dir,
-                "nodes.bin",
-                format!(
-                    "the owned masks of nodes {start}..{end} own {owned} coefficients, {said} give {}",
-                    next - before
-                ),
-            ));
-        }
+                "blocks.bin",
+                format!("block {block} (nodes {from}..{to}): {reason}"),
+            ),
+            other => StoreError::Format {
+                path: dir.to_path_buf(),
+                source: other,
+            },
+        })?;
+        owned += nodes.iter().map(|n| n.coeffs.len() as u64).sum::<u64>();
+    }
+    if owned != coefficients {
+        return Err(corrupt(
+            dir,
+            "blocks.bin",
+            format!("the blocks own {owned} coefficients, counts.coefficients is {coefficients}"),
+        ));
     }
     Ok(())
 }

@@ -8,19 +8,20 @@
 //! |-------------------|---------------------------------------------------------------------------|
 //! | `manifest.json`   | [`Manifest`]: dataset, bounds, sizes, counts, encoding, bound, checksums    |
 //! | `base.bin`        | bincode [`BaseMesh`](tetwave_protocol::BaseMesh)                            |
-//! | `nodes.bin`       | per node 6 bytes: owned mask u8, empty children u8, subtree max |d| f32 LE |
-//! | `coeffs.bin`      | owned coefficients, node order then edge order: f32 LE, or quantized codes |
-//! |                   | as signed little-endian integers of `ceil(bits/8)` bytes                   |
-//! | `coeff_index.bin` | u64 LE per block of [`BLOCK`] nodes: coefficients before the block         |
+//! | `blocks.bin`      | the nodes in blocks of [`BLOCK`] consecutive ids, each block's bytes those |
+//! |                   | of [`BlockCoder::encode`](tetwave_protocol::block::BlockCoder::encode)      |
+//! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then the file's length  |
 //! | `reference.f32`   | the sampled value of every vertex (for `verify`; not streamed)             |
 //!
-//! Reading nodes `a..b` touches one index entry, at most [`BLOCK`] node records before `a`, and the
-//! range's own records and coefficients: never the whole file.
+//! The blocks are what the wire carries (a `Nodes` frame is a coded block of any id set): the
+//! stream carries what the store holds. Reading nodes `a..b` reads the covering blocks' bytes (one
+//! read, at most one block of 4096 nodes before `a` and after `b`) and decodes them: never the
+//! whole file.
 
 use std::path::{Path, PathBuf};
 pub use tetwave_protocol::store_format::{
-    encode_node_record, Counts, Encoding, FileSum, FormatError, Manifest, StoreFiles, StoreHead,
-    BLOCK, STORE_FORMAT, STORE_VERSION,
+    Counts, Encoding, FileSum, FormatError, Manifest, StoreFiles, StoreHead, BLOCK,
+    MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION,
 };
 
 mod check;
@@ -31,13 +32,7 @@ pub use read::{OpenOptions, Store};
 pub use write::{write, StoreContent, StoreMeta};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
-pub const STORE_FILES: [&str; 5] = [
-    "base.bin",
-    "nodes.bin",
-    "coeffs.bin",
-    "coeff_index.bin",
-    "reference.f32",
-];
+pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin", "reference.f32"];
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

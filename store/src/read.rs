@@ -1,11 +1,13 @@
-//! Reading a store: the manifest, base mesh and block index at open, node records and coefficients
-//! on demand.
+//! Reading a store: the manifest, base mesh and block index at open, coded blocks on demand.
 
 use crate::{io_err, StoreError, STORE_FILES};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
-use tetwave_protocol::store_format::{Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES};
+use tetwave_protocol::store_format::{
+    FormatError, Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES, STORE_FORMAT,
+    STORE_VERSION,
+};
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
@@ -22,8 +24,7 @@ impl StoreFiles for DirFiles {
     }
 }
 
-/// An open store: manifest, base mesh and block index in memory, node records and coefficients read
-/// on demand.
+/// An open store: manifest, base mesh and block index in memory, blocks read and decoded on demand.
 pub struct Store {
     pub dir: PathBuf,
     pub manifest: Manifest,
@@ -49,7 +50,8 @@ impl Store {
 
     /// Opens a store, checking the manifest, the base mesh (its CRC-32 included), every file's
     /// size against the manifest, and the structure that random access relies on (see the
-    /// `check` module: counts, the coefficient index, the owned masks; one pass over `nodes.bin`);
+    /// `check` module: counts, the block index, every block decoding to its nodes; one pass over
+    /// `blocks.bin`);
     /// with [`OpenOptions::verify_checksums`], every file's CRC-32 as well.
     pub fn open_with(dir: &Path, options: OpenOptions) -> Result<Self, StoreError> {
         let mpath = dir.join("manifest.json");
@@ -59,6 +61,17 @@ impl Store {
                 path: mpath.clone(),
                 reason: e.to_string(),
             })?;
+        // the version first: a store of another version names other files, and the reader should
+        // learn that it needs `prepare` again, not that a file is foreign
+        if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
+            return Err(StoreError::Format {
+                path: mpath,
+                source: FormatError::Version {
+                    format: manifest.format,
+                    version: manifest.version,
+                },
+            });
+        }
         for (name, sum) in &manifest.files {
             // only the store's own files: a name like `../x` or `/dev/zero` is never opened
             if !STORE_FILES.contains(&name.as_str()) {
@@ -101,24 +114,33 @@ impl Store {
         }
         // the index is read whole: first its size (StoreHead::decode then ties the manifest's node
         // count to the base mesh)
-        let ipath = dir.join("coeff_index.bin");
+        let ipath = dir.join("block_index.bin");
         let index_len = std::fs::metadata(&ipath).map_err(io_err(&ipath))?.len();
-        if Some(index_len) != manifest.counts.nodes.div_ceil(BLOCK).checked_mul(8) {
+        let want = (manifest.counts.nodes.div_ceil(BLOCK) + 1).checked_mul(8);
+        if Some(index_len) != want {
             return Err(StoreError::Corrupt {
                 path: ipath,
                 reason: format!(
-                    "{index_len} bytes, the manifest's {} nodes need 8 per block of {BLOCK}",
+                    "{index_len} bytes, the manifest's {} nodes need 8 per block of {BLOCK} and \
+                     8 more",
                     manifest.counts.nodes
                 ),
             });
         }
         let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
-        let head = StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(|source| {
-            StoreError::Format {
-                path: dir.to_path_buf(),
-                source,
-            }
-        })?;
+        let head =
+            StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(
+                |source| match source {
+                    FormatError::BadIndex(reason) => StoreError::Corrupt {
+                        path: ipath.clone(),
+                        reason,
+                    },
+                    source => StoreError::Format {
+                        path: dir.to_path_buf(),
+                        source,
+                    },
+                },
+            )?;
         crate::check::structure(dir, &head)?;
         let store = Store {
             dir: dir.to_path_buf(),

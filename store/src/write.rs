@@ -1,12 +1,13 @@
 //! Writing a store: every file with its size and CRC-32, the manifest last.
 
-use crate::{io_err, StoreError, BLOCK, STORE_FORMAT, STORE_VERSION};
+use crate::{io_err, StoreError, BLOCK, MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
-use tetwave_protocol::store_format::{encode_node_record, Counts, Encoding, FileSum, Manifest};
+use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest};
 use tetwave_protocol::wavelet::Quantizer;
-use tetwave_protocol::BaseMesh;
+use tetwave_protocol::{BaseMesh, DetailNode};
 
 /// Writes files while computing their checksums.
 struct SumWriter {
@@ -104,40 +105,79 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     w.put(&bytes).map_err(io_err(&path))?;
     files.insert("base.bin".into(), w.finish().map_err(io_err(&path))?);
 
-    let path = dir.join("nodes.bin");
-    let mut w = SumWriter::create(&path)?;
-    for i in 0..a.owned.len() {
-        w.put(&encode_node_record(
-            a.owned[i],
-            a.empty_children[i],
-            a.subtree_max_abs[i],
-        ))
-        .map_err(io_err(&path))?;
+    // the nodes in blocks of BLOCK ids, each coded on its own (random access decodes one block
+    // without its neighbours); the index gets each block's offset, then the file's length
+    let n = a.owned.len();
+    if a.empty_children.len() != n || a.subtree_max_abs.len() != n {
+        return Err(StoreError::Corrupt {
+            path: dir.join("blocks.bin"),
+            reason: format!(
+                "{n} owned masks, {} empty-children masks and {} subtree maxima",
+                a.empty_children.len(),
+                a.subtree_max_abs.len()
+            ),
+        });
     }
-    files.insert("nodes.bin".into(), w.finish().map_err(io_err(&path))?);
-
-    let path = dir.join("coeffs.bin");
+    let coder = BlockCoder::new(a.base, &encoding);
+    let path = dir.join("blocks.bin");
     let mut w = SumWriter::create(&path)?;
-    let mut buf = Vec::with_capacity(1 << 16);
-    for chunk in a.coeffs.chunks(1 << 14) {
-        buf.clear();
-        for &d in chunk {
-            encoding.encode(d, &mut buf);
+    let mut index = Vec::with_capacity(n.div_ceil(BLOCK as usize) + 1);
+    let mut offset = 0u64;
+    let mut coeffs = a.coeffs;
+    let mut nodes = Vec::with_capacity(BLOCK as usize);
+    for start in (0..n).step_by(BLOCK as usize) {
+        let end = (start + BLOCK as usize).min(n);
+        nodes.clear();
+        for i in start..end {
+            let k = a.owned[i].count_ones() as usize;
+            if coeffs.len() < k {
+                return Err(StoreError::Corrupt {
+                    path: path.clone(),
+                    reason: format!("node {i}: owns {k} coefficients, {} are left", coeffs.len()),
+                });
+            }
+            let (mine, rest) = coeffs.split_at(k);
+            coeffs = rest;
+            nodes.push(DetailNode {
+                id: i as u64,
+                owned: a.owned[i],
+                empty_children: a.empty_children[i],
+                subtree_max_abs: a.subtree_max_abs[i],
+                coeffs: mine.to_vec(),
+            });
         }
-        w.put(&buf).map_err(io_err(&path))?;
-    }
-    files.insert("coeffs.bin".into(), w.finish().map_err(io_err(&path))?);
-
-    let path = dir.join("coeff_index.bin");
-    let mut w = SumWriter::create(&path)?;
-    let mut before = 0u64;
-    for (i, m) in a.owned.iter().enumerate() {
-        if (i as u64).is_multiple_of(BLOCK) {
-            w.put(&before.to_le_bytes()).map_err(io_err(&path))?;
+        let block = coder.encode(&nodes).map_err(|e| StoreError::Corrupt {
+            path: path.clone(),
+            reason: format!("nodes {start}..{end}: {e}"),
+        })?;
+        if block.bytes.len() as u64 > MAX_BLOCK_BYTES {
+            return Err(StoreError::Corrupt {
+                path: path.clone(),
+                reason: format!(
+                    "nodes {start}..{end} code to {} bytes, beyond the {MAX_BLOCK_BYTES}-byte limit",
+                    block.bytes.len()
+                ),
+            });
         }
-        before += m.count_ones() as u64;
+        index.push(offset);
+        offset += block.bytes.len() as u64;
+        w.put(&block.bytes).map_err(io_err(&path))?;
     }
-    files.insert("coeff_index.bin".into(), w.finish().map_err(io_err(&path))?);
+    index.push(offset);
+    if !coeffs.is_empty() {
+        return Err(StoreError::Corrupt {
+            path: path.clone(),
+            reason: format!("{} coefficients owned by no node", coeffs.len()),
+        });
+    }
+    files.insert("blocks.bin".into(), w.finish().map_err(io_err(&path))?);
+
+    let path = dir.join("block_index.bin");
+    let mut w = SumWriter::create(&path)?;
+    for o in &index {
+        w.put(&o.to_le_bytes()).map_err(io_err(&path))?;
+    }
+    files.insert("block_index.bin".into(), w.finish().map_err(io_err(&path))?);
 
     let path = dir.join("reference.f32");
     let mut w = SumWriter::create(&path)?;

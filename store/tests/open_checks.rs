@@ -1,16 +1,21 @@
 //! `Store::open` refuses a tampered store with the file and the reason, before any node is read:
-//! a flipped byte in `base.bin` (its checksum is always checked), a coefficient index entry that
-//! would wrap an offset, an index that goes down, an owned mask that no longer matches the index,
-//! a truncated coefficient file. The other files' checksums are checked on request
+//! a flipped byte in `base.bin` (its checksum is always checked), a block index entry that would
+//! make a huge read, an index that goes down, a flipped byte inside `blocks.bin`, a block that
+//! decodes to other ids or to another coefficient count, a truncated `blocks.bin`, a store of the
+//! previous version. The other files' checksums are checked on request
 //! ([`OpenOptions::verify_checksums`]).
 
 use std::path::Path;
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::DetailNode;
-use tetwave_store::{write, OpenOptions, Store, StoreContent, StoreError, StoreMeta, BLOCK};
+use tetwave_store::{
+    write, Encoding, OpenOptions, Store, StoreContent, StoreError, StoreMeta, BLOCK,
+    MAX_BLOCK_BYTES,
+};
 
 /// Writes a `box5` store of `levels` levels of the unit-cube harmonic field into `dir`; returns
 /// its nodes.
@@ -46,7 +51,7 @@ fn make_store(dir: &Path, levels: u8) -> Vec<DetailNode> {
     nodes
 }
 
-/// A level-5 store (23,405 nodes: 6 index blocks) in a temporary directory.
+/// A level-5 store (23,405 nodes: 6 blocks) in a temporary directory.
 fn store() -> (tempfile::TempDir, Vec<DetailNode>) {
     let d = tempfile::tempdir().unwrap();
     let nodes = make_store(d.path(), 5);
@@ -71,7 +76,7 @@ fn resize_in_manifest(dir: &Path, file: &str) {
 }
 
 fn index(dir: &Path) -> Vec<u64> {
-    std::fs::read(dir.join("coeff_index.bin"))
+    std::fs::read(dir.join("block_index.bin"))
         .unwrap()
         .chunks_exact(8)
         .map(|c| u64::from_le_bytes(c.try_into().unwrap()))
@@ -80,7 +85,7 @@ fn index(dir: &Path) -> Vec<u64> {
 
 fn write_index(dir: &Path, index: &[u64]) {
     let b: Vec<u8> = index.iter().flat_map(|x| x.to_le_bytes()).collect();
-    std::fs::write(dir.join("coeff_index.bin"), b).unwrap();
+    std::fs::write(dir.join("block_index.bin"), b).unwrap();
 }
 
 /// The error of opening `dir`, which must name `file` and contain every part of `why`.
@@ -121,34 +126,43 @@ fn a_flipped_byte_in_base_bin_is_refused() {
     refused(d.path(), "base.bin", &["checksum", "manifest says"]);
 }
 
-/// An entry near 2^62 would wrap `offset × 4` back into the file; it is beyond the coefficient
-/// count, and so is refused.
+/// An entry near 2^62 would ask for a huge read: the block before it spans more than a block may,
+/// and the last entry must be `blocks.bin`'s length.
 #[test]
-fn an_index_entry_that_would_wrap_is_refused() {
-    let (d, _) = store();
-    let mut ix = index(d.path());
-    let last = ix.len() - 1;
-    ix[last] += 1u64 << 62;
-    assert_eq!(ix[last].wrapping_mul(4) / 4, ix[last] - (1 << 62));
-    write_index(d.path(), &ix);
-    resize_in_manifest(d.path(), "coeff_index.bin");
-    refused(
-        d.path(),
-        "coeff_index.bin",
-        &[
-            &format!("entry {last} ({})", ix[last]),
-            "beyond the manifest's",
-        ],
-    );
-    // a huge entry in the middle: the next one is below it
+fn an_index_entry_that_would_overreach_is_refused() {
     let (d, _) = store();
     let mut ix = index(d.path());
     ix[2] = u64::MAX - 3;
     write_index(d.path(), &ix);
     refused(
         d.path(),
-        "coeff_index.bin",
-        &[&format!("entry 3 ({}) is below entry 2 ({})", ix[3], ix[2])],
+        "block_index.bin",
+        &[&format!("block 1 spans bytes {}..{}", ix[1], ix[2])],
+    );
+    let (d, _) = store();
+    let mut ix = index(d.path());
+    let last = ix.len() - 1;
+    ix[last] += 1;
+    write_index(d.path(), &ix);
+    let len = std::fs::metadata(d.path().join("blocks.bin"))
+        .unwrap()
+        .len();
+    refused(
+        d.path(),
+        "block_index.bin",
+        &[&format!(
+            "entry {last} ({}) is not the length of blocks.bin ({len} bytes)",
+            ix[last]
+        )],
+    );
+    // a last entry beyond what any block may span
+    ix[last] += 1 << 62;
+    assert!(ix[last] - ix[last - 1] > MAX_BLOCK_BYTES);
+    write_index(d.path(), &ix);
+    refused(
+        d.path(),
+        "block_index.bin",
+        &[&format!("block {} spans", last - 1)],
     );
 }
 
@@ -161,59 +175,129 @@ fn a_decreasing_index_is_refused() {
     write_index(d.path(), &ix);
     refused(
         d.path(),
-        "coeff_index.bin",
-        &[&format!("entry 3 ({}) is below entry 2 ({})", ix[3], ix[2])],
+        "block_index.bin",
+        &[&format!("block 2 spans bytes {}..{}", ix[2], ix[3])],
     );
 }
 
-/// A mask that gains or loses a bit shifts every later coefficient onto the wrong vertex: its
-/// block's masks no longer own what the index says. A bit beyond the 6 edges is refused as such.
 #[test]
-fn a_changed_owned_mask_is_refused() {
-    let (d, nodes) = store();
-    let k = BLOCK as usize
-        + 17
-        + nodes[BLOCK as usize + 17..]
-            .iter()
-            .position(|n| n.owned != 0)
-            .unwrap();
-    let path = d.path().join("nodes.bin");
-    let original = std::fs::read(&path).unwrap();
-    edit(&path, |b| b[k * 6] &= b[k * 6] - 1);
+fn an_index_of_the_wrong_length_is_refused() {
+    let (d, _) = store();
+    let mut ix = index(d.path());
+    ix.pop();
+    write_index(d.path(), &ix);
+    resize_in_manifest(d.path(), "block_index.bin");
+    refused(d.path(), "block_index.bin", &["need 8 per block of 4096"]);
+}
+
+/// A flipped byte in the middle of block 1 desynchronizes its range decoder: the block no longer
+/// decodes to its 4096 consecutive ids.
+#[test]
+fn a_flipped_byte_inside_blocks_bin_is_refused() {
+    let (d, _) = store();
+    let ix = index(d.path());
+    let at = ((ix[1] + ix[2]) / 2) as usize;
+    edit(&d.path().join("blocks.bin"), |b| b[at] ^= 0x5a);
     refused(
         d.path(),
-        "nodes.bin",
+        "blocks.bin",
+        &[&format!("block 1 (nodes {BLOCK}..{})", 2 * BLOCK)],
+    );
+}
+
+/// Replaces block `b` of the store in `dir` by `nodes` coded with the store's coder (index and
+/// manifest sizes kept in step), as a writer with a bug would.
+fn recode_block(dir: &Path, b: usize, nodes: &[DetailNode]) {
+    let s = Store::open(dir).unwrap();
+    let coder = BlockCoder::new(&s.base, &Encoding::F32);
+    let ix = index(dir);
+    let old = std::fs::read(dir.join("blocks.bin")).unwrap();
+    let mut bytes = old[..ix[b] as usize].to_vec();
+    bytes.extend(coder.encode(nodes).unwrap().bytes);
+    let shift = bytes.len() as i64 - ix[b + 1] as i64;
+    bytes.extend(&old[ix[b + 1] as usize..]);
+    let mut new = ix.clone();
+    for e in &mut new[b + 1..] {
+        *e = (*e as i64 + shift) as u64;
+    }
+    std::fs::write(dir.join("blocks.bin"), bytes).unwrap();
+    write_index(dir, &new);
+    resize_in_manifest(dir, "blocks.bin");
+}
+
+/// A block that decodes cleanly but to the wrong nodes: a node that lost a coefficient (every later
+/// coefficient would land on another vertex in a fixed-width store; here the total disagrees), or
+/// another id in place of one of the block's.
+#[test]
+fn a_block_with_other_nodes_is_refused() {
+    let (d, nodes) = store();
+    let (b0, b1) = (BLOCK as usize, 2 * BLOCK as usize);
+    let mut block: Vec<DetailNode> = nodes[b0..b1].to_vec();
+    let k = block.iter().position(|n| n.owned != 0).unwrap();
+    block[k].owned &= block[k].owned - 1;
+    block[k].coeffs.pop();
+    recode_block(d.path(), 1, &block);
+    refused(
+        d.path(),
+        "blocks.bin",
+        &[&format!(
+            "the blocks own {} coefficients, counts.coefficients is {}",
+            nodes.iter().map(|n| n.coeffs.len()).sum::<usize>() - 1,
+            nodes.iter().map(|n| n.coeffs.len()).sum::<usize>()
+        )],
+    );
+    let (d, nodes) = store();
+    let mut block: Vec<DetailNode> = nodes[b0..b1 - 1].to_vec();
+    block.push(nodes[b1].clone());
+    recode_block(d.path(), 1, &block);
+    refused(
+        d.path(),
+        "blocks.bin",
         &[
-            &format!("the owned masks of nodes {BLOCK}..{}", 2 * BLOCK),
-            "coeff_index.bin entries 1 and 2",
+            &format!("block 1 (nodes {b0}..{b1})"),
+            &format!("decodes to nodes {b0}..={b1}, not the block's ids"),
         ],
     );
-    // in the last block, the count to match is the manifest's
-    std::fs::write(&path, &original).unwrap();
-    let last = nodes.len() - 1 - nodes.iter().rev().position(|n| n.owned != 0x3f).unwrap();
-    edit(&path, |b| b[last * 6] |= !b[last * 6] & 0x3f);
-    refused(d.path(), "nodes.bin", &["the manifest's coefficient count"]);
-    std::fs::write(&path, &original).unwrap();
-    edit(&path, |b| b[k * 6] |= 0x80);
-    refused(
-        d.path(),
-        "nodes.bin",
-        &[&format!("node {k}: owned mask"), "beyond the 6 edges"],
-    );
 }
 
 #[test]
-fn a_truncated_coefficient_file_is_refused() {
+fn a_truncated_blocks_file_is_refused() {
     let (d, _) = store();
-    let path = d.path().join("coeffs.bin");
+    let path = d.path().join("blocks.bin");
     edit(&path, |b| b.truncate(b.len() - 4));
-    refused(d.path(), "coeffs.bin", &["manifest says"]);
-    // with the manifest edited to the new size, the coefficient count still disagrees
-    resize_in_manifest(d.path(), "coeffs.bin");
-    refused(d.path(), "coeffs.bin", &["coefficients of 4 bytes need"]);
+    refused(d.path(), "blocks.bin", &["manifest says"]);
+    // with the manifest edited to the new size, the index still disagrees
+    resize_in_manifest(d.path(), "blocks.bin");
+    refused(
+        d.path(),
+        "block_index.bin",
+        &["is not the length of blocks.bin"],
+    );
 }
 
-/// Only the five store files are listed: a manifest naming another path is refused before that
+/// A store of format version 1 (fixed-width node records) is refused with what to do about it,
+/// before its files are looked at.
+#[test]
+fn a_version_1_store_is_refused_with_what_to_do() {
+    let (d, _) = store();
+    let mpath = d.path().join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["version"] = 1.into();
+    m["files"]["nodes.bin"] = serde_json::json!({"bytes": 6, "crc32": 0});
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(
+        d.path(),
+        "manifest.json",
+        &[
+            "v1",
+            "expected tetwave-store v2",
+            "re-run `tetwave-server prepare`",
+        ],
+    );
+}
+
+/// Only the four store files are listed: a manifest naming another path is refused before that
 /// path is opened.
 #[test]
 fn a_manifest_naming_other_files_is_refused() {
@@ -230,13 +314,27 @@ fn a_manifest_naming_other_files_is_refused() {
     );
 }
 
-/// A flipped coefficient keeps every structural check: only the checksums find it, and
-/// `verify_checksums` checks them at open.
+/// A flipped byte near the end of the last block changes only the low bits of the last raw f32
+/// (lossless stores send the bits raw) and keeps every structural check: only the checksums find
+/// it, and `verify_checksums` checks them at open.
 #[test]
 fn checksums_are_checked_at_open_on_request() {
     let (d, _) = store();
-    edit(&d.path().join("coeffs.bin"), |b| b[100] ^= 0x10);
-    Store::open(d.path()).expect("structurally sound");
+    let path = d.path().join("blocks.bin");
+    let original = std::fs::read(&path).unwrap();
+    // the last byte that can be flipped without a decode error
+    let at = (1..=64)
+        .map(|k| original.len() - k)
+        .find(|&at| {
+            edit(&path, |b| b[at] ^= 0x01);
+            let ok = Store::open(d.path()).is_ok();
+            if !ok {
+                std::fs::write(&path, &original).unwrap();
+            }
+            ok
+        })
+        .expect("some byte near the end flips a coefficient's low bits only");
+    assert_ne!(std::fs::read(&path).unwrap()[at], original[at]);
     let e = Store::open_with(
         d.path(),
         OpenOptions {
@@ -247,7 +345,7 @@ fn checksums_are_checked_at_open_on_request() {
     .expect("refused");
     let msg = e.to_string();
     assert!(
-        msg.contains("coeffs.bin") && msg.contains("checksum"),
+        msg.contains("blocks.bin") && msg.contains("checksum"),
         "{msg}"
     );
 }

@@ -1,31 +1,60 @@
-//! `tetwave bench progressive` on a store whose node file was tampered with, consistently enough
-//! that it still reads (the same coefficient count): one owned vertex bit moved from one node to
-//! another, so two nodes claim one vertex. The run stops with an error that names the store and
-//! the node, instead of panicking or dropping the node.
+//! `tetwave bench progressive` on a store whose blocks were re-coded with tampered nodes,
+//! consistently enough that the store still opens (every block decodes, the same coefficient
+//! count): one owned vertex bit moved from one node to another, so two nodes claim one vertex. The
+//! run stops with an error that names the store and the node, instead of panicking or dropping the
+//! node.
 
 mod common;
 
+use std::path::Path;
 use tetwave_client::progressive::bench;
+use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::DetailNode;
+use tetwave_store::{Store, BLOCK};
 
-/// `nodes.bin`: 6 bytes per node, the first the owned-edge mask.
-const NODE_BYTES: usize = 6;
+/// Rewrites the store's `blocks.bin` and `block_index.bin` from `nodes` (all of them, in id order)
+/// with the store's coder, and their sizes in the manifest, as a writer with a bug would.
+fn recode(store: &Path, nodes: &[DetailNode]) {
+    let s = Store::open(store).unwrap();
+    let coder = BlockCoder::new(&s.base, &s.manifest.encoding);
+    let (mut blocks, mut index) = (Vec::new(), vec![0u8; 8]);
+    for chunk in nodes.chunks(BLOCK as usize) {
+        blocks.extend(coder.encode(chunk).unwrap().bytes);
+        index.extend((blocks.len() as u64).to_le_bytes());
+    }
+    std::fs::write(store.join("blocks.bin"), &blocks).unwrap();
+    std::fs::write(store.join("block_index.bin"), &index).unwrap();
+    let mpath = store.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["files"]["blocks.bin"]["bytes"] = (blocks.len() as u64).into();
+    m["files"]["block_index.bin"]["bytes"] = (index.len() as u64).into();
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+}
 
 #[test]
 fn bench_on_a_tampered_store_is_an_error() {
     let (_d, store) = common::harmonic_store(2);
-    let path = store.join("nodes.bin");
-    let mut bytes = std::fs::read(&path).unwrap();
-    let masks: Vec<u8> = bytes.iter().step_by(NODE_BYTES).copied().collect();
-    // node `from` gives up its lowest owned edge; a later node that owns some edge but not all six
-    // takes its lowest free one (which another node owns: every vertex has an owner)
-    let from = masks.iter().position(|&m| m != 0).unwrap();
-    let to = (from + 1..masks.len())
-        .find(|&j| masks[j] != 0 && masks[j] != 0x3f)
+    let mut nodes = {
+        let s = Store::open(&store).unwrap();
+        s.read_nodes(0, s.manifest.counts.nodes).unwrap()
+    };
+    // node `from` gives up its lowest owned edge (and that coefficient); a later node that owns
+    // some edge but not all six takes its lowest free one (which another node owns: every vertex
+    // has an owner), with a coefficient of 0 in edge order
+    let from = nodes.iter().position(|n| n.owned != 0).unwrap();
+    let to = (from + 1..nodes.len())
+        .find(|&j| nodes[j].owned != 0 && nodes[j].owned != 0x3f)
         .unwrap();
-    bytes[from * NODE_BYTES] &= masks[from] - 1;
-    let free = !masks[to] & 0x3f;
-    bytes[to * NODE_BYTES] |= free & free.wrapping_neg();
-    std::fs::write(&path, bytes).unwrap();
+    nodes[from].owned &= nodes[from].owned - 1;
+    nodes[from].coeffs.remove(0);
+    let free = !nodes[to].owned & 0x3f;
+    let bit = free & free.wrapping_neg();
+    let at = (nodes[to].owned & (bit - 1)).count_ones() as usize;
+    nodes[to].owned |= bit;
+    nodes[to].coeffs.insert(at, 0.0);
+    recode(&store, &nodes);
+    Store::open(&store).expect("the tampered store is structurally sound");
 
     let args = common::bench_args(&[
         "--store",

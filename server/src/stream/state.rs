@@ -9,14 +9,15 @@ use super::error::ServeError;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
 use glam::DVec3;
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
-use tetwave_store::{OpenOptions, Store, StoreError};
+use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
 
 /// Per-node geometry for view-dependent order: bounding spheres, in world units.
 pub(super) struct Geometry {
@@ -38,6 +39,8 @@ pub struct Shared {
     coder: BlockCoder,
     /// Every node, when the store is small enough ([`ServeConfig::cache_limit_bytes`]).
     cache: Option<Vec<DetailNode>>,
+    /// Otherwise the last decoded blocks of the store, most recent last ([`BLOCK_CACHE`]).
+    recent: Mutex<VecDeque<(u64, Arc<Vec<DetailNode>>)>>,
     /// `subtree_max_abs` of every node.
     pub(super) smax: Vec<f32>,
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
@@ -59,6 +62,10 @@ pub struct Shared {
 
 /// Nodes read per step while loading metadata.
 const LOAD_CHUNK: u64 = 1 << 16;
+/// Decoded store blocks kept when the store is not cached whole: batches of neighbouring
+/// connections and consecutive batches of one connection often touch the same blocks, and a
+/// decoded block of [`BLOCK`] nodes takes a few hundred kilobytes.
+const BLOCK_CACHE: usize = 32;
 
 impl Shared {
     /// Opens the store and prepares what connections share.
@@ -121,6 +128,7 @@ impl Shared {
             base_frame,
             coder,
             cache,
+            recent: Mutex::new(VecDeque::with_capacity(BLOCK_CACHE)),
             smax,
             magnitude_perm: OnceLock::new(),
             random_perm: OnceLock::new(),
@@ -210,16 +218,52 @@ impl Shared {
             return Ok(ids.iter().map(|&i| c[i as usize].clone()).collect());
         }
         ids.sort_unstable();
+        // the store holds coded blocks of BLOCK ids: decode each block the batch touches once
         let mut out = Vec::with_capacity(ids.len());
         let mut i = 0;
         while i < ids.len() {
-            let mut j = i + 1;
-            while j < ids.len() && ids[j] == ids[j - 1] + 1 {
-                j += 1;
+            let b = ids[i] / BLOCK;
+            let block = self.block(b)?;
+            let first = b * BLOCK;
+            while i < ids.len() && ids[i] / BLOCK == b {
+                let node =
+                    block
+                        .get((ids[i] - first) as usize)
+                        .ok_or_else(|| StoreError::Corrupt {
+                            path: self.store.dir.join("blocks.bin"),
+                            reason: format!("node {} is outside block {b}", ids[i]),
+                        })?;
+                out.push(node.clone());
+                i += 1;
             }
-            out.extend(self.store.read_nodes(ids[i], ids[j - 1] + 1)?);
-            i = j;
         }
         Ok(out)
+    }
+
+    /// The decoded nodes of store block `b`, from the recent blocks or the store.
+    fn block(&self, b: u64) -> Result<Arc<Vec<DetailNode>>, StoreError> {
+        let lock = || self.recent.lock().unwrap_or_else(|e| e.into_inner());
+        {
+            let mut recent = lock();
+            if let Some(k) = recent.iter().position(|(x, _)| *x == b) {
+                let hit = recent.remove(k).expect("present");
+                let nodes = hit.1.clone();
+                recent.push_back(hit);
+                return Ok(nodes);
+            }
+        }
+        // decoded outside the lock: two connections may decode the same block at once, which
+        // costs time but never a wrong answer
+        let from = b * BLOCK;
+        let nodes = Arc::new(
+            self.store
+                .read_nodes(from, (from + BLOCK).min(self.nodes))?,
+        );
+        let mut recent = lock();
+        if recent.len() >= BLOCK_CACHE {
+            recent.pop_front();
+        }
+        recent.push_back((b, nodes.clone()));
+        Ok(nodes)
     }
 }
