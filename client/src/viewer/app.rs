@@ -76,6 +76,8 @@ pub struct ViewerApp {
     /// The camera moved in this frame (by the mouse, keys or the script).
     moving: bool,
     refine_ms: f64,
+    /// Building the leaf mesh and uploading it, the last time the mesh changed.
+    upload_ms: f64,
     render_ms: f64,
     fps: f64,
     last_frame: Instant,
@@ -147,6 +149,7 @@ impl ViewerApp {
             last_cam: None,
             moving: false,
             refine_ms: 0.0,
+            upload_ms: 0.0,
             render_ms: 0.0,
             fps: 0.0,
             last_frame: Instant::now(),
@@ -486,6 +489,7 @@ impl ViewerApp {
             self.mesh_dirty = true;
         }
         if self.mesh_dirty {
+            let t = Instant::now();
             let mesh = match (&self.data.session, &self.data.mesh) {
                 (Some(s), _) => Some(s.leaf_mesh(self.data.value_range)),
                 (None, Some(m)) => Some(m.clone()),
@@ -501,6 +505,7 @@ impl ViewerApp {
                 }
                 self.image_dirty = true;
             }
+            self.upload_ms = t.elapsed().as_secs_f64() * 1e3;
             self.mesh_dirty = false;
         }
         if self.target.as_ref().map(Target::size) != Some((w, h)) {
@@ -554,6 +559,7 @@ impl ViewerApp {
                 format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
             );
             row("refine", format!("{:.2} ms", self.refine_ms));
+            row("upload", format!("{:.2} ms", self.upload_ms));
             // the CPU side of a frame's draw: sort, exit faces, submission
             row("render (CPU)", format!("{:.2} ms", self.render_ms));
             row("FPS", format!("{:.1}", self.fps));
@@ -682,6 +688,7 @@ impl ViewerApp {
                 0.0
             },
             refine_ms: self.refine_ms,
+            upload_ms: self.upload_ms,
             render_ms: self.render_ms,
             view: [self.view_px.0, self.view_px.1],
             azimuth: self.orbit.azimuth,

@@ -134,8 +134,11 @@ pub struct ViewReport {
     pub complete: bool,
     /// Frames per second over the run.
     pub fps: f64,
-    /// Last frame's refinement and render (sort + draw submission) time.
+    /// Last frame's refinement time.
     pub refine_ms: f64,
+    /// Leaf mesh build and upload, the last time the mesh changed (not budgeted).
+    pub upload_ms: f64,
+    /// Last drawn frame's CPU side: sort, exit faces, submission (the GPU runs after).
     pub render_ms: f64,
     /// The view's size in pixels.
     pub view: [u32; 2],
