@@ -47,16 +47,8 @@ pub struct RenderArgs {
     /// makes the input a mesh file.
     #[arg(long)]
     pub format: Option<MeshFormat>,
-    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
-    pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
-    pub elevation: f64,
-    /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
-    #[arg(long, value_parser = crate::camera_arg::distance)]
-    pub distance: Option<f64>,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = crate::camera_arg::fov)]
-    pub fov: f64,
+    #[command(flatten)]
+    pub camera: crate::camera_arg::CameraArgs,
     /// Image size `WxH`.
     #[arg(long, default_value = "512x512", value_parser = parse_size)]
     pub size: (u32, u32),
@@ -241,13 +233,13 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         let (mesh, level) = store_mesh(&store, a.levels)?;
         (mesh, level, None)
     };
-    let distance = a.distance.unwrap_or(1.6 * mesh.diagonal());
+    let distance = a.camera.distance.unwrap_or(1.6 * mesh.diagonal());
     let cam = Camera::orbit(
         mesh.center(),
         distance,
-        a.azimuth,
-        a.elevation,
-        a.fov,
+        a.camera.azimuth,
+        a.camera.elevation,
+        a.camera.fov,
         a.size.0,
         a.size.1,
     );

@@ -65,13 +65,8 @@ pub struct StreamArgs {
     pub size: (u32, u32),
     #[arg(long, default_value = "default")]
     pub tf: String,
-    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
-    pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
-    pub elevation: f64,
-    /// Eye distance (default 1.6 × the bounding-box diagonal).
-    #[arg(long, value_parser = crate::camera_arg::distance)]
-    pub distance: Option<f64>,
+    #[command(flatten)]
+    pub camera: crate::camera_arg::CameraArgs,
     #[arg(long)]
     pub token: Option<String>,
     /// Wait at most this long per frame for new data (at most 60,000 ms).
@@ -124,9 +119,7 @@ impl StreamArgs {
             psnr: false,
             size: (256, 256),
             tf: "default".into(),
-            azimuth: 35.0,
-            elevation: 25.0,
-            distance: None,
+            camera: Default::default(),
             token: None,
             frame_ms: 30,
             cpu: false,
@@ -778,10 +771,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let diag = glam::DVec3::from_array(hi).distance(glam::DVec3::from_array(lo));
         let cam = Camera::orbit(
             center,
-            args.distance.unwrap_or(1.6 * diag),
-            args.azimuth + args.orbit * frame as f64,
-            args.elevation,
-            40.0,
+            args.camera.distance.unwrap_or(1.6 * diag),
+            args.camera.azimuth + args.orbit * frame as f64,
+            args.camera.elevation,
+            args.camera.fov,
             args.size.0,
             args.size.1,
         );

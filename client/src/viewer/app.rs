@@ -124,10 +124,10 @@ impl ViewerApp {
         let tf_preset = PRESETS.contains(&args.tf.as_str()).then(|| args.tf.clone());
         let orbit = Orbit {
             target: glam::DVec3::ZERO,
-            azimuth: args.azimuth,
-            elevation: args.elevation,
-            distance: args.distance.unwrap_or(1.0),
-            fov: args.fov,
+            azimuth: args.camera.azimuth,
+            elevation: args.camera.elevation,
+            distance: args.camera.distance.unwrap_or(1.0),
+            fov: args.camera.fov,
         };
         Ok(ViewerApp {
             tol: args.tol,
@@ -195,7 +195,7 @@ impl ViewerApp {
         }
         if let Some((center, diag)) = self.data.frame {
             self.orbit.target = center;
-            self.orbit.distance = self.args.distance.unwrap_or(1.6 * diag);
+            self.orbit.distance = self.args.camera.distance.unwrap_or(1.6 * diag);
             self.home = Some(self.orbit);
         }
     }

@@ -77,16 +77,8 @@ pub struct ViewArgs {
     pub tol: f64,
     #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
     pub mode: ViewMode,
-    #[arg(long, default_value_t = 35.0, value_parser = crate::camera_arg::angle)]
-    pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = crate::camera_arg::elevation)]
-    pub elevation: f64,
-    /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
-    #[arg(long, value_parser = crate::camera_arg::distance)]
-    pub distance: Option<f64>,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = crate::camera_arg::fov)]
-    pub fov: f64,
+    #[command(flatten)]
+    pub camera: crate::camera_arg::CameraArgs,
     /// A JSON script of timestamped steps (see `viewer::script`).
     #[arg(long)]
     pub script: Option<PathBuf>,
