@@ -2,14 +2,17 @@
 //! exact values, order independence, prediction fallback and in-place correction.
 
 use proptest::prelude::*;
+use std::collections::HashMap;
 use std::time::Instant;
 use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
-use tetwave_client::mesh::{AdaptiveMesh, MeshError};
+use tetwave_client::mesh::{AdaptiveMesh, MeshError, VertexPrediction};
 use tetwave_protocol::order::{shuffle, splitmix};
 use tetwave_protocol::shapes;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
-use tetwave_protocol::wavelet::{predict, synthesize};
+use tetwave_protocol::wavelet::{
+    predict, predict_at_centre, predict_on_edge, predict_on_face, synthesize,
+};
 use tetwave_protocol::{BaseMesh, DetailNode, TetId, VertexKeys};
 
 // ------------------------------------------------------------------ fixtures
@@ -94,25 +97,55 @@ fn make_data(base: BaseMesh, empty_seed: u64) -> Data {
 }
 
 /// The value the mesh must hold for `slot` given what the buffer has: synthesis with d = 0 for
-/// missing coefficients. Also says whether every coefficient it depends on has arrived.
-fn expected(mesh: &AdaptiveMesh, buf: &DetailBuffer, base: &BaseMesh, slot: u32) -> (f32, bool) {
-    match mesh.vertex_ends(slot) {
-        None => (base.values[mesh.vertex_key(slot) as usize], true),
-        Some([u, v]) => {
-            let (fu, au) = expected(mesh, buf, base, u);
-            let (fv, av) = expected(mesh, buf, base, v);
-            let d = buf.coeff(mesh.vertex_key(slot));
-            (
-                synthesize(d.unwrap_or(0.0), predict(fu, fv)),
-                au && av && d.is_some(),
-            )
-        }
+/// missing coefficients, from the points its prediction reads (memoized in `memo`). Also says
+/// whether every coefficient it depends on has arrived.
+fn expected(
+    mesh: &AdaptiveMesh,
+    buf: &DetailBuffer,
+    base: &BaseMesh,
+    slot: u32,
+    memo: &mut HashMap<u32, (f32, bool)>,
+) -> (f32, bool) {
+    if let Some(&r) = memo.get(&slot) {
+        return r;
     }
+    let mut all = true;
+    let mut val = |s: u32, memo: &mut HashMap<u32, (f32, bool)>| {
+        let (v, a) = expected(mesh, buf, base, s, memo);
+        all &= a;
+        v
+    };
+    let prediction = match mesh.vertex_prediction(slot) {
+        VertexPrediction::Base => {
+            let r = (base.values[mesh.vertex_key(slot) as usize], true);
+            memo.insert(slot, r);
+            return r;
+        }
+        VertexPrediction::Linear { ends } => predict(val(ends[0], memo), val(ends[1], memo)),
+        VertexPrediction::Edge { near, mid, far } => {
+            predict_on_edge(val(near, memo), val(mid, memo), val(far, memo))
+        }
+        VertexPrediction::Face { a, b, opp, j, k } => predict_on_face(
+            val(a, memo),
+            val(b, memo),
+            val(opp, memo),
+            val(j, memo),
+            val(k, memo),
+        ),
+        VertexPrediction::Centre { mids, corners } => {
+            predict_at_centre(mids.map(|s| val(s, memo)), corners.map(|s| val(s, memo)))
+        }
+    };
+    let d = buf.coeff(mesh.vertex_key(slot));
+    let r = (synthesize(d.unwrap_or(0.0), prediction), all && d.is_some());
+    memo.insert(slot, r);
+    r
 }
 
 fn check_values(mesh: &AdaptiveMesh, buf: &DetailBuffer, data: &Data) {
+    let mut memo = HashMap::new();
     for s in mesh.vertex_slots() {
-        let (want, complete) = expected(mesh, buf, &data.base, s);
+        let (want, complete) = expected(mesh, buf, &data.base, s, &mut memo);
         let have = mesh.vertex_value(s);
         assert_eq!(have.to_bits(), want.to_bits(), "slot {s}");
         if complete {

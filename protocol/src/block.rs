@@ -386,8 +386,11 @@ mod tests {
             );
             assert_eq!(a.coeffs, b.coeffs, "node {}", a.id);
             assert!(b.subtree_max_abs >= a.subtree_max_abs, "node {}", a.id);
+            // the class also covers the node's own codes (a residual of the quadratic
+            // prediction may exceed the linear details the bound is about)
+            let own = a.coeffs.iter().fold(0f32, |m, c| m.max(c.abs()));
             assert!(
-                b.subtree_max_abs <= 2.0 * a.subtree_max_abs + q.step,
+                b.subtree_max_abs <= 2.0 * a.subtree_max_abs.max(own) + q.step,
                 "node {}",
                 a.id
             );

@@ -2,11 +2,11 @@
 //! detail nodes. The server's `verify` and the client's "complete" mode both use it.
 
 use crate::base::BaseMesh;
-use crate::hierarchy::LevelWalker;
-use crate::hierarchy::{TetId, EDGES};
+use crate::hierarchy::{Forest, LevelWalker};
+use crate::hierarchy::{TetId, BEY_CHILDREN, EDGES};
 use crate::node::{DetailNode, NodeError};
 use crate::vertex::VertexKeys;
-use crate::wavelet::{predict, synthesize};
+use crate::wavelet::{predict, predict_split, synthesize};
 use crate::LatticeTet;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -43,9 +43,13 @@ pub fn synthesize_all(
     }
     let total = forest.nodes();
     let mut expected: TetId = 0;
-    // nodes come in id order: walk the levels alongside instead of rebuilding each tet from its id
+    // nodes come in id order: walk the parents' level alongside (a level-k node is the child of a
+    // level-(k−1) tet, whose 10 split points its prediction reads) instead of rebuilding each tet
+    // from its id
     let mut level = 0u8;
-    let mut walker = LevelWalker::level(forest, 0);
+    let mut bases = LevelWalker::level(forest, 0);
+    let mut parents: Option<LevelWalker> = None;
+    let mut parent: Option<LatticeTet> = None;
     for node in nodes {
         if node.id >= total {
             return Err(SynthesisError::OutOfRange {
@@ -63,11 +67,22 @@ pub fn synthesize_all(
         expected += 1;
         while node.id >= forest.level_start(level + 1) {
             level += 1;
-            walker = LevelWalker::level(forest, level);
+            parents = Some(LevelWalker::level(forest, level - 1));
         }
-        let (id, tet) = walker.next().expect("ids within the level");
-        debug_assert_eq!(id, node.id);
-        apply_node(keys, &tet, &node, &mut values, &mut set)?;
+        let at = match parents.as_mut() {
+            None => NodeAt::Base(bases.next().expect("ids within the level").1),
+            Some(walker) => {
+                let child = forest.child_index(node.id).expect("a child");
+                if child == 0 {
+                    parent = Some(walker.next().expect("parents within the level").1);
+                }
+                NodeAt::Child {
+                    parent: parent.expect("child 0 comes first"),
+                    child,
+                }
+            }
+        };
+        apply_node(keys, &at, &node, &mut values, &mut set)?;
     }
     if expected != total {
         return Err(SynthesisError::Missing {
@@ -80,14 +95,54 @@ pub fn synthesize_all(
     Ok(values)
 }
 
-/// Sets the values of the vertices `node` owns on `tet` (its endpoints must already have values).
+/// Where a node's tet sits: a base tet, or child `child` (Bey order) of a parent tet.
+#[derive(Debug, Clone, Copy)]
+pub enum NodeAt {
+    Base(LatticeTet),
+    Child { parent: LatticeTet, child: usize },
+}
+
+impl NodeAt {
+    /// The position of tet `id` (O(level)).
+    pub fn from_id(forest: &Forest, id: TetId) -> Self {
+        match forest.parent(id) {
+            None => NodeAt::Base(LatticeTet::from_id(forest, id)),
+            Some(p) => NodeAt::Child {
+                parent: LatticeTet::from_id(forest, p),
+                child: forest.child_index(id).expect("a child has an index"),
+            },
+        }
+    }
+
+    /// The node's own tet.
+    pub fn tet(&self) -> LatticeTet {
+        match self {
+            NodeAt::Base(t) => *t,
+            NodeAt::Child { parent, child } => parent.child(*child),
+        }
+    }
+}
+
+/// Sets the values of the vertices `node` owns on its tet (the points its predictions read — the
+/// edge's ends, or the parent's 10 split points — must already have values).
 pub fn apply_node(
     keys: &VertexKeys,
-    tet: &LatticeTet,
+    at: &NodeAt,
     node: &DetailNode,
     values: &mut [f32],
     set: &mut [bool],
 ) -> Result<(), SynthesisError> {
+    let tet = at.tet();
+    let parent_values = match at {
+        NodeAt::Base(_) => None,
+        NodeAt::Child { parent, child } => {
+            let sp = parent.split_points();
+            Some((
+                sp.map(|w| values[keys.key(parent.base, &w) as usize]),
+                BEY_CHILDREN[*child],
+            ))
+        }
+    };
     for (e, &(a, b)) in EDGES.iter().enumerate() {
         if let Some(d) = node.coeff(e) {
             let k = keys.key(tet.base, &tet.edge_midpoint(e)) as usize;
@@ -97,9 +152,15 @@ pub fn apply_node(
                     id: node.id,
                 });
             }
-            let u = keys.key(tet.base, &tet.v[a]) as usize;
-            let v = keys.key(tet.base, &tet.v[b]) as usize;
-            values[k] = synthesize(d, predict(values[u], values[v]));
+            let p = match &parent_values {
+                Some((v, c)) => predict_split(v, c[a], c[b]),
+                None => {
+                    let u = keys.key(tet.base, &tet.v[a]) as usize;
+                    let v = keys.key(tet.base, &tet.v[b]) as usize;
+                    predict(values[u], values[v])
+                }
+            };
+            values[k] = synthesize(d, p);
             set[k] = true;
         }
     }

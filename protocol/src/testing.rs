@@ -9,7 +9,8 @@
 
 use crate::hierarchy::{LevelWalker, EDGES};
 use crate::shapes::PointsAndTets;
-use crate::wavelet::{analyze, predict};
+use crate::synthesis::NodeAt;
+use crate::wavelet::{analyze, predict, predict_split};
 use crate::{BaseMesh, DetailNode};
 
 /// A base mesh of `levels` levels on `shape` with every value 0 and no empty tet (a valid mesh to
@@ -26,9 +27,11 @@ pub fn unsampled_base(levels: u8, shape: PointsAndTets) -> BaseMesh {
 }
 
 /// Samples `f` at every vertex of `base`'s hierarchy, sets the base values, and computes every
-/// detail node in id order: one coefficient per new vertex, `analyze(f(m), predict(f(u), f(v)))`
-/// against the sampled ends, owned by the lowest id of its level whose tet has the edge; no empty
-/// children; `subtree_max_abs` the max |coefficient| of the node and its descendants.
+/// detail node in id order: one coefficient per new vertex, `analyze(f(m), P(m))` with the
+/// prediction ([`crate::wavelet`]) evaluated on the samples, owned by the lowest id of its level whose tet has the edge; no empty
+/// children; `subtree_max_abs` the max over the node and its descendants of their edges' linear
+/// details `|f(m) − (f(u) + f(v))/2|` (what the selection's error estimate reads, as the server's
+/// analysis computes it).
 pub fn detail_nodes(
     mut base: BaseMesh,
     f: impl Fn([f64; 3]) -> f32,
@@ -43,33 +46,52 @@ pub fn detail_nodes(
     let forest = base.forest();
     let mut claimed = vec![false; n];
     let mut nodes: Vec<DetailNode> = Vec::new();
+    let mut tets: Vec<(u64, NodeAt)> = LevelWalker::level(forest, 0)
+        .map(|(id, t)| (id, NodeAt::Base(t)))
+        .collect();
     for k in 0..forest.levels {
-        for (id, t) in LevelWalker::level(forest, k) {
-            let (mut owned, mut coeffs) = (0u8, Vec::new());
+        if k > 0 {
+            tets = LevelWalker::level(forest, k - 1)
+                .flat_map(|(pid, parent)| {
+                    (0..8).map(move |child| {
+                        (forest.child(pid, child), NodeAt::Child { parent, child })
+                    })
+                })
+                .collect();
+        }
+        for &(id, at) in &tets {
+            let t = at.tet();
+            let sampled = |w: &crate::hierarchy::Bary, base: u32| v[keys.key(base, w) as usize];
+            let (mut owned, mut coeffs, mut own_max) = (0u8, Vec::new(), 0f32);
             for (e, &(a, b)) in EDGES.iter().enumerate() {
                 let m = keys.key(t.base, &t.edge_midpoint(e)) as usize;
+                let linear = predict(sampled(&t.v[a], t.base), sampled(&t.v[b], t.base));
+                own_max = own_max.max((v[m] - linear).abs());
                 if !claimed[m] {
                     claimed[m] = true;
                     owned |= 1 << e;
-                    let u = keys.key(t.base, &t.v[a]) as usize;
-                    let w = keys.key(t.base, &t.v[b]) as usize;
-                    coeffs.push(analyze(v[m], predict(v[u], v[w])));
+                    let p = match at {
+                        NodeAt::Base(_) => linear,
+                        NodeAt::Child { parent, child } => {
+                            let c = crate::hierarchy::BEY_CHILDREN[child];
+                            let v10 = parent.split_points().map(|w| sampled(&w, parent.base));
+                            predict_split(&v10, c[a], c[b])
+                        }
+                    };
+                    coeffs.push(analyze(v[m], p));
                 }
             }
             nodes.push(DetailNode {
                 id,
                 owned,
                 empty_children: 0,
-                subtree_max_abs: 0.0,
+                subtree_max_abs: own_max,
                 coeffs,
             });
         }
     }
     // subtree max |d|, finest nodes first
-    let mut smax: Vec<f32> = nodes
-        .iter()
-        .map(|n| n.coeffs.iter().fold(0f32, |m, c| m.max(c.abs())))
-        .collect();
+    let mut smax: Vec<f32> = nodes.iter().map(|n| n.subtree_max_abs).collect();
     for i in (0..nodes.len()).rev() {
         let id = nodes[i].id;
         for c in 0..8 {

@@ -12,7 +12,7 @@ use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
 /// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes).
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.

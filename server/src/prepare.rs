@@ -9,8 +9,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
-use tetwave_protocol::synthesis::apply_node;
-use tetwave_protocol::LatticeTet;
+use tetwave_protocol::synthesis::{apply_node, NodeAt};
 use tetwave_store::{self as store, Store, StoreError, StoreMeta};
 
 #[derive(Debug, thiserror::Error)]
@@ -284,8 +283,8 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
     while s < nodes {
         let batch = store.read_nodes(s, (s + chunk).min(nodes))?;
         for node in &batch {
-            let tet = LatticeTet::from_id(&forest, node.id);
-            apply_node(&keys, &tet, node, &mut values, &mut set)
+            let at = NodeAt::from_id(&forest, node.id);
+            apply_node(&keys, &at, node, &mut values, &mut set)
                 .map_err(|e| PrepareError::Synthesis(e.to_string()))?;
         }
         s += chunk;

@@ -275,26 +275,30 @@ fn a_truncated_blocks_file_is_refused() {
     );
 }
 
-/// A store of format version 1 (fixed-width node records) is refused with what to do about it,
-/// before its files are looked at.
+/// Stores of earlier format versions (1: fixed-width node records; 2: details of the linear
+/// predictor) are refused with what to do about it, before their files are looked at.
 #[test]
-fn a_version_1_store_is_refused_with_what_to_do() {
-    let (d, _) = store();
-    let mpath = d.path().join("manifest.json");
-    let mut m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
-    m["version"] = 1.into();
-    m["files"]["nodes.bin"] = serde_json::json!({"bytes": 6, "crc32": 0});
-    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
-    refused(
-        d.path(),
-        "manifest.json",
-        &[
-            "v1",
-            "expected tetwave-store v2",
-            "re-run `tetwave-server prepare`",
-        ],
-    );
+fn an_earlier_version_store_is_refused_with_what_to_do() {
+    for old in [1, 2] {
+        let (d, _) = store();
+        let mpath = d.path().join("manifest.json");
+        let mut m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+        m["version"] = old.into();
+        if old == 1 {
+            m["files"]["nodes.bin"] = serde_json::json!({"bytes": 6, "crc32": 0});
+        }
+        std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+        refused(
+            d.path(),
+            "manifest.json",
+            &[
+                &format!("v{old}"),
+                "expected tetwave-store v3",
+                "re-run `tetwave-server prepare`",
+            ],
+        );
+    }
 }
 
 /// Only the four store files are listed: a manifest naming another path is refused before that

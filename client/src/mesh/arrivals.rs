@@ -1,21 +1,20 @@
 //! Applying arrived coefficients and node metadata to the mesh in place.
 
 use super::node::NodeFlags;
-use super::AdaptiveMesh;
+use super::{AdaptiveMesh, NONE};
 use crate::detail_buffer::{Arrivals, DetailBuffer};
 
 impl AdaptiveMesh {
     /// Applies coefficients and node metadata that arrived in `buf` (as recorded in `arrivals`):
     /// present vertices owning a new coefficient are recomputed in place, then every present vertex
-    /// predicted from a changed one (level by level); children of arrived nodes get their `empty`
+    /// whose prediction reads a changed one (level by level); children of arrived nodes get their `empty`
     /// flags. Returns the number of vertex values recomputed.
     pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
         let mut dirty: Vec<u32> = Vec::new();
         let nbase = self.keys.base_vertex_count();
         for &key in &arrivals.keys {
             if let Some(s) = self.slot_of_key(key).filter(|&s| s as u64 >= nbase) {
-                let v = self.synth_value(buf, key, self.vends[s as usize]);
-                self.vval[s as usize] = v;
+                self.vval[s as usize] = self.synth_value(buf, s);
                 dirty.push(s);
             }
         }
@@ -38,9 +37,15 @@ impl AdaptiveMesh {
             }
             for lv in by_level {
                 for s in lv {
-                    let ends = self.vends[s as usize];
-                    if mark[ends[0] as usize] || mark[ends[1] as usize] {
-                        self.vval[s as usize] = self.synth_value(buf, self.vkey[s as usize], ends);
+                    let (ends, src) = (self.vends[s as usize], self.vsrc[s as usize]);
+                    // every point the prediction reads is an end, a source, or an end of one of
+                    // those (marked already: they are coarser)
+                    let read_changed = ends
+                        .into_iter()
+                        .chain(src)
+                        .any(|d| d != NONE && mark[d as usize]);
+                    if read_changed {
+                        self.vval[s as usize] = self.synth_value(buf, s);
                         if !mark[s as usize] {
                             mark[s as usize] = true;
                             count += 1;

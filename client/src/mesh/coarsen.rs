@@ -77,11 +77,9 @@ impl AdaptiveMesh {
             }
             self.vref[s] -= 1;
             if self.vref[s] == 0 {
-                let ends = self.vends[s];
                 debug_assert_eq!(self.vdeps[s], 0);
                 self.by_key.remove(self.vkey[s]);
-                self.vdeps[ends[0] as usize] -= 1;
-                self.vdeps[ends[1] as usize] -= 1;
+                self.drop_dependencies(s);
                 self.free_vertices.push(s as u32);
                 self.n_vertices -= 1;
                 removed[e] = true;

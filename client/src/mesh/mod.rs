@@ -26,13 +26,16 @@
 //!   moving a large array (a frame budget could not absorb it).
 //!
 //! # Values
-//! A midpoint's value is `synthesize(d, predict(f(u), f(v)))` with `d` its coefficient from the
-//! [`DetailBuffer`](crate::detail_buffer::DetailBuffer), or 0 (linear prediction, the thesis'
-//! fallback) while it has not arrived. When coefficients arrive ([`AdaptiveMesh::apply_arrivals`])
-//! the present vertices that own them are recomputed in place; if any of those has dependants
-//! (present vertices predicted from it), the present vertices are re-synthesized level by level
-//! from the lowest changed level up, each one whose edge endpoint changed being recomputed (one pass
-//! over the present vertices per batch).
+//! A midpoint's value is `synthesize(d, P)` with `d` its coefficient from the
+//! [`DetailBuffer`](crate::detail_buffer::DetailBuffer), or 0 (the prediction itself) while it has
+//! not arrived, and `P` the contract's prediction ([`tetwave_protocol::wavelet`]): linear on a base
+//! edge, else the quadratic interpolant of the refined tet's parent, which reads the edge's ends
+//! and up to 4 more of the parent's points ([`VertexPrediction`]); all of them are present while
+//! the vertex is (a refined tet's parent is refined). When coefficients arrive
+//! ([`AdaptiveMesh::apply_arrivals`]) the present vertices that own them are recomputed in place;
+//! if any of those has dependants (present vertices predicted from it), the present vertices are
+//! re-synthesized level by level from the lowest changed level up, each one whose prediction read
+//! a changed vertex being recomputed (one pass over the present vertices per batch).
 //!
 //! # Files
 //! One concern per file: `node` (the packed node and its flags), `lattice` (Bey's children as
@@ -65,6 +68,7 @@ pub use green::{green_pattern_ok, green_piece_count, green_split};
 pub use leaves::LeafTet;
 pub use node::MAX_TETS;
 pub use red_tree::RedNode;
+pub use vertices::VertexPrediction;
 
 use crate::seg_vec::SegVec;
 use changes::MeshUid;
@@ -109,6 +113,10 @@ pub struct AdaptiveMesh {
     vref: SegVec<u32>,
     vlevel: SegVec<u8>,
     vdeps: SegVec<u32>,
+    /// Per vertex: the points its quadratic prediction reads beyond its edge's ends (see
+    /// [`VertexPrediction`]): a face mid-segment's opposite midpoint, or the other 4 midpoints of
+    /// the parent whose centre it is; `NONE` elsewhere. They are present while the vertex is.
+    vsrc: SegVec<[u32; 4]>,
     /// Per vertex: up to [`OWNERS`] of the refined tets that have it as an edge midpoint (`NONE`: not
     /// known), kept while they stay refined. A refusal witness whose every vertex has such an
     /// owner outside a merge batch is present whatever the batch releases, which settles its
@@ -211,6 +219,7 @@ impl AdaptiveMesh {
             vref: SegVec::new(),
             vlevel: SegVec::new(),
             vdeps: SegVec::new(),
+            vsrc: SegVec::new(),
             vowner: SegVec::new(),
             free_vertices: Vec::new(),
             n_vertices: 0,
@@ -233,6 +242,7 @@ impl AdaptiveMesh {
             m.vref.push(u32::MAX);
             m.vlevel.push(0);
             m.vdeps.push(0);
+            m.vsrc.push([NONE; 4]);
             m.vowner.push([NONE; OWNERS]);
         }
         m.n_vertices = nv;
@@ -284,6 +294,7 @@ impl AdaptiveMesh {
                     + self.vref.bytes()
                     + self.vlevel.bytes()
                     + self.vdeps.bytes()
+                    + self.vsrc.bytes()
                     + self.vowner.bytes()
                     + self.free_vertices.capacity() * 4,
             ),

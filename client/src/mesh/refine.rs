@@ -4,7 +4,8 @@ use super::lattice::child_flips;
 use super::node::{Node, NodeFlags};
 use super::{AdaptiveMesh, MeshError, NONE};
 use crate::detail_buffer::DetailBuffer;
-use tetwave_protocol::hierarchy::EDGES;
+use tetwave_protocol::hierarchy::{BEY_CHILDREN, EDGES};
+use tetwave_protocol::wavelet::{predict, predict_split, split_edge, synthesize, SplitEdge};
 use tetwave_protocol::{LatticeTet, TetId};
 
 impl AdaptiveMesh {
@@ -39,6 +40,12 @@ impl AdaptiveMesh {
         let nv = self.node_verts(slot as usize);
         let mut pts = [0u32; 10];
         pts[..4].copy_from_slice(&nv);
+        // the parent's split points and this tet's place among its children (none for a base tet)
+        let nbase = self.base_tets.len();
+        let parent = (slot as usize >= nbase).then(|| {
+            let pp = self.bverts[self.block_of(slot as usize)];
+            (pp, BEY_CHILDREN[(slot as usize - nbase) & 7])
+        });
         let mut created = [false; 6];
         for (e, &(a, b)) in EDGES.iter().enumerate() {
             let (sa, sb) = (nv[a], nv[b]);
@@ -51,13 +58,44 @@ impl AdaptiveMesh {
                 }
                 _ => {
                     let p = self.lattice_position(lt.base, &w);
-                    let val = self.synth_value(buf, key, [sa, sb]);
+                    let (prediction, src) = match &parent {
+                        None => (
+                            predict(self.vval[sa as usize], self.vval[sb as usize]),
+                            [NONE; 4],
+                        ),
+                        Some((pp, c)) => {
+                            let (q0, q1) = (c[a], c[b]);
+                            let v10 = pp.map(|s| self.vval[s as usize]);
+                            let src = match split_edge(q0, q1) {
+                                Some(SplitEdge::Face { opp, .. }) => {
+                                    [pp[opp as usize], NONE, NONE, NONE]
+                                }
+                                Some(SplitEdge::Centre) => {
+                                    let mut o = [NONE; 4];
+                                    let others = (4..10).filter(|&x| x != q0 && x != q1);
+                                    for (o, x) in o.iter_mut().zip(others) {
+                                        *o = pp[x];
+                                    }
+                                    o
+                                }
+                                _ => [NONE; 4],
+                            };
+                            (predict_split(&v10, q0, q1), src)
+                        }
+                    };
+                    let val = synthesize(buf.coeff(key).unwrap_or(0.0), prediction);
                     let s = self.new_vertex(
                         key,
                         [p[0] as f32, p[1] as f32, p[2] as f32],
                         level + 1,
                         [sa, sb],
+                        src,
                         val,
+                    );
+                    debug_assert_eq!(
+                        val.to_bits(),
+                        self.synth_value(buf, s).to_bits(),
+                        "creation and correction predict alike"
                     );
                     self.by_key.insert(key, s);
                     created[e] = true;
@@ -101,7 +139,7 @@ impl AdaptiveMesh {
     }
 
     /// Red-refines leaf `t` and restores conformity (green closure, domino refinements). Missing
-    /// coefficients are predicted (d = 0) and corrected by [`Self::apply_arrivals`] later.
+    /// coefficients are taken as 0 (the value is the prediction) and corrected by [`Self::apply_arrivals`] later.
     pub fn refine(&mut self, t: TetId, buf: &DetailBuffer) -> Result<(), MeshError> {
         let slot = self.find(t).ok_or(MeshError::NotInMesh(t))?;
         let n = self.nodes[slot as usize];

@@ -4,7 +4,31 @@
 use super::{AdaptiveMesh, NONE, OWNERS};
 use crate::detail_buffer::DetailBuffer;
 use tetwave_protocol::hierarchy::Bary;
-use tetwave_protocol::wavelet::{predict, synthesize};
+use tetwave_protocol::wavelet::{
+    predict, predict_at_centre, predict_on_edge, predict_on_face, synthesize,
+};
+
+/// The vertices a midpoint's prediction reads (slots), by where it lies in the parent of the tet
+/// whose split created it ([`tetwave_protocol::wavelet`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VertexPrediction {
+    /// A base vertex: no prediction.
+    Base,
+    /// The midpoint of a base tet's edge.
+    Linear { ends: [u32; 2] },
+    /// Half of a parent edge `(near, far)` with midpoint `mid`.
+    Edge { near: u32, mid: u32, far: u32 },
+    /// Mid-segment `(a, b)` of a parent face, `opp` the midpoint of the face's edge `(j, k)`.
+    Face {
+        a: u32,
+        b: u32,
+        opp: u32,
+        j: u32,
+        k: u32,
+    },
+    /// A parent's centre.
+    Centre { mids: [u32; 6], corners: [u32; 4] },
+}
 
 /// Makes room for `extra` more items growing by 1/8 (not doubling): the mesh's arrays are its
 /// memory, and doubling would leave up to half of them unused.
@@ -22,6 +46,7 @@ impl AdaptiveMesh {
         pos: [f32; 3],
         level: u8,
         ends: [u32; 2],
+        src: [u32; 4],
         val: f32,
     ) -> u32 {
         let s = match self.free_vertices.pop() {
@@ -34,6 +59,7 @@ impl AdaptiveMesh {
                 self.vref[i] = 1;
                 self.vlevel[i] = level;
                 self.vdeps[i] = 0;
+                self.vsrc[i] = src;
                 self.vowner[i] = [NONE; OWNERS];
                 s
             }
@@ -47,14 +73,25 @@ impl AdaptiveMesh {
                 self.vref.push(1);
                 self.vlevel.push(level);
                 self.vdeps.push(0);
+                self.vsrc.push(src);
                 self.vowner.push([NONE; OWNERS]);
                 (self.vkey.len() - 1) as u32
             }
         };
-        self.vdeps[ends[0] as usize] += 1;
-        self.vdeps[ends[1] as usize] += 1;
+        for d in ends.into_iter().chain(src).filter(|&d| d != NONE) {
+            self.vdeps[d as usize] += 1;
+        }
         self.n_vertices += 1;
         s
+    }
+
+    /// Releases the dependencies of vertex slot `s` (being removed) on the vertices its prediction
+    /// reads.
+    pub(super) fn drop_dependencies(&mut self, s: usize) {
+        let (ends, src) = (self.vends[s], self.vsrc[s]);
+        for d in ends.into_iter().chain(src).filter(|&d| d != NONE) {
+            self.vdeps[d as usize] -= 1;
+        }
     }
 
     pub(super) fn lattice_position(&self, b: u32, w: &Bary) -> [f64; 3] {
@@ -66,13 +103,66 @@ impl AdaptiveMesh {
         )
     }
 
+    /// The vertices slot `s`'s prediction reads.
+    pub fn vertex_prediction(&self, s: u32) -> VertexPrediction {
+        let s = s as usize;
+        let [a, b] = self.vends[s];
+        if a == NONE {
+            return VertexPrediction::Base;
+        }
+        let src = self.vsrc[s];
+        if src[1] != NONE {
+            let (ea, eb) = (self.vends[a as usize], self.vends[b as usize]);
+            return VertexPrediction::Centre {
+                mids: [a, b, src[0], src[1], src[2], src[3]],
+                corners: [ea[0], ea[1], eb[0], eb[1]],
+            };
+        }
+        if src[0] != NONE {
+            let [j, k] = self.vends[src[0] as usize];
+            return VertexPrediction::Face {
+                a,
+                b,
+                opp: src[0],
+                j,
+                k,
+            };
+        }
+        if self.vlevel[s] == 1 {
+            return VertexPrediction::Linear { ends: [a, b] };
+        }
+        // half of a parent edge: the end created later is that edge's midpoint
+        let (near, mid) = if self.vlevel[a as usize] < self.vlevel[b as usize] {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let me = self.vends[mid as usize];
+        let far = if me[0] == near { me[1] } else { me[0] };
+        VertexPrediction::Edge { near, mid, far }
+    }
+
+    /// The value of prediction `p` from the present values.
+    pub(super) fn prediction_value(&self, p: &VertexPrediction) -> f32 {
+        let v = |s: u32| self.vval[s as usize];
+        match *p {
+            VertexPrediction::Base => f32::NAN,
+            VertexPrediction::Linear { ends } => predict(v(ends[0]), v(ends[1])),
+            VertexPrediction::Edge { near, mid, far } => predict_on_edge(v(near), v(mid), v(far)),
+            VertexPrediction::Face { a, b, opp, j, k } => {
+                predict_on_face(v(a), v(b), v(opp), v(j), v(k))
+            }
+            VertexPrediction::Centre { mids, corners } => {
+                predict_at_centre(mids.map(v), corners.map(v))
+            }
+        }
+    }
+
+    /// Vertex slot `s`'s value from its coefficient (0 while missing) and its prediction.
     #[inline]
-    pub(super) fn synth_value(&self, buf: &DetailBuffer, key: u64, ends: [u32; 2]) -> f32 {
-        let d = buf.coeff(key).unwrap_or(0.0);
-        synthesize(
-            d,
-            predict(self.vval[ends[0] as usize], self.vval[ends[1] as usize]),
-        )
+    pub(super) fn synth_value(&self, buf: &DetailBuffer, s: u32) -> f32 {
+        let d = buf.coeff(self.vkey[s as usize]).unwrap_or(0.0);
+        synthesize(d, self.prediction_value(&self.vertex_prediction(s)))
     }
 
     /// Number of present vertices.

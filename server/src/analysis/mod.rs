@@ -1,14 +1,17 @@
 //! Wavelet analysis: predict-only lifting over the semi-regular hierarchy (thesis §4.3, design.md).
 //!
 //! For every new vertex `m` (midpoint of an edge `(u,v)` of a level-`k−1` tet) one detail
-//! `d_m = f(m) − (f(u)+f(v))/2`, owned by the lowest-id level-`k−1` tet containing the edge.
+//! `d_m = f(m) − P(m)`, `P` the prediction of [`tetwave_protocol::wavelet`] (linear on base edges,
+//! the parent's quadratic interpolant below), owned by the lowest-id level-`k−1` tet containing the
+//! edge.
 //! The details are computed against the values *synthesis will reconstruct* (closed loop, coarse to
 //! fine): in exact arithmetic this is the same as lifting from the finest level up, and in f32 it makes
 //! the lossless round trip bit-exact (see [`tetwave_protocol::wavelet::analyze`]) and keeps quantization
 //! error from accumulating across levels: with step `q` every vertex is within `q/2` of its sample.
 //!
-//! Per node the analysis also records the max |detail| of every vertex created in its subtree and which
-//! children are empty (outside the input's domain, see [`crate::resample`]).
+//! Per node the analysis also records the max linear detail `|f(m) − (f(u)+f(v))/2|` of the sampled
+//! values over its edges and its subtree's (the selection's error estimate: what drawing the tet
+//! without its subtree costs, whatever the predictor), and which children are empty (outside the input's domain, see [`crate::resample`]).
 
 mod gather;
 mod keys;

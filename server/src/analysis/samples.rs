@@ -2,15 +2,15 @@
 //! outside the input's domain, the quantizer's step, and the reference values (outside base
 //! vertices filled).
 
-use super::keys::{for_each_tet_keys, parent_chunks};
+use super::keys::{for_each_split_keys, for_each_tet_keys, parent_chunks};
 use super::PARALLEL_PASS_FROM;
 use super::{AnalysisError, ErrorBound, Precision};
 use crate::resample::Resampled;
 use rayon::prelude::*;
 use std::sync::atomic::AtomicU32;
-use tetwave_protocol::hierarchy::EDGES;
+use tetwave_protocol::hierarchy::{BEY_SPLIT, EDGES};
 use tetwave_protocol::store_format::QUANTIZED_BITS;
-use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::wavelet::{predict_split, Quantizer};
 use tetwave_protocol::Forest;
 
 /// The inside samples' range and the outside vertices (NaN samples).
@@ -109,10 +109,11 @@ pub(super) fn size_quantizer(
         Precision::Lossless => Ok(None),
         Precision::Bits(b) => {
             let m = max_open_detail(forest, r);
-            // closed-loop details are at most m + q/2: the codes ±(2^(b−1)−1) cover them with
-            // q = m/(max−1)
+            // closed-loop details are at most m + q (a prediction's weights sum to at most 2 in
+            // absolute value, each read value is within q/2): the codes ±(2^(b−1)−1) cover them
+            // with q = m/(max−2)
             let step = if m > 0.0 {
-                ((m / (Quantizer::max_code(b) - 1) as f64) as f32).max(f32::MIN_POSITIVE)
+                ((m / (Quantizer::max_code(b) - 2) as f64) as f32).max(f32::MIN_POSITIVE)
             } else {
                 1.0
             };
@@ -143,8 +144,8 @@ pub(super) fn size_quantizer(
                 });
             }
             let m = max_open_detail(forest, r);
-            // codes must reach the largest closed-loop detail, m + q/2
-            let need = ((m + 0.5 * q as f64) / q as f64).ceil() + 1.0;
+            // codes must reach the largest closed-loop detail, m + q (see `Bits`)
+            let need = ((m + q as f64) / q as f64).ceil() + 1.0;
             let bits = QUANTIZED_BITS
                 .clone()
                 .find(|&b| Quantizer::max_code(b) as f64 >= need)
@@ -198,22 +199,38 @@ pub(super) fn reference_values(
 }
 
 /// Max |open-loop detail| over all new vertices (sizes the quantizer).
+/// The largest |open-loop detail| (the prediction evaluated on the samples) of any new vertex.
 fn max_open_detail(forest: Forest, r: &Resampled) -> f64 {
+    let f = |i: usize| r.samples[i];
     (0..forest.levels)
         .map(|k| {
-            parent_chunks(forest, k)
+            let chunks = parent_chunks(forest, k);
+            chunks
                 .into_par_iter()
                 .map(|range| {
                     let mut m = 0f64;
-                    for_each_tet_keys(forest, &r.keys, k, range, |_, sk| {
-                        for (e, &(a, b)) in EDGES.iter().enumerate() {
-                            let f = |i: usize| r.samples[sk[i]] as f64;
-                            let d = f(4 + e) - 0.5 * (f(a) + f(b));
-                            if d.is_finite() {
-                                m = m.max(d.abs());
-                            }
+                    let mut see = |d: f64| {
+                        if d.is_finite() {
+                            m = m.max(d.abs());
                         }
-                    });
+                    };
+                    if k == 0 {
+                        // base edges: the linear midpoint
+                        for_each_tet_keys(forest, &r.keys, 0, range, |_, sk| {
+                            for (e, &(a, b)) in EDGES.iter().enumerate() {
+                                let lin = 0.5 * (f(sk[a]) as f64 + f(sk[b]) as f64);
+                                see(f(sk[4 + e]) as f64 - lin);
+                            }
+                        });
+                    } else {
+                        // children of level-(k−1) tets: their parent's quadratic interpolant
+                        for_each_split_keys(forest, &r.keys, k - 1, range, |_, pk, mid| {
+                            let v: [f32; 10] = std::array::from_fn(|p| f(pk[p]));
+                            for (j, &(a, b)) in BEY_SPLIT.edges.iter().enumerate() {
+                                see(f(mid[j]) as f64 - predict_split(&v, a, b) as f64);
+                            }
+                        });
+                    }
                     m
                 })
                 .reduce(|| 0.0, f64::max)

@@ -9,7 +9,7 @@ use crate::resample::MAX_NODES;
 use std::sync::atomic::{AtomicU32, Ordering};
 use tetwave_protocol::hierarchy::{BEY_CHILDREN, BEY_SPLIT, EDGES};
 use tetwave_protocol::vertex::VertexKeys;
-use tetwave_protocol::wavelet::{analyze, predict, synthesize, Quantizer};
+use tetwave_protocol::wavelet::{analyze, predict, predict_split, synthesize, Quantizer};
 use tetwave_protocol::Forest;
 
 /// One walk task's node outputs: its parents' subtree max and empty masks, then its children's.
@@ -77,7 +77,9 @@ impl Walk<'_> {
                 // open-loop |d| of every edge (inside samples are never written: no race)
                 mx = mx.max((r(4 + e) - predict(r(a), r(b))).abs());
             }
-            self.claim(m, code0 | e as u32, out, sk[a], sk[b], err);
+            self.claim(m, code0 | e as u32, out, err, || {
+                predict(load(&self.cells[sk[a]].rec), load(&self.cells[sk[b]].rec))
+            });
         }
         let mut empty = 0u8;
         if leaf_parent && self.outside.is_some() {
@@ -128,7 +130,10 @@ impl Walk<'_> {
             let (i, e) = split.first_child[j];
             let code = code0 + ((i as u32) << 3) + e as u32;
             if code < owner[j] {
-                self.claim(m, code, out, pk[a], pk[b], err);
+                self.claim(m, code, out, err, || {
+                    let rec: [f32; 10] = std::array::from_fn(|p| load(&self.cells[pk[p]].rec));
+                    predict_split(&rec, a, b)
+                });
             }
         }
         for (i, ce) in split.child_edges.iter().enumerate() {
@@ -163,10 +168,19 @@ impl Walk<'_> {
         }
     }
 
-    /// Lowers the owner of new vertex `m` (midpoint of `u`–`v`) to `code`; the first visitor computes
-    /// its detail and reconstruction (and fills its reference value when it is outside).
+    /// Lowers the owner of new vertex `m` to `code`; the first visitor computes its detail against
+    /// `prediction` (of the coarser reconstructions, [`tetwave_protocol::wavelet`]) and its
+    /// reconstruction. An outside vertex takes the prediction as its value: its detail is 0, and
+    /// the field is extended smoothly (quadratically) past the domain.
     #[inline]
-    fn claim(&self, m: usize, code: u32, out: bool, u: usize, v: usize, err: &mut f64) {
+    fn claim(
+        &self,
+        m: usize,
+        code: u32,
+        out: bool,
+        err: &mut f64,
+        prediction: impl FnOnce() -> f32,
+    ) {
         let cell = &self.cells[m];
         // within a task ids increase: mostly only a task's first reach of a vertex takes the atomic
         if code >= cell.owner.load(Ordering::Relaxed)
@@ -174,12 +188,11 @@ impl Walk<'_> {
         {
             return;
         }
+        let p = prediction();
         if out {
-            let p = predict(load(&self.reference[u]), load(&self.reference[v]));
             store(&self.reference[m], p);
         }
         let f = load(&self.reference[m]);
-        let p = predict(load(&self.cells[u].rec), load(&self.cells[v].rec));
         let d = match &self.quantizer {
             None => {
                 // `analyze`'s common case, inline
