@@ -131,9 +131,13 @@ enum Cmd {
         /// Default order of the stream (a client may pick another with `/v1/stream?order=`).
         #[arg(long, value_enum, default_value_t = tetwave_server::stream::Order::Level)]
         order: tetwave_server::stream::Order,
-        /// Nodes per batch.
+        /// Nodes in the first batch (and the first after each view change); later batches
+        /// double up to --max-batch.
         #[arg(long, default_value_t = 512)]
         batch: usize,
+        /// Most nodes in one batch.
+        #[arg(long, default_value_t = 8192)]
+        max_batch: usize,
         /// Most un-acknowledged batches in flight per connection.
         #[arg(long, default_value_t = 8)]
         window: u64,
@@ -291,6 +295,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             max_render_pixels,
             order,
             batch,
+            max_batch,
             window,
             threads,
             verify,
@@ -298,6 +303,9 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             use tetwave_server::stream::{serve_on, ServeConfig, Shared};
             if !(1..=1 << 16).contains(&batch) {
                 return Err(format!("--batch {batch} outside 1..=65536").into());
+            }
+            if !(batch..=1 << 16).contains(&max_batch) {
+                return Err(format!("--max-batch {max_batch} outside {batch}..=65536").into());
             }
             if !(1..=1024).contains(&window) {
                 return Err(format!("--window {window} outside 1..=1024").into());
@@ -339,6 +347,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 token,
                 order,
                 batch,
+                max_batch,
                 window,
                 idle_timeout: secs("idle-timeout", idle_timeout)?,
                 limits,

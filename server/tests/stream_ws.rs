@@ -107,6 +107,7 @@ async fn every_order_delivers_everything_once_and_synthesis_matches() {
     let cfg = ServeConfig {
         order: tetwave_server::stream::Order::Magnitude,
         batch: 100,
+        max_batch: 100,
         ..ServeConfig::default()
     };
     let (addr2, _) = start(&dir, cfg).await;
@@ -161,6 +162,7 @@ async fn view_order_follows_the_camera() {
     let store = Store::open(&dir).unwrap();
     let cfg = ServeConfig {
         batch: 256,
+        max_batch: 256,
         window: 4,
         ..ServeConfig::default()
     };
@@ -326,6 +328,7 @@ async fn want_and_cancel() {
     // read the Cancel (it waits for the Ack, which the socket delivers after the Cancel).
     let cfg = ServeConfig {
         batch: 64,
+        max_batch: 64,
         window: 1,
         ..ServeConfig::default()
     };
@@ -365,6 +368,7 @@ async fn unacknowledged_batches_are_bounded_by_the_window() {
     let n = Store::open(&dir).unwrap().manifest.counts.nodes;
     let cfg = ServeConfig {
         batch: 64,
+        max_batch: 64,
         window: 3,
         ..ServeConfig::default()
     };
@@ -456,4 +460,49 @@ async fn malformed_client_input() {
     // the server is still fine
     let s = session(addr, "", None).await;
     assert_eq!(s.nodes.len() as u64, s.manifest.counts.nodes);
+}
+
+/// Batches start at `batch` nodes and double up to `max_batch` (small batches paint early, large
+/// ones code tightly); a `View` starts them small again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn batches_grow_and_a_view_starts_them_small_again() {
+    let (_d, dir) = make_store(4);
+    let store = Store::open(&dir).unwrap();
+    let cfg = ServeConfig {
+        batch: 16,
+        max_batch: 128,
+        // one batch in flight: the View below is read before the next batch is chosen
+        window: 1,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&dir, cfg).await;
+    let s = session(addr, "", None).await;
+    assert_eq!(s.nodes.len() as u64, store.manifest.counts.nodes);
+    let full = &s.batches[..s.batches.len() - 1]; // the last may be short
+    assert_eq!(&full[..4], &[16, 32, 64, 128], "{:?}", s.batches);
+    assert!(full[4..].iter().all(|&n| n == 128), "{:?}", s.batches);
+
+    // view order: a View after a few batches makes the next batch small again
+    let coder = coder_for(&dir);
+    let mut ws = connect(addr, "?order=view").await;
+    send(&mut ws, &hello(None, vec![])).await;
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut sizes = Vec::new();
+    for i in 0..8 {
+        match recv(&mut ws).await {
+            Some(ServerMsg::Nodes { seq, block }) => {
+                sizes.push(coder.decode(&block).unwrap().len());
+                if i == 4 {
+                    send(&mut ws, &ClientMsg::View(view_from([3.0; 3], [0.5; 3]))).await;
+                }
+                send(&mut ws, &ClientMsg::Ack { seq }).await;
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    let _ = ws.close(None).await;
+    assert!(sizes[..5].windows(2).all(|w| w[1] >= w[0]), "{sizes:?}");
+    assert_eq!(sizes[4], 128, "{sizes:?}");
+    assert_eq!(&sizes[5..], &[16, 32, 64], "{sizes:?}");
 }

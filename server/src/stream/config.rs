@@ -35,8 +35,12 @@ pub struct ServeConfig {
     pub token: Option<String>,
     /// Default stream order (a client may ask for another with `/v1/stream?order=`).
     pub order: Order,
-    /// Nodes per `Nodes` batch.
+    /// Nodes in the first `Nodes` batch (and the first after each `View`); each further batch
+    /// doubles, up to [`Self::max_batch`]: small batches paint early, large ones code tightly
+    /// (each block's adaptive models start afresh, and each frame has its own header).
     pub batch: usize,
+    /// Most nodes in one batch.
+    pub max_batch: usize,
     /// Most un-acknowledged batches in flight per connection.
     pub window: u64,
     /// A connection that sends nothing for this long while the server waits on it is closed.
@@ -101,6 +105,7 @@ impl Default for ServeConfig {
             token: None,
             order: Order::Level,
             batch: 512,
+            max_batch: 8192,
             window: 8,
             idle_timeout: Duration::from_secs(120),
             seed: 0x7e7_3a7e,

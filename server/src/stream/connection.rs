@@ -259,7 +259,9 @@ async fn stream_to(
     let mut acked = 0u64; // batches acknowledged: seq < acked
     let mut nodes_sent = 0u64;
     let mut end_due = true;
-    let batch = s.config.batch.max(1);
+    let first_batch = s.config.batch.max(1);
+    let max_batch = s.config.max_batch.max(first_batch);
+    let mut batch = first_batch;
     let window = s.config.window.max(1);
     let mut rescans = 0u64;
     // control messages received and not applied yet (Acks are applied at once)
@@ -282,6 +284,10 @@ async fn stream_to(
         if !pending.is_empty() || (sched.has_work() && can_send) {
             let heavy = pending.iter().map(ranges_of).sum::<usize>() > BLOCKING_RANGES;
             let wants = pending.iter().any(|m| matches!(m, ClientMsg::Want(_)));
+            if pending.iter().any(|m| matches!(m, ClientMsg::View(_))) {
+                // the priorities changed: paint the new view's first nodes early
+                batch = first_batch;
+            }
             let msgs = std::mem::take(&mut pending);
             let send_now = can_send;
             let step = move |mut sc: Schedule, s2: &Shared, seq: u64| {
@@ -331,6 +337,7 @@ async fn stream_to(
                     send(sink, Bytes::from(frame)).await?;
                     next_seq += 1;
                     nodes_sent += k;
+                    batch = (batch * 2).min(max_batch);
                     end_due = true;
                 }
             }
