@@ -383,7 +383,8 @@ def main():
     ap.add_argument("--tf", default="default")
     ap.add_argument("--no-vtk", action="store_true")
     ap.add_argument("--docs", action="store_true", help="also write the small copies into docs/images/")
-    ap.add_argument("--quick", action="store_true", help="~3,000-tet meshes, 17^3 grid, levels 2,3, 64x64: a smoke test")
+    ap.add_argument("--quick", action="store_true", help="~3,000-tet meshes, 17^3 grid, levels 2,3, 64x64: a smoke test "
+                    "(fails unless every PSNR is finite and our GPU image of each original is >= 40 dB)")
     args = ap.parse_args()
     if args.quick:
         args.tets, args.grid_level, args.levels, args.side_levels, args.size = 3000, 4, "2,3", "2,3", "64"
@@ -452,6 +453,15 @@ def main():
     log(f"wrote {out}/fidelity.json, fidelity.md, psnr-vs-level.png and side-by-side images in {time.time() - t_start:.0f} s")
     if any("error" in r for r in results):
         sys.exit(1)
+    if args.quick:  # the suite's smoke check (scripts/test): every figure finite, our GPU close to exact
+        for r in results:
+            for row in r["rows"]:
+                for k in ("psnr_db", "gpu_psnr_db", "cpu_psnr_db"):
+                    if k in row and not (math.isfinite(row[k]) and row[k] > 5.0):
+                        fail(f"{r['shape']}: {row['what']}: {k} = {row[k]}")
+            g = [row for row in r["rows"] if row["kind"] == "gpu-original"]
+            if len(g) != 2 or min(x["psnr_db"] for x in g if x["order"] == "centroid") < 40.0:
+                fail(f"{r['shape']}: our GPU image of the original is below 40 dB: {g}")
 
 
 def vtk_version():
