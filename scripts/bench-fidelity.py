@@ -413,6 +413,7 @@ def main():
     ap.add_argument("--tf", default="default")
     ap.add_argument("--no-vtk", action="store_true")
     ap.add_argument("--docs", action="store_true", help="also write the small copies into docs/images/")
+    ap.add_argument("--replot", action="store_true", help="only redraw the charts from OUT/fidelity.json (with --docs: its copy too)")
     ap.add_argument("--quick", action="store_true", help="~3,000-tet meshes, 17^3 grid, levels 2,3, 64x64: a smoke test "
                     "(fails unless every PSNR is finite and our GPU image of each original is >= 40 dB)")
     args = ap.parse_args()
@@ -429,6 +430,12 @@ def main():
     for s in shapes:
         if s not in SHAPES:
             fail(f"unknown shape {s!r} ({', '.join(SHAPES)})")
+    if args.replot:
+        result = json.load(open(os.path.join(args.out, "fidelity.json")))
+        chart(result, os.path.join(args.out, "psnr-vs-level"))
+        if args.docs:
+            chart(result, "docs/images/fidelity-psnr-vs-level", small=True)
+        return
     bindir = args.bin_dir
     tw, tws = os.path.join(bindir, "tetwave"), os.path.join(bindir, "tetwave-server")
     for b in (tw, tws):
@@ -662,42 +669,53 @@ def tables(result):
 
 
 def chart(result, stem, small=False):
-    """Store PSNR against level per shape (GPU solid, CPU reference dotted), VTK on the original as
-    a dashed line; our GPU on the original (far above) is listed in a note."""
+    """Store PSNR against level per shape (colour): GPU solid, CPU reference dotted, GPU with the
+    original's value range dash-dotted; VTK on the original as a dashed line; our GPU on the
+    original (far above) in a note under the chart."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     ok = [s for s in result["shapes"] if "error" not in s]
     if not ok:
         return
-    fig, ax = plt.subplots(figsize=(6.4, 4.4) if small else (8, 5.4), dpi=100)
+    fig, ax = plt.subplots(figsize=(7.2, 4.6) if small else (9, 5.6), dpi=100)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     notes = []
+    shape_handles = []
     for i, s in enumerate(ok):
         c = colors[i % len(colors)]
         st = [r for r in s["rows"] if r["kind"] == "store"]
         xs = [r["level"] for r in st]
-        ax.plot(xs, [r["gpu_psnr_db"] for r in st], "o-", color=c, label=f"{s['shape']}: store, GPU")
-        ax.plot(xs, [r["cpu_psnr_db"] for r in st], "x:", color=c, ms=8, label=f"{s['shape']}: store, CPU reference")
-        ax.plot(xs, [r["gpu_range_matched_psnr_db"] for r in st], "+-.", color=c, ms=8, alpha=0.6,
-                label=f"{s['shape']}: store, GPU, original's value range")
+        ax.plot(xs, [r["gpu_psnr_db"] for r in st], "o-", color=c)
+        ax.plot(xs, [r["cpu_psnr_db"] for r in st], "x:", color=c, ms=9)
+        ax.plot(xs, [r["gpu_range_matched_psnr_db"] for r in st], "+-.", color=c, ms=9, alpha=0.6)
         v = [r for r in s["rows"] if r["kind"] == "vtk"]
         if v:
             ax.axhline(v[0]["psnr_db"], color=c, lw=1, ls="--", alpha=0.6)
         g = {r["order"]: r["psnr_db"] for r in s["rows"] if r["kind"] == "gpu-original"}
         notes.append(f"{s['shape']} {g['centroid']:.1f}")
-    ax.plot([], [], "k--", lw=1, alpha=0.6, label="VTK PT on the original (colour: shape)")
+        shape_handles.append(Line2D([], [], color=c, lw=3, label=s["shape"]))
+    kind_handles = [
+        Line2D([], [], color="k", marker="o", ls="-", label="store, GPU"),
+        Line2D([], [], color="k", marker="x", ls=":", ms=9, label="store, CPU reference"),
+        Line2D([], [], color="k", marker="+", ls="-.", ms=9, alpha=0.6, label="store, GPU,\noriginal's value range"),
+        Line2D([], [], color="k", ls="--", alpha=0.6, label="VTK PT on the original"),
+    ]
+    leg = ax.legend(handles=shape_handles, title="shape", fontsize=8, title_fontsize=8, loc="upper left",
+                    bbox_to_anchor=(1.01, 1.0))
+    ax.add_artist(leg)
+    ax.legend(handles=kind_handles, title="drawn", fontsize=8, title_fontsize=8, loc="lower left",
+              bbox_to_anchor=(1.01, 0.0))
     ax.set_xlabel("store level L (Bey refinements of the 5-tet base)")
     ax.set_ylabel("image PSNR vs exact image of the original (dB)")
     ax.set_xticks(result["levels"])
     ax.set_title(f"Fidelity against the original mesh, {result['size']}, TF {result['tf']}", fontsize=10)
-    ax.text(0.01, 0.99, "ours GPU on the original (dB): " + ", ".join(notes), transform=ax.transAxes,
-            fontsize=7, va="top")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=6, ncol=3, loc="lower right")
-    fig.tight_layout()
+    fig.text(0.01, 0.01, "ours GPU on the original, centroid order (dB): " + ", ".join(notes), fontsize=7.5)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(stem + ".png")
     if not small:
         fig.savefig(stem + ".svg")
