@@ -7,7 +7,7 @@ scikit-fem, meshio, vtk, matplotlib and pillow into the checkout's venv .venv); 
   .venv/bin/python scripts/bench-fidelity.py --bin-dir target/release
       [--shapes torus,cube-octant,ball-holes,heatsink,grid] [--levels 3,4,5,6] [--size 512]
       [--tets 100000] [--grid-level 5] [--side-levels 4,6] [--tf default] [--out out/bench-fidelity]
-      [--no-vtk] [--quick]
+      [--no-vtk] [--no-stream] [--docs] [--replot] [--quick]
 
 Shapes (non-convex domains meshed by gmsh's OpenCASCADE kernel, about --tets tetrahedra each: the
 mesh size is scaled from a coarse trial mesh,
@@ -45,6 +45,9 @@ cell), rendered with `--reference`. Rows:
                render` maps a store's own sample range to the transfer function's [0, 1], which lies
                inside the original's range, so the plain store image is also re-coloured; this row
                separates that from the geometry and sampling error;
+  stream bytes every TCP payload byte `tetwave-server serve` sends (level order) until `tetwave
+               stream --headless --no-render --until-complete` holds every node of the store,
+               through scripts/bench-rd.py's counting relay (skip with --no-stream);
   ours GPU     `tetwave render <mesh.vtu>` (GPU, centroid and mpvo orders) on the original tets;
   VTK          vtkProjectedTetrahedraMapper on the original tets, in this process, with the camera
                and transfer function of scripts/bench-vs-vtk (extinction per diagonal -> opacity per
@@ -291,6 +294,17 @@ def range_matched_tf(tf, orig, store, path):
     return path
 
 
+def bench_rd():
+    """scripts/bench-rd.py as a module: its server, byte-counting relay and complete stream."""
+    import importlib.util
+
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bench-rd.py")
+    spec = importlib.util.spec_from_file_location("bench_rd", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def vtk_render(grid, scalar, value_range, cam, tf, size, out_png):
     """vtkProjectedTetrahedraMapper, as scripts/bench-vs-vtk drives it. Returns ms per frame."""
     if not os.environ.get("DISPLAY"):
@@ -412,6 +426,8 @@ def main():
     ap.add_argument("--grid-level", type=int, default=5, help="the raw grid has (2^G+1)^3 points")
     ap.add_argument("--tf", default="default")
     ap.add_argument("--no-vtk", action="store_true")
+    ap.add_argument("--no-stream", dest="stream", action="store_false",
+                    help="skip the complete stream of each store through the byte-counting relay")
     ap.add_argument("--docs", action="store_true", help="also write the small copies into docs/images/")
     ap.add_argument("--replot", action="store_true", help="only redraw the charts from OUT/fidelity.json (with --docs: its copy too)")
     ap.add_argument("--quick", action="store_true", help="~3,000-tet meshes, 17^3 grid, levels 2,3, 64x64: a smoke test "
@@ -586,6 +602,11 @@ def bench_shape(shape, args, levels, size, size_arg, tw, tws, tf, vtk_error, wor
         png = os.path.join(d, f"store-l{L}-gpu-range-matched.png")
         r = run_json([tw, "render", store, "--size", size_arg, "--tf", mtf, "-o", png, "--json"], f"render {png}")
         row["gpu_range_matched_psnr_db"] = image_psnr(read_png(png), ref)
+        if args.stream:
+            st = bench_rd().stream(os.path.dirname(tw), store, "level", os.path.join(d, f"store-l{L}-stream"),
+                                   ["--no-render", "--frames", "1000000"])
+            row["stream_wire_bytes"] = st["wire_bytes_down"]
+            row["stream_message_bytes"] = st["message_bytes"]
         log(f"{shape}: level {L}: {row['tets']:,} tets, {row['store_bytes']:,} B, GPU {row['gpu_psnr_db']:.2f} dB, CPU {row['cpu_psnr_db']:.2f} dB, "
             f"GPU with the original's value range {row['gpu_range_matched_psnr_db']:.2f} dB")
         rows.append(row)
@@ -648,17 +669,18 @@ def tables(result):
         out += ["", f"**{s['shape']}**: {s['input']}; {s['points']:,} points, {s['original_tets']:,} tets, "
                 f"original {s['original_bytes']:,} B; exact image {s['exact']['ms']:,} ms, value range "
                 f"[{s['exact']['value_range'][0]:.6g}, {s['exact']['value_range'][1]:.6g}].", "",
-                "| drawn | tets drawn | store bytes | value range mapped to the TF | PSNR GPU (dB) | PSNR CPU reference (dB) | PSNR GPU, original's range (dB) | ms GPU / CPU |",
-                "|---|---|---|---|---|---|---|---|"]
+                "| drawn | tets drawn | store bytes | stream bytes (wire) | value range mapped to the TF | PSNR GPU (dB) | PSNR CPU reference (dB) | PSNR GPU, original's range (dB) | ms GPU / CPU |",
+                "|---|---|---|---|---|---|---|---|---|"]
         for r in s["rows"]:
             vr = r.get("value_range")
             vrs = f"[{vr[0]:.6g}, {vr[1]:.6g}]" if vr else "the original's"
             if r["kind"] == "store":
-                out.append(f"| {r['what']} | {r['tets']:,} | {r['store_bytes']:,} | {vrs} | {r['gpu_psnr_db']:.2f} | {r['cpu_psnr_db']:.2f} | {r['gpu_range_matched_psnr_db']:.2f} | {r['gpu_ms']:,} / {r['cpu_ms']:,} |")
+                wire = f"{r['stream_wire_bytes']:,}" if "stream_wire_bytes" in r else "—"
+                out.append(f"| {r['what']} | {r['tets']:,} | {r['store_bytes']:,} | {wire} | {vrs} | {r['gpu_psnr_db']:.2f} | {r['cpu_psnr_db']:.2f} | {r['gpu_range_matched_psnr_db']:.2f} | {r['gpu_ms']:,} / {r['cpu_ms']:,} |")
             elif r["kind"] == "gpu-original":
-                out.append(f"| {r['what']} | {r['tets']:,} | — | {vrs} | {r['psnr_db']:.2f} | (the reference) | — | {r['ms']:,} / {s['exact']['ms']:,} |")
+                out.append(f"| {r['what']} | {r['tets']:,} | — | — | {vrs} | {r['psnr_db']:.2f} | (the reference) | — | {r['ms']:,} / {s['exact']['ms']:,} |")
             else:
-                out.append(f"| {r['what']} | {r['tets']:,} | — | {vrs} | {r['psnr_db']:.2f} | — | — | {r['ms']:,} / — |")
+                out.append(f"| {r['what']} | {r['tets']:,} | — | — | {vrs} | {r['psnr_db']:.2f} | — | — | {r['ms']:,} / — |")
     for s in result["shapes"]:
         if "error" in s:
             out += ["", f"**{s['shape']}**: failed: {s['error']}"]
