@@ -9,10 +9,13 @@
 //! - **owned mask**: derived from the hierarchy ([`crate::ownership`]); one adaptive flag says
 //!   whether the node's mask differs, and only then are its 6 bits sent;
 //! - **empty children**: an adaptive flag, then the 8 bits where any child is empty;
-//! - **subtree bound** (`subtree_max_abs`): for quantized stores a class `k`, the bit length of the
-//!   subtree's largest code magnitude `m` (`m = 0` when every detail below quantizes to 0); the
-//!   decoded bound is `(2^k − 1) · step ≥ m · step`, an upper bound within a factor 2, which is
-//!   the safe side for the selection's error estimate. Lossless stores send the f32 bits;
+//! - **subtree bound** (`subtree_max_abs`, one value for a group of siblings, see
+//!   [`DetailNode::subtree_max_abs`]): for quantized stores a class `k`, the smallest with
+//!   `(2^k − 1) · step` at least the bound and at least the node's own code magnitudes; the
+//!   decoded bound is `(2^k − 1) · step`, an upper bound within a factor 2, which is the safe side
+//!   for the selection's error estimate. A node that follows its sibling in the block sends one
+//!   adaptive flag when its class is the sibling's (so a group costs about one class). Lossless
+//!   stores send the f32 bits;
 //! - **coefficients**: quantized codes by magnitude under the class `k` (none at all when `k = 0`:
 //!   a zero subtree costs only its class), sign bits raw; lossless stores send the f32 bits.
 //!
@@ -83,6 +86,7 @@ struct Models {
     empty_any: Bit,
     empty_bits: [Bit; 8],
     class: Vec<UInt>,
+    same_class: Bit,
     magnitude: Vec<UInt>,
 }
 
@@ -94,6 +98,7 @@ impl Models {
             empty_any: Bit::default(),
             empty_bits: [Bit::default(); 8],
             class: vec![UInt::default(); 16],
+            same_class: Bit::default(),
             magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
         }
     }
@@ -110,6 +115,17 @@ impl BlockCoder {
                 None => Coefficients::Raw,
                 Some(q) => Coefficients::Quantized(q),
             },
+        }
+    }
+
+    /// Whether `id` and `prev` have the same parent (base tets have none).
+    fn siblings(&self, prev: Option<TetId>, id: TetId) -> bool {
+        match (
+            prev.and_then(|p| self.forest.parent(p)),
+            self.forest.parent(id),
+        ) {
+            (Some(a), Some(b)) => a == b,
+            _ => false,
         }
     }
 
@@ -150,6 +166,7 @@ impl BlockCoder {
                 e.uint(&mut m.gap[gap_ctx], gap)?;
                 gap_ctx = gap_context(gap);
             }
+            let after_sibling = self.siblings(prev, n.id);
             prev = Some(n.id);
             let derived = self.ownership.owned(n.id);
             let cc = self.child_context(n.id);
@@ -189,7 +206,13 @@ impl BlockCoder {
                                 n.subtree_max_abs, q.step
                             ),
                         })?;
-                    e.uint(&mut m.class[prev_class.min(15) as usize], class as u64)?;
+                    let same = after_sibling && class == prev_class;
+                    if after_sibling {
+                        e.bit(&mut m.same_class, same);
+                    }
+                    if !same {
+                        e.uint(&mut m.class[prev_class.min(15) as usize], class as u64)?;
+                    }
                     prev_class = class;
                     if class > 0 {
                         for &c in &codes {
@@ -223,6 +246,7 @@ impl BlockCoder {
         let mut d = Decoder::new(&block.bytes)?;
         let mut m = Models::new();
         let mut id = block.first;
+        let mut prev: Option<TetId> = None;
         let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
         for i in 0..block.count {
             if i > 0 {
@@ -236,6 +260,8 @@ impl BlockCoder {
             if id >= total {
                 return Err(BlockError::IdOutOfRange { id, nodes: total });
             }
+            let after_sibling = self.siblings(prev, id);
+            prev = Some(id);
             let cc = self.child_context(id);
             let owned = if d.bit(&mut m.mask_differs[cc])? {
                 d.raw(6)? as u8
@@ -261,7 +287,12 @@ impl BlockCoder {
                     (smax, coeffs)
                 }
                 Coefficients::Quantized(q) => {
-                    let class = d.uint(&mut m.class[prev_class.min(15) as usize])?;
+                    let same = after_sibling && d.bit(&mut m.same_class)?;
+                    let class = if same {
+                        prev_class as u64
+                    } else {
+                        d.uint(&mut m.class[prev_class.min(15) as usize])?
+                    };
                     if class > MAX_CLASS as u64 {
                         return Err(BlockError::BadNode {
                             id,

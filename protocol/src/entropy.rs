@@ -15,7 +15,9 @@ use std::num::NonZeroU32;
 
 const PRECISION: usize = 16;
 const ONE: u32 = 1 << PRECISION;
-/// Adaptation rate: the probability moves 1/2^SHIFT of the way toward each new bit.
+/// Adaptation rate: the probability moves 1/2^SHIFT of the way toward each new bit, once the
+/// model has seen SHIFT bits; before that 1/2, 1/4, …: a fresh model (every block starts with
+/// fresh ones) learns from its first bits at once, a settled one follows drifting statistics.
 const SHIFT: u32 = 4;
 /// Probabilities stay within [MIN_P, ONE - MIN_P] so that neither symbol becomes impossible.
 const MIN_P: u32 = 31;
@@ -24,20 +26,27 @@ const MIN_P: u32 = 31;
 #[derive(Debug, Clone, Copy)]
 pub struct Bit {
     p0: u32,
+    /// Bits seen, up to SHIFT.
+    seen: u32,
 }
 
 impl Default for Bit {
     fn default() -> Self {
-        Bit { p0: ONE / 2 }
+        Bit {
+            p0: ONE / 2,
+            seen: 0,
+        }
     }
 }
 
 impl Bit {
     fn update(&mut self, bit: bool) {
+        self.seen = (self.seen + 1).min(SHIFT);
+        let shift = self.seen;
         if bit {
-            self.p0 -= self.p0 >> SHIFT;
+            self.p0 -= self.p0 >> shift;
         } else {
-            self.p0 += (ONE - self.p0) >> SHIFT;
+            self.p0 += (ONE - self.p0) >> shift;
         }
         self.p0 = self.p0.clamp(MIN_P, ONE - MIN_P);
     }

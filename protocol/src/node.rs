@@ -15,9 +15,22 @@ pub struct DetailNode {
     pub owned: u8,
     /// Bit `i`: child `i` lies entirely outside the input domain (empty, never refined, not drawn).
     pub empty_children: u8,
-    /// Max |detail| over every vertex created by refining this tet and its descendants.
+    /// The selection's error estimate: the largest linear detail `|f(m) − (f(u) + f(v))/2|` of a
+    /// vertex created by refining this tet, its descendants, or its siblings and theirs (one
+    /// value per group of 8 siblings, so a group codes as one; see [`group_siblings`]).
     pub subtree_max_abs: f32,
     pub coeffs: Vec<f32>,
+}
+
+/// Raises every node's subtree bound to its sibling group's largest (`bounds` by id, as
+/// [`DetailNode::subtree_max_abs`] defines; base tets, ids `0..n_base`, have no siblings).
+pub fn group_siblings(n_base: usize, bounds: &mut [f32]) {
+    if bounds.len() > n_base {
+        for g in bounds[n_base..].chunks_mut(8) {
+            let m = g.iter().fold(0f32, |m, &x| m.max(x));
+            g.fill(m);
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -100,7 +100,10 @@ pub fn detail_nodes(
                 smax[i] = smax[i].max(smax[cid]);
             }
         }
-        nodes[i].subtree_max_abs = smax[i];
+    }
+    crate::node::group_siblings(base.tets.len(), &mut smax);
+    for (n, m) in nodes.iter_mut().zip(smax) {
+        n.subtree_max_abs = m;
     }
     (base, nodes)
 }

@@ -10,8 +10,9 @@
 //! error from accumulating across levels: with step `q` every vertex is within `q/2` of its sample.
 //!
 //! Per node the analysis also records the max linear detail `|f(m) − (f(u)+f(v))/2|` of the sampled
-//! values over its edges and its subtree's (the selection's error estimate: what drawing the tet
-//! without its subtree costs, whatever the predictor), and which children are empty (outside the input's domain, see [`crate::resample`]).
+//! values over its edges and its subtree's, raised to its sibling group's largest (the selection's
+//! error estimate: what drawing the tet without its subtree costs, whatever the predictor; one
+//! value per group codes as one), and which children are empty (outside the input's domain, see [`crate::resample`]).
 
 mod gather;
 mod keys;
@@ -243,6 +244,7 @@ pub fn analyze_hierarchy(
     let (owned, coeffs) = gather::owned_coefficients(&cells, &detail, nodes, nv);
     drop(detail);
     gather::fold_subtrees(forest, &mut empty_children, &mut subtree_max_abs);
+    tetwave_protocol::node::group_siblings(forest.n_base as usize, &mut subtree_max_abs);
     base.empty = (0..base.tets.len())
         .map(|b| {
             if levels == 0 {
