@@ -207,18 +207,8 @@ def solve(shape, p, t):
 
 
 def harmonic_grid(levels):
-    """tetwave_protocol::fields::harmonic at the (2^L+1)^3 points of [0,30]^3, [z, y, x] order
-    (as scripts/bench-rd.py)."""
-    n = (1 << levels) + 1
-    s = np.linspace(0.0, 30.0, n)
-    z, y, x = np.meshgrid(s, s, s, indexing="ij")
-    u = [(c - 15.0) / 15.0 for c in (x, y, z)]
-    r2 = u[0] ** 2 + u[1] ** 2 + u[2] ** 2
-    r = np.sqrt(r2)
-    f = np.exp(-2.0 * r2) * np.cos(4.0 * np.pi * r) + 0.25 * np.sin(2.0 * np.pi * u[0]) * np.sin(
-        2.0 * np.pi * u[1]
-    ) * np.sin(2.0 * np.pi * u[2])
-    return f.astype(np.float32), 30.0 / (n - 1)
+    """tetwave_protocol::fields::harmonic at the (2^L+1)^3 points of [0,30]^3: scripts/bench-rd.py's."""
+    return bench_rd().harmonic_grid(levels)
 
 
 # ------------------------------------------------------------------------------------------ images
