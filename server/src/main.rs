@@ -136,7 +136,7 @@ enum Cmd {
         #[arg(long, default_value_t = 512)]
         batch: usize,
         /// Most nodes in one batch.
-        #[arg(long, default_value_t = 8192)]
+        #[arg(long, default_value_t = 16384)]
         max_batch: usize,
         /// Most un-acknowledged batches in flight per connection.
         #[arg(long, default_value_t = 8)]

@@ -105,7 +105,7 @@ impl Default for ServeConfig {
             token: None,
             order: Order::Level,
             batch: 512,
-            max_batch: 8192,
+            max_batch: 16384,
             window: 8,
             idle_timeout: Duration::from_secs(120),
             seed: 0x7e7_3a7e,
