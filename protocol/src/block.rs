@@ -216,7 +216,12 @@ impl BlockCoder {
                     prev_class = class;
                     if class > 0 {
                         for &c in &codes {
-                            e.uint(&mut m.magnitude[class as usize], c.unsigned_abs() as u64)?;
+                            // a class-k magnitude has at most k bits
+                            e.uint_within(
+                                &mut m.magnitude[class as usize],
+                                c.unsigned_abs() as u64,
+                                class,
+                            )?;
                             if c != 0 {
                                 e.raw((c < 0) as u64, 1);
                             }
@@ -305,7 +310,7 @@ impl BlockCoder {
                     if class > 0 {
                         let limit = ((1u64 << class) - 1).min(Quantizer::max_code(q.bits) as u64);
                         for c in coeffs.iter_mut() {
-                            let mag = d.uint(&mut m.magnitude[class as usize])?;
+                            let mag = d.uint_within(&mut m.magnitude[class as usize], class)?;
                             if mag > limit {
                                 return Err(BlockError::BadNode {
                                     id,

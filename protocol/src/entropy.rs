@@ -185,14 +185,26 @@ impl Encoder {
     }
 
     pub fn uint(&mut self, model: &mut UInt, v: u64) -> Result<(), EntropyError> {
+        self.uint_within(model, v, UInt::MAX_BITS)
+    }
+
+    /// [`Self::uint`] of a `v` known to both sides to have at most `max_bits` bits (at most
+    /// [`UInt::MAX_BITS`]): the bit length's unary code stops at `max_bits`.
+    pub fn uint_within(
+        &mut self,
+        model: &mut UInt,
+        v: u64,
+        max_bits: u32,
+    ) -> Result<(), EntropyError> {
+        let max_bits = max_bits.min(UInt::MAX_BITS);
         let bits = u64::BITS - v.leading_zeros();
-        if bits > UInt::MAX_BITS {
+        if bits > max_bits {
             return Err(EntropyError::TooLarge(v));
         }
         for i in 0..bits {
             self.bit(&mut model.len[i as usize], true);
         }
-        if bits < UInt::MAX_BITS {
+        if bits < max_bits {
             self.bit(&mut model.len[bits as usize], false);
         }
         for j in (0..bits.saturating_sub(1)).rev() {
@@ -267,8 +279,14 @@ impl Decoder {
     }
 
     pub fn uint(&mut self, model: &mut UInt) -> Result<u64, EntropyError> {
+        self.uint_within(model, UInt::MAX_BITS)
+    }
+
+    /// Reads what [`Encoder::uint_within`] wrote with the same `max_bits`.
+    pub fn uint_within(&mut self, model: &mut UInt, max_bits: u32) -> Result<u64, EntropyError> {
+        let max_bits = max_bits.min(UInt::MAX_BITS);
         let mut bits = 0;
-        while bits < UInt::MAX_BITS && self.bit(&mut model.len[bits as usize])? {
+        while bits < max_bits && self.bit(&mut model.len[bits as usize])? {
             bits += 1;
         }
         if bits == 0 {
