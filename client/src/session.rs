@@ -111,6 +111,11 @@ impl Session {
         self.sel.is_converged()
     }
 
+    /// The selector's parameters (tolerance, budgets).
+    pub fn params(&self) -> &SelectParams {
+        &self.sel.params
+    }
+
     pub fn base(&self) -> &BaseMesh {
         &self.base
     }

@@ -6,8 +6,10 @@
 //! image) is copied into the view.
 
 use super::data::Data;
+use super::fly::Fly;
 use super::gpu::{Blit, BlitCallback, Target};
 use super::orbit::Orbit;
+use super::perf::Perf;
 use super::script::{Action, Step, WaitFor};
 use super::{ViewArgs, ViewMode, ViewReport};
 use crate::select::{Mode, Tolerance};
@@ -29,12 +31,23 @@ pub const PANEL_WIDTH: f32 = 260.0;
 /// Time per frame for applying arrived nodes (refinement has the selector's own budget).
 pub const INGEST_BUDGET: Duration = Duration::from_millis(8);
 
+/// Frames a `size` step waits for the window to take its size before it fails.
+const RESIZE_FRAMES: u64 = 600;
+
+/// Bins of the editor's histogram.
+const HISTOGRAM_BINS: usize = 64;
+
 /// The transfer-function presets (what the server's `/v1/render` knows too).
 const PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
 
 /// Degrees of rotation per pixel dragged, and per arrow key.
 const DEG_PER_PX: f64 = 0.4;
 const DEG_PER_KEY: f64 = 5.0;
+/// Fly mode: degrees of turn per pixel dragged; speed in diagonals of the bounding box per
+/// second (times 4 with shift); diagonals per wheel point.
+const FLY_DEG_PER_PX: f64 = 0.2;
+const FLY_SPEED: f64 = 0.25;
+const FLY_PER_SCROLL: f64 = 5e-4;
 
 /// The server's image of a view.
 enum ServerImage {
@@ -63,6 +76,8 @@ pub struct ViewerApp {
     tol: f64,
     mode: ViewMode,
     orbit: Orbit,
+    /// Fly mode's camera, when in it (the orbit is kept for leaving it).
+    fly: Option<Fly>,
     home: Option<Orbit>,
     /// The view's rectangle (points) and size (pixels) in the last frame.
     view_rect: Rect,
@@ -101,10 +116,18 @@ pub struct ViewerApp {
     report: Arc<Mutex<ViewReport>>,
     /// The editor's file for loading and saving the transfer function.
     tf_path: String,
+    /// The histogram of the values held (the drawn leaf mesh's vertices), for the editor.
+    hist: Vec<u32>,
+    tf_canvas: super::tf_edit::CanvasState,
     screenshots: Vec<String>,
     screenshot_tets: Vec<u64>,
     server_psnr_db: Option<f64>,
     errors: Vec<String>,
+    perf: Perf,
+    /// Seconds from the window's opening until every node was held.
+    complete_s: Option<f64>,
+    /// The current frame's start.
+    frame_start: Instant,
 }
 
 impl ViewerApp {
@@ -138,6 +161,7 @@ impl ViewerApp {
             tf,
             tf_preset,
             orbit,
+            fly: None,
             home: None,
             view_rect: Rect::NOTHING,
             view_px: (args.size.0, args.size.1),
@@ -172,10 +196,15 @@ impl ViewerApp {
             } else {
                 "tf.json".into()
             },
+            hist: Vec::new(),
+            tf_canvas: Default::default(),
             screenshots: Vec::new(),
             screenshot_tets: Vec::new(),
             server_psnr_db: None,
             errors: Vec::new(),
+            perf: Perf::default(),
+            complete_s: None,
+            frame_start: Instant::now(),
             gpu,
             args,
         })
@@ -197,6 +226,26 @@ impl ViewerApp {
             self.orbit.target = center;
             self.orbit.distance = self.args.camera.distance.unwrap_or(1.6 * diag);
             self.home = Some(self.orbit);
+        }
+    }
+
+    /// The camera of the view: the fly camera in fly mode, else the orbit's.
+    fn camera(&self, w: u32, h: u32) -> Camera {
+        match &self.fly {
+            Some(f) => f.camera(w, h),
+            None => self.orbit.camera(w, h),
+        }
+    }
+
+    fn diagonal(&self) -> f64 {
+        self.data.frame.map_or(1.0, |(_, d)| d)
+    }
+
+    /// Back to the initial orbit, out of fly mode.
+    fn reset_view(&mut self) {
+        self.fly = None;
+        if let Some(h) = self.home {
+            self.orbit = h;
         }
     }
 
@@ -276,6 +325,12 @@ impl ViewerApp {
             ));
             return;
         };
+        if self.fly.is_some() {
+            self.fail(
+                "server image: the server renders orbit views; leave fly mode (F) first".into(),
+            );
+            return;
+        }
         if self.home.is_some_and(|h| h.target != self.orbit.target) {
             self.fail(
                 "server image: the server orbits the volume's centre; reset the pan first".into(),
@@ -358,9 +413,14 @@ impl ViewerApp {
             }
             // the frame the step's action began in (after its `at`)
             let first = *self.step_frame.get_or_insert(self.frames);
+            // an input is given when it is due, or when the script reaches it
+            let given = step.at.map_or_else(Instant::now, |at| {
+                self.started + Duration::from_secs_f64(at)
+            });
             let mut changes_view = false;
             match &step.action {
                 Action::Camera(c) => {
+                    self.fly = None;
                     if let Some(v) = c.azimuth {
                         self.orbit.azimuth = v;
                     }
@@ -376,21 +436,30 @@ impl ViewerApp {
                     changes_view = true;
                 }
                 Action::Orbit(d) => {
+                    self.fly = None;
                     self.orbit.rotate(*d, 0.0);
                     changes_view = true;
                 }
                 Action::Elevate(d) => {
+                    self.fly = None;
                     self.orbit.rotate(0.0, *d);
                     changes_view = true;
                 }
                 Action::Zoom(f) => {
+                    self.fly = None;
                     self.zoom(*f);
                     changes_view = true;
                 }
+                Action::Fly(m) => {
+                    let diag = self.diagonal();
+                    let orbit = self.orbit;
+                    let f = self.fly.get_or_insert_with(|| Fly::from_orbit(&orbit));
+                    f.turn(m.yaw, m.pitch);
+                    f.translate(m.forward * diag, m.right * diag, m.up * diag);
+                    changes_view = true;
+                }
                 Action::Reset => {
-                    if let Some(h) = self.home {
-                        self.orbit = h;
-                    }
+                    self.reset_view();
                     changes_view = true;
                 }
                 Action::Tf(spec) => {
@@ -405,6 +474,26 @@ impl ViewerApp {
                 }
                 Action::Mode(m) => {
                     self.mode = *m;
+                    changes_view = true;
+                }
+                Action::Size(w, h) => {
+                    if (self.view_px.0, self.view_px.1) != (*w, *h) {
+                        if self.frames == first {
+                            let ppp = ctx.pixels_per_point();
+                            ctx.send_viewport_cmd(egui::ViewportCommand::InnerSize(egui::vec2(
+                                *w as f32 / ppp + PANEL_WIDTH,
+                                *h as f32 / ppp,
+                            )));
+                        }
+                        if self.frames < first + RESIZE_FRAMES {
+                            return;
+                        }
+                        let e = format!(
+                            "size {w}x{h}: the view is still {}x{} after {RESIZE_FRAMES} frames",
+                            self.view_px.0, self.view_px.1
+                        );
+                        self.fail(e);
+                    }
                     changes_view = true;
                 }
                 Action::Wait(w) => {
@@ -443,6 +532,7 @@ impl ViewerApp {
             self.step += 1;
             self.step_frame = None;
             if changes_view {
+                self.perf.input(given);
                 return;
             }
         }
@@ -451,7 +541,7 @@ impl ViewerApp {
     /// Refines, uploads and draws for the current camera.
     fn refine_and_draw(&mut self) {
         let (w, h) = self.view_px;
-        let cam = self.orbit.camera(w, h);
+        let cam = self.camera(w, h);
         self.moving = self.last_cam.is_some_and(|c| c != cam);
         if self.last_cam != Some(cam) {
             self.image_dirty = true;
@@ -470,6 +560,10 @@ impl ViewerApp {
                 ViewMode::Progressive => Mode::Progressive,
                 ViewMode::Complete => Mode::Complete,
             };
+            let budget = match mode {
+                Mode::Interactive => s.params().interactive,
+                Mode::Progressive | Mode::Complete => s.params().progressive,
+            };
             let t = Instant::now();
             match s.frame(&cam, mode) {
                 Ok(st) => {
@@ -484,7 +578,12 @@ impl ViewerApp {
                 }
             }
             self.refine_ms = t.elapsed().as_secs_f64() * 1e3;
+            let rec = self.perf.current();
+            rec.refine_ms = self.refine_ms;
+            rec.refine_budget_ms = budget.max_time.map(|d| d.as_secs_f64() * 1e3);
         }
+        self.perf.current().mode = self.mode;
+        self.perf.current().moving = self.moving;
         if self.data.take_changed() {
             self.mesh_dirty = true;
         }
@@ -495,7 +594,13 @@ impl ViewerApp {
                 (None, Some(m)) => Some(m.clone()),
                 (None, None) => None,
             };
+            let leaf_ms = t.elapsed().as_secs_f64() * 1e3;
             if let Some(m) = mesh {
+                self.hist = super::tf_edit::histogram(
+                    &m.values,
+                    [m.value_range.0, m.value_range.1],
+                    HISTOGRAM_BINS,
+                );
                 match self.renderer.upload(&self.gpu, &m) {
                     Ok(d) => {
                         self.tets = d.tet_count as u64;
@@ -506,6 +611,9 @@ impl ViewerApp {
                 self.image_dirty = true;
             }
             self.upload_ms = t.elapsed().as_secs_f64() * 1e3;
+            let rec = self.perf.current();
+            rec.leaf_ms = leaf_ms;
+            rec.upload_ms = self.upload_ms - leaf_ms;
             self.mesh_dirty = false;
         }
         if self.target.as_ref().map(Target::size) != Some((w, h)) {
@@ -531,14 +639,118 @@ impl ViewerApp {
                 );
                 self.render_ms = times.total_ms;
                 self.image_dirty = false;
+                let rec = self.perf.current();
+                rec.render_ms = times.total_ms;
+                rec.drew = true;
             }
         }
         self.last_cam = Some(cam);
+        self.perf.current().tets = self.tets;
         let drawn = !self.image_dirty && self.draw_data.is_some();
         if converged && drawn {
             // converged for the nodes held at this frame's start, which may be all of them
             self.settled = Some((self.frames, self.data.is_complete()));
         }
+    }
+
+    /// The mouse and the keys move the camera: the orbit's, or in fly mode the fly camera's
+    /// (`dt`: seconds since the last frame, for the keys held down).
+    fn navigate(
+        &mut self,
+        ctx: &egui::Context,
+        drag: egui::Vec2,
+        pan: egui::Vec2,
+        scroll: f32,
+        dt: f64,
+        mut reset: bool,
+    ) {
+        let ppp = ctx.pixels_per_point();
+        let diag = self.diagonal();
+        let keys = !ctx.egui_wants_keyboard_input();
+        let pressed = |k: egui::Key| keys && ctx.input(|i| i.key_pressed(k));
+        if pressed(egui::Key::F) {
+            self.toggle_fly();
+        }
+        if let Some(f) = self.fly.as_mut() {
+            if drag != egui::Vec2::ZERO {
+                f.turn(
+                    -drag.x as f64 * FLY_DEG_PER_PX,
+                    -drag.y as f64 * FLY_DEG_PER_PX,
+                );
+            }
+            // a right-drag slides the eye in the view plane
+            let units_per_px = 2.0 * FLY_SPEED * diag / self.view_px.1.max(1) as f64;
+            f.translate(
+                scroll as f64 * FLY_PER_SCROLL * diag,
+                -(pan.x * ppp) as f64 * units_per_px,
+                (pan.y * ppp) as f64 * units_per_px,
+            );
+            if keys {
+                use egui::Key;
+                let [fwd, back, left, right, down, up, fast] = ctx.input(|i| {
+                    [
+                        i.key_down(Key::W) || i.key_down(Key::ArrowUp),
+                        i.key_down(Key::S) || i.key_down(Key::ArrowDown),
+                        i.key_down(Key::A) || i.key_down(Key::ArrowLeft),
+                        i.key_down(Key::D) || i.key_down(Key::ArrowRight),
+                        i.key_down(Key::Q),
+                        i.key_down(Key::E),
+                        i.modifiers.shift,
+                    ]
+                });
+                let axis = |p: bool, n: bool| f64::from(u8::from(p)) - f64::from(u8::from(n));
+                // a long frame (or the first) moves at most a tenth of a second's worth
+                let step = FLY_SPEED * diag * dt.min(0.1) * if fast { 4.0 } else { 1.0 };
+                f.translate(
+                    axis(fwd, back) * step,
+                    axis(right, left) * step,
+                    axis(up, down) * step,
+                );
+            }
+        } else {
+            if drag != egui::Vec2::ZERO {
+                self.orbit
+                    .rotate(-drag.x as f64 * DEG_PER_PX, drag.y as f64 * DEG_PER_PX);
+            }
+            if pan != egui::Vec2::ZERO {
+                self.orbit
+                    .pan((pan.x * ppp) as f64, (pan.y * ppp) as f64, self.view_px.1);
+            }
+            if scroll != 0.0 {
+                self.zoom((-scroll as f64 * 0.002).exp());
+            }
+            use egui::Key;
+            if pressed(Key::ArrowLeft) {
+                self.orbit.rotate(-DEG_PER_KEY, 0.0);
+            }
+            if pressed(Key::ArrowRight) {
+                self.orbit.rotate(DEG_PER_KEY, 0.0);
+            }
+            if pressed(Key::ArrowUp) {
+                self.orbit.rotate(0.0, DEG_PER_KEY);
+            }
+            if pressed(Key::ArrowDown) {
+                self.orbit.rotate(0.0, -DEG_PER_KEY);
+            }
+            if pressed(Key::Plus) || pressed(Key::Equals) {
+                self.zoom(0.9);
+            }
+            if pressed(Key::Minus) {
+                self.zoom(1.0 / 0.9);
+            }
+        }
+        reset |= pressed(egui::Key::R);
+        if reset {
+            self.reset_view();
+        }
+    }
+
+    /// Into fly mode from the current orbit's view, or back to the orbit as it was.
+    fn toggle_fly(&mut self) {
+        self.fly = match self.fly {
+            Some(_) => None,
+            None => Some(Fly::from_orbit(&self.orbit)),
+        };
     }
 
     fn panel(&mut self, ui: &mut egui::Ui) {
@@ -611,7 +823,7 @@ impl ViewerApp {
             }
         }
         egui::CollapsingHeader::new("transfer function editor").show(ui, |ui| {
-            if super::tf_edit::edit(ui, &mut self.tf) {
+            if super::tf_edit::edit(ui, &mut self.tf, &self.hist, &mut self.tf_canvas) {
                 self.tf_preset = None;
                 self.image_dirty = true;
                 self.server = ServerImage::None;
@@ -635,9 +847,11 @@ impl ViewerApp {
         });
         ui.horizontal(|ui| {
             if ui.button("Reset view").clicked() {
-                if let Some(h) = self.home {
-                    self.orbit = h;
-                }
+                self.reset_view();
+            }
+            let mut fly = self.fly.is_some();
+            if ui.toggle_value(&mut fly, "Fly (F)").changed() {
+                self.toggle_fly();
             }
             let can = self.data.server().is_some();
             if ui
@@ -655,6 +869,8 @@ impl ViewerApp {
         }
         if let Some(e) = &self.data.error {
             ui.colored_label(Color32::LIGHT_RED, format!("stream: {e}"));
+        } else if self.data.reconnecting() {
+            ui.colored_label(Color32::YELLOW, "connection lost: reconnecting…");
         }
         if !self.status.is_empty() {
             ui.label(egui::RichText::new(&self.status).small());
@@ -662,7 +878,7 @@ impl ViewerApp {
         ui.separator();
         ui.label(
             egui::RichText::new(
-                "drag: orbit · right/shift-drag: pan · wheel: zoom\narrows: orbit · +/−: zoom · R: reset",
+                "drag: orbit · right/shift-drag: pan · wheel: zoom\narrows: orbit · +/−: zoom · R: reset\nF: fly (drag: look · WASD/arrows: move · Q/E: down/up · shift: faster)",
             )
             .small(),
         );
@@ -691,6 +907,9 @@ impl ViewerApp {
             upload_ms: self.upload_ms,
             render_ms: self.render_ms,
             view: [self.view_px.0, self.view_px.1],
+            reconnects: self.data.reconnects(),
+            fly: self.fly.is_some(),
+            eye: self.camera(1, 1).eye.to_array(),
             azimuth: self.orbit.azimuth,
             elevation: self.orbit.elevation,
             distance: self.orbit.distance,
@@ -702,6 +921,8 @@ impl ViewerApp {
             server_psnr_db: self.server_psnr_db,
             script_steps: [self.step, self.steps.len()],
             errors,
+            perf: self.perf.report(),
+            complete_s: self.complete_s,
         };
         *self.report.lock().unwrap_or_else(|e| e.into_inner()) = r;
     }
@@ -739,6 +960,12 @@ impl eframe::App for ViewerApp {
         let ctx = ui.ctx().clone();
         self.frames += 1;
         let now = Instant::now();
+        self.frame_start = now;
+        self.perf.begin_frame(
+            self.frames,
+            now,
+            now.duration_since(self.started).as_secs_f64(),
+        );
         let dt = now.duration_since(self.last_frame).as_secs_f64();
         self.last_frame = now;
         if dt > 0.0 {
@@ -753,8 +980,14 @@ impl eframe::App for ViewerApp {
             self.pending_shot = None;
         }
         self.take_server_image();
+        let t = Instant::now();
         self.data.ingest(INGEST_BUDGET, Tolerance::Pixels(self.tol));
+        self.perf.current().ingest_ms = t.elapsed().as_secs_f64() * 1e3;
+        if self.complete_s.is_none() && self.data.is_complete() {
+            self.complete_s = Some(self.started.elapsed().as_secs_f64());
+        }
         self.init_home();
+        let before = (self.orbit, self.fly, self.tol, self.mode, self.image_dirty);
 
         egui::Panel::left("tetwave-panel")
             .exact_size(PANEL_WIDTH)
@@ -790,53 +1023,10 @@ impl eframe::App for ViewerApp {
             ((r.width() * ppp).round() as u32).max(1),
             ((r.height() * ppp).round() as u32).max(1),
         );
-        if drag != egui::Vec2::ZERO {
-            self.orbit
-                .rotate(-drag.x as f64 * DEG_PER_PX, drag.y as f64 * DEG_PER_PX);
-        }
-        if pan != egui::Vec2::ZERO {
-            self.orbit
-                .pan((pan.x * ppp) as f64, (pan.y * ppp) as f64, self.view_px.1);
-        }
-        if scroll != 0.0 {
-            self.zoom((-scroll as f64 * 0.002).exp());
-        }
-        if !ctx.egui_wants_keyboard_input() {
-            let keys = ctx.input(|i| {
-                [
-                    i.key_pressed(egui::Key::ArrowLeft),
-                    i.key_pressed(egui::Key::ArrowRight),
-                    i.key_pressed(egui::Key::ArrowUp),
-                    i.key_pressed(egui::Key::ArrowDown),
-                    i.key_pressed(egui::Key::Plus) || i.key_pressed(egui::Key::Equals),
-                    i.key_pressed(egui::Key::Minus),
-                    i.key_pressed(egui::Key::R),
-                ]
-            });
-            if keys[0] {
-                self.orbit.rotate(-DEG_PER_KEY, 0.0);
-            }
-            if keys[1] {
-                self.orbit.rotate(DEG_PER_KEY, 0.0);
-            }
-            if keys[2] {
-                self.orbit.rotate(0.0, DEG_PER_KEY);
-            }
-            if keys[3] {
-                self.orbit.rotate(0.0, -DEG_PER_KEY);
-            }
-            if keys[4] {
-                self.zoom(0.9);
-            }
-            if keys[5] {
-                self.zoom(1.0 / 0.9);
-            }
-            reset |= keys[6];
-        }
-        if reset {
-            if let Some(h) = self.home {
-                self.orbit = h;
-            }
+        self.navigate(&ctx, drag, pan, scroll, dt, reset);
+        // the panel, the mouse and the keys: their events were read at the frame's start
+        if (self.orbit, self.fly, self.tol, self.mode, self.image_dirty) != before {
+            self.perf.input(now);
         }
         self.run_script(&ctx);
         self.refine_and_draw();
@@ -862,6 +1052,7 @@ impl eframe::App for ViewerApp {
                 self.request_shot(&ctx, p, false);
             }
         }
+        self.perf.end_frame();
         self.publish();
         if self.closing && self.pending_shot.is_none() {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);

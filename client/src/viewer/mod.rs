@@ -6,10 +6,12 @@
 //! - [`data`]: the source; a stream's network runs on its own thread (the headless client's
 //!   network task), and each frame applies what has arrived within a budget.
 //! - [`orbit`]: the camera (orbit, pan, zoom), parametrized like `tetwave render` and `/v1/render`.
+//! - [`fly`]: fly mode's camera (`F`): a free eye that may enter the volume.
 //! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
 //! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
 //!   screenshots).
 //! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
+//! - [`perf`]: frame times and input-to-frame latency, for `--json`.
 //! - [`app`]: the window's frame loop and side panel.
 //!
 //! Failures to start (no display, no GPU adapter, a bad source or script) are one-line errors;
@@ -18,8 +20,10 @@
 
 pub mod app;
 pub mod data;
+pub mod fly;
 pub mod gpu;
 pub mod orbit;
+pub mod perf;
 pub mod script;
 pub mod tf_edit;
 
@@ -123,6 +127,8 @@ pub struct ViewReport {
     /// Tets drawn in the last frame.
     pub tets: u64,
     pub bytes_received: u64,
+    /// Times the stream's connection was lost and made again.
+    pub reconnects: u64,
     pub complete: bool,
     /// Frames per second over the run.
     pub fps: f64,
@@ -134,6 +140,11 @@ pub struct ViewReport {
     pub render_ms: f64,
     /// The view's size in pixels.
     pub view: [u32; 2],
+    /// The run ended in fly mode.
+    pub fly: bool,
+    /// The eye's position at the end.
+    pub eye: [f64; 3],
+    /// The orbit's camera (kept while flying).
     pub azimuth: f64,
     pub elevation: f64,
     pub distance: f64,
@@ -150,6 +161,10 @@ pub struct ViewReport {
     pub script_steps: [usize; 2],
     /// Failures after the window opened (also shown in the panel).
     pub errors: Vec<String>,
+    /// Frame times and input-to-frame latency over the run.
+    pub perf: perf::PerfReport,
+    /// Seconds from the window's opening until every node was held.
+    pub complete_s: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
