@@ -474,6 +474,8 @@ fn view_json_carries_latency_and_the_worst_refinement_frame() {
         "leaf_ms",
         "upload_ms",
         "render_ms",
+        "work_ms",
+        "paint_ms",
     ] {
         let s = &p[k];
         let n = s["n"].as_u64().unwrap();

@@ -1,9 +1,10 @@
 //! The viewer's frame loop (an eframe app). Each frame, in order: screenshots and server images
 //! that arrived are taken in; what the network delivered is applied within [`INGEST_BUDGET`]; the
 //! panel and the mouse and keys act; the script plays its next steps; the mesh is refined for the
-//! camera under the selector's budget for the mode; the leaf mesh is uploaded if it changed and
-//! drawn into the offscreen target if anything it shows changed; the target (or the server's
-//! image) is copied into the view.
+//! camera under the selector's budget for the mode; a finished upload replaces the mesh drawn,
+//! and the leaf mesh goes to the upload thread if it changed (one upload at a time, see
+//! [`super::upload`]); the mesh is drawn into the offscreen target if anything it shows changed;
+//! the target (or the server's image) is copied into the view.
 
 use super::data::Data;
 use super::fly::Fly;
@@ -11,6 +12,7 @@ use super::gpu::{Blit, BlitCallback, Target};
 use super::orbit::Orbit;
 use super::perf::Perf;
 use super::script::{Action, Step, WaitFor};
+use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
 use crate::select::{Mode, Tolerance};
 use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
@@ -67,7 +69,8 @@ enum ServerImage {
 pub struct ViewerApp {
     args: ViewArgs,
     gpu: Arc<GpuContext>,
-    renderer: PtRenderer,
+    renderer: Arc<PtRenderer>,
+    uploader: Uploader,
     blit: Blit,
     data: Data,
     tf: TransferFunction,
@@ -91,7 +94,7 @@ pub struct ViewerApp {
     /// The camera moved in this frame (by the mouse, keys or the script).
     moving: bool,
     refine_ms: f64,
-    /// Building the leaf mesh and uploading it, the last time the mesh changed.
+    /// The last upload's time (on the upload thread).
     upload_ms: f64,
     render_ms: f64,
     fps: f64,
@@ -140,8 +143,9 @@ impl ViewerApp {
         steps: Vec<Step>,
         report: Arc<Mutex<ViewReport>>,
     ) -> Result<Self, String> {
-        let renderer = PtRenderer::with_accumulation(&gpu, Accumulation::Best);
+        let renderer = Arc::new(PtRenderer::with_accumulation(&gpu, Accumulation::Best));
         renderer.warm_up(&gpu, &tf).map_err(|e| e.to_string())?;
+        let uploader = Uploader::new(gpu.clone(), renderer.clone());
         let blit = Blit::new(&rs.device, rs.target_format);
         let (shot_tx, shot_rx) = mpsc::channel();
         let tf_preset = PRESETS.contains(&args.tf.as_str()).then(|| args.tf.clone());
@@ -156,6 +160,7 @@ impl ViewerApp {
             tol: args.tol,
             mode: args.mode,
             renderer,
+            uploader,
             blit,
             data,
             tf,
@@ -401,7 +406,8 @@ impl ViewerApp {
     }
 
     /// Plays script steps until one has to wait. Steps that change the view end the frame's
-    /// steps, so that a following `wait` sees a frame of the new view.
+    /// steps, so that a following `wait` sees a frame of the new view; inputs already due are
+    /// taken together (a backlog of inputs is one frame's, as queued events are).
     fn run_script(&mut self, ctx: &egui::Context) {
         while self.step < self.steps.len() && !self.closing {
             let step = self.steps[self.step].clone();
@@ -533,7 +539,14 @@ impl ViewerApp {
             self.step_frame = None;
             if changes_view {
                 self.perf.input(given);
-                return;
+                let elapsed = self.started.elapsed().as_secs_f64();
+                let next_due = self
+                    .steps
+                    .get(self.step)
+                    .is_some_and(|s| s.action.is_input() && s.at.is_some_and(|at| elapsed >= at));
+                if !next_due {
+                    return;
+                }
             }
         }
     }
@@ -587,33 +600,38 @@ impl ViewerApp {
         if self.data.take_changed() {
             self.mesh_dirty = true;
         }
-        if self.mesh_dirty {
+        // the mesh uploaded off the frame loop replaces the one drawn so far
+        if let Some((res, ms)) = self.uploader.take() {
+            match res {
+                Ok(d) => {
+                    self.tets = d.tet_count as u64;
+                    self.draw_data = Some(d);
+                }
+                Err(e) => self.fail(format!("upload: {e}")),
+            }
+            self.image_dirty = true;
+            self.upload_ms = ms;
+            self.perf.current().upload_ms = ms;
+        }
+        // one upload at a time: a mesh that changes meanwhile goes up after it
+        if self.mesh_dirty && !self.uploader.busy() {
             let t = Instant::now();
             let mesh = match (&self.data.session, &self.data.mesh) {
                 (Some(s), _) => Some(s.leaf_mesh(self.data.value_range)),
                 (None, Some(m)) => Some(m.clone()),
                 (None, None) => None,
             };
-            let leaf_ms = t.elapsed().as_secs_f64() * 1e3;
             if let Some(m) = mesh {
                 self.hist = super::tf_edit::histogram(
                     &m.values,
                     [m.value_range.0, m.value_range.1],
                     HISTOGRAM_BINS,
                 );
-                match self.renderer.upload(&self.gpu, &m) {
-                    Ok(d) => {
-                        self.tets = d.tet_count as u64;
-                        self.draw_data = Some(d);
-                    }
-                    Err(e) => self.fail(format!("upload: {e}")),
+                if let Err(e) = self.uploader.start(m) {
+                    self.fail(format!("upload: {e}"));
                 }
-                self.image_dirty = true;
             }
-            self.upload_ms = t.elapsed().as_secs_f64() * 1e3;
-            let rec = self.perf.current();
-            rec.leaf_ms = leaf_ms;
-            rec.upload_ms = self.upload_ms - leaf_ms;
+            self.perf.current().leaf_ms = t.elapsed().as_secs_f64() * 1e3;
             self.mesh_dirty = false;
         }
         if self.target.as_ref().map(Target::size) != Some((w, h)) {
@@ -646,7 +664,11 @@ impl ViewerApp {
         }
         self.last_cam = Some(cam);
         self.perf.current().tets = self.tets;
-        let drawn = !self.image_dirty && self.draw_data.is_some();
+        // drawn: the mesh refined so far, not one still being uploaded or waiting to be
+        let drawn = !self.image_dirty
+            && self.draw_data.is_some()
+            && !self.mesh_dirty
+            && !self.uploader.busy();
         if converged && drawn {
             // converged for the nodes held at this frame's start, which may be all of them
             self.settled = Some((self.frames, self.data.is_complete()));
@@ -1052,7 +1074,7 @@ impl eframe::App for ViewerApp {
                 self.request_shot(&ctx, p, false);
             }
         }
-        self.perf.end_frame();
+        self.perf.end_frame(Instant::now());
         self.publish();
         if self.closing && self.pending_shot.is_none() {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
@@ -1061,6 +1083,8 @@ impl eframe::App for ViewerApp {
             || self.step < self.steps.len()
             || self.args.frames.is_some()
             || self.pending_shot.is_some()
+            || self.uploader.busy()
+            || self.mesh_dirty
             || !matches!(self.server, ServerImage::None | ServerImage::Shown { .. })
             || self.settled.is_none_or(|(f, _)| f != self.frames);
         if busy {

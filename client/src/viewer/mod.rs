@@ -10,6 +10,7 @@
 //! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
 //! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
 //!   screenshots).
+//! - [`upload`]: leaf meshes uploaded on a thread of their own, off the frame loop.
 //! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
 //! - [`perf`]: frame times and input-to-frame latency, for `--json`.
 //! - [`app`]: the window's frame loop and side panel.
@@ -26,6 +27,7 @@ pub mod orbit;
 pub mod perf;
 pub mod script;
 pub mod tf_edit;
+pub mod upload;
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -134,7 +136,7 @@ pub struct ViewReport {
     pub fps: f64,
     /// Last frame's refinement time.
     pub refine_ms: f64,
-    /// Leaf mesh build and upload, the last time the mesh changed (not budgeted).
+    /// The last upload of the leaf mesh (on the upload thread, off the frame loop).
     pub upload_ms: f64,
     /// Last drawn frame's CPU side: sort, exit faces, submission (the GPU runs after).
     pub render_ms: f64,

@@ -26,12 +26,18 @@ pub struct FrameRecord {
     pub refine_ms: f64,
     /// The selector's time budget for this frame's mode (`None`: unlimited, or no refinement).
     pub refine_budget_ms: Option<f64>,
-    /// Building the leaf mesh (0 when it did not change).
+    /// Building the leaf mesh for an upload, in the frame (0 when none started).
     pub leaf_ms: f64,
-    /// Uploading it to the GPU (0 when it did not change).
+    /// An upload of the leaf mesh that finished by this frame (it runs on the upload thread,
+    /// beside the frames; 0 when none did).
     pub upload_ms: f64,
     /// The CPU side of the volume's draw (0 when the image did not change).
     pub render_ms: f64,
+    /// The frame's own work (from its start to the end of the viewer's part).
+    pub work_ms: f64,
+    /// From the end of the frame's work to the next frame's start: eframe painting the window,
+    /// the GPU finishing (the volume's draw included), presenting, and any idle wait.
+    pub paint_ms: f64,
     pub tets: u64,
     /// Inputs applied in this frame.
     pub inputs: u32,
@@ -84,6 +90,12 @@ pub struct PerfReport {
     pub upload_ms: Stats,
     /// The volume's draws (CPU side), the frames that drew.
     pub render_ms: Stats,
+    /// The viewer's own work per frame.
+    pub work_ms: Stats,
+    /// Paint, GPU and present per frame (see [`FrameRecord::paint_ms`]), and for the frames
+    /// that drew the volume.
+    pub paint_ms: Stats,
+    pub paint_drawn_ms: Stats,
     /// The frame whose refinement took longest.
     pub worst_refine: Option<FrameRecord>,
     /// The longest frame period.
@@ -109,6 +121,8 @@ pub struct Perf {
     presenting: Vec<Instant>,
     current: FrameRecord,
     frame_start: Option<Instant>,
+    /// When the last frame's work ended.
+    work_end: Option<Instant>,
 }
 
 impl Perf {
@@ -121,6 +135,9 @@ impl Perf {
         let period_ms = self
             .frame_start
             .map_or(f64::NAN, |s| now.duration_since(s).as_secs_f64() * 1e3);
+        if let (Some(end), Some(last)) = (self.work_end, self.frames.last_mut()) {
+            last.paint_ms = now.saturating_duration_since(end).as_secs_f64() * 1e3;
+        }
         self.frame_start = Some(now);
         self.current = FrameRecord {
             frame,
@@ -142,7 +159,11 @@ impl Perf {
     }
 
     /// The frame's work is submitted; its inputs are presented with it.
-    pub fn end_frame(&mut self) {
+    pub fn end_frame(&mut self, now: Instant) {
+        if let Some(s) = self.frame_start {
+            self.current.work_ms = now.saturating_duration_since(s).as_secs_f64() * 1e3;
+        }
+        self.work_end = Some(now);
         self.presenting.append(&mut self.applied);
         self.frames.push(self.current);
     }
@@ -167,6 +188,15 @@ impl Perf {
             leaf_ms: Stats::of(f.iter().filter(|r| r.leaf_ms > 0.0).map(|r| r.leaf_ms)),
             upload_ms: Stats::of(f.iter().filter(|r| r.upload_ms > 0.0).map(|r| r.upload_ms)),
             render_ms: Stats::of(f.iter().filter(|r| r.drew).map(|r| r.render_ms)),
+            work_ms: Stats::of(f.iter().map(|r| r.work_ms)),
+            // the last frame's paint is not seen
+            paint_ms: Stats::of(f[..f.len().saturating_sub(1)].iter().map(|r| r.paint_ms)),
+            paint_drawn_ms: Stats::of(
+                f[..f.len().saturating_sub(1)]
+                    .iter()
+                    .filter(|r| r.drew)
+                    .map(|r| r.paint_ms),
+            ),
             worst_refine: worst(|r| r.refine_ms).filter(|r| r.refine_ms > 0.0),
             worst_frame: worst(|r| r.period_ms),
             refine_over_budget: f
@@ -203,16 +233,16 @@ mod tests {
         p.begin_frame(1, ms(0), 0.0);
         p.current().refine_ms = 3.0;
         p.current().refine_budget_ms = Some(8.0);
-        p.end_frame();
+        p.end_frame(ms(4));
         // an input due at 5 ms is applied in the frame that starts at 20 ms, presented at 50
         p.begin_frame(2, ms(20), 0.02);
         p.input(ms(5));
         p.current().refine_ms = 12.0;
         p.current().refine_budget_ms = Some(8.0);
         p.current().drew = true;
-        p.end_frame();
+        p.end_frame(ms(30));
         p.begin_frame(3, ms(50), 0.05);
-        p.end_frame();
+        p.end_frame(ms(51));
         let r = p.report();
         assert_eq!(r.latency_ms.n, 1);
         assert!((r.latency_ms.max - 45.0).abs() < 1e-6, "{r:?}");
@@ -223,5 +253,12 @@ mod tests {
         assert_eq!(r.refine_over_budget, 1);
         assert_eq!(r.refine_ms.n, 2);
         assert_eq!(r.frames_drawn, 1);
+        // frame 1 worked 4 ms and painted 16; frame 2 worked 10 and painted 20
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-6;
+        assert!(near(p.frames()[0].work_ms, 4.0));
+        assert!(near(p.frames()[0].paint_ms, 16.0));
+        assert!(r.paint_ms.n == 2 && near(r.paint_ms.max, 20.0), "{r:?}");
+        assert!(r.paint_drawn_ms.n == 1 && near(r.paint_drawn_ms.max, 20.0));
+        assert!(near(r.work_ms.max, 10.0));
     }
 }

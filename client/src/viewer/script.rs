@@ -14,6 +14,9 @@
 //! ```
 //!
 //! A step waits until `at` seconds after the window opened (if given), then does its one action.
+//! A step that changes the view ends the frame's steps, except that inputs (camera, tolerance,
+//! mode, transfer function) already due by then are taken in the same frame, as a frame takes
+//! every mouse and key event queued since the last one.
 //! `wait` and `server_image` hold the script until their condition holds; `screenshot` until the
 //! image is written. Unknown keys and steps with no action or several are refused when the file
 //! is read, with the step's index.
@@ -90,6 +93,25 @@ pub enum Action {
     /// A screenshot of the whole window, panel included.
     WindowScreenshot(PathBuf),
     Quit,
+}
+
+impl Action {
+    /// What a user's mouse, keys or panel could do: a change of the camera, the tolerance, the
+    /// mode or the transfer function.
+    pub fn is_input(&self) -> bool {
+        matches!(
+            self,
+            Action::Camera(_)
+                | Action::Orbit(_)
+                | Action::Elevate(_)
+                | Action::Zoom(_)
+                | Action::Fly(_)
+                | Action::Reset
+                | Action::Tf(_)
+                | Action::Tol(_)
+                | Action::Mode(_)
+        )
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
