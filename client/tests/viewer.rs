@@ -503,6 +503,13 @@ fn view_json_carries_latency_and_the_worst_refinement_frame() {
     assert_eq!(p["frame_ms"]["n"].as_u64().unwrap(), frames - 1, "{p}");
     let drawn = p["frames_drawn"].as_u64().unwrap();
     assert!(drawn > 0 && drawn <= frames, "{p}");
+    // the FPS of the volume counts only the frames that drew it
+    let (fps, fps_drawn) = (f(&r["fps"]), f(&r["fps_drawn"]));
+    assert!(fps_drawn > 0.0, "{r}");
+    assert!(
+        (fps_drawn / fps - drawn as f64 / frames as f64).abs() < 1e-6,
+        "{fps_drawn} of {fps} FPS, {drawn} of {frames} frames"
+    );
     assert!(p["refine_over_budget"].as_u64().unwrap() <= frames, "{p}");
     let complete_s = f(&r["complete_s"]);
     assert!(complete_s > 0.0, "{r}");

@@ -97,7 +97,11 @@ pub struct ViewerApp {
     /// The last upload's time (on the upload thread).
     upload_ms: f64,
     render_ms: f64,
+    /// Frames per second of the volume's draws (frames that only repaint the panel or the same
+    /// image do not count), smoothed.
     fps: f64,
+    /// When the volume was last drawn.
+    last_draw: Option<Instant>,
     last_frame: Instant,
     started: Instant,
     frames: u64,
@@ -181,6 +185,7 @@ impl ViewerApp {
             upload_ms: 0.0,
             render_ms: 0.0,
             fps: 0.0,
+            last_draw: None,
             last_frame: Instant::now(),
             started: Instant::now(),
             frames: 0,
@@ -660,6 +665,17 @@ impl ViewerApp {
                 let rec = self.perf.current();
                 rec.render_ms = times.total_ms;
                 rec.drew = true;
+                let now = Instant::now();
+                if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
+                    if dt > 0.0 {
+                        self.fps = if self.fps == 0.0 {
+                            1.0 / dt
+                        } else {
+                            0.9 * self.fps + 0.1 / dt
+                        };
+                    }
+                }
+                self.last_draw = Some(now);
             }
         }
         self.last_cam = Some(cam);
@@ -796,7 +812,18 @@ impl ViewerApp {
             row("upload", format!("{:.2} ms", self.upload_ms));
             // the CPU side of a frame's draw: sort, exit faces, submission
             row("render (CPU)", format!("{:.2} ms", self.render_ms));
-            row("FPS", format!("{:.1}", self.fps));
+            // frames that drew the volume; none for a second: the view rests
+            let resting = self
+                .last_draw
+                .is_none_or(|l| l.elapsed() > Duration::from_secs(1));
+            row(
+                "FPS (volume)",
+                if resting {
+                    "at rest".into()
+                } else {
+                    format!("{:.1}", self.fps)
+                },
+            );
             row("view", format!("{}×{}", self.view_px.0, self.view_px.1));
         });
         let frac = if total > 0 {
@@ -925,6 +952,11 @@ impl ViewerApp {
             } else {
                 0.0
             },
+            fps_drawn: if elapsed > 0.0 {
+                self.perf.frames_drawn() as f64 / elapsed
+            } else {
+                0.0
+            },
             refine_ms: self.refine_ms,
             upload_ms: self.upload_ms,
             render_ms: self.render_ms,
@@ -990,13 +1022,6 @@ impl eframe::App for ViewerApp {
         );
         let dt = now.duration_since(self.last_frame).as_secs_f64();
         self.last_frame = now;
-        if dt > 0.0 {
-            self.fps = if self.fps == 0.0 {
-                1.0 / dt
-            } else {
-                0.9 * self.fps + 0.1 / dt
-            };
-        }
         while let Ok((path, rect, ppp, img)) = self.shot_rx.try_recv() {
             self.save_shot(path, rect, ppp, &img);
             self.pending_shot = None;

@@ -134,6 +134,9 @@ pub struct ViewReport {
     pub complete: bool,
     /// Frames per second over the run.
     pub fps: f64,
+    /// Frames that drew the volume per second over the run (the others repainted the panel or
+    /// showed the same image).
+    pub fps_drawn: f64,
     /// Last frame's refinement time.
     pub refine_ms: f64,
     /// The last upload of the leaf mesh (on the upload thread, off the frame loop).

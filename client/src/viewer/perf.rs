@@ -20,7 +20,8 @@ pub struct FrameRecord {
     pub frame: u64,
     /// Seconds since the window opened, at the frame's start.
     pub t_s: f64,
-    /// From the previous frame's start to this one's.
+    /// From this frame's start to the next one's (NaN for the last frame): its work and its
+    /// paint.
     pub period_ms: f64,
     pub ingest_ms: f64,
     pub refine_ms: f64,
@@ -80,7 +81,7 @@ impl Stats {
 pub struct PerfReport {
     /// Input to the frame presenting it.
     pub latency_ms: Stats,
-    /// Frame periods (start to start), the first frame left out.
+    /// Frame periods (start to the next start), the last frame left out.
     pub frame_ms: Stats,
     pub ingest_ms: Stats,
     /// Refinement, every frame that refined.
@@ -98,7 +99,7 @@ pub struct PerfReport {
     pub paint_drawn_ms: Stats,
     /// The frame whose refinement took longest.
     pub worst_refine: Option<FrameRecord>,
-    /// The longest frame period.
+    /// The frame with the longest period.
     pub worst_frame: Option<FrameRecord>,
     /// Frames whose refinement ran past its budget by more than [`OVER_BUDGET_SLACK_MS`].
     pub refine_over_budget: usize,
@@ -132,17 +133,17 @@ impl Perf {
             self.latencies_ms
                 .push(now.saturating_duration_since(t).as_secs_f64() * 1e3);
         }
-        let period_ms = self
-            .frame_start
-            .map_or(f64::NAN, |s| now.duration_since(s).as_secs_f64() * 1e3);
-        if let (Some(end), Some(last)) = (self.work_end, self.frames.last_mut()) {
+        if let (Some(start), Some(end), Some(last)) =
+            (self.frame_start, self.work_end, self.frames.last_mut())
+        {
             last.paint_ms = now.saturating_duration_since(end).as_secs_f64() * 1e3;
+            last.period_ms = now.saturating_duration_since(start).as_secs_f64() * 1e3;
         }
         self.frame_start = Some(now);
         self.current = FrameRecord {
             frame,
             t_s: since_start_s,
-            period_ms,
+            period_ms: f64::NAN,
             ..FrameRecord::default()
         };
     }
@@ -170,6 +171,11 @@ impl Perf {
 
     pub fn frames(&self) -> &[FrameRecord] {
         &self.frames
+    }
+
+    /// Frames that drew the volume.
+    pub fn frames_drawn(&self) -> u64 {
+        self.frames.iter().filter(|r| r.drew).count() as u64
     }
 
     pub fn report(&self) -> PerfReport {
@@ -249,7 +255,8 @@ mod tests {
         assert_eq!(r.frame_ms.n, 2);
         assert!((r.frame_ms.max - 30.0).abs() < 1e-6);
         assert_eq!(r.worst_refine.unwrap().frame, 2);
-        assert_eq!(r.worst_frame.unwrap().frame, 3);
+        // frame 2 ran from 20 to 50 ms
+        assert_eq!(r.worst_frame.unwrap().frame, 2);
         assert_eq!(r.refine_over_budget, 1);
         assert_eq!(r.refine_ms.n, 2);
         assert_eq!(r.frames_drawn, 1);
