@@ -208,7 +208,12 @@ pub fn edit(
         let n = edited.points.len();
         for (i, p) in edited.points.iter_mut().enumerate() {
             ui.add(egui::DragValue::new(&mut p.s).speed(0.005).range(0.0..=1.0));
-            ui.color_edit_button_rgb(&mut p.rgb);
+            // egui's colour button converts the colour for display and back, which moves it by
+            // a rounding error: take its value only when the user changed it
+            let mut rgb = p.rgb;
+            if ui.color_edit_button_rgb(&mut rgb).changed() {
+                p.rgb = rgb;
+            }
             ui.add(
                 egui::DragValue::new(&mut p.extinction)
                     .speed(0.05)
@@ -383,5 +388,32 @@ mod tests {
         let p = d.path().join("bad.json");
         assert!(save(&tf, &p).is_err());
         assert!(!p.exists());
+    }
+}
+
+#[cfg(test)]
+mod ui_tests {
+    use super::*;
+
+    /// The editor drawn with no input changes nothing (a widget that rounds a value on display
+    /// would mark every function edited).
+    #[test]
+    fn drawing_the_editor_changes_nothing() {
+        let ctx = egui::Context::default();
+        for name in ["default", "transparent", "opaque", "shells"] {
+            let mut tf = TransferFunction::preset(name).unwrap();
+            let before = tf.clone();
+            let mut state = CanvasState::default();
+            let mut changed = false;
+            for _ in 0..3 {
+                let mut out = ctx.run_ui(egui::RawInput::default(), |ui| {
+                    changed |= edit(ui, &mut tf, &[1, 5, 2], &mut state);
+                });
+                // no renderer takes the font textures here
+                out.textures_delta.clear();
+            }
+            assert!(!changed, "{name}: {before:?} became {tf:?}");
+            assert_eq!(tf, before, "{name}");
+        }
     }
 }
