@@ -108,6 +108,8 @@ pub fn drag_point(
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CanvasState {
     pub dragging: Option<(usize, f32)>,
+    /// Where the canvas was drawn last, in points.
+    pub rect: Option<Rect>,
 }
 
 /// Height of the canvas, in points.
@@ -124,6 +126,7 @@ fn canvas(
 ) -> bool {
     let width = ui.available_width().max(60.0);
     let (rect, resp) = ui.allocate_exact_size(egui::vec2(width, CANVAS_HEIGHT), Sense::drag());
+    state.rect = Some(rect);
     let scale = state.dragging.map_or_else(|| canvas_scale(tf), |(_, s)| s);
     let mut changed = false;
     if resp.drag_started() {
@@ -415,5 +418,65 @@ mod ui_tests {
             assert!(!changed, "{name}: {before:?} became {tf:?}");
             assert_eq!(tf, before, "{name}");
         }
+    }
+
+    /// A press on a point of the canvas and a drag up and to the right move that point: its
+    /// extinction and position grow by what the mouse moved, the others stay.
+    #[test]
+    fn dragging_on_the_canvas_moves_the_point() {
+        let ctx = egui::Context::default();
+        let mut tf = TransferFunction::preset("default").unwrap();
+        let before = tf.clone();
+        let mut state = CanvasState::default();
+        let frame = |events: Vec<egui::Event>, tf: &mut TransferFunction, st: &mut CanvasState| {
+            let input = egui::RawInput {
+                events,
+                screen_rect: Some(Rect::from_min_size(Pos2::ZERO, egui::vec2(400.0, 600.0))),
+                ..Default::default()
+            };
+            let mut changed = false;
+            let mut out = ctx.run_ui(input, |ui| changed |= edit(ui, tf, &[], st));
+            out.textures_delta.clear();
+            changed
+        };
+        frame(vec![], &mut tf, &mut state);
+        let rect = state.rect.expect("the canvas was drawn");
+        let scale = canvas_scale(&tf);
+        let i = 2;
+        let at = to_canvas(tf.points[i].s, tf.points[i].extinction, rect, scale);
+        let press = |pos, pressed| egui::Event::PointerButton {
+            pos,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: Default::default(),
+        };
+        let to = at + egui::vec2(10.0, -40.0);
+        let mut changed = frame(
+            vec![egui::Event::PointerMoved(at), press(at, true)],
+            &mut tf,
+            &mut state,
+        );
+        for k in 1..=4 {
+            let p = at + (to - at) * (k as f32 / 4.0);
+            changed |= frame(vec![egui::Event::PointerMoved(p)], &mut tf, &mut state);
+        }
+        changed |= frame(vec![press(to, false)], &mut tf, &mut state);
+        assert!(changed);
+        let (s, e) = from_canvas(to, rect, scale);
+        assert!(
+            (tf.points[i].s - s).abs() < 1e-4,
+            "{:?} vs {s}",
+            tf.points[i]
+        );
+        assert!(
+            (tf.points[i].extinction - e).abs() < 1e-3,
+            "{:?} vs {e}",
+            tf.points[i]
+        );
+        assert!(tf.points[i].extinction > before.points[i].extinction);
+        for k in (0..tf.points.len()).filter(|&k| k != i) {
+            assert_eq!(tf.points[k], before.points[k]);
+        }
+        assert_eq!(state.dragging, None, "released");
     }
 }
