@@ -794,3 +794,68 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
     );
     assert_eq!(r["errors"], serde_json::json!([]), "{r}");
 }
+
+/// Level of detail in motion: with draws slower than `--motion-ms` (here every draw, the target
+/// being 1 µs), the frames drawn while the camera moves draw a coarser mesh, and at rest the
+/// finest level returns and matches the offscreen render; with `--motion-ms 0` motion draws the
+/// finest level throughout.
+#[test]
+fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let mut steps = vec![serde_json::json!({"wait": "complete"})];
+    for _ in 0..25 {
+        steps.push(serde_json::json!({"orbit": 2}));
+        steps.push(serde_json::json!({"frames": 2}));
+    }
+    let run = |motion_ms: &str, shot: &Path| {
+        let mut steps = steps.clone();
+        steps.push(serde_json::json!({"wait": "complete"}));
+        steps.push(serde_json::json!({"screenshot": shot}));
+        steps.push(serde_json::json!({"quit": true}));
+        let sp = dir.join(format!("script-{motion_ms}.json"));
+        std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
+        let out = view_under_xvfb(
+            &[
+                s.to_str().unwrap(),
+                "--size",
+                "160x120",
+                "--tol",
+                "0",
+                "--motion-ms",
+                motion_ms,
+                "--script",
+                sp.to_str().unwrap(),
+                "--frames",
+                "20000",
+                "--json",
+            ],
+            240,
+        );
+        assert!(out.status.success(), "tetwave view failed: {}", out.status);
+        let r: serde_json::Value =
+            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+        eprintln!("--motion-ms {motion_ms}: {}", r["perf"]);
+        r
+    };
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("a number: {v}"));
+    let lod = run("0.001", &dir.join("lod.png"));
+    let p = &lod["perf"];
+    assert!(f(&p["max_tol_px"]) > 1.0, "{p}");
+    assert!(f(&lod["motion_factor"]) > 1.0, "{lod}");
+    assert!(p["tets_drawn_in_motion"]["n"].as_u64().unwrap() > 0, "{p}");
+    assert!(f(&p["tets_drawn_in_motion"]["p50"]) < 2560.0, "{p}");
+    // at rest: the finest level again, the same image as the offscreen render
+    assert_eq!(lod["tets"], 2560, "{lod}");
+    let az = f(&lod["azimuth"]);
+    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let psnr_rest = psnr(&png(&dir.join("lod.png")), &reference);
+    eprintln!("at rest after the motion vs offscreen: {psnr_rest:.2} dB");
+    assert!(psnr_rest >= 40.0, "{psnr_rest:.2} dB");
+
+    let off = run("0", &dir.join("off.png"));
+    let p = &off["perf"];
+    assert_eq!(f(&off["motion_factor"]), 1.0, "{off}");
+    assert_eq!(f(&p["max_tol_px"]), 0.0, "{p}");
+    assert_eq!(f(&p["tets_drawn_in_motion"]["p50"]), 2560.0, "{p}");
+}

@@ -9,6 +9,7 @@
 use super::data::Data;
 use super::fly::Fly;
 use super::gpu::{Blit, BlitCallback, Target};
+use super::motion::MotionLod;
 use super::orbit::Orbit;
 use super::perf::Perf;
 use super::script::{Action, Step, WaitFor};
@@ -131,6 +132,9 @@ pub struct ViewerApp {
     server_psnr_db: Option<f64>,
     errors: Vec<String>,
     perf: Perf,
+    motion: MotionLod,
+    /// The last frame drew the volume in motion: its period is the next observation.
+    observe_draw: bool,
     /// Seconds from the window's opening until every node was held.
     complete_s: Option<f64>,
     /// The current frame's start.
@@ -213,6 +217,8 @@ impl ViewerApp {
             server_psnr_db: None,
             errors: Vec::new(),
             perf: Perf::default(),
+            motion: MotionLod::new(args.motion_ms),
+            observe_draw: false,
             complete_s: None,
             frame_start: Instant::now(),
             gpu,
@@ -561,6 +567,19 @@ impl ViewerApp {
         let (w, h) = self.view_px;
         let cam = self.camera(w, h);
         self.moving = self.last_cam.is_some_and(|c| c != cam);
+        let now = Instant::now();
+        if self.moving {
+            self.motion.moved(now);
+        }
+        // complete mode draws everything that arrived, whatever the tolerance
+        let tol = match self.mode {
+            ViewMode::Complete => self.tol,
+            _ => self.motion.tolerance(self.tol, now),
+        };
+        let in_motion = self.motion.in_motion(now);
+        let rec = self.perf.current();
+        rec.tol_px = tol;
+        rec.in_motion = in_motion;
         if self.last_cam != Some(cam) {
             self.image_dirty = true;
             if matches!(self.server, ServerImage::Shown { .. }) {
@@ -571,7 +590,7 @@ impl ViewerApp {
         self.data.send_view(&cam, self.tol);
         let mut converged = true;
         if let Some(s) = self.data.session.as_mut() {
-            s.set_tolerance(Tolerance::Pixels(self.tol));
+            s.set_tolerance(Tolerance::Pixels(tol));
             let mode = match self.mode {
                 ViewMode::Interactive => Mode::Interactive,
                 ViewMode::Progressive if self.moving => Mode::Interactive,
@@ -665,6 +684,7 @@ impl ViewerApp {
                 let rec = self.perf.current();
                 rec.render_ms = times.total_ms;
                 rec.drew = true;
+                self.observe_draw = in_motion;
                 let now = Instant::now();
                 if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
                     if dt > 0.0 {
@@ -685,7 +705,8 @@ impl ViewerApp {
             && self.draw_data.is_some()
             && !self.mesh_dirty
             && !self.uploader.busy();
-        if converged && drawn {
+        // converged for the user's tolerance, not the coarser one of motion
+        if converged && drawn && tol == self.tol {
             // converged for the nodes held at this frame's start, which may be all of them
             self.settled = Some((self.frames, self.data.is_complete()));
         }
@@ -809,6 +830,11 @@ impl ViewerApp {
                 format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
             );
             row("refine", format!("{:.2} ms", self.refine_ms));
+            // the factor on the tolerance while the camera moves (1: the draws keep up)
+            row(
+                "tolerance in motion",
+                format!("× {:.2}", self.motion.factor()),
+            );
             row("upload", format!("{:.2} ms", self.upload_ms));
             // the CPU side of a frame's draw: sort, exit faces, submission
             row("render (CPU)", format!("{:.2} ms", self.render_ms));
@@ -962,6 +988,7 @@ impl ViewerApp {
             render_ms: self.render_ms,
             view: [self.view_px.0, self.view_px.1],
             reconnects: self.data.reconnects(),
+            motion_factor: self.motion.factor(),
             fly: self.fly.is_some(),
             eye: self.camera(1, 1).eye.to_array(),
             azimuth: self.orbit.azimuth,
@@ -1020,6 +1047,11 @@ impl eframe::App for ViewerApp {
             now,
             now.duration_since(self.started).as_secs_f64(),
         );
+        if std::mem::take(&mut self.observe_draw) {
+            if let Some(last) = self.perf.frames().last() {
+                self.motion.observe(last.period_ms);
+            }
+        }
         let dt = now.duration_since(self.last_frame).as_secs_f64();
         self.last_frame = now;
         while let Ok((path, rect, ppp, img)) = self.shot_rx.try_recv() {
@@ -1110,6 +1142,7 @@ impl eframe::App for ViewerApp {
             || self.pending_shot.is_some()
             || self.uploader.busy()
             || self.mesh_dirty
+            || self.motion.in_motion(Instant::now())
             || !matches!(self.server, ServerImage::None | ServerImage::Shown { .. })
             || self.settled.is_none_or(|(f, _)| f != self.frames);
         if busy {

@@ -12,6 +12,7 @@
 //!   screenshots).
 //! - [`upload`]: leaf meshes uploaded on a thread of their own, off the frame loop.
 //! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
+//! - [`motion`]: a coarser tolerance while the camera moves, when the draws are slow.
 //! - [`perf`]: frame times and input-to-frame latency, for `--json`.
 //! - [`app`]: the window's frame loop and side panel.
 //!
@@ -23,6 +24,7 @@ pub mod app;
 pub mod data;
 pub mod fly;
 pub mod gpu;
+pub mod motion;
 pub mod orbit;
 pub mod perf;
 pub mod script;
@@ -83,6 +85,10 @@ pub struct ViewArgs {
     pub tol: f64,
     #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
     pub mode: ViewMode,
+    /// Frame time (ms) aimed at while the camera moves: frames that draw slower raise the
+    /// tolerance in motion (a coarser mesh) until they keep up; at rest `--tol` returns. 0: off.
+    #[arg(long, default_value_t = 60.0, value_parser = motion_ms)]
+    pub motion_ms: f64,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,
     /// A JSON script of timestamped steps (see `viewer::script`).
@@ -103,6 +109,13 @@ pub struct ViewArgs {
     /// Refuse a stream whose hierarchy has more detail nodes than this (as `tetwave stream`).
     #[arg(long, default_value_t = crate::stream::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_nodes: u64,
+}
+
+fn motion_ms(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=10_000.0).contains(&v) => Ok(v),
+        _ => Err(format!("expected milliseconds within 0..=10000, got {s:?}")),
+    }
 }
 
 fn tol_px(s: &str) -> Result<f64, String> {
@@ -131,6 +144,8 @@ pub struct ViewReport {
     pub bytes_received: u64,
     /// Times the stream's connection was lost and made again.
     pub reconnects: u64,
+    /// The factor on the tolerance in motion at the end (see `viewer::motion`).
+    pub motion_factor: f64,
     pub complete: bool,
     /// Frames per second over the run.
     pub fps: f64,

@@ -40,6 +40,10 @@ pub struct FrameRecord {
     /// the GPU finishing (the volume's draw included), presenting, and any idle wait.
     pub paint_ms: f64,
     pub tets: u64,
+    /// The tolerance refined with (the user's, or a coarser one in motion), pixels.
+    pub tol_px: f64,
+    /// The camera moved within [`super::motion::HOLD`].
+    pub in_motion: bool,
     /// Inputs applied in this frame.
     pub inputs: u32,
     pub mode: ViewMode,
@@ -105,6 +109,11 @@ pub struct PerfReport {
     pub refine_over_budget: usize,
     /// Frames that drew the volume, of all frames.
     pub frames_drawn: u64,
+    /// Tets drawn by the frames that drew in motion, and at rest.
+    pub tets_drawn_in_motion: Stats,
+    pub tets_drawn_at_rest: Stats,
+    /// The largest tolerance refined with, pixels.
+    pub max_tol_px: f64,
 }
 
 /// A selector checks its clock between operations, so a frame overruns its budget by up to one
@@ -213,6 +222,17 @@ impl Perf {
                 })
                 .count(),
             frames_drawn: f.iter().filter(|r| r.drew).count() as u64,
+            tets_drawn_in_motion: Stats::of(
+                f.iter()
+                    .filter(|r| r.drew && r.in_motion)
+                    .map(|r| r.tets as f64),
+            ),
+            tets_drawn_at_rest: Stats::of(
+                f.iter()
+                    .filter(|r| r.drew && !r.in_motion)
+                    .map(|r| r.tets as f64),
+            ),
+            max_tol_px: f.iter().map(|r| r.tol_px).fold(0.0, f64::max),
         }
     }
 }
