@@ -135,6 +135,11 @@ pub struct ViewerApp {
     motion: MotionLod,
     /// The last frame drew the volume in motion: its period is the next observation.
     observe_draw: bool,
+    /// The tolerances of the mesh being uploaded and of the one drawn: a draw in motion tells
+    /// about the factor only when its mesh was refined with it (a mesh still on its way would
+    /// make the factor overshoot).
+    upload_tol: f64,
+    drawn_tol: f64,
     /// Seconds from the window's opening until every node was held.
     complete_s: Option<f64>,
     /// The current frame's start.
@@ -219,6 +224,8 @@ impl ViewerApp {
             perf: Perf::default(),
             motion: MotionLod::new(args.motion_ms),
             observe_draw: false,
+            upload_tol: f64::NAN,
+            drawn_tol: f64::NAN,
             complete_s: None,
             frame_start: Instant::now(),
             gpu,
@@ -624,8 +631,13 @@ impl ViewerApp {
         if self.data.take_changed() {
             self.mesh_dirty = true;
         }
+        // nothing changed and nothing on its way: the mesh drawn is the one for this tolerance
+        if converged && !self.mesh_dirty && !self.uploader.busy() {
+            self.drawn_tol = tol;
+        }
         // the mesh uploaded off the frame loop replaces the one drawn so far
         if let Some((res, ms)) = self.uploader.take() {
+            self.drawn_tol = self.upload_tol;
             match res {
                 Ok(d) => {
                     self.tets = d.tet_count as u64;
@@ -651,6 +663,7 @@ impl ViewerApp {
                     [m.value_range.0, m.value_range.1],
                     HISTOGRAM_BINS,
                 );
+                self.upload_tol = tol;
                 if let Err(e) = self.uploader.start(m) {
                     self.fail(format!("upload: {e}"));
                 }
@@ -684,7 +697,7 @@ impl ViewerApp {
                 let rec = self.perf.current();
                 rec.render_ms = times.total_ms;
                 rec.drew = true;
-                self.observe_draw = in_motion;
+                self.observe_draw = in_motion && self.drawn_tol == tol;
                 let now = Instant::now();
                 if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
                     if dt > 0.0 {
