@@ -116,6 +116,12 @@ impl Session {
         &self.sel.params
     }
 
+    /// Sets the budget of [`Mode::Interactive`] frames (it changes no criterion: the mesh wanted
+    /// stays the same, only how much of the way there a frame goes).
+    pub fn set_interactive_budget(&mut self, budget: crate::select::Budget) {
+        self.sel.params.interactive = budget;
+    }
+
     pub fn base(&self) -> &BaseMesh {
         &self.base
     }

@@ -140,6 +140,8 @@ pub struct ViewerApp {
     /// make the factor overshoot).
     upload_tol: f64,
     drawn_tol: f64,
+    /// The selector's own interactive budget (before motion's changes).
+    interactive_budget: Option<crate::select::Budget>,
     /// Seconds from the window's opening until every node was held.
     complete_s: Option<f64>,
     /// The current frame's start.
@@ -226,6 +228,7 @@ impl ViewerApp {
             observe_draw: false,
             upload_tol: f64::NAN,
             drawn_tol: f64::NAN,
+            interactive_budget: None,
             complete_s: None,
             frame_start: Instant::now(),
             gpu,
@@ -598,6 +601,13 @@ impl ViewerApp {
         let mut converged = true;
         if let Some(s) = self.data.session.as_mut() {
             s.set_tolerance(Tolerance::Pixels(tol));
+            let base = *self
+                .interactive_budget
+                .get_or_insert_with(|| s.params().interactive);
+            if let Some(t) = base.max_time {
+                let ms = self.motion.refine_budget_ms(t.as_secs_f64() * 1e3, now);
+                s.set_interactive_budget(crate::select::Budget::ms(ms));
+            }
             let mode = match self.mode {
                 ViewMode::Interactive => Mode::Interactive,
                 ViewMode::Progressive if self.moving => Mode::Interactive,

@@ -86,8 +86,10 @@ pub struct ViewArgs {
     #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
     pub mode: ViewMode,
     /// Frame time (ms) aimed at while the camera moves: frames that draw slower raise the
-    /// tolerance in motion (a coarser mesh) until they keep up; at rest `--tol` returns. 0: off.
-    #[arg(long, default_value_t = 60.0, value_parser = motion_ms)]
+    /// tolerance in motion (a coarser mesh) until they keep up; at rest `--tol` returns. 0: off
+    /// (the default: at 10⁵ tets the selector coarsens over more frames than a motion lasts on
+    /// a CPU rasterizer, see docs/benchmarks.md, "Viewer").
+    #[arg(long, default_value_t = 0.0, value_parser = motion_ms)]
     pub motion_ms: f64,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,

@@ -3,6 +3,11 @@
 //! follows the measured period of the frames drawn in motion toward a target; at rest (no camera
 //! change for [`HOLD`]) the user's tolerance returns, and with it the progressive refinement.
 //! The factor is kept between motions: it is what this machine needs for this mesh and view.
+//!
+//! Coarsening takes merges, and a frame's refinement has a budget (8 ms when the camera moves):
+//! with frames of a second, a budget of milliseconds would take the whole motion to coarsen. While
+//! the factor is raised, a moving frame's refinement may take a tenth of the last slow period
+//! (at most [`MAX_REFINE_MS`]): next to that draw it is little, and it gets the coarser mesh.
 
 use std::time::{Duration, Instant};
 
@@ -13,6 +18,9 @@ pub const HOLD: Duration = Duration::from_millis(400);
 /// The largest factor on the tolerance.
 pub const MAX_FACTOR: f64 = 64.0;
 
+/// The most refinement time a moving frame gets while the factor is raised.
+pub const MAX_REFINE_MS: f64 = 50.0;
+
 /// A tolerance of 0 (refine everything) is scaled from this many pixels.
 const MIN_TOL_PX: f64 = 0.5;
 
@@ -22,6 +30,8 @@ pub struct MotionLod {
     pub target_ms: f64,
     factor: f64,
     last_motion: Option<Instant>,
+    /// The last period observed.
+    last_period_ms: f64,
 }
 
 impl MotionLod {
@@ -30,6 +40,7 @@ impl MotionLod {
             target_ms,
             factor: 1.0,
             last_motion: None,
+            last_period_ms: 0.0,
         }
     }
 
@@ -55,11 +66,22 @@ impl MotionLod {
         if self.target_ms <= 0.0 || !period_ms.is_finite() {
             return;
         }
+        self.last_period_ms = period_ms;
         let r = period_ms / self.target_ms;
         if r > 1.2 {
             self.factor = (self.factor * r.sqrt().min(2.0)).min(MAX_FACTOR);
         } else if r < 0.5 {
             self.factor = (self.factor / 1.2).max(1.0);
+        }
+    }
+
+    /// The refinement budget of a moving frame, from the selector's `base_ms`: more while the
+    /// factor is raised (see the module's notes).
+    pub fn refine_budget_ms(&self, base_ms: f64, now: Instant) -> f64 {
+        if self.target_ms > 0.0 && self.factor > 1.0 && self.in_motion(now) {
+            (0.1 * self.last_period_ms).clamp(base_ms, MAX_REFINE_MS.max(base_ms))
+        } else {
+            base_ms
         }
     }
 
@@ -100,6 +122,14 @@ mod tests {
             m.observe(10.0);
         }
         assert_eq!(m.factor(), 1.0);
+        m.observe(400.0);
+        // a slow frame in motion: a tenth of it to refine, within 8..=50 ms
+        assert_eq!(m.refine_budget_ms(8.0, t0), 40.0);
+        m.observe(2000.0);
+        assert_eq!(m.refine_budget_ms(8.0, t0), MAX_REFINE_MS);
+        m.observe(30.0);
+        assert_eq!(m.refine_budget_ms(8.0, t0), 8.0);
+        assert_eq!(m.refine_budget_ms(8.0, t0 + HOLD), 8.0);
         m.observe(400.0);
         // at rest the user's tolerance, whatever the factor
         assert!(m.tolerance(2.0, t0 + HOLD / 2) > 2.0);
