@@ -768,26 +768,8 @@ impl ViewerApp {
                 (pan.y * ppp) as f64 * units_per_px,
             );
             if keys {
-                use egui::Key;
-                let [fwd, back, left, right, down, up, fast] = ctx.input(|i| {
-                    [
-                        i.key_down(Key::W) || i.key_down(Key::ArrowUp),
-                        i.key_down(Key::S) || i.key_down(Key::ArrowDown),
-                        i.key_down(Key::A) || i.key_down(Key::ArrowLeft),
-                        i.key_down(Key::D) || i.key_down(Key::ArrowRight),
-                        i.key_down(Key::Q),
-                        i.key_down(Key::E),
-                        i.modifiers.shift,
-                    ]
-                });
-                let axis = |p: bool, n: bool| f64::from(u8::from(p)) - f64::from(u8::from(n));
-                // a long frame (or the first) moves at most a tenth of a second's worth
-                let step = FLY_SPEED * diag * dt.min(0.1) * if fast { 4.0 } else { 1.0 };
-                f.translate(
-                    axis(fwd, back) * step,
-                    axis(right, left) * step,
-                    axis(up, down) * step,
-                );
+                let [fwd, right, up] = super::fly::held_move(ctx, dt, FLY_SPEED * diag);
+                f.translate(fwd, right, up);
             }
         } else {
             if drag != egui::Vec2::ZERO {

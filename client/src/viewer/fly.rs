@@ -7,6 +7,7 @@
 //! behind the eye (their vertices have `w < 0` in clip space).
 
 use super::orbit::{Orbit, MAX_ELEVATION};
+use eframe::egui;
 use glam::DVec3;
 use tetwave_protocol::view::Camera;
 
@@ -82,6 +83,32 @@ impl Fly {
     }
 }
 
+/// The move the keys held ask for in a frame of `dt` seconds at `speed` units a second: `W`/`S`
+/// or up/down forward and back, `A`/`D` or left/right to the sides, `Q`/`E` down and up, shift
+/// 4× faster. A long frame (or the first) moves at most a tenth of a second's worth. Returns
+/// `[forward, right, up]`, as [`Fly::translate`] takes them.
+pub fn held_move(ctx: &egui::Context, dt: f64, speed: f64) -> [f64; 3] {
+    use egui::Key;
+    let [fwd, back, left, right, down, up, fast] = ctx.input(|i| {
+        [
+            i.key_down(Key::W) || i.key_down(Key::ArrowUp),
+            i.key_down(Key::S) || i.key_down(Key::ArrowDown),
+            i.key_down(Key::A) || i.key_down(Key::ArrowLeft),
+            i.key_down(Key::D) || i.key_down(Key::ArrowRight),
+            i.key_down(Key::Q),
+            i.key_down(Key::E),
+            i.modifiers.shift,
+        ]
+    });
+    let axis = |p: bool, n: bool| f64::from(u8::from(p)) - f64::from(u8::from(n));
+    let step = speed * dt.clamp(0.0, 0.1) * if fast { 4.0 } else { 1.0 };
+    [
+        axis(fwd, back) * step,
+        axis(right, left) * step,
+        axis(up, down) * step,
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,5 +159,46 @@ mod tests {
         assert_eq!(f.pitch, MAX_ELEVATION);
         f.translate(f64::NAN, 0.0, 0.0);
         assert!(f.eye.is_finite());
+    }
+
+    /// Keys held down move the eye: W forward, A+D cancel, shift 4×, E up, a long frame capped.
+    #[test]
+    fn held_keys_move_the_eye() {
+        use egui::{Event, Key, Modifiers};
+        let ctx = egui::Context::default();
+        let key = |key, pressed| Event::Key {
+            key,
+            physical_key: None,
+            pressed,
+            repeat: false,
+            modifiers: Modifiers::NONE,
+        };
+        let moves = |mut events: Vec<Event>, modifiers: Modifiers, dt: f64| {
+            let mut m = [0.0; 3];
+            events.insert(0, Event::ModifiersChanged(modifiers));
+            let input = egui::RawInput {
+                events,
+                ..Default::default()
+            };
+            let mut out = ctx.run_ui(input, |ui| m = held_move(ui.ctx(), dt, 2.0));
+            out.textures_delta.clear();
+            m
+        };
+        let none = Modifiers::NONE;
+        assert_eq!(moves(vec![], none, 0.05), [0.0; 3]);
+        assert_eq!(moves(vec![key(Key::W, true)], none, 0.05), [0.1, 0.0, 0.0]);
+        // W still held in the next frame; A and D together cancel
+        assert_eq!(
+            moves(vec![key(Key::A, true), key(Key::D, true)], none, 0.05),
+            [0.1, 0.0, 0.0]
+        );
+        // released; E with shift over a 5 s frame: 4 × 2 units/s × 0.1 s
+        let released = vec![
+            key(Key::W, false),
+            key(Key::A, false),
+            key(Key::D, false),
+            key(Key::E, true),
+        ];
+        assert_eq!(moves(released, Modifiers::SHIFT, 5.0), [0.0, 0.0, 0.8]);
     }
 }
