@@ -780,6 +780,9 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
     assert_eq!(r["complete"], true, "{r}");
     assert_eq!(r["nodes"], r["nodes_total"], "{r}");
     assert!(r["reconnects"].as_u64().unwrap() >= 1, "{r}");
+    // the outage lasted 1.5 s: the panel said so in the frames meanwhile
+    assert!(r["frames_reconnecting"].as_u64().unwrap() >= 1, "{r}");
+    assert_eq!(fresh["frames_reconnecting"], 0, "{fresh}");
     // the stream went on after the restart (it had not finished before the cut)
     assert!(after > 1000, "{after} bytes after the restart");
     // resumed: the new connection's Hello listed what was held, so it came once, not twice

@@ -133,6 +133,8 @@ pub struct ViewerApp {
     errors: Vec<String>,
     perf: Perf,
     motion: MotionLod,
+    /// Frames in which the panel said the stream was reconnecting.
+    frames_reconnecting: u64,
     /// The last frame drew the volume in motion: its period is the next observation.
     observe_draw: bool,
     /// The tolerances of the mesh being uploaded and of the one drawn: a draw in motion tells
@@ -225,6 +227,7 @@ impl ViewerApp {
             errors: Vec::new(),
             perf: Perf::default(),
             motion: MotionLod::new(args.motion_ms),
+            frames_reconnecting: 0,
             observe_draw: false,
             upload_tol: f64::NAN,
             drawn_tol: f64::NAN,
@@ -951,6 +954,7 @@ impl ViewerApp {
             ui.colored_label(Color32::LIGHT_RED, format!("stream: {e}"));
         } else if self.data.reconnecting() {
             ui.colored_label(Color32::YELLOW, "connection lost: reconnecting…");
+            self.frames_reconnecting += 1;
         }
         if !self.status.is_empty() {
             ui.label(egui::RichText::new(&self.status).small());
@@ -993,6 +997,7 @@ impl ViewerApp {
             render_ms: self.render_ms,
             view: [self.view_px.0, self.view_px.1],
             reconnects: self.data.reconnects(),
+            frames_reconnecting: self.frames_reconnecting,
             motion_factor: self.motion.factor(),
             fly: self.fly.is_some(),
             eye: self.camera(1, 1).eye.to_array(),

@@ -146,6 +146,8 @@ pub struct ViewReport {
     pub bytes_received: u64,
     /// Times the stream's connection was lost and made again.
     pub reconnects: u64,
+    /// Frames whose panel said the stream was reconnecting.
+    pub frames_reconnecting: u64,
     /// The factor on the tolerance in motion at the end (see `viewer::motion`).
     pub motion_factor: f64,
     pub complete: bool,
