@@ -798,10 +798,10 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
     assert_eq!(r["errors"], serde_json::json!([]), "{r}");
 }
 
-/// Level of detail in motion: with draws slower than `--motion-ms` (here every draw, the target
-/// being 1 µs), the frames drawn while the camera moves draw a coarser mesh, and at rest the
-/// finest level returns and matches the offscreen render; with `--motion-ms 0` motion draws the
-/// finest level throughout.
+/// Level of detail in motion (`--motion-lod`): with draws slower than `--motion-ms` (here every
+/// draw, the target being 1 µs), the frames drawn while the camera moves draw a coarser mesh,
+/// and at rest the finest level returns and matches the offscreen render; with `--motion-ms 0`
+/// motion draws the finest level throughout.
 #[test]
 fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
     let (d, s) = store(3);
@@ -825,6 +825,7 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
                 "160x120",
                 "--tol",
                 "0",
+                "--motion-lod",
                 "--motion-ms",
                 motion_ms,
                 "--script",
@@ -861,4 +862,75 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
     assert_eq!(f(&off["motion_factor"]), 1.0, "{off}");
     assert_eq!(f(&p["max_tol_px"]), 0.0, "{p}");
     assert_eq!(f(&p["tets_drawn_in_motion"]["p50"]), 2560.0, "{p}");
+}
+
+/// `--motion-scale 2` with draws slower than `--motion-ms` (every draw, at 1 µs): the frames
+/// drawn while the camera moves use half the view's width and height, and at rest the view is
+/// drawn whole again and matches the offscreen render. With `--motion-ms 0` none is scaled.
+#[test]
+fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let shot = dir.join("rest.png");
+    let mut steps = vec![serde_json::json!({"wait": "complete"})];
+    for _ in 0..10 {
+        steps.push(serde_json::json!({"orbit": 3}));
+        steps.push(serde_json::json!({"frames": 2}));
+    }
+    steps.push(serde_json::json!({"wait": "complete"}));
+    steps.push(serde_json::json!({"screenshot": shot}));
+    steps.push(serde_json::json!({"quit": true}));
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-scale",
+            "2",
+            "--motion-ms",
+            "0.001",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "20000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    let p = &r["perf"];
+    eprintln!("{p}");
+    assert!(p["frames_drawn_scaled"].as_u64().unwrap() >= 5, "{p}");
+    let img = png(&shot);
+    assert_eq!((img.width, img.height), (160, 120));
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let at_rest = psnr(&img, &reference);
+    eprintln!("at rest after a half-size motion vs offscreen: {at_rest:.2} dB");
+    assert!(at_rest >= 40.0, "{at_rest:.2} dB");
+
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-ms",
+            "0",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "20000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    assert_eq!(r["perf"]["frames_drawn_scaled"], 0, "{r}");
+    assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }

@@ -133,6 +133,8 @@ pub struct ViewerApp {
     errors: Vec<String>,
     perf: Perf,
     motion: MotionLod,
+    /// The period of the last frame that drew the whole view (decides `--motion-scale`).
+    full_draw_ms: f64,
     /// Frames in which the panel said the stream was reconnecting.
     frames_reconnecting: u64,
     /// The last frame drew the volume in motion: its period is the next observation.
@@ -226,7 +228,8 @@ impl ViewerApp {
             server_psnr_db: None,
             errors: Vec::new(),
             perf: Perf::default(),
-            motion: MotionLod::new(args.motion_ms),
+            motion: MotionLod::new(if args.motion_lod { args.motion_ms } else { 0.0 }),
+            full_draw_ms: 0.0,
             frames_reconnecting: 0,
             observe_draw: false,
             upload_tol: f64::NAN,
@@ -408,6 +411,10 @@ impl ViewerApp {
         }
         // the client's own render of this camera, for the comparison
         let client = match &self.target {
+            Some(t) if t.size() != (cam.width, cam.height) => {
+                self.status = "server image dropped: the view was drawn with fewer pixels".into();
+                return;
+            }
             Some(t) => self.renderer.read_texture(&self.gpu, &t.texture),
             None => {
                 self.status = "server image dropped: nothing drawn yet".into();
@@ -684,22 +691,32 @@ impl ViewerApp {
             self.perf.current().leaf_ms = t.elapsed().as_secs_f64() * 1e3;
             self.mesh_dirty = false;
         }
-        if self.target.as_ref().map(Target::size) != Some((w, h)) {
+        // in motion the volume may be drawn with fewer pixels (the copy into the view scales it
+        // up); at rest always with the view's own
+        let slow = self.args.motion_ms > 0.0 && self.full_draw_ms > self.args.motion_ms;
+        let scale = if in_motion && slow {
+            self.args.motion_scale.max(1)
+        } else {
+            1
+        };
+        let (dw, dh) = ((w / scale).max(1), (h / scale).max(1));
+        if self.target.as_ref().map(Target::size) != Some((dw, dh)) {
             self.target = Some(Target::new(
                 &self.gpu,
                 &self.blit,
                 self.renderer.format(),
-                w,
-                h,
+                dw,
+                dh,
             ));
             self.image_dirty = true;
         }
+        let draw_cam = if scale == 1 { cam } else { self.camera(dw, dh) };
         if self.image_dirty {
             if let (Some(d), Some(t)) = (&self.draw_data, &self.target) {
                 let times = self.renderer.draw_into(
                     &self.gpu,
                     d,
-                    &cam,
+                    &draw_cam,
                     &self.tf,
                     VisibilityOrder::Centroid,
                     &t.view,
@@ -710,6 +727,7 @@ impl ViewerApp {
                 let rec = self.perf.current();
                 rec.render_ms = times.total_ms;
                 rec.drew = true;
+                rec.draw_scale = scale;
                 self.observe_draw = in_motion && self.drawn_tol == tol;
                 let now = Instant::now();
                 if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
@@ -726,8 +744,10 @@ impl ViewerApp {
         }
         self.last_cam = Some(cam);
         self.perf.current().tets = self.tets;
-        // drawn: the mesh refined so far, not one still being uploaded or waiting to be
+        // drawn: the mesh refined so far, not one still being uploaded or waiting to be, with
+        // all the view's pixels
         let drawn = !self.image_dirty
+            && scale == 1
             && self.draw_data.is_some()
             && !self.mesh_dirty
             && !self.uploader.busy();
@@ -1057,6 +1077,11 @@ impl eframe::App for ViewerApp {
             now,
             now.duration_since(self.started).as_secs_f64(),
         );
+        if let Some(last) = self.perf.frames().last() {
+            if last.drew && last.draw_scale == 1 && last.period_ms.is_finite() {
+                self.full_draw_ms = last.period_ms;
+            }
+        }
         if std::mem::take(&mut self.observe_draw) {
             if let Some(last) = self.perf.frames().last() {
                 self.motion.observe(last.period_ms);

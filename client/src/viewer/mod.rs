@@ -85,12 +85,19 @@ pub struct ViewArgs {
     pub tol: f64,
     #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
     pub mode: ViewMode,
-    /// Frame time (ms) aimed at while the camera moves: frames that draw slower raise the
-    /// tolerance in motion (a coarser mesh) until they keep up; at rest `--tol` returns. 0: off
-    /// (the default: at 10⁵ tets the selector coarsens over more frames than a motion lasts on
-    /// a CPU rasterizer, see docs/benchmarks.md, "Viewer").
-    #[arg(long, default_value_t = 0.0, value_parser = motion_ms)]
+    /// Frame time (ms) aimed at while the camera moves: when a frame that drew the whole view
+    /// took longer, frames in motion draw with 1/`--motion-scale` of its width and height
+    /// (scaled up into the view); at rest the view is drawn whole. 0: never.
+    #[arg(long, default_value_t = 60.0, value_parser = motion_ms)]
     pub motion_ms: f64,
+    /// The divisor of the view's width and height for slow draws in motion (1: full size).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub motion_scale: u32,
+    /// Also raise the tolerance in motion while frames draw slower than `--motion-ms` (a
+    /// coarser mesh; off by default: at 10⁵ tets the selector coarsens over more frames than a
+    /// motion lasts on a CPU rasterizer, see docs/benchmarks.md, "Viewer").
+    #[arg(long)]
+    pub motion_lod: bool,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,
     /// A JSON script of timestamped steps (see `viewer::script`).

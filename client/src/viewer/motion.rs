@@ -1,5 +1,7 @@
-//! Level of detail in motion: while the camera moves, a slow draw coarsens the mesh rather than
-//! delaying the frames that answer the mouse. The tolerance is multiplied by a factor that
+//! Level of detail in motion (`--motion-lod`): while the camera moves, a slow draw coarsens the
+//! mesh rather than delaying the frames that answer the mouse. (The viewer's other, default
+//! remedy draws fewer pixels in motion, `--motion-scale`; this one also tracks when the camera
+//! last moved for it.) The tolerance is multiplied by a factor that
 //! follows the measured period of the frames drawn in motion toward a target; at rest (no camera
 //! change for [`HOLD`]) the user's tolerance returns, and with it the progressive refinement.
 //! The factor is kept between motions: it is what this machine needs for this mesh and view.

@@ -44,6 +44,8 @@ pub struct FrameRecord {
     pub tol_px: f64,
     /// The camera moved within [`super::motion::HOLD`].
     pub in_motion: bool,
+    /// The volume was drawn with 1/`draw_scale` of the view's width and height.
+    pub draw_scale: u32,
     /// Inputs applied in this frame.
     pub inputs: u32,
     pub mode: ViewMode,
@@ -114,6 +116,8 @@ pub struct PerfReport {
     pub tets_drawn_at_rest: Stats,
     /// The largest tolerance refined with, pixels.
     pub max_tol_px: f64,
+    /// Frames that drew the volume with fewer pixels than the view's (`--motion-scale`).
+    pub frames_drawn_scaled: u64,
 }
 
 /// A selector checks its clock between operations, so a frame overruns its budget by up to one
@@ -233,6 +237,7 @@ impl Perf {
                     .map(|r| r.tets as f64),
             ),
             max_tol_px: f.iter().map(|r| r.tol_px).fold(0.0, f64::max),
+            frames_drawn_scaled: f.iter().filter(|r| r.drew && r.draw_scale > 1).count() as u64,
         }
     }
 }
