@@ -858,11 +858,13 @@ impl ViewerApp {
                 format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
             );
             row("refine", format!("{:.2} ms", self.refine_ms));
-            // the factor on the tolerance while the camera moves (1: the draws keep up)
-            row(
-                "tolerance in motion",
-                format!("× {:.2}", self.motion.factor()),
-            );
+            if self.args.motion_lod {
+                // the factor on the tolerance while the camera moves (1: the draws keep up)
+                row(
+                    "tolerance in motion",
+                    format!("× {:.2}", self.motion.factor()),
+                );
+            }
             row("upload", format!("{:.2} ms", self.upload_ms));
             // the CPU side of a frame's draw: sort, exit faces, submission
             row("render (CPU)", format!("{:.2} ms", self.render_ms));
