@@ -111,6 +111,17 @@ impl Session {
         self.sel.is_converged()
     }
 
+    /// The selector's parameters (tolerance, budgets).
+    pub fn params(&self) -> &SelectParams {
+        &self.sel.params
+    }
+
+    /// Sets the budget of [`Mode::Interactive`] frames (it changes no criterion: the mesh wanted
+    /// stays the same, only how much of the way there a frame goes).
+    pub fn set_interactive_budget(&mut self, budget: crate::select::Budget) {
+        self.sel.params.interactive = budget;
+    }
+
     pub fn base(&self) -> &BaseMesh {
         &self.base
     }

@@ -15,7 +15,7 @@ use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::block::BlockCoder;
@@ -294,6 +294,8 @@ pub struct Faults {
 pub(crate) struct Net {
     pub(crate) bytes: Arc<AtomicU64>,
     pub(crate) reconnects: Arc<AtomicU64>,
+    /// A connection is open (its `Hello` sent); false before the first and while reconnecting.
+    pub(crate) connected: Arc<AtomicBool>,
     /// Node ids received over the wire (for resume), whether or not applied yet.
     pub(crate) received: Arc<Mutex<BTreeSet<TetId>>>,
 }
@@ -303,6 +305,7 @@ impl Net {
         Net {
             bytes: Arc::new(AtomicU64::new(0)),
             reconnects: Arc::new(AtomicU64::new(0)),
+            connected: Arc::new(AtomicBool::new(false)),
             received: Arc::new(Mutex::new(BTreeSet::new())),
         }
     }
@@ -432,6 +435,7 @@ pub(crate) async fn network(
         let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
             e.to_string()
         } else {
+            net.connected.store(true, Ordering::Relaxed);
             'conn: loop {
                 tokio::select! {
                     msg = ws.next() => {
@@ -515,6 +519,7 @@ pub(crate) async fn network(
             }
         };
         // dropped: reconnect and resume, unless the attempts since the last progress ran out
+        net.connected.store(false, Ordering::Relaxed);
         failures += 1;
         if failures > retries {
             return Err(StreamError::Disconnected {

@@ -5,34 +5,50 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::stream::{serve_on, ServeConfig, Shared};
 
-/// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
-struct Server(Option<tokio::sync::oneshot::Sender<()>>, String);
+/// A server in process (its own runtime on a thread), stopped when dropped: its runtime ends,
+/// and every connection with it.
+struct Server(
+    Option<tokio::sync::oneshot::Sender<()>>,
+    String,
+    Option<std::thread::JoinHandle<()>>,
+);
 
 impl Drop for Server {
     fn drop(&mut self) {
         if let Some(stop) = self.0.take() {
             let _ = stop.send(());
         }
+        if let Some(t) = self.2.take() {
+            let _ = t.join();
+        }
     }
 }
 
+/// A server on 127.0.0.1, on any free port.
 fn serve(store: &Path) -> Server {
+    serve_at(store, "127.0.0.1:0")
+}
+
+fn serve_at(store: &Path, addr: &str) -> Server {
+    let addr = addr.to_string();
     let shared = Shared::open(store, ServeConfig::default()).expect("store opens");
     let (addr_tx, addr_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    std::thread::spawn(move || {
+    let thread = std::thread::spawn(move || {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
             .build()
             .unwrap();
         rt.block_on(async move {
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+            let listener = tokio::net::TcpListener::bind(&addr).await.unwrap();
             addr_tx.send(listener.local_addr().unwrap()).unwrap();
             tokio::select! {
                 _ = serve_on(listener, shared) => {}
@@ -43,7 +59,7 @@ fn serve(store: &Path) -> Server {
     let addr = addr_rx
         .recv_timeout(Duration::from_secs(20))
         .expect("server listens");
-    Server(Some(stop_tx), format!("http://{addr}"))
+    Server(Some(stop_tx), format!("http://{addr}"), Some(thread))
 }
 
 /// The default dataset (`synthetic:harmonic`) with `levels` levels, in `<dir>/s`.
@@ -404,4 +420,517 @@ fn view_opens_a_store_and_a_mesh_file() {
     let img = png(&shot);
     let lit = img.pixels.iter().filter(|p| p[..3] != [0, 0, 0]).count();
     assert!(lit > 0, "the mesh file's view is blank");
+}
+
+/// `--json` carries the run's frame times and input-to-frame latency: one latency per input step
+/// of the script, and figures that agree with each other (p50 ≤ p95 ≤ max, the worst refinement
+/// frame is the maximum of the refinement times, the worst frame the longest period).
+#[test]
+fn view_json_carries_latency_and_the_worst_refinement_frame() {
+    let (d, s) = store(3);
+    let srv = serve(&s);
+    let dir = d.path();
+    // 8 inputs (orbits, an elevation, a zoom, a tolerance, mode switches), due at fixed times
+    let script = serde_json::json!([
+        {"at": 0.2, "mode": "interactive"},
+        {"at": 0.3, "orbit": 15},
+        {"at": 0.4, "orbit": 15},
+        {"at": 0.5, "elevate": -10},
+        {"at": 0.6, "zoom": 0.8},
+        {"at": 0.7, "tol": 0.5},
+        {"at": 0.8, "mode": "complete"},
+        {"wait": "complete"},
+        {"at": 1.0, "mode": "progressive"},
+        {"frames": 3},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            &srv.1,
+            "--size",
+            "160x120",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "20000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}");
+    let p = &r["perf"];
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("a number: {v} in {p}"));
+    let frames = r["frames"].as_u64().unwrap();
+    for k in [
+        "latency_ms",
+        "frame_ms",
+        "ingest_ms",
+        "refine_ms",
+        "leaf_ms",
+        "upload_ms",
+        "render_ms",
+        "work_ms",
+        "paint_ms",
+    ] {
+        let s = &p[k];
+        let n = s["n"].as_u64().unwrap();
+        assert!(n > 0 && n <= frames, "{k}: {s}");
+        assert!(
+            0.0 <= f(&s["p50"]) && f(&s["p50"]) <= f(&s["p95"]) && f(&s["p95"]) <= f(&s["max"]),
+            "{k}: {s}"
+        );
+    }
+    // each of the 8 inputs is presented once; nothing else (no mouse on Xvfb) counts
+    assert_eq!(p["latency_ms"]["n"], 8, "{p}");
+    // a frame applies at most one script input, and its presentation is a frame later
+    assert!(f(&p["latency_ms"]["max"]) > 0.0, "{p}");
+    let worst = &p["worst_refine"];
+    assert_eq!(f(&worst["refine_ms"]), f(&p["refine_ms"]["max"]), "{p}");
+    assert!(f(&worst["refine_ms"]) >= f(&p["refine_ms"]["p50"]), "{p}");
+    assert!(f(&worst["refine_budget_ms"]) > 0.0, "{p}");
+    assert!(worst["frame"].as_u64().unwrap() <= frames, "{p}");
+    assert_eq!(
+        f(&p["worst_frame"]["period_ms"]),
+        f(&p["frame_ms"]["max"]),
+        "{p}"
+    );
+    // the run's frames are all timed; the first has no period
+    assert_eq!(p["frame_ms"]["n"].as_u64().unwrap(), frames - 1, "{p}");
+    let drawn = p["frames_drawn"].as_u64().unwrap();
+    assert!(drawn > 0 && drawn <= frames, "{p}");
+    // the FPS of the volume counts only the frames that drew it
+    let (fps, fps_drawn) = (f(&r["fps"]), f(&r["fps_drawn"]));
+    assert!(fps_drawn > 0.0, "{r}");
+    assert!(
+        (fps_drawn / fps - drawn as f64 / frames as f64).abs() < 1e-6,
+        "{fps_drawn} of {fps} FPS, {drawn} of {frames} frames"
+    );
+    assert!(p["refine_over_budget"].as_u64().unwrap() <= frames, "{p}");
+    let complete_s = f(&r["complete_s"]);
+    assert!(complete_s > 0.0, "{r}");
+}
+
+/// Fly mode: a scripted fly-in along the view puts the eye inside the volume (the harmonic field's
+/// box is [0,30]³), where the frame differs from the orbit's, is neither blank nor one colour,
+/// and agrees with the CPU reference integrator for the same eye (an orbit camera at the shorter
+/// distance): tets behind the eye are left out, the near plane clips the rest.
+#[test]
+fn view_flies_into_the_volume_and_matches_the_reference() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let (outside, inside) = (dir.join("orbit.png"), dir.join("fly.png"));
+    let script = serde_json::json!([
+        {"mode": "complete"},
+        {"wait": "complete"},
+        {"screenshot": outside},
+        // from 1.6 diagonals away to 0.15, along the view
+        {"fly": {"forward": 1.0}},
+        {"fly": {"forward": 0.45}},
+        {"wait": "complete"},
+        {"screenshot": inside},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "5000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}");
+    assert_eq!(r["fly"], true, "{r}");
+    let eye: Vec<f64> = r["eye"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        eye.iter().all(|x| (0.0..=30.0).contains(x)),
+        "the eye is not inside the volume: {eye:?}"
+    );
+    let dist = eye.iter().map(|x| (x - 15.0).powi(2)).sum::<f64>().sqrt();
+    let diag = 30.0 * 3f64.sqrt();
+    assert!((dist - 0.15 * diag).abs() < 1e-6 * diag, "{dist}");
+
+    let (io, ii) = (png(&outside), png(&inside));
+    assert_eq!((ii.width, ii.height), (160, 120));
+    let changed = io
+        .pixels
+        .iter()
+        .zip(&ii.pixels)
+        .filter(|(p, q)| (0..3).any(|k| p[k].abs_diff(q[k]) > 8))
+        .count();
+    assert!(
+        changed > io.pixels.len() / 4,
+        "flying in should change the frame: {changed} pixels changed"
+    );
+    let lit = ii.pixels.iter().filter(|p| p[..3] != [0, 0, 0]).count();
+    assert!(
+        lit > ii.pixels.len() / 2,
+        "inside, most rays cross the volume: {lit} lit"
+    );
+    let colours: std::collections::HashSet<[u8; 3]> =
+        ii.pixels.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    assert!(
+        colours.len() > 50,
+        "{} colours: not an image of the field",
+        colours.len()
+    );
+
+    let reference = dir.join("ref.png");
+    let o = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .arg("render")
+        .arg(&s)
+        .args([
+            "--distance",
+            &dist.to_string(),
+            "--size",
+            "160x120",
+            "--reference",
+            "-o",
+        ])
+        .arg(&reference)
+        .output()
+        .expect("tetwave render runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let p = psnr(&ii, &png(&reference));
+    eprintln!("fly-in view vs the CPU reference at distance {dist:.3}: {p:.2} dB");
+    assert!(p >= 45.0, "fly-in view vs the CPU reference: {p:.2} dB");
+}
+
+/// A `size` step resizes the window: the view takes the new size, the refinement and the
+/// screenshot follow it, and the image at the new size agrees with the offscreen render at it.
+#[test]
+fn view_resizes_and_screenshots_at_the_new_size() {
+    let (d, s) = store(2);
+    let dir = d.path();
+    let (small, large) = (dir.join("small.png"), dir.join("large.png"));
+    let script = serde_json::json!([
+        {"wait": "complete"},
+        {"screenshot": small},
+        {"size": "300x180"},
+        {"wait": "complete"},
+        {"screenshot": large},
+        {"quit": true}
+    ]);
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "128x96",
+            "--mode",
+            "complete",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "5000",
+            "--json",
+        ],
+        180,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}");
+    assert_eq!(r["view"], serde_json::json!([300, 180]), "{r}");
+    let (a, b) = (png(&small), png(&large));
+    assert_eq!((a.width, a.height), (128, 96));
+    assert_eq!((b.width, b.height), (300, 180));
+    let reference = offscreen(&s, 35.0, 25.0, (300, 180), &dir.join("ref.png"));
+    let p = psnr(&b, &reference);
+    eprintln!("resized view vs offscreen at 300x180: {p:.2} dB");
+    assert!(p >= 40.0, "resized view vs offscreen: {p:.2} dB");
+}
+
+/// A TCP relay to `upstream` that passes the server's bytes at most `bytes_per_s` (so that a
+/// small stream lasts long enough to be cut in the middle) and counts them. A connection ends
+/// on both sides when either side ends; a client that connects while the upstream refuses is
+/// closed at once. It runs until the test ends.
+fn slow_relay(upstream: std::net::SocketAddr, bytes_per_s: u64) -> (u16, Arc<AtomicU64>) {
+    use std::io::{Read, Write};
+    use std::net::{Shutdown, TcpListener, TcpStream};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let passed = Arc::new(AtomicU64::new(0));
+    let counter = passed.clone();
+    std::thread::spawn(move || {
+        for client in listener.incoming() {
+            let Ok(mut client) = client else { continue };
+            let Ok(mut server) = TcpStream::connect(upstream) else {
+                continue;
+            };
+            let (mut c2, mut s2) = (client.try_clone().unwrap(), server.try_clone().unwrap());
+            let counter = counter.clone();
+            // the client's bytes go up unthrottled
+            std::thread::spawn(move || {
+                let _ = std::io::copy(&mut c2, &mut s2);
+                let _ = s2.shutdown(Shutdown::Both);
+                let _ = c2.shutdown(Shutdown::Both);
+            });
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 1024];
+                loop {
+                    let n = match server.read(&mut buf) {
+                        Ok(0) | Err(_) => break,
+                        Ok(n) => n,
+                    };
+                    if client.write_all(&buf[..n]).is_err() {
+                        break;
+                    }
+                    counter.fetch_add(n as u64, Ordering::Relaxed);
+                    std::thread::sleep(Duration::from_secs_f64(n as f64 / bytes_per_s as f64));
+                }
+                let _ = client.shutdown(Shutdown::Both);
+                let _ = server.shutdown(Shutdown::Both);
+            });
+        }
+    });
+    (port, passed)
+}
+
+/// The server dies in the middle of the stream and comes back on the same port: the viewer
+/// reconnects (with backoff, the panel saying so), resumes from what it holds (about the bytes
+/// of an uncut stream arrive in all) and completes.
+#[test]
+fn view_reconnects_when_the_server_restarts_mid_stream() {
+    let (d, s) = store(4);
+    let srv = serve(&s);
+    let addr: std::net::SocketAddr = srv.1.trim_start_matches("http://").parse().unwrap();
+    let (port, passed) = slow_relay(addr, 40_000);
+    let script = serde_json::json!([{"wait": "complete"}, {"quit": true}]);
+    let sp = d.path().join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let url = format!("http://127.0.0.1:{port}");
+    let sp2 = sp.clone();
+    let viewer = std::thread::spawn(move || {
+        view_under_xvfb(
+            &[
+                &url,
+                "--size",
+                "128x96",
+                "--mode",
+                "complete",
+                "--script",
+                sp2.to_str().unwrap(),
+                "--frames",
+                "100000",
+                "--json",
+            ],
+            240,
+        )
+    });
+    // cut once the manifest, the base mesh and some batches have passed
+    let t0 = std::time::Instant::now();
+    while passed.load(Ordering::Relaxed) < 12_000 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(900),
+            "the viewer never streamed"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    drop(srv);
+    let at_cut = passed.load(Ordering::Relaxed);
+    std::thread::sleep(Duration::from_millis(1500));
+    let srv = serve_at(&s, &addr.to_string());
+    let out = viewer.join().unwrap();
+    let after = passed.load(Ordering::Relaxed) - at_cut;
+    // the same stream uncut, for its size
+    let fresh = view_under_xvfb(
+        &[
+            &srv.1,
+            "--size",
+            "128x96",
+            "--mode",
+            "complete",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "100000",
+            "--json",
+        ],
+        240,
+    );
+    drop(srv);
+    assert!(fresh.status.success());
+    let fresh: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&fresh.stdout).trim()).unwrap();
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    eprintln!("{r}\n{at_cut} bytes before the cut, {after} after");
+    assert_eq!(r["complete"], true, "{r}");
+    assert_eq!(r["nodes"], r["nodes_total"], "{r}");
+    assert!(r["reconnects"].as_u64().unwrap() >= 1, "{r}");
+    // the outage lasted 1.5 s: the panel said so in the frames meanwhile
+    assert!(r["frames_reconnecting"].as_u64().unwrap() >= 1, "{r}");
+    assert_eq!(fresh["frames_reconnecting"], 0, "{fresh}");
+    // the stream went on after the restart (it had not finished before the cut)
+    assert!(after > 1000, "{after} bytes after the restart");
+    // resumed: the new connection's Hello listed what was held, so it came once, not twice
+    let (cut, whole) = (
+        r["bytes_received"].as_u64().unwrap(),
+        fresh["bytes_received"].as_u64().unwrap(),
+    );
+    eprintln!("{cut} bytes received across the cut, {whole} uncut");
+    assert!(
+        (cut as f64) < 1.1 * whole as f64,
+        "{cut} bytes with the cut against {whole} uncut: the stream restarted instead of resuming"
+    );
+    assert_eq!(r["errors"], serde_json::json!([]), "{r}");
+}
+
+/// Level of detail in motion (`--motion-lod`): with draws slower than `--motion-ms` (here every
+/// draw, the target being 1 µs), the frames drawn while the camera moves draw a coarser mesh,
+/// and at rest the finest level returns and matches the offscreen render; with `--motion-ms 0`
+/// motion draws the finest level throughout.
+#[test]
+fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let mut steps = vec![serde_json::json!({"wait": "complete"})];
+    for _ in 0..25 {
+        steps.push(serde_json::json!({"orbit": 2}));
+        steps.push(serde_json::json!({"frames": 2}));
+    }
+    let run = |motion_ms: &str, shot: &Path| {
+        let mut steps = steps.clone();
+        steps.push(serde_json::json!({"wait": "complete"}));
+        steps.push(serde_json::json!({"screenshot": shot}));
+        steps.push(serde_json::json!({"quit": true}));
+        let sp = dir.join(format!("script-{motion_ms}.json"));
+        std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
+        let out = view_under_xvfb(
+            &[
+                s.to_str().unwrap(),
+                "--size",
+                "160x120",
+                "--tol",
+                "0",
+                "--motion-lod",
+                "--motion-ms",
+                motion_ms,
+                "--script",
+                sp.to_str().unwrap(),
+                "--frames",
+                "20000",
+                "--json",
+            ],
+            240,
+        );
+        assert!(out.status.success(), "tetwave view failed: {}", out.status);
+        let r: serde_json::Value =
+            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+        eprintln!("--motion-ms {motion_ms}: {}", r["perf"]);
+        r
+    };
+    let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("a number: {v}"));
+    let lod = run("0.001", &dir.join("lod.png"));
+    let p = &lod["perf"];
+    assert!(f(&p["max_tol_px"]) > 1.0, "{p}");
+    assert!(f(&lod["motion_factor"]) > 1.0, "{lod}");
+    assert!(p["tets_drawn_in_motion"]["n"].as_u64().unwrap() > 0, "{p}");
+    assert!(f(&p["tets_drawn_in_motion"]["p50"]) < 2560.0, "{p}");
+    // at rest: the finest level again, the same image as the offscreen render
+    assert_eq!(lod["tets"], 2560, "{lod}");
+    let az = f(&lod["azimuth"]);
+    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let psnr_rest = psnr(&png(&dir.join("lod.png")), &reference);
+    eprintln!("at rest after the motion vs offscreen: {psnr_rest:.2} dB");
+    assert!(psnr_rest >= 40.0, "{psnr_rest:.2} dB");
+
+    let off = run("0", &dir.join("off.png"));
+    let p = &off["perf"];
+    assert_eq!(f(&off["motion_factor"]), 1.0, "{off}");
+    assert_eq!(f(&p["max_tol_px"]), 0.0, "{p}");
+    assert_eq!(f(&p["tets_drawn_in_motion"]["p50"]), 2560.0, "{p}");
+}
+
+/// `--motion-scale 2` with draws slower than `--motion-ms` (every draw, at 1 µs): the frames
+/// drawn while the camera moves use half the view's width and height, and at rest the view is
+/// drawn whole again and matches the offscreen render. With `--motion-ms 0` none is scaled.
+#[test]
+fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let shot = dir.join("rest.png");
+    let mut steps = vec![serde_json::json!({"wait": "complete"})];
+    for _ in 0..10 {
+        steps.push(serde_json::json!({"orbit": 3}));
+        steps.push(serde_json::json!({"frames": 2}));
+    }
+    steps.push(serde_json::json!({"wait": "complete"}));
+    steps.push(serde_json::json!({"screenshot": shot}));
+    steps.push(serde_json::json!({"quit": true}));
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-scale",
+            "2",
+            "--motion-ms",
+            "0.001",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "20000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    let p = &r["perf"];
+    eprintln!("{p}");
+    assert!(p["frames_drawn_scaled"].as_u64().unwrap() >= 5, "{p}");
+    let img = png(&shot);
+    assert_eq!((img.width, img.height), (160, 120));
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let at_rest = psnr(&img, &reference);
+    eprintln!("at rest after a half-size motion vs offscreen: {at_rest:.2} dB");
+    assert!(at_rest >= 40.0, "{at_rest:.2} dB");
+
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-ms",
+            "0",
+            "--script",
+            sp.to_str().unwrap(),
+            "--frames",
+            "20000",
+            "--json",
+        ],
+        240,
+    );
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    assert_eq!(r["perf"]["frames_drawn_scaled"], 0, "{r}");
+    assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }

@@ -1,14 +1,19 @@
 //! The viewer's frame loop (an eframe app). Each frame, in order: screenshots and server images
 //! that arrived are taken in; what the network delivered is applied within [`INGEST_BUDGET`]; the
 //! panel and the mouse and keys act; the script plays its next steps; the mesh is refined for the
-//! camera under the selector's budget for the mode; the leaf mesh is uploaded if it changed and
-//! drawn into the offscreen target if anything it shows changed; the target (or the server's
-//! image) is copied into the view.
+//! camera under the selector's budget for the mode; a finished upload replaces the mesh drawn,
+//! and the leaf mesh goes to the upload thread if it changed (one upload at a time, see
+//! [`super::upload`]); the mesh is drawn into the offscreen target if anything it shows changed;
+//! the target (or the server's image) is copied into the view.
 
 use super::data::Data;
+use super::fly::Fly;
 use super::gpu::{Blit, BlitCallback, Target};
+use super::motion::MotionLod;
 use super::orbit::Orbit;
+use super::perf::Perf;
 use super::script::{Action, Step, WaitFor};
+use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
 use crate::select::{Mode, Tolerance};
 use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
@@ -29,12 +34,23 @@ pub const PANEL_WIDTH: f32 = 260.0;
 /// Time per frame for applying arrived nodes (refinement has the selector's own budget).
 pub const INGEST_BUDGET: Duration = Duration::from_millis(8);
 
+/// Frames a `size` step waits for the window to take its size before it fails.
+const RESIZE_FRAMES: u64 = 600;
+
+/// Bins of the editor's histogram.
+const HISTOGRAM_BINS: usize = 64;
+
 /// The transfer-function presets (what the server's `/v1/render` knows too).
 const PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
 
 /// Degrees of rotation per pixel dragged, and per arrow key.
 const DEG_PER_PX: f64 = 0.4;
 const DEG_PER_KEY: f64 = 5.0;
+/// Fly mode: degrees of turn per pixel dragged; speed in diagonals of the bounding box per
+/// second (times 4 with shift); diagonals per wheel point.
+const FLY_DEG_PER_PX: f64 = 0.2;
+const FLY_SPEED: f64 = 0.25;
+const FLY_PER_SCROLL: f64 = 5e-4;
 
 /// The server's image of a view.
 enum ServerImage {
@@ -54,7 +70,8 @@ enum ServerImage {
 pub struct ViewerApp {
     args: ViewArgs,
     gpu: Arc<GpuContext>,
-    renderer: PtRenderer,
+    renderer: Arc<PtRenderer>,
+    uploader: Uploader,
     blit: Blit,
     data: Data,
     tf: TransferFunction,
@@ -63,6 +80,8 @@ pub struct ViewerApp {
     tol: f64,
     mode: ViewMode,
     orbit: Orbit,
+    /// Fly mode's camera, when in it (the orbit is kept for leaving it).
+    fly: Option<Fly>,
     home: Option<Orbit>,
     /// The view's rectangle (points) and size (pixels) in the last frame.
     view_rect: Rect,
@@ -76,10 +95,14 @@ pub struct ViewerApp {
     /// The camera moved in this frame (by the mouse, keys or the script).
     moving: bool,
     refine_ms: f64,
-    /// Building the leaf mesh and uploading it, the last time the mesh changed.
+    /// The last upload's time (on the upload thread).
     upload_ms: f64,
     render_ms: f64,
+    /// Frames per second of the volume's draws (frames that only repaint the panel or the same
+    /// image do not count), smoothed.
     fps: f64,
+    /// When the volume was last drawn.
+    last_draw: Option<Instant>,
     last_frame: Instant,
     started: Instant,
     frames: u64,
@@ -101,10 +124,32 @@ pub struct ViewerApp {
     report: Arc<Mutex<ViewReport>>,
     /// The editor's file for loading and saving the transfer function.
     tf_path: String,
+    /// The histogram of the values held (the drawn leaf mesh's vertices), for the editor.
+    hist: Vec<u32>,
+    tf_canvas: super::tf_edit::CanvasState,
     screenshots: Vec<String>,
     screenshot_tets: Vec<u64>,
     server_psnr_db: Option<f64>,
     errors: Vec<String>,
+    perf: Perf,
+    motion: MotionLod,
+    /// The period of the last frame that drew the whole view (decides `--motion-scale`).
+    full_draw_ms: f64,
+    /// Frames in which the panel said the stream was reconnecting.
+    frames_reconnecting: u64,
+    /// The last frame drew the volume in motion: its period is the next observation.
+    observe_draw: bool,
+    /// The tolerances of the mesh being uploaded and of the one drawn: a draw in motion tells
+    /// about the factor only when its mesh was refined with it (a mesh still on its way would
+    /// make the factor overshoot).
+    upload_tol: f64,
+    drawn_tol: f64,
+    /// The selector's own interactive budget (before motion's changes).
+    interactive_budget: Option<crate::select::Budget>,
+    /// Seconds from the window's opening until every node was held.
+    complete_s: Option<f64>,
+    /// The current frame's start.
+    frame_start: Instant,
 }
 
 impl ViewerApp {
@@ -117,8 +162,9 @@ impl ViewerApp {
         steps: Vec<Step>,
         report: Arc<Mutex<ViewReport>>,
     ) -> Result<Self, String> {
-        let renderer = PtRenderer::with_accumulation(&gpu, Accumulation::Best);
+        let renderer = Arc::new(PtRenderer::with_accumulation(&gpu, Accumulation::Best));
         renderer.warm_up(&gpu, &tf).map_err(|e| e.to_string())?;
+        let uploader = Uploader::new(gpu.clone(), renderer.clone());
         let blit = Blit::new(&rs.device, rs.target_format);
         let (shot_tx, shot_rx) = mpsc::channel();
         let tf_preset = PRESETS.contains(&args.tf.as_str()).then(|| args.tf.clone());
@@ -133,11 +179,13 @@ impl ViewerApp {
             tol: args.tol,
             mode: args.mode,
             renderer,
+            uploader,
             blit,
             data,
             tf,
             tf_preset,
             orbit,
+            fly: None,
             home: None,
             view_rect: Rect::NOTHING,
             view_px: (args.size.0, args.size.1),
@@ -152,6 +200,7 @@ impl ViewerApp {
             upload_ms: 0.0,
             render_ms: 0.0,
             fps: 0.0,
+            last_draw: None,
             last_frame: Instant::now(),
             started: Instant::now(),
             frames: 0,
@@ -172,10 +221,22 @@ impl ViewerApp {
             } else {
                 "tf.json".into()
             },
+            hist: Vec::new(),
+            tf_canvas: Default::default(),
             screenshots: Vec::new(),
             screenshot_tets: Vec::new(),
             server_psnr_db: None,
             errors: Vec::new(),
+            perf: Perf::default(),
+            motion: MotionLod::new(if args.motion_lod { args.motion_ms } else { 0.0 }),
+            full_draw_ms: 0.0,
+            frames_reconnecting: 0,
+            observe_draw: false,
+            upload_tol: f64::NAN,
+            drawn_tol: f64::NAN,
+            interactive_budget: None,
+            complete_s: None,
+            frame_start: Instant::now(),
             gpu,
             args,
         })
@@ -197,6 +258,26 @@ impl ViewerApp {
             self.orbit.target = center;
             self.orbit.distance = self.args.camera.distance.unwrap_or(1.6 * diag);
             self.home = Some(self.orbit);
+        }
+    }
+
+    /// The camera of the view: the fly camera in fly mode, else the orbit's.
+    fn camera(&self, w: u32, h: u32) -> Camera {
+        match &self.fly {
+            Some(f) => f.camera(w, h),
+            None => self.orbit.camera(w, h),
+        }
+    }
+
+    fn diagonal(&self) -> f64 {
+        self.data.frame.map_or(1.0, |(_, d)| d)
+    }
+
+    /// Back to the initial orbit, out of fly mode.
+    fn reset_view(&mut self) {
+        self.fly = None;
+        if let Some(h) = self.home {
+            self.orbit = h;
         }
     }
 
@@ -276,6 +357,12 @@ impl ViewerApp {
             ));
             return;
         };
+        if self.fly.is_some() {
+            self.fail(
+                "server image: the server renders orbit views; leave fly mode (F) first".into(),
+            );
+            return;
+        }
         if self.home.is_some_and(|h| h.target != self.orbit.target) {
             self.fail(
                 "server image: the server orbits the volume's centre; reset the pan first".into(),
@@ -324,6 +411,10 @@ impl ViewerApp {
         }
         // the client's own render of this camera, for the comparison
         let client = match &self.target {
+            Some(t) if t.size() != (cam.width, cam.height) => {
+                self.status = "server image dropped: the view was drawn with fewer pixels".into();
+                return;
+            }
             Some(t) => self.renderer.read_texture(&self.gpu, &t.texture),
             None => {
                 self.status = "server image dropped: nothing drawn yet".into();
@@ -346,7 +437,8 @@ impl ViewerApp {
     }
 
     /// Plays script steps until one has to wait. Steps that change the view end the frame's
-    /// steps, so that a following `wait` sees a frame of the new view.
+    /// steps, so that a following `wait` sees a frame of the new view; inputs already due are
+    /// taken together (a backlog of inputs is one frame's, as queued events are).
     fn run_script(&mut self, ctx: &egui::Context) {
         while self.step < self.steps.len() && !self.closing {
             let step = self.steps[self.step].clone();
@@ -358,9 +450,14 @@ impl ViewerApp {
             }
             // the frame the step's action began in (after its `at`)
             let first = *self.step_frame.get_or_insert(self.frames);
+            // an input is given when it is due, or when the script reaches it
+            let given = step.at.map_or_else(Instant::now, |at| {
+                self.started + Duration::from_secs_f64(at)
+            });
             let mut changes_view = false;
             match &step.action {
                 Action::Camera(c) => {
+                    self.fly = None;
                     if let Some(v) = c.azimuth {
                         self.orbit.azimuth = v;
                     }
@@ -376,21 +473,30 @@ impl ViewerApp {
                     changes_view = true;
                 }
                 Action::Orbit(d) => {
+                    self.fly = None;
                     self.orbit.rotate(*d, 0.0);
                     changes_view = true;
                 }
                 Action::Elevate(d) => {
+                    self.fly = None;
                     self.orbit.rotate(0.0, *d);
                     changes_view = true;
                 }
                 Action::Zoom(f) => {
+                    self.fly = None;
                     self.zoom(*f);
                     changes_view = true;
                 }
+                Action::Fly(m) => {
+                    let diag = self.diagonal();
+                    let orbit = self.orbit;
+                    let f = self.fly.get_or_insert_with(|| Fly::from_orbit(&orbit));
+                    f.turn(m.yaw, m.pitch);
+                    f.translate(m.forward * diag, m.right * diag, m.up * diag);
+                    changes_view = true;
+                }
                 Action::Reset => {
-                    if let Some(h) = self.home {
-                        self.orbit = h;
-                    }
+                    self.reset_view();
                     changes_view = true;
                 }
                 Action::Tf(spec) => {
@@ -405,6 +511,26 @@ impl ViewerApp {
                 }
                 Action::Mode(m) => {
                     self.mode = *m;
+                    changes_view = true;
+                }
+                Action::Size(w, h) => {
+                    if (self.view_px.0, self.view_px.1) != (*w, *h) {
+                        if self.frames == first {
+                            let ppp = ctx.pixels_per_point();
+                            ctx.send_viewport_cmd(egui::ViewportCommand::InnerSize(egui::vec2(
+                                *w as f32 / ppp + PANEL_WIDTH,
+                                *h as f32 / ppp,
+                            )));
+                        }
+                        if self.frames < first + RESIZE_FRAMES {
+                            return;
+                        }
+                        let e = format!(
+                            "size {w}x{h}: the view is still {}x{} after {RESIZE_FRAMES} frames",
+                            self.view_px.0, self.view_px.1
+                        );
+                        self.fail(e);
+                    }
                     changes_view = true;
                 }
                 Action::Wait(w) => {
@@ -443,7 +569,15 @@ impl ViewerApp {
             self.step += 1;
             self.step_frame = None;
             if changes_view {
-                return;
+                self.perf.input(given);
+                let elapsed = self.started.elapsed().as_secs_f64();
+                let next_due = self
+                    .steps
+                    .get(self.step)
+                    .is_some_and(|s| s.action.is_input() && s.at.is_some_and(|at| elapsed >= at));
+                if !next_due {
+                    return;
+                }
             }
         }
     }
@@ -451,8 +585,21 @@ impl ViewerApp {
     /// Refines, uploads and draws for the current camera.
     fn refine_and_draw(&mut self) {
         let (w, h) = self.view_px;
-        let cam = self.orbit.camera(w, h);
+        let cam = self.camera(w, h);
         self.moving = self.last_cam.is_some_and(|c| c != cam);
+        let now = Instant::now();
+        if self.moving {
+            self.motion.moved(now);
+        }
+        // complete mode draws everything that arrived, whatever the tolerance
+        let tol = match self.mode {
+            ViewMode::Complete => self.tol,
+            _ => self.motion.tolerance(self.tol, now),
+        };
+        let in_motion = self.motion.in_motion(now);
+        let rec = self.perf.current();
+        rec.tol_px = tol;
+        rec.in_motion = in_motion;
         if self.last_cam != Some(cam) {
             self.image_dirty = true;
             if matches!(self.server, ServerImage::Shown { .. }) {
@@ -463,12 +610,23 @@ impl ViewerApp {
         self.data.send_view(&cam, self.tol);
         let mut converged = true;
         if let Some(s) = self.data.session.as_mut() {
-            s.set_tolerance(Tolerance::Pixels(self.tol));
+            s.set_tolerance(Tolerance::Pixels(tol));
+            let base = *self
+                .interactive_budget
+                .get_or_insert_with(|| s.params().interactive);
+            if let Some(t) = base.max_time {
+                let ms = self.motion.refine_budget_ms(t.as_secs_f64() * 1e3, now);
+                s.set_interactive_budget(crate::select::Budget::ms(ms));
+            }
             let mode = match self.mode {
                 ViewMode::Interactive => Mode::Interactive,
                 ViewMode::Progressive if self.moving => Mode::Interactive,
                 ViewMode::Progressive => Mode::Progressive,
                 ViewMode::Complete => Mode::Complete,
+            };
+            let budget = match mode {
+                Mode::Interactive => s.params().interactive,
+                Mode::Progressive | Mode::Complete => s.params().progressive,
             };
             let t = Instant::now();
             match s.frame(&cam, mode) {
@@ -484,11 +642,35 @@ impl ViewerApp {
                 }
             }
             self.refine_ms = t.elapsed().as_secs_f64() * 1e3;
+            let rec = self.perf.current();
+            rec.refine_ms = self.refine_ms;
+            rec.refine_budget_ms = budget.max_time.map(|d| d.as_secs_f64() * 1e3);
         }
+        self.perf.current().mode = self.mode;
+        self.perf.current().moving = self.moving;
         if self.data.take_changed() {
             self.mesh_dirty = true;
         }
-        if self.mesh_dirty {
+        // nothing changed and nothing on its way: the mesh drawn is the one for this tolerance
+        if converged && !self.mesh_dirty && !self.uploader.busy() {
+            self.drawn_tol = tol;
+        }
+        // the mesh uploaded off the frame loop replaces the one drawn so far
+        if let Some((res, ms)) = self.uploader.take() {
+            self.drawn_tol = self.upload_tol;
+            match res {
+                Ok(d) => {
+                    self.tets = d.tet_count as u64;
+                    self.draw_data = Some(d);
+                }
+                Err(e) => self.fail(format!("upload: {e}")),
+            }
+            self.image_dirty = true;
+            self.upload_ms = ms;
+            self.perf.current().upload_ms = ms;
+        }
+        // one upload at a time: a mesh that changes meanwhile goes up after it
+        if self.mesh_dirty && !self.uploader.busy() {
             let t = Instant::now();
             let mesh = match (&self.data.session, &self.data.mesh) {
                 (Some(s), _) => Some(s.leaf_mesh(self.data.value_range)),
@@ -496,34 +678,45 @@ impl ViewerApp {
                 (None, None) => None,
             };
             if let Some(m) = mesh {
-                match self.renderer.upload(&self.gpu, &m) {
-                    Ok(d) => {
-                        self.tets = d.tet_count as u64;
-                        self.draw_data = Some(d);
-                    }
-                    Err(e) => self.fail(format!("upload: {e}")),
+                self.hist = super::tf_edit::histogram(
+                    &m.values,
+                    [m.value_range.0, m.value_range.1],
+                    HISTOGRAM_BINS,
+                );
+                self.upload_tol = tol;
+                if let Err(e) = self.uploader.start(m) {
+                    self.fail(format!("upload: {e}"));
                 }
-                self.image_dirty = true;
             }
-            self.upload_ms = t.elapsed().as_secs_f64() * 1e3;
+            self.perf.current().leaf_ms = t.elapsed().as_secs_f64() * 1e3;
             self.mesh_dirty = false;
         }
-        if self.target.as_ref().map(Target::size) != Some((w, h)) {
+        // in motion the volume may be drawn with fewer pixels (the copy into the view scales it
+        // up); at rest always with the view's own
+        let slow = self.args.motion_ms > 0.0 && self.full_draw_ms > self.args.motion_ms;
+        let scale = if in_motion && slow {
+            self.args.motion_scale.max(1)
+        } else {
+            1
+        };
+        let (dw, dh) = ((w / scale).max(1), (h / scale).max(1));
+        if self.target.as_ref().map(Target::size) != Some((dw, dh)) {
             self.target = Some(Target::new(
                 &self.gpu,
                 &self.blit,
                 self.renderer.format(),
-                w,
-                h,
+                dw,
+                dh,
             ));
             self.image_dirty = true;
         }
+        let draw_cam = if scale == 1 { cam } else { self.camera(dw, dh) };
         if self.image_dirty {
             if let (Some(d), Some(t)) = (&self.draw_data, &self.target) {
                 let times = self.renderer.draw_into(
                     &self.gpu,
                     d,
-                    &cam,
+                    &draw_cam,
                     &self.tf,
                     VisibilityOrder::Centroid,
                     &t.view,
@@ -531,14 +724,120 @@ impl ViewerApp {
                 );
                 self.render_ms = times.total_ms;
                 self.image_dirty = false;
+                let rec = self.perf.current();
+                rec.render_ms = times.total_ms;
+                rec.drew = true;
+                rec.draw_scale = scale;
+                self.observe_draw = in_motion && self.drawn_tol == tol;
+                let now = Instant::now();
+                if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
+                    if dt > 0.0 {
+                        self.fps = if self.fps == 0.0 {
+                            1.0 / dt
+                        } else {
+                            0.9 * self.fps + 0.1 / dt
+                        };
+                    }
+                }
+                self.last_draw = Some(now);
             }
         }
         self.last_cam = Some(cam);
-        let drawn = !self.image_dirty && self.draw_data.is_some();
-        if converged && drawn {
+        self.perf.current().tets = self.tets;
+        // drawn: the mesh refined so far, not one still being uploaded or waiting to be, with
+        // all the view's pixels
+        let drawn = !self.image_dirty
+            && scale == 1
+            && self.draw_data.is_some()
+            && !self.mesh_dirty
+            && !self.uploader.busy();
+        // converged for the user's tolerance, not the coarser one of motion
+        if converged && drawn && tol == self.tol {
             // converged for the nodes held at this frame's start, which may be all of them
             self.settled = Some((self.frames, self.data.is_complete()));
         }
+    }
+
+    /// The mouse and the keys move the camera: the orbit's, or in fly mode the fly camera's
+    /// (`dt`: seconds since the last frame, for the keys held down).
+    fn navigate(
+        &mut self,
+        ctx: &egui::Context,
+        drag: egui::Vec2,
+        pan: egui::Vec2,
+        scroll: f32,
+        dt: f64,
+        mut reset: bool,
+    ) {
+        let ppp = ctx.pixels_per_point();
+        let diag = self.diagonal();
+        let keys = !ctx.egui_wants_keyboard_input();
+        let pressed = |k: egui::Key| keys && ctx.input(|i| i.key_pressed(k));
+        if pressed(egui::Key::F) {
+            self.toggle_fly();
+        }
+        if let Some(f) = self.fly.as_mut() {
+            if drag != egui::Vec2::ZERO {
+                f.turn(
+                    -drag.x as f64 * FLY_DEG_PER_PX,
+                    -drag.y as f64 * FLY_DEG_PER_PX,
+                );
+            }
+            // a right-drag slides the eye in the view plane
+            let units_per_px = 2.0 * FLY_SPEED * diag / self.view_px.1.max(1) as f64;
+            f.translate(
+                scroll as f64 * FLY_PER_SCROLL * diag,
+                -(pan.x * ppp) as f64 * units_per_px,
+                (pan.y * ppp) as f64 * units_per_px,
+            );
+            if keys {
+                let [fwd, right, up] = super::fly::held_move(ctx, dt, FLY_SPEED * diag);
+                f.translate(fwd, right, up);
+            }
+        } else {
+            if drag != egui::Vec2::ZERO {
+                self.orbit
+                    .rotate(-drag.x as f64 * DEG_PER_PX, drag.y as f64 * DEG_PER_PX);
+            }
+            if pan != egui::Vec2::ZERO {
+                self.orbit
+                    .pan((pan.x * ppp) as f64, (pan.y * ppp) as f64, self.view_px.1);
+            }
+            if scroll != 0.0 {
+                self.zoom((-scroll as f64 * 0.002).exp());
+            }
+            use egui::Key;
+            if pressed(Key::ArrowLeft) {
+                self.orbit.rotate(-DEG_PER_KEY, 0.0);
+            }
+            if pressed(Key::ArrowRight) {
+                self.orbit.rotate(DEG_PER_KEY, 0.0);
+            }
+            if pressed(Key::ArrowUp) {
+                self.orbit.rotate(0.0, DEG_PER_KEY);
+            }
+            if pressed(Key::ArrowDown) {
+                self.orbit.rotate(0.0, -DEG_PER_KEY);
+            }
+            if pressed(Key::Plus) || pressed(Key::Equals) {
+                self.zoom(0.9);
+            }
+            if pressed(Key::Minus) {
+                self.zoom(1.0 / 0.9);
+            }
+        }
+        reset |= pressed(egui::Key::R);
+        if reset {
+            self.reset_view();
+        }
+    }
+
+    /// Into fly mode from the current orbit's view, or back to the orbit as it was.
+    fn toggle_fly(&mut self) {
+        self.fly = match self.fly {
+            Some(_) => None,
+            None => Some(Fly::from_orbit(&self.orbit)),
+        };
     }
 
     fn panel(&mut self, ui: &mut egui::Ui) {
@@ -559,10 +858,28 @@ impl ViewerApp {
                 format!("{:.2} MB", self.data.bytes_received() as f64 / 1e6),
             );
             row("refine", format!("{:.2} ms", self.refine_ms));
+            if self.args.motion_lod {
+                // the factor on the tolerance while the camera moves (1: the draws keep up)
+                row(
+                    "tolerance in motion",
+                    format!("× {:.2}", self.motion.factor()),
+                );
+            }
             row("upload", format!("{:.2} ms", self.upload_ms));
             // the CPU side of a frame's draw: sort, exit faces, submission
             row("render (CPU)", format!("{:.2} ms", self.render_ms));
-            row("FPS", format!("{:.1}", self.fps));
+            // frames that drew the volume; none for a second: the view rests
+            let resting = self
+                .last_draw
+                .is_none_or(|l| l.elapsed() > Duration::from_secs(1));
+            row(
+                "FPS (volume)",
+                if resting {
+                    "at rest".into()
+                } else {
+                    format!("{:.1}", self.fps)
+                },
+            );
             row("view", format!("{}×{}", self.view_px.0, self.view_px.1));
         });
         let frac = if total > 0 {
@@ -611,7 +928,7 @@ impl ViewerApp {
             }
         }
         egui::CollapsingHeader::new("transfer function editor").show(ui, |ui| {
-            if super::tf_edit::edit(ui, &mut self.tf) {
+            if super::tf_edit::edit(ui, &mut self.tf, &self.hist, &mut self.tf_canvas) {
                 self.tf_preset = None;
                 self.image_dirty = true;
                 self.server = ServerImage::None;
@@ -635,9 +952,11 @@ impl ViewerApp {
         });
         ui.horizontal(|ui| {
             if ui.button("Reset view").clicked() {
-                if let Some(h) = self.home {
-                    self.orbit = h;
-                }
+                self.reset_view();
+            }
+            let mut fly = self.fly.is_some();
+            if ui.toggle_value(&mut fly, "Fly (F)").changed() {
+                self.toggle_fly();
             }
             let can = self.data.server().is_some();
             if ui
@@ -655,6 +974,9 @@ impl ViewerApp {
         }
         if let Some(e) = &self.data.error {
             ui.colored_label(Color32::LIGHT_RED, format!("stream: {e}"));
+        } else if self.data.reconnecting() {
+            ui.colored_label(Color32::YELLOW, "connection lost: reconnecting…");
+            self.frames_reconnecting += 1;
         }
         if !self.status.is_empty() {
             ui.label(egui::RichText::new(&self.status).small());
@@ -662,7 +984,7 @@ impl ViewerApp {
         ui.separator();
         ui.label(
             egui::RichText::new(
-                "drag: orbit · right/shift-drag: pan · wheel: zoom\narrows: orbit · +/−: zoom · R: reset",
+                "drag: orbit · right/shift-drag: pan · wheel: zoom\narrows: orbit · +/−: zoom · R: reset\nF: fly (drag: look · WASD/arrows: move · Q/E: down/up · shift: faster)",
             )
             .small(),
         );
@@ -687,10 +1009,20 @@ impl ViewerApp {
             } else {
                 0.0
             },
+            fps_drawn: if elapsed > 0.0 {
+                self.perf.frames_drawn() as f64 / elapsed
+            } else {
+                0.0
+            },
             refine_ms: self.refine_ms,
             upload_ms: self.upload_ms,
             render_ms: self.render_ms,
             view: [self.view_px.0, self.view_px.1],
+            reconnects: self.data.reconnects(),
+            frames_reconnecting: self.frames_reconnecting,
+            motion_factor: self.motion.factor(),
+            fly: self.fly.is_some(),
+            eye: self.camera(1, 1).eye.to_array(),
             azimuth: self.orbit.azimuth,
             elevation: self.orbit.elevation,
             distance: self.orbit.distance,
@@ -702,6 +1034,8 @@ impl ViewerApp {
             server_psnr_db: self.server_psnr_db,
             script_steps: [self.step, self.steps.len()],
             errors,
+            perf: self.perf.report(),
+            complete_s: self.complete_s,
         };
         *self.report.lock().unwrap_or_else(|e| e.into_inner()) = r;
     }
@@ -739,22 +1073,37 @@ impl eframe::App for ViewerApp {
         let ctx = ui.ctx().clone();
         self.frames += 1;
         let now = Instant::now();
+        self.frame_start = now;
+        self.perf.begin_frame(
+            self.frames,
+            now,
+            now.duration_since(self.started).as_secs_f64(),
+        );
+        if let Some(last) = self.perf.frames().last() {
+            if last.drew && last.draw_scale == 1 && last.period_ms.is_finite() {
+                self.full_draw_ms = last.period_ms;
+            }
+        }
+        if std::mem::take(&mut self.observe_draw) {
+            if let Some(last) = self.perf.frames().last() {
+                self.motion.observe(last.period_ms);
+            }
+        }
         let dt = now.duration_since(self.last_frame).as_secs_f64();
         self.last_frame = now;
-        if dt > 0.0 {
-            self.fps = if self.fps == 0.0 {
-                1.0 / dt
-            } else {
-                0.9 * self.fps + 0.1 / dt
-            };
-        }
         while let Ok((path, rect, ppp, img)) = self.shot_rx.try_recv() {
             self.save_shot(path, rect, ppp, &img);
             self.pending_shot = None;
         }
         self.take_server_image();
+        let t = Instant::now();
         self.data.ingest(INGEST_BUDGET, Tolerance::Pixels(self.tol));
+        self.perf.current().ingest_ms = t.elapsed().as_secs_f64() * 1e3;
+        if self.complete_s.is_none() && self.data.is_complete() {
+            self.complete_s = Some(self.started.elapsed().as_secs_f64());
+        }
         self.init_home();
+        let before = (self.orbit, self.fly, self.tol, self.mode, self.image_dirty);
 
         egui::Panel::left("tetwave-panel")
             .exact_size(PANEL_WIDTH)
@@ -790,53 +1139,10 @@ impl eframe::App for ViewerApp {
             ((r.width() * ppp).round() as u32).max(1),
             ((r.height() * ppp).round() as u32).max(1),
         );
-        if drag != egui::Vec2::ZERO {
-            self.orbit
-                .rotate(-drag.x as f64 * DEG_PER_PX, drag.y as f64 * DEG_PER_PX);
-        }
-        if pan != egui::Vec2::ZERO {
-            self.orbit
-                .pan((pan.x * ppp) as f64, (pan.y * ppp) as f64, self.view_px.1);
-        }
-        if scroll != 0.0 {
-            self.zoom((-scroll as f64 * 0.002).exp());
-        }
-        if !ctx.egui_wants_keyboard_input() {
-            let keys = ctx.input(|i| {
-                [
-                    i.key_pressed(egui::Key::ArrowLeft),
-                    i.key_pressed(egui::Key::ArrowRight),
-                    i.key_pressed(egui::Key::ArrowUp),
-                    i.key_pressed(egui::Key::ArrowDown),
-                    i.key_pressed(egui::Key::Plus) || i.key_pressed(egui::Key::Equals),
-                    i.key_pressed(egui::Key::Minus),
-                    i.key_pressed(egui::Key::R),
-                ]
-            });
-            if keys[0] {
-                self.orbit.rotate(-DEG_PER_KEY, 0.0);
-            }
-            if keys[1] {
-                self.orbit.rotate(DEG_PER_KEY, 0.0);
-            }
-            if keys[2] {
-                self.orbit.rotate(0.0, DEG_PER_KEY);
-            }
-            if keys[3] {
-                self.orbit.rotate(0.0, -DEG_PER_KEY);
-            }
-            if keys[4] {
-                self.zoom(0.9);
-            }
-            if keys[5] {
-                self.zoom(1.0 / 0.9);
-            }
-            reset |= keys[6];
-        }
-        if reset {
-            if let Some(h) = self.home {
-                self.orbit = h;
-            }
+        self.navigate(&ctx, drag, pan, scroll, dt, reset);
+        // the panel, the mouse and the keys: their events were read at the frame's start
+        if (self.orbit, self.fly, self.tol, self.mode, self.image_dirty) != before {
+            self.perf.input(now);
         }
         self.run_script(&ctx);
         self.refine_and_draw();
@@ -862,6 +1168,7 @@ impl eframe::App for ViewerApp {
                 self.request_shot(&ctx, p, false);
             }
         }
+        self.perf.end_frame(Instant::now());
         self.publish();
         if self.closing && self.pending_shot.is_none() {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
@@ -870,6 +1177,9 @@ impl eframe::App for ViewerApp {
             || self.step < self.steps.len()
             || self.args.frames.is_some()
             || self.pending_shot.is_some()
+            || self.uploader.busy()
+            || self.mesh_dirty
+            || self.motion.in_motion(Instant::now())
             || !matches!(self.server, ServerImage::None | ServerImage::Shown { .. })
             || self.settled.is_none_or(|(f, _)| f != self.frames);
         if busy {

@@ -46,6 +46,11 @@ impl Source {
 /// Nodes of a local store fed to the session per chunk (the clock is read between chunks).
 const LOCAL_CHUNK: usize = 512;
 
+/// Reconnect attempts without progress before a lost stream counts as failed: with the network
+/// task's linear backoff (100 ms more per attempt) about 19 s of trying, long enough for a
+/// server to restart.
+const RECONNECT_ATTEMPTS: u32 = 20;
+
 /// Messages re-requesting lost nodes after `End` before the stream counts as failed (as the
 /// headless client's [`crate::stream::MAX_WANT_ROUNDS`]).
 const MAX_WANT_ROUNDS: u32 = crate::stream::MAX_WANT_ROUNDS;
@@ -62,6 +67,8 @@ struct Remote {
     want_rounds: u32,
     max_nodes: u64,
     last_view: Option<ViewParams>,
+    /// Reconnections when the view was last sent (a new connection needs it again).
+    view_reconnects: u64,
     /// The server's HTTP address (`http://host:port`), for `/v1/render`.
     http: String,
 }
@@ -134,7 +141,7 @@ impl Data {
                     tx,
                     out_rx,
                     Faults::default(),
-                    5,
+                    RECONNECT_ATTEMPTS,
                 ));
                 Ok(empty(Kind::Remote(Box::new(Remote {
                     rt,
@@ -147,6 +154,7 @@ impl Data {
                     want_rounds: 0,
                     max_nodes,
                     last_view: None,
+                    view_reconnects: 0,
                     http,
                 }))))
             }
@@ -217,15 +225,42 @@ impl Data {
         }
     }
 
+    /// Connections lost and retried so far (a stream; 0 otherwise).
+    pub fn reconnects(&self) -> u64 {
+        match &self.kind {
+            Kind::Remote(r) => r.net.reconnects.load(Ordering::Relaxed),
+            _ => 0,
+        }
+    }
+
+    /// A stream whose connection was lost and is being retried (not yet complete, not failed).
+    pub fn reconnecting(&self) -> bool {
+        match &self.kind {
+            Kind::Remote(r) => {
+                self.error.is_none()
+                    && !self.is_complete()
+                    && r.net.reconnects.load(Ordering::Relaxed) > 0
+                    && !r.net.connected.load(Ordering::Relaxed)
+            }
+            _ => false,
+        }
+    }
+
     /// Whether nodes were applied since the last call.
     pub fn take_changed(&mut self) -> bool {
         std::mem::take(&mut self.changed)
     }
 
-    /// Tells the server the view (a stream only; sent when it changed).
+    /// Tells the server the view (a stream only; sent when it changed, and again to a new
+    /// connection after one was lost).
     pub fn send_view(&mut self, cam: &Camera, tol_px: f64) {
         if let Kind::Remote(r) = &mut self.kind {
             let view = cam.view_params(tol_px);
+            let reconnects = r.net.reconnects.load(Ordering::Relaxed);
+            if reconnects != r.view_reconnects {
+                r.view_reconnects = reconnects;
+                r.last_view = None;
+            }
             if r.last_view != Some(view) {
                 let _ = r.out.send(ClientMsg::View(view));
                 r.last_view = Some(view);

@@ -6,10 +6,14 @@
 //! - [`data`]: the source; a stream's network runs on its own thread (the headless client's
 //!   network task), and each frame applies what has arrived within a budget.
 //! - [`orbit`]: the camera (orbit, pan, zoom), parametrized like `tetwave render` and `/v1/render`.
+//! - [`fly`]: fly mode's camera (`F`): a free eye that may enter the volume.
 //! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
 //! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
 //!   screenshots).
+//! - [`upload`]: leaf meshes uploaded on a thread of their own, off the frame loop.
 //! - [`tf_edit`]: the transfer-function editor (points, presets, the JSON `--tf` reads).
+//! - [`motion`]: a coarser tolerance while the camera moves, when the draws are slow.
+//! - [`perf`]: frame times and input-to-frame latency, for `--json`.
 //! - [`app`]: the window's frame loop and side panel.
 //!
 //! Failures to start (no display, no GPU adapter, a bad source or script) are one-line errors;
@@ -18,10 +22,14 @@
 
 pub mod app;
 pub mod data;
+pub mod fly;
 pub mod gpu;
+pub mod motion;
 pub mod orbit;
+pub mod perf;
 pub mod script;
 pub mod tf_edit;
+pub mod upload;
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -77,6 +85,19 @@ pub struct ViewArgs {
     pub tol: f64,
     #[arg(long, value_enum, default_value_t = ViewMode::Progressive)]
     pub mode: ViewMode,
+    /// Frame time (ms) aimed at while the camera moves: when a frame that drew the whole view
+    /// took longer, frames in motion draw with 1/`--motion-scale` of its width and height
+    /// (scaled up into the view); at rest the view is drawn whole. 0: never.
+    #[arg(long, default_value_t = 60.0, value_parser = motion_ms)]
+    pub motion_ms: f64,
+    /// The divisor of the view's width and height for slow draws in motion (1: full size).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub motion_scale: u32,
+    /// Also raise the tolerance in motion while frames draw slower than `--motion-ms` (a
+    /// coarser mesh; off by default: at 10⁵ tets the selector coarsens over more frames than a
+    /// motion lasts on a CPU rasterizer, see docs/benchmarks.md, "Viewer").
+    #[arg(long)]
+    pub motion_lod: bool,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,
     /// A JSON script of timestamped steps (see `viewer::script`).
@@ -97,6 +118,13 @@ pub struct ViewArgs {
     /// Refuse a stream whose hierarchy has more detail nodes than this (as `tetwave stream`).
     #[arg(long, default_value_t = crate::stream::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_nodes: u64,
+}
+
+fn motion_ms(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=10_000.0).contains(&v) => Ok(v),
+        _ => Err(format!("expected milliseconds within 0..=10000, got {s:?}")),
+    }
 }
 
 fn tol_px(s: &str) -> Result<f64, String> {
@@ -123,17 +151,31 @@ pub struct ViewReport {
     /// Tets drawn in the last frame.
     pub tets: u64,
     pub bytes_received: u64,
+    /// Times the stream's connection was lost and made again.
+    pub reconnects: u64,
+    /// Frames whose panel said the stream was reconnecting.
+    pub frames_reconnecting: u64,
+    /// The factor on the tolerance in motion at the end (see `viewer::motion`).
+    pub motion_factor: f64,
     pub complete: bool,
     /// Frames per second over the run.
     pub fps: f64,
+    /// Frames that drew the volume per second over the run (the others repainted the panel or
+    /// showed the same image).
+    pub fps_drawn: f64,
     /// Last frame's refinement time.
     pub refine_ms: f64,
-    /// Leaf mesh build and upload, the last time the mesh changed (not budgeted).
+    /// The last upload of the leaf mesh (on the upload thread, off the frame loop).
     pub upload_ms: f64,
     /// Last drawn frame's CPU side: sort, exit faces, submission (the GPU runs after).
     pub render_ms: f64,
     /// The view's size in pixels.
     pub view: [u32; 2],
+    /// The run ended in fly mode.
+    pub fly: bool,
+    /// The eye's position at the end.
+    pub eye: [f64; 3],
+    /// The orbit's camera (kept while flying).
     pub azimuth: f64,
     pub elevation: f64,
     pub distance: f64,
@@ -150,6 +192,10 @@ pub struct ViewReport {
     pub script_steps: [usize; 2],
     /// Failures after the window opened (also shown in the panel).
     pub errors: Vec<String>,
+    /// Frame times and input-to-frame latency over the run.
+    pub perf: perf::PerfReport,
+    /// Seconds from the window's opening until every node was held.
+    pub complete_s: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]

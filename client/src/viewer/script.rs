@@ -7,12 +7,16 @@
 //!   {"at": 2.0, "orbit": 90},
 //!   {"camera": {"azimuth": 125, "elevation": 25}},
 //!   {"tol": 4}, {"mode": "complete"}, {"tf": "shells"},
+//!   {"fly": {"forward": 1.2, "yaw": 30}}, {"reset": true}, {"size": "800x600"},
 //!   {"wait": "complete"}, {"server_image": true}, {"screenshot": "server.png"},
 //!   {"quit": true}
 //! ]
 //! ```
 //!
 //! A step waits until `at` seconds after the window opened (if given), then does its one action.
+//! A step that changes the view ends the frame's steps, except that inputs (camera, tolerance,
+//! mode, transfer function) already due by then are taken in the same frame, as a frame takes
+//! every mouse and key event queued since the last one.
 //! `wait` and `server_image` hold the script until their condition holds; `screenshot` until the
 //! image is written. Unknown keys and steps with no action or several are refused when the file
 //! is read, with the step's index.
@@ -28,6 +32,25 @@ pub struct CameraSet {
     pub elevation: Option<f64>,
     pub distance: Option<f64>,
     pub fov: Option<f64>,
+}
+
+/// A fly-camera move: distances in diagonals of the dataset's bounding box, angles in degrees;
+/// missing fields are 0. The move happens after the turn.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlyMove {
+    #[serde(default)]
+    pub forward: f64,
+    #[serde(default)]
+    pub right: f64,
+    #[serde(default)]
+    pub up: f64,
+    /// Positive: to the left.
+    #[serde(default)]
+    pub yaw: f64,
+    /// Positive: up.
+    #[serde(default)]
+    pub pitch: f64,
 }
 
 /// What a script can wait for.
@@ -50,13 +73,17 @@ pub enum Action {
     Elevate(f64),
     /// Factor on the eye distance.
     Zoom(f64),
-    /// Back to the initial view.
+    /// Into fly mode (from the current orbit, if not in it yet), then the move.
+    Fly(FlyMove),
+    /// Back to the initial view (the orbit, out of fly mode).
     Reset,
     /// A preset name or a `.json` file.
     Tf(String),
     /// Tolerance in pixels.
     Tol(f64),
     Mode(super::ViewMode),
+    /// Resizes the window so that the view is this many pixels, and waits until it is.
+    Size(u32, u32),
     Wait(WaitFor),
     /// Holds the script for this many frames.
     Frames(u32),
@@ -66,6 +93,25 @@ pub enum Action {
     /// A screenshot of the whole window, panel included.
     WindowScreenshot(PathBuf),
     Quit,
+}
+
+impl Action {
+    /// What a user's mouse, keys or panel could do: a change of the camera, the tolerance, the
+    /// mode or the transfer function.
+    pub fn is_input(&self) -> bool {
+        matches!(
+            self,
+            Action::Camera(_)
+                | Action::Orbit(_)
+                | Action::Elevate(_)
+                | Action::Zoom(_)
+                | Action::Fly(_)
+                | Action::Reset
+                | Action::Tf(_)
+                | Action::Tol(_)
+                | Action::Mode(_)
+        )
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -84,10 +130,12 @@ struct RawStep {
     orbit: Option<f64>,
     elevate: Option<f64>,
     zoom: Option<f64>,
+    fly: Option<FlyMove>,
     reset: Option<bool>,
     tf: Option<String>,
     tol: Option<f64>,
     mode: Option<super::ViewMode>,
+    size: Option<String>,
     wait: Option<WaitFor>,
     frames: Option<u32>,
     server_image: Option<bool>,
@@ -189,6 +237,18 @@ fn step(r: RawStep) -> Result<Step, String> {
         }
         actions.push(Action::Zoom(z));
     }
+    if let Some(f) = r.fly {
+        for (k, v) in [
+            ("forward", f.forward),
+            ("right", f.right),
+            ("up", f.up),
+            ("yaw", f.yaw),
+            ("pitch", f.pitch),
+        ] {
+            finite(k, v)?;
+        }
+        actions.push(Action::Fly(f));
+    }
     if r.reset == Some(true) {
         actions.push(Action::Reset);
     }
@@ -203,6 +263,10 @@ fn step(r: RawStep) -> Result<Step, String> {
     }
     if let Some(m) = r.mode {
         actions.push(Action::Mode(m));
+    }
+    if let Some(sz) = r.size {
+        let (w, h) = crate::render_cli::parse_size(&sz).map_err(|e| format!("size: {e}"))?;
+        actions.push(Action::Size(w, h));
     }
     if let Some(w) = r.wait {
         actions.push(Action::Wait(w));
@@ -227,7 +291,7 @@ fn step(r: RawStep) -> Result<Step, String> {
             at: r.at,
             action: actions.pop().expect("one"),
         }),
-        0 => Err("no action (give one of camera, orbit, elevate, zoom, reset, tf, tol, mode, wait, frames, server_image, screenshot, window_screenshot, quit)".into()),
+        0 => Err("no action (give one of camera, orbit, elevate, zoom, fly, reset, tf, tol, mode, size, wait, frames, server_image, screenshot, window_screenshot, quit)".into()),
         n => Err(format!("{n} actions in one step; give one per step")),
     }
 }
@@ -243,10 +307,20 @@ mod tests {
             {"wait": "complete"}, {"at": 1.5, "orbit": 90}, {"camera": {"azimuth": 10}},
             {"elevate": -5}, {"zoom": 0.5}, {"reset": true}, {"tf": "shells"}, {"tol": 3},
             {"mode": "interactive"}, {"frames": 4}, {"server_image": true},
-            {"screenshot": "a.png"}, {"quit": true}
+            {"screenshot": "a.png"}, {"quit": true}, {"fly": {"forward": 0.5, "yaw": -10}}
         ]"#;
         let s = parse(text, Path::new("s.json")).unwrap();
-        assert_eq!(s.len(), 13);
+        assert_eq!(s.len(), 14);
+        let s2 = parse(r#"[{"size": "320x200"}]"#, Path::new("s.json")).unwrap();
+        assert_eq!(s2[0].action, Action::Size(320, 200));
+        assert_eq!(
+            s[13].action,
+            Action::Fly(FlyMove {
+                forward: 0.5,
+                yaw: -10.0,
+                ..FlyMove::default()
+            })
+        );
         assert_eq!(s[0].action, Action::Wait(WaitFor::Complete));
         assert_eq!(s[1].at, Some(1.5));
         assert_eq!(s[1].action, Action::Orbit(90.0));
@@ -265,6 +339,8 @@ mod tests {
             (r#"[{"at": -1, "quit": true}]"#, "step 0: at -1"),
             (r#"[{"camera": {"elevation": 95}}]"#, "elevation"),
             (r#"[{"mode": "fast"}]"#, "unknown variant"),
+            (r#"[{"fly": {"back": 1}}]"#, "unknown field"),
+            (r#"[{"size": "0x10"}]"#, "step 0: size"),
         ] {
             let e = parse(text, Path::new("s.json")).unwrap_err().to_string();
             assert!(e.contains(needle), "{text}: {e}");
