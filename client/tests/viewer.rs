@@ -37,8 +37,12 @@ fn serve(store: &Path) -> Server {
 }
 
 fn serve_at(store: &Path, addr: &str) -> Server {
+    serve_with(store, addr, ServeConfig::default())
+}
+
+fn serve_with(store: &Path, addr: &str, config: ServeConfig) -> Server {
     let addr = addr.to_string();
-    let shared = Shared::open(store, ServeConfig::default()).expect("store opens");
+    let shared = Shared::open(store, config).expect("store opens");
     let (addr_tx, addr_rx) = std::sync::mpsc::channel();
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::spawn(move || {
@@ -713,7 +717,15 @@ fn slow_relay(upstream: std::net::SocketAddr, bytes_per_s: u64) -> (u16, Arc<Ato
 #[test]
 fn view_reconnects_when_the_server_restarts_mid_stream() {
     let (d, s) = store(4);
-    let srv = serve(&s);
+    // small batches, one in flight: what the server has sent is never far ahead of what the
+    // slow relay has passed, so the cut below falls in the middle of the stream
+    let paced = || ServeConfig {
+        batch: 64,
+        max_batch: 64,
+        window: 1,
+        ..ServeConfig::default()
+    };
+    let srv = serve_with(&s, "127.0.0.1:0", paced());
     let addr: std::net::SocketAddr = srv.1.trim_start_matches("http://").parse().unwrap();
     let (port, passed) = slow_relay(addr, 40_000);
     let script = serde_json::json!([{"wait": "complete"}, {"quit": true}]);
@@ -750,7 +762,7 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
     drop(srv);
     let at_cut = passed.load(Ordering::Relaxed);
     std::thread::sleep(Duration::from_millis(1500));
-    let srv = serve_at(&s, &addr.to_string());
+    let srv = serve_with(&s, &addr.to_string(), paced());
     let out = viewer.join().unwrap();
     let after = passed.load(Ordering::Relaxed) - at_cut;
     // the same stream uncut, for its size
