@@ -112,6 +112,18 @@ fn view_under_xvfb(args: &[&str], limit_s: u32) -> Output {
     out
 }
 
+/// Runs `tetwave view` under Xvfb with `script` (written to `dir/script.json`), `args` and
+/// `--json`; asserts it succeeded and returns its JSON report.
+fn view_script(dir: &Path, script: &serde_json::Value, args: &[&str]) -> serde_json::Value {
+    let sp = dir.join("script.json");
+    std::fs::write(&sp, script.to_string()).unwrap();
+    let mut all = args.to_vec();
+    all.extend(["--script", sp.to_str().unwrap(), "--json"]);
+    let out = view_under_xvfb(&all, 240);
+    assert!(out.status.success(), "tetwave view failed: {}", out.status);
+    serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap()
+}
+
 fn png(path: &Path) -> Rgba8Image {
     let img = image::open(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -336,9 +348,9 @@ fn view_tolerance_coarsens_and_refines() {
         {"screenshot": fine},
         {"quit": true}
     ]);
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, script.to_string()).unwrap();
-    let out = view_under_xvfb(
+    let r = view_script(
+        dir,
+        &script,
         &[
             &srv.1,
             "--size",
@@ -347,17 +359,10 @@ fn view_tolerance_coarsens_and_refines() {
             "progressive",
             "--tol",
             "1000",
-            "--script",
-            sp.to_str().unwrap(),
             "--frames",
             "5000",
-            "--json",
         ],
-        240,
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     eprintln!("{r}");
     // 5 base tets × 8³ at the finest of 3 levels; fewer at the coarse tolerance
     assert_eq!(r["tets"], 2560, "{r}");
@@ -448,24 +453,11 @@ fn view_json_carries_latency_and_the_worst_refinement_frame() {
         {"frames": 3},
         {"quit": true}
     ]);
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, script.to_string()).unwrap();
-    let out = view_under_xvfb(
-        &[
-            &srv.1,
-            "--size",
-            "160x120",
-            "--script",
-            sp.to_str().unwrap(),
-            "--frames",
-            "20000",
-            "--json",
-        ],
-        240,
+    let r = view_script(
+        dir,
+        &script,
+        &[&srv.1, "--size", "160x120", "--frames", "20000"],
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     eprintln!("{r}");
     let p = &r["perf"];
     let f = |v: &serde_json::Value| v.as_f64().unwrap_or_else(|| panic!("a number: {v} in {p}"));
@@ -539,24 +531,11 @@ fn view_flies_into_the_volume_and_matches_the_reference() {
         {"screenshot": inside},
         {"quit": true}
     ]);
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, script.to_string()).unwrap();
-    let out = view_under_xvfb(
-        &[
-            s.to_str().unwrap(),
-            "--size",
-            "160x120",
-            "--script",
-            sp.to_str().unwrap(),
-            "--frames",
-            "5000",
-            "--json",
-        ],
-        240,
+    let r = view_script(
+        dir,
+        &script,
+        &[s.to_str().unwrap(), "--size", "160x120", "--frames", "5000"],
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     eprintln!("{r}");
     assert_eq!(r["fly"], true, "{r}");
     let eye: Vec<f64> = r["eye"]
