@@ -485,6 +485,9 @@ fn view_json_carries_latency_and_the_worst_refinement_frame() {
     assert_eq!(p["latency_ms"]["n"], 8, "{p}");
     // a frame applies at most one script input, and its presentation is a frame later
     assert!(f(&p["latency_ms"]["max"]) > 0.0, "{p}");
+    // every input was applied by the first frame that started after it: its latency is below the
+    // period of the frame in flight when it came plus the applying frame's
+    assert_eq!(p["inputs_past_bound"], 0, "{p}");
     let worst = &p["worst_refine"];
     assert_eq!(f(&worst["refine_ms"]), f(&p["refine_ms"]["max"]), "{p}");
     assert!(f(&worst["refine_ms"]) >= f(&p["refine_ms"]["p50"]), "{p}");

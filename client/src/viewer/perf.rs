@@ -9,6 +9,11 @@
 //! a script step's `at` (when it is due, so a long frame that delays the step counts), or the
 //! start of the frame that read a mouse or key event (egui gives no event times; the wait
 //! before that frame is not seen).
+//!
+//! The bound the viewer is held to: an input waits at most for the frame in flight when it came,
+//! then is drawn by the next, so its latency is below that frame's period plus the applying
+//! frame's (its work, paint, GPU and present). That holds exactly when the first frame to start
+//! after the input applies it; [`PerfReport::inputs_past_bound`] counts the inputs it did not.
 
 use super::ViewMode;
 use serde::Serialize;
@@ -87,6 +92,10 @@ impl Stats {
 pub struct PerfReport {
     /// Input to the frame presenting it.
     pub latency_ms: Stats,
+    /// Inputs that waited past the frame in flight when they came (a frame started after them
+    /// and did not apply them): their latency exceeds that frame's period plus the applying
+    /// frame's.
+    pub inputs_past_bound: usize,
     /// Frame periods (start to the next start), the last frame left out.
     pub frame_ms: Stats,
     pub ingest_ms: Stats,
@@ -137,6 +146,9 @@ pub struct Perf {
     frame_start: Option<Instant>,
     /// When the last frame's work ended.
     work_end: Option<Instant>,
+    /// When the frame before the current one started.
+    prev_start: Option<Instant>,
+    inputs_past_bound: usize,
 }
 
 impl Perf {
@@ -152,6 +164,7 @@ impl Perf {
             last.paint_ms = now.saturating_duration_since(end).as_secs_f64() * 1e3;
             last.period_ms = now.saturating_duration_since(start).as_secs_f64() * 1e3;
         }
+        self.prev_start = self.frame_start;
         self.frame_start = Some(now);
         self.current = FrameRecord {
             frame,
@@ -168,6 +181,10 @@ impl Perf {
 
     /// An input given at `at` was applied in this frame.
     pub fn input(&mut self, at: Instant) {
+        if self.prev_start.is_some_and(|p| p >= at) {
+            // the previous frame started after the input and left it
+            self.inputs_past_bound += 1;
+        }
         self.applied.push(at);
         self.current.inputs += 1;
     }
@@ -201,6 +218,7 @@ impl Perf {
         };
         PerfReport {
             latency_ms: Stats::of(self.latencies_ms.iter().copied()),
+            inputs_past_bound: self.inputs_past_bound,
             frame_ms: Stats::of(f.iter().map(|r| r.period_ms)),
             ingest_ms: Stats::of(f.iter().map(|r| r.ingest_ms)),
             refine_ms: Stats::of(f.iter().filter(|r| r.refine_ms > 0.0).map(|r| r.refine_ms)),
@@ -292,5 +310,30 @@ mod tests {
         assert!(r.paint_ms.n == 2 && near(r.paint_ms.max, 20.0), "{r:?}");
         assert!(r.paint_drawn_ms.n == 1 && near(r.paint_drawn_ms.max, 20.0));
         assert!(near(r.work_ms.max, 10.0));
+        // applied by the first frame after it: within the bound (frame 1's period, 20 ms, plus
+        // frame 2's, 30 ms)
+        assert_eq!(r.inputs_past_bound, 0);
+        assert!(r.latency_ms.max < 20.0 + 30.0);
+    }
+
+    #[test]
+    fn an_input_left_by_a_frame_is_past_the_bound() {
+        let t0 = Instant::now();
+        let ms = |m: u64| t0 + Duration::from_millis(m);
+        let mut p = Perf::default();
+        p.begin_frame(1, ms(0), 0.0);
+        p.end_frame(ms(4));
+        // due at 5 ms; frame 2 starts at 10 ms without it, frame 3 applies it
+        p.begin_frame(2, ms(10), 0.01);
+        p.end_frame(ms(12));
+        p.begin_frame(3, ms(20), 0.02);
+        p.input(ms(5));
+        p.end_frame(ms(22));
+        p.begin_frame(4, ms(30), 0.03);
+        p.end_frame(ms(31));
+        let r = p.report();
+        assert_eq!(r.inputs_past_bound, 1);
+        // 25 ms, more than frame 1's period (10) plus frame 3's (10)
+        assert!((r.latency_ms.max - 25.0).abs() < 1e-6);
     }
 }
