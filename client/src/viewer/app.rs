@@ -113,6 +113,9 @@ pub struct ViewerApp {
     step: usize,
     /// The frame the current step began in.
     step_frame: Option<u64>,
+    /// When the script last passed a step that is not an input (a `wait`, `frames`, a
+    /// screenshot): an input after it cannot be given before, whatever its `at`.
+    script_gate: Option<Instant>,
     quit: bool,
     shot_tx: mpsc::Sender<(PathBuf, Rect, f32, Arc<egui::ColorImage>)>,
     shot_rx: mpsc::Receiver<(PathBuf, Rect, f32, Arc<egui::ColorImage>)>,
@@ -208,6 +211,7 @@ impl ViewerApp {
             steps,
             step: 0,
             step_frame: None,
+            script_gate: None,
             quit: false,
             shot_tx,
             shot_rx,
@@ -450,9 +454,12 @@ impl ViewerApp {
             }
             // the frame the step's action began in (after its `at`)
             let first = *self.step_frame.get_or_insert(self.frames);
-            // an input is given when it is due, or when the script reaches it
+            // an input is given when it is due (a backlog of due inputs counts from each one's
+            // `at`), but not before the script passed the last step that waited, or when the
+            // script reaches it
             let given = step.at.map_or_else(Instant::now, |at| {
-                self.started + Duration::from_secs_f64(at)
+                let due = self.started + Duration::from_secs_f64(at);
+                self.script_gate.map_or(due, |g| due.max(g))
             });
             let mut changes_view = false;
             match &step.action {
@@ -568,6 +575,9 @@ impl ViewerApp {
             }
             self.step += 1;
             self.step_frame = None;
+            if !step.action.is_input() {
+                self.script_gate = Some(Instant::now());
+            }
             if changes_view {
                 self.perf.input(given);
                 let elapsed = self.started.elapsed().as_secs_f64();

@@ -6,7 +6,8 @@
 //! Input-to-frame latency runs from the input's time to the start of the frame after the one
 //! that applied it: eframe paints and presents a frame's output after its `ui` returns and only
 //! then starts the next, so that start bounds the presentation from above. The input's time is
-//! a script step's `at` (when it is due, so a long frame that delays the step counts), or the
+//! a script step's `at` (when it is due, so a long frame that delays the step counts; but not
+//! before the script passed a step that waited, such as `wait`, which holds it back), or the
 //! start of the frame that read a mouse or key event (egui gives no event times; the wait
 //! before that frame is not seen).
 //!
