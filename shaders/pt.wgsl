@@ -7,6 +7,11 @@
 // along the chord with the transfer function (midpoint sub-steps). Output is premultiplied; blending
 // is `over` (src ONE, dst ONE_MINUS_SRC_ALPHA).
 //
+// Domain clipping: each tet also carries the domain's level set φ (linear in the tet; ≡ 1 when the
+// mesh has none). The chord is cut to the part where φ ≥ 0 (φ is linear along the ray, so the cut
+// is one division) and the scalar re-interpolated at the cut ends: a tet that straddles the
+// domain's boundary draws only what lies inside.
+//
 // Two fragment entry points (two pipelines; the CPU draws each tet with one of them):
 // - `fs_main`: exactly two sub-steps, straight-line code, for tets whose scalar range is at most four
 //   sub-step resolutions (`FAST_MAX_STEPS` in pt.rs; all tets of a fine mesh). A loop in a lavapipe
@@ -27,11 +32,13 @@ struct Globals {
     tf_info: vec4<u32>,
 };
 
-// Per tet: 4 outward face planes (xyz normal, w offset: n·x = w on the face) and the linear
-// normalized scalar s(x) = grad.xyz · x + grad.w.
+// Per tet: 4 outward face planes (xyz normal, w offset: n·x = w on the face), the linear
+// normalized scalar s(x) = grad.xyz · x + grad.w and the linear level set φ(x) = lset.xyz · x +
+// lset.w (drawn where φ ≥ 0).
 struct TetGeo {
     planes: array<vec4<f32>, 4>,
     grad: vec4<f32>,
+    lset: vec4<f32>,
 };
 
 // The transfer function tabulated at `tf_info.x + 1` evenly spaced normalized scalars: (r, g, b,
@@ -53,8 +60,10 @@ struct VsOut {
     @location(1) den: vec4<f32>,
     // per tet, constant over it: c_i = w_i - n_i·eye (the ray meets plane i at λ = c_i / (n_i·d))
     @location(2) @interpolate(flat) c: vec4<f32>,
-    // the tet's linear scalar extended to the eye
-    @location(3) @interpolate(flat) s_eye: f32,
+    // the tet's linear scalar (x) and level set (y) extended to the eye
+    @location(3) @interpolate(flat) eye_vals: vec2<f32>,
+    // the level set here (linear over the face)
+    @location(4) phi: f32,
 };
 
 // Indexed draw: vertex `v` is corner `v % 4` of tet `v / 4`; the CPU's index buffer lists, in
@@ -75,7 +84,8 @@ fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
     out.d = vec4<f32>(d, dot(g.grad.xyz, p) + g.grad.w);
     out.den = nx * d.x + ny * d.y + nz * d.z;
     out.c = vec4<f32>(pl[0].w, pl[1].w, pl[2].w, pl[3].w) - (nx * eye.x + ny * eye.y + nz * eye.z);
-    out.s_eye = dot(g.grad.xyz, eye) + g.grad.w;
+    out.eye_vals = vec2<f32>(dot(g.grad.xyz, eye) + g.grad.w, dot(g.lset.xyz, eye) + g.lset.w);
+    out.phi = dot(g.lset.xyz, p) + g.lset.w;
     out.clip = globals.view_proj * vec4<f32>(p, 1.0);
     return out;
 }
@@ -90,15 +100,31 @@ fn tf_eval(s: f32) -> vec4<f32> {
     return mix(tf[k], tf[k + 1u], x - f32(k));
 }
 
-// The ray's chord through the tet: (entry scalar, exit scalar, world length); length ≤ 0 or NaN: none.
+// The ray's chord through the tet, clipped to the domain (φ ≥ 0): (entry scalar, exit scalar,
+// world length); length ≤ 0 or NaN: none.
 fn chord(in: VsOut) -> vec3<f32> {
     let d = in.d.xyz;
     // rays start at the near plane; the entry is the farthest crossing of a plane the ray enters by
     let hits = select(vec4<f32>(-1e30), in.c / in.den, in.den < vec4<f32>(0.0));
     let l_near = globals.eye.w / max(dot(d, globals.fwd.xyz), 1e-30);
-    let l_in = max(l_near, max(max(hits.x, hits.y), max(hits.z, hits.w)));
-    let len = (1.0 - l_in) * sqrt(dot(d, d));
-    return vec3<f32>(mix(in.s_eye, in.d.w, l_in), in.d.w, len);
+    var a = max(l_near, max(max(hits.x, hits.y), max(hits.z, hits.w)));
+    var b = 1.0;
+    // φ is linear in the ray parameter λ: φ(λ) = mix(φ_eye, φ_exit, λ); keep the part ≥ 0
+    let pa = mix(in.eye_vals.y, in.phi, a);
+    let pb = in.phi;
+    if (pa < 0.0 && pb < 0.0) {
+        return vec3<f32>(0.0, 0.0, -1.0);
+    }
+    if (pa < 0.0 || pb < 0.0) {
+        let cut = a + (b - a) * clamp(pa / (pa - pb), 0.0, 1.0);
+        if (pa < 0.0) {
+            a = cut;
+        } else {
+            b = cut;
+        }
+    }
+    let len = (b - a) * sqrt(dot(d, d));
+    return vec3<f32>(mix(in.eye_vals.x, in.d.w, a), mix(in.eye_vals.x, in.d.w, b), len);
 }
 
 @fragment

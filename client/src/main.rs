@@ -103,6 +103,8 @@ fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
 }
 
 fn main() -> ExitCode {
+    // before any thread: headless renders would otherwise print a Wayland probe's error
+    tetwave_render::gpu::quiet_headless_vulkan_layers();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_env_filter("warn,winit=error")

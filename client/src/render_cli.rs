@@ -6,8 +6,10 @@
 //! A store and the mesh file it was prepared from frame the same default view: the store's base
 //! mesh is the box around the mesh's points (`prepare`'s box5/box6), so both have the same bounds,
 //! hence the same camera and extinction unit; the mesh's value range is its chosen scalar's
-//! min/max over its points, and the store's the range of its samples, which interpolate that
-//! scalar, so it lies within it (equal when the samples reach the extremes).
+//! min/max over its points, and `prepare` records that range in the store's manifest
+//! (`source_value_range`), which the store's image maps (stores without it map their samples'
+//! range, which lies within). A store with a level set (`levelset.f32`) is drawn clipped to it:
+//! tets that straddle the input's boundary draw only their inside part.
 
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -15,6 +17,7 @@ use std::time::Instant;
 use tetwave_import::clean::{clean_import, CleanError, ImportOptions};
 use tetwave_import::{format_of, read_mesh, ImportError, MeshFormat};
 use tetwave_protocol::view::Camera;
+use tetwave_render::gpu::order::{face_neighbors, is_convex};
 use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
@@ -157,7 +160,9 @@ pub struct RenderReport {
     pub output: String,
 }
 
-/// The level-`level` mesh of a store (finest when `None`).
+/// The level-`level` mesh of a store (finest when `None`), clipped to the store's level set when
+/// it has one, with the manifest's default value range
+/// ([`Manifest::display_value_range`](tetwave_store::Manifest::display_value_range)).
 pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), RenderCliError> {
     let levels = store.base.levels;
     let level = level.unwrap_or(levels);
@@ -169,10 +174,12 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
     }
     let values = store.synthesize_all()?;
     let empty = store.empty_children()?;
-    Ok((
-        RenderMesh::uniform_level(&store.base, &values, &empty, level),
-        level,
-    ))
+    let levelset = store.read_levelset()?;
+    let mut mesh =
+        RenderMesh::uniform_level_clipped(&store.base, &values, &empty, level, levelset.as_deref());
+    let [lo, hi] = store.manifest.display_value_range();
+    mesh.value_range = (lo, hi);
+    Ok((mesh, level))
 }
 
 /// Whether `tetwave render`'s input is a mesh file rather than a store directory: `--format`
@@ -200,6 +207,21 @@ pub fn file_mesh(
         RenderMesh::new(clean.points, clean.tets, values),
         report.scalar,
     ))
+}
+
+/// `--order mpvo` is exact only on convex meshes: says so (a tracing warning) when the drawn domain
+/// is not convex: a boundary with a reflex edge, several parts, or a level set that clips tets.
+fn warn_if_not_convex(mesh: &RenderMesh) {
+    let clipped = mesh.levelset.is_some();
+    let convex = !clipped && is_convex(&mesh.positions, &mesh.tets, &face_neighbors(&mesh.tets));
+    if !convex {
+        tracing::warn!(
+            clipped,
+            "--order mpvo on a non-convex mesh: tets on either side of a gap or concavity are \
+             ordered arbitrarily (see docs/formats.md); prefer --order centroid or compare with \
+             --compare"
+        );
+    }
 }
 
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
@@ -253,6 +275,9 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             let (img, ms) = reference(&mesh);
             (img, ms, "cpu-reference".into(), None)
         } else {
+            if a.order == VisibilityOrder::Mpvo {
+                warn_if_not_convex(&mesh);
+            }
             let ctx = GpuContext::new()?;
             let r = PtRenderer::with_accumulation(&ctx, a.accumulation);
             let data = r.upload_with(&ctx, &mesh, a.order == VisibilityOrder::Mpvo)?;

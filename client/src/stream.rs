@@ -805,7 +805,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let img = if args.no_render {
             None
         } else {
-            let rm = session.leaf_mesh(m.value_range);
+            let rm = session.leaf_mesh(m.display_value_range());
             let img = match &gpu {
                 Some((ctx, r)) => {
                     let data = r.upload(ctx, &rm)?;
@@ -856,7 +856,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
                 .map_err(|e| StreamError::Protocol(e.to_string()))?;
             let mut full = RenderMesh::uniform_level(base, &values, &empty, base.levels);
-            full.value_range = (m.value_range[0], m.value_range[1]);
+            let [lo, hi] = m.display_value_range();
+            full.value_range = (lo, hi);
             for (rec, (cam, img)) in frames.iter_mut().zip(cams.iter().zip(&images)) {
                 let reference: Rgba8Image = render_reference(&full, cam, &tf);
                 rec.psnr_db = Some(psnr(img, &reference).min(99.0));

@@ -1,5 +1,5 @@
 //! The CLI on bad input (`bench progressive`, camera arguments): a clear one-line error and a
-//! failing exit status, never a panic.
+//! failing exit status, never a panic; `render`'s warnings and its quiet headless start.
 
 use std::process::Command;
 
@@ -77,5 +77,37 @@ fn camera_arguments_are_checked() {
             err.contains(why) && !err.contains("panicked"),
             "{args:?}: {err}"
         );
+    }
+}
+
+/// `tetwave render --order mpvo` warns on a non-convex mesh (the 7-tet fixture `cube_ascii.vtu`,
+/// a cube piece with a notch) and the default order does not; with no display and no
+/// `XDG_RUNTIME_DIR`, neither run prints the line of Mesa's Wayland probe ("XDG_RUNTIME_DIR is
+/// invalid or not set") that every headless GPU render printed before.
+#[test]
+fn render_warns_for_mpvo_on_non_convex_meshes_and_is_quiet_headless() {
+    let mesh = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../server/tests/fixtures/cube_ascii.vtu");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.png");
+    let render = |order: &str| {
+        let o = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+            .args(["render", &mesh.display().to_string(), "--size", "16x16"])
+            .args(["--order", order, "-o", &out.display().to_string()])
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY")
+            .env_remove("XDG_RUNTIME_DIR")
+            .env_remove("NODEVICE_SELECT")
+            .output()
+            .expect("tetwave runs");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let mpvo = render("mpvo");
+    assert!(mpvo.contains("--order mpvo on a non-convex mesh"), "{mpvo}");
+    let centroid = render("centroid");
+    assert!(!centroid.contains("non-convex"), "{centroid}");
+    for err in [&mpvo, &centroid] {
+        assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
     }
 }

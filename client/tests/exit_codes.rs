@@ -55,6 +55,7 @@ fn manifest(base: &BaseMesh) -> Manifest {
         base_vertices: base.positions.len() as u64,
         levels: base.levels,
         value_range: [-2.0, 3.0],
+        source_value_range: None,
         counts: Counts {
             tets_total: f.total_tets(),
             leaves: f.leaves(),

@@ -742,6 +742,12 @@ impl BoundaryDistance {
 
     /// Distance from `p` to the boundary surface (infinite if the mesh has none).
     pub fn distance(&self, p: [f64; 3]) -> f64 {
+        self.distance_within(p, f64::INFINITY)
+    }
+
+    /// `min(distance(p), cap)`: boxes farther than `cap` are never opened, so a point far from
+    /// the surface with a small cap costs a few box tests.
+    pub fn distance_within(&self, p: [f64; 3], cap: f64) -> f64 {
         let box_d2 = |n: &BvhNode| {
             (0..3)
                 .map(|k| {
@@ -750,8 +756,8 @@ impl BoundaryDistance {
                 })
                 .sum::<f64>()
         };
-        let mut best = f64::INFINITY;
-        let mut best2 = f64::INFINITY;
+        let mut best = cap;
+        let mut best2 = cap * cap;
         let mut stack: Vec<(u32, f64)> = Vec::with_capacity(64);
         if let Some(root) = self.nodes.first() {
             stack.push((0, box_d2(root)));

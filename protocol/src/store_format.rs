@@ -107,7 +107,13 @@ pub struct Manifest {
     pub base_tets: u64,
     pub base_vertices: u64,
     pub levels: u8,
+    /// The range of the resampled samples inside the domain.
     pub value_range: [f32; 2],
+    /// The range of the chosen scalar over the input as the importer reads it (a mesh's points,
+    /// a raw grid's samples), when `prepare` knew it: at least as wide as `value_range`, since the
+    /// samples interpolate that scalar. Stores written before it was recorded have none.
+    #[serde(default)]
+    pub source_value_range: Option<[f32; 2]>,
     pub counts: Counts,
     pub encoding: Encoding,
     /// Max |synthesis − sample| the store promises (verify fails beyond it).
@@ -115,6 +121,17 @@ pub struct Manifest {
     /// Max |synthesis − sample| measured when the store was written.
     pub max_abs_error: f64,
     pub files: std::collections::BTreeMap<String, FileSum>,
+}
+
+impl Manifest {
+    /// The value range a renderer maps to the transfer function by default: the input's
+    /// ([`Manifest::source_value_range`]) when recorded, so that a store and the file it was
+    /// prepared from frame the same default view, else the samples' ([`Manifest::value_range`]).
+    pub fn display_value_range(&self) -> [f32; 2] {
+        self.source_value_range
+            .filter(|[lo, hi]| lo.is_finite() && hi.is_finite() && lo <= hi)
+            .unwrap_or(self.value_range)
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -11,8 +11,9 @@ use crate::store_format::Manifest;
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
-/// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes).
-pub const PROTOCOL_VERSION: u16 = 3;
+/// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes). 4: the manifest
+/// carries `source_value_range` (bincode is positional: a version-3 peer would misread it).
+pub const PROTOCOL_VERSION: u16 = 4;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -281,6 +282,7 @@ mod tests {
                 base_vertices: 8,
                 levels: 2,
                 value_range: [0.0, 1.0],
+                source_value_range: Some([-0.5, 1.5]),
                 counts: Counts {
                     tets_total: 365,
                     leaves: 320,

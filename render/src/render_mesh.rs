@@ -1,4 +1,5 @@
-//! The leaf mesh as the renderers see it: positions, tets and one scalar per vertex.
+//! The leaf mesh as the renderers see it: positions, tets, one scalar per vertex and, for a
+//! domain that does not fill the mesh, one level-set value per vertex.
 
 use glam::DVec3;
 use tetwave_protocol::hierarchy::LevelWalker;
@@ -12,6 +13,11 @@ pub struct RenderMesh {
     pub values: Vec<f32>,
     /// Scalar range mapped to the transfer function's `[0, 1]`.
     pub value_range: (f32, f32),
+    /// Per vertex, the domain's level set (the signed distance to its boundary, positive
+    /// inside), or `None` when the whole mesh is domain. Renderers interpolate it linearly in each
+    /// tet like the scalar and draw only where it is ≥ 0: a tet that straddles the boundary
+    /// contributes the part of each ray segment inside the domain.
+    pub levelset: Option<Vec<f32>>,
 }
 
 impl RenderMesh {
@@ -27,6 +33,7 @@ impl RenderMesh {
             tets,
             values,
             value_range,
+            levelset: None,
         }
     }
 
@@ -40,6 +47,20 @@ impl RenderMesh {
         empty_children: &[u8],
         level: u8,
     ) -> Self {
+        Self::uniform_level_clipped(base, values, empty_children, level, None)
+    }
+
+    /// [`Self::uniform_level`] with the domain's level set at the finest vertices (by vertex key,
+    /// as a store's `levelset.f32` holds it): each vertex of the level keeps its own value (the
+    /// level set restricted to the level's vertices, so a coarse level sees a coarser boundary),
+    /// and tets whose 4 corners are all outside (< 0) are left out, as nothing of them is drawn.
+    pub fn uniform_level_clipped(
+        base: &BaseMesh,
+        values: &[f32],
+        empty_children: &[u8],
+        level: u8,
+        levelset: Option<&[f32]>,
+    ) -> Self {
         let keys = base.vertex_keys();
         let forest = base.forest();
         let level = level.min(forest.levels);
@@ -48,23 +69,33 @@ impl RenderMesh {
         let mut remap = std::collections::HashMap::new();
         let mut positions = Vec::new();
         let mut vals = Vec::new();
+        let mut lset = Vec::new();
         let mut tets = Vec::new();
         for (id, t) in LevelWalker::level(forest, level) {
             if empty[(id - start) as usize] {
                 continue;
             }
+            let k: [u64; 4] = std::array::from_fn(|i| keys.key(t.base, &t.v[i]));
+            if let Some(ls) = levelset {
+                if k.iter().all(|&k| ls[k as usize] < 0.0) {
+                    continue;
+                }
+            }
             let mut tet = [0u32; 4];
             for (i, w) in t.v.iter().enumerate() {
-                let k = keys.key(t.base, w);
-                tet[i] = *remap.entry(k).or_insert_with(|| {
+                tet[i] = *remap.entry(k[i]).or_insert_with(|| {
                     positions.push(base.position(t.base, w));
-                    vals.push(values[k as usize]);
+                    vals.push(values[k[i] as usize]);
+                    if let Some(ls) = levelset {
+                        lset.push(ls[k[i] as usize]);
+                    }
                     (positions.len() - 1) as u32
                 });
             }
             tets.push(tet);
         }
         let mut m = RenderMesh::new(positions, tets, vals);
+        m.levelset = levelset.map(|_| lset);
         m.value_range = {
             let (lo, hi) = values
                 .iter()
@@ -133,21 +164,9 @@ impl RenderMesh {
         let tet = self.tets[t];
         let x: [DVec3; 4] = tet.map(|v| DVec3::from_array(self.positions[v as usize]) - origin);
         let s: [f64; 4] = tet.map(|v| self.normalize(self.values[v as usize] as f64));
-        let e1 = x[1] - x[0];
-        let e2 = x[2] - x[0];
-        let e3 = x[3] - x[0];
-        let det = e1.dot(e2.cross(e3));
-        let scale = e1.length().max(e2.length()).max(e3.length());
-        if det.abs() <= 1e-14 * scale.powi(3) || !det.is_finite() {
+        let Some((g, c)) = linear_function(&x, s) else {
             return ([(DVec3::ZERO, 0.0); 4], DVec3::ZERO, s[0]);
-        }
-        // gradient: solve [e1 e2 e3]^T g = (s1-s0, s2-s0, s3-s0)
-        let inv = 1.0 / det;
-        let r1 = e2.cross(e3) * inv;
-        let r2 = e3.cross(e1) * inv;
-        let r3 = e1.cross(e2) * inv;
-        let g = r1 * (s[1] - s[0]) + r2 * (s[2] - s[0]) + r3 * (s[3] - s[0]);
-        let c = s[0] - g.dot(x[0]);
+        };
         let faces = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
         let planes = std::array::from_fn(|i| {
             let [a, b, cc] = faces[i];
@@ -158,6 +177,53 @@ impl RenderMesh {
             (n, n.dot(x[a]))
         });
         (planes, g, c)
+    }
+
+    /// The tet's linear level set `φ(x) = g·x + c` (relative to `origin`), or `(0, 1)` (everywhere
+    /// inside) when the mesh has no level set; a degenerate tet gets `(0, φ₀)`.
+    pub fn tet_levelset(&self, t: usize, origin: DVec3) -> (DVec3, f64) {
+        let Some(ls) = &self.levelset else {
+            return (DVec3::ZERO, 1.0);
+        };
+        let tet = self.tets[t];
+        let x: [DVec3; 4] = tet.map(|v| DVec3::from_array(self.positions[v as usize]) - origin);
+        let l: [f64; 4] = tet.map(|v| ls[v as usize] as f64);
+        linear_function(&x, l).unwrap_or((DVec3::ZERO, l[0]))
+    }
+}
+
+/// The linear function `f(x) = g·x + c` taking the values `f[i]` at the tet's corners `x[i]`, or
+/// `None` for a degenerate (near zero volume) or non-finite tet.
+fn linear_function(x: &[DVec3; 4], f: [f64; 4]) -> Option<(DVec3, f64)> {
+    let e1 = x[1] - x[0];
+    let e2 = x[2] - x[0];
+    let e3 = x[3] - x[0];
+    let det = e1.dot(e2.cross(e3));
+    let scale = e1.length().max(e2.length()).max(e3.length());
+    if det.abs() <= 1e-14 * scale.powi(3) || !det.is_finite() {
+        return None;
+    }
+    // gradient: solve [e1 e2 e3]^T g = (f1-f0, f2-f0, f3-f0)
+    let inv = 1.0 / det;
+    let r1 = e2.cross(e3) * inv;
+    let r2 = e3.cross(e1) * inv;
+    let r3 = e1.cross(e2) * inv;
+    let g = r1 * (f[1] - f[0]) + r2 * (f[2] - f[0]) + r3 * (f[3] - f[0]);
+    Some((g, f[0] - g.dot(x[0])))
+}
+
+/// The part of a ray segment where a level set that is linear along it, `l0` at its start and
+/// `l1` at its end, is ≥ 0: `None` when there is none (both ends < 0), else the fractions
+/// `(a, b)` of the segment where that part starts and ends (`0 ≤ a ≤ b ≤ 1`), at which the caller
+/// interpolates its other linear quantities (position, scalar).
+#[inline]
+pub fn clip_to_levelset(l0: f64, l1: f64) -> Option<(f64, f64)> {
+    match (l0 >= 0.0, l1 >= 0.0) {
+        (true, true) => Some((0.0, 1.0)),
+        (false, false) => None,
+        // the zero of l0 + u·(l1 − l0): l0 and l1 have opposite signs, so l0 − l1 ≠ 0
+        (false, true) => Some(((l0 / (l0 - l1)).clamp(0.0, 1.0), 1.0)),
+        (true, false) => Some((0.0, (l0 / (l0 - l1)).clamp(0.0, 1.0))),
     }
 }
 

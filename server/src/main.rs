@@ -181,6 +181,8 @@ fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
 }
 
 fn main() -> ExitCode {
+    // before any thread: fallback renders would otherwise print a Wayland probe's error
+    tetwave_render::gpu::quiet_headless_vulkan_layers();
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(

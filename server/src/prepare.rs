@@ -1,9 +1,12 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
 use crate::analysis::{analyze_hierarchy, AnalysisError, ErrorBound, Precision};
+use crate::resample::levelset::signed_distance;
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
-use crate::resample::unstructured::{self, CleanError, CleanReport, ImportOptions, Locator};
+use crate::resample::unstructured::{
+    self, BoundaryDistance, CleanError, CleanReport, ImportOptions, Locator,
+};
 use crate::resample::{resample, BaseSpec, ResampleError, Source};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -111,10 +114,15 @@ pub struct Summary {
     pub bytes: u64,
     /// Bytes of the verification reference (`reference.f32`, not streamed).
     pub reference_bytes: u64,
+    /// Bytes of the domain's level set (`levelset.f32`, not streamed; 0 when the input has no
+    /// outside).
+    pub levelset_bytes: u64,
     pub encoding: String,
     pub max_abs_error: f64,
     pub max_error_bound: f64,
     pub value_range: [f32; 2],
+    /// The input's scalar range (the manifest's `source_value_range`), when known.
+    pub source_value_range: Option<[f32; 2]>,
     pub outside_vertices: u64,
     pub empty_base_tets: u64,
     pub seconds: f64,
@@ -122,11 +130,30 @@ pub struct Summary {
     pub import: Option<CleanReport>,
 }
 
-fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport>), PrepareError> {
+/// What `prepare` reads from its input besides the samples.
+struct Loaded {
+    source: Source,
+    dataset: String,
+    import: Option<CleanReport>,
+    /// The input's scalar range as the importer read it (a mesh's point values, a raw grid's
+    /// samples); `None` for synthetic fields and `--field distance`, whose samples are computed at
+    /// each resampled point rather than interpolated from the input's values.
+    source_range: Option<(f32, f32)>,
+    /// A mesh's boundary surface, for the level set (`None`: the input has no outside).
+    boundary: Option<BoundaryDistance>,
+}
+
+fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
     if let Some(name) = o.input.strip_prefix("synthetic:") {
         let s = Synthetic::parse(name)
             .ok_or_else(|| PrepareError::UnknownSynthetic(name.to_string()))?;
-        return Ok((Source::Synthetic(s), s.name().to_string(), None));
+        return Ok(Loaded {
+            source: Source::Synthetic(s),
+            dataset: s.name().to_string(),
+            import: None,
+            source_range: None,
+            boundary: None,
+        });
     }
     let path = PathBuf::from(&o.input);
     let stem = path
@@ -154,7 +181,13 @@ fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport
                 }
             }
         }
-        return Ok((Source::Raw(grid), stem, None));
+        return Ok(Loaded {
+            source_range: grid.value_range(),
+            source: Source::Raw(grid),
+            dataset: stem,
+            import: None,
+            boundary: None,
+        });
     }
     if o.format.is_some() || import::format_of(&path).is_some() || path.exists() {
         let mesh = import::read_mesh(&path, o.format)?;
@@ -178,7 +211,22 @@ fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport
         }
         let bounds = unstructured::bbox(&clean.points);
         let loc = Locator::new(&clean);
-        return Ok((Source::Mesh(Box::new(loc), bounds), stem, Some(report)));
+        let source_range = (!clean.distance)
+            .then(|| {
+                clean.values.iter().fold(None, |r: Option<(f32, f32)>, &v| {
+                    let v = v as f32;
+                    Some(r.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))))
+                })
+            })
+            .flatten();
+        let boundary = BoundaryDistance::new(&clean.points, &clean.tets);
+        return Ok(Loaded {
+            source: Source::Mesh(Box::new(loc), bounds),
+            dataset: stem,
+            import: Some(report),
+            source_range,
+            boundary: Some(boundary),
+        });
     }
     Err(PrepareError::UnknownInput(o.input.clone()))
 }
@@ -186,11 +234,25 @@ fn load_source(o: &PrepareOptions) -> Result<(Source, String, Option<CleanReport
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let t0 = Instant::now();
-    let (source, dataset, import) = load_source(o)?;
+    let Loaded {
+        source,
+        dataset,
+        import,
+        source_range,
+        boundary,
+    } = load_source(o)?;
     tracing::info!(input = %o.input, levels = o.levels, "resampling");
     let r = resample(&source, &o.base, o.levels)?;
     drop(source);
     let outside = r.outside;
+    // only an input with an outside needs clipping: inside every vertex the level set is ≥ 0
+    let levelset = match boundary {
+        Some(b) if outside > 0 => {
+            tracing::info!(vertices = r.samples.len(), "level set of the domain");
+            Some(signed_distance(&r, &b))
+        }
+        _ => None,
+    };
     tracing::info!(vertices = r.samples.len(), outside, "analysing");
     let precision = match (o.bits, o.max_error) {
         (None, None) => Precision::Lossless,
@@ -213,12 +275,14 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         source: o.input.clone(),
         base: base_name.clone(),
         outside_vertices: outside,
+        source_value_range: source_range,
+        levelset,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
     let bytes = m
         .files
         .iter()
-        .filter(|(k, _)| k.as_str() != "reference.f32")
+        .filter(|(k, _)| !matches!(k.as_str(), "reference.f32" | "levelset.f32"))
         .map(|(_, f)| f.bytes)
         .sum();
     Ok(Summary {
@@ -234,6 +298,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         coefficients: m.counts.coefficients,
         bytes,
         reference_bytes: m.files.get("reference.f32").map(|f| f.bytes).unwrap_or(0),
+        levelset_bytes: m.files.get("levelset.f32").map(|f| f.bytes).unwrap_or(0),
         encoding: match m.encoding {
             store::Encoding::F32 => "f32".into(),
             store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),
@@ -241,6 +306,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         max_abs_error: m.max_abs_error,
         max_error_bound: m.max_error_bound,
         value_range: m.value_range,
+        source_value_range: m.source_value_range,
         outside_vertices: outside,
         empty_base_tets: m.counts.empty_base_tets,
         seconds: t0.elapsed().as_secs_f64(),

@@ -12,6 +12,10 @@
 //! default, transparent, opaque, shells), `renderer` (`auto`, `gpu`, `cpu`). Anything else, or a value
 //! out of range, is a 400 with a message. The answer carries `X-Tetwave-Renderer`,
 //! `X-Tetwave-Level` and `X-Tetwave-Tets` headers.
+//!
+//! The image maps the manifest's default value range (the input's, when `prepare` recorded it) and
+//! is clipped to the store's level set (`levelset.f32`) when it has one, so that it is the image
+//! `tetwave render <store>` draws for the same view.
 
 use axum::http::StatusCode;
 use std::collections::HashMap;
@@ -238,7 +242,8 @@ struct RenderState {
 }
 
 /// The store, its synthesized finest-level values and its nodes' empty-children masks.
-type StoreData = (Store, Arc<Vec<f32>>, Vec<u8>);
+/// An open store, its synthesized finest values, empty-children masks and level set.
+type StoreData = (Store, Arc<Vec<f32>>, Vec<u8>, Option<Vec<f32>>);
 
 /// Renders a store's uniform levels on request: synthesis once, meshes and GPU uploads of the last
 /// level kept, one render at a time.
@@ -329,7 +334,8 @@ impl RenderService {
                 let s = Store::open(&self.dir).map_err(|e| e.to_string())?;
                 let v = s.synthesize_all().map_err(|e| e.to_string())?;
                 let empty = s.empty_children().map_err(|e| e.to_string())?;
-                Ok((s, Arc::new(v), empty))
+                let levelset = s.read_levelset().map_err(|e| e.to_string())?;
+                Ok((s, Arc::new(v), empty, levelset))
             })
             .as_ref()
             .map_err(|e| e.clone())
@@ -365,7 +371,7 @@ impl RenderService {
                 "the render was cancelled".to_string(),
             )
         };
-        let (store, values, empty) = self.data().map_err(internal)?;
+        let (store, values, empty, levelset) = self.data().map_err(internal)?;
         let base = &store.base;
         let level = p.level_for(base);
         let tf = TransferFunction::preset(&p.tf)
@@ -377,7 +383,16 @@ impl RenderService {
         let mesh = match &st.mesh {
             Some((l, m)) if *l == level => m.clone(),
             _ => {
-                let m = Arc::new(RenderMesh::uniform_level(base, values, empty, level));
+                let mut m = RenderMesh::uniform_level_clipped(
+                    base,
+                    values,
+                    empty,
+                    level,
+                    levelset.as_deref(),
+                );
+                let [lo, hi] = store.manifest.display_value_range();
+                m.value_range = (lo, hi);
+                let m = Arc::new(m);
                 st.mesh = Some((level, m.clone()));
                 m
             }

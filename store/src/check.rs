@@ -5,7 +5,7 @@
 //! - the counts of the manifest agree with the base mesh's hierarchy (tets, leaves, vertices);
 //! - `block_index.bin` has `nblocks + 1` entries, starts at 0 and never decreases (checked by
 //!   [`StoreHead::decode`]), and its last entry is `blocks.bin`'s length;
-//! - `reference.f32` holds 4 bytes a vertex;
+//! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it;
 //! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
 //!   subtree bound, and the blocks together own the manifest's coefficient count.
 //!
@@ -119,6 +119,9 @@ pub(crate) fn structure(dir: &Path, head: &StoreHead) -> Result<(), StoreError> 
     // file sizes
     if size_of(dir, "reference.f32")?.is_some() || m.files.contains_key("reference.f32") {
         expect_size(dir, "reference.f32", vertices, 4, "vertices")?;
+    }
+    if m.files.contains_key("levelset.f32") {
+        expect_size(dir, "levelset.f32", vertices, 4, "vertices")?;
     }
     let bpath = dir.join("blocks.bin");
     let Some(len) = size_of(dir, "blocks.bin")? else {

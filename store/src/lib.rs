@@ -12,6 +12,8 @@
 //! |                   | of [`BlockCoder::encode`](tetwave_protocol::block::BlockCoder::encode)      |
 //! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then the file's length  |
 //! | `reference.f32`   | the sampled value of every vertex (for `verify`; not streamed)             |
+//! | `levelset.f32`    | optional: per vertex key, the signed distance to the input domain's        |
+//! |                   | boundary (positive inside), for clipping straddling tets; not streamed     |
 //!
 //! The blocks are what the wire carries (a `Nodes` frame is a coded block of any id set): the
 //! stream carries what the store holds. Reading nodes `a..b` reads the covering blocks' bytes (one
@@ -33,6 +35,10 @@ pub use write::{write, StoreContent, StoreMeta};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
 pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin", "reference.f32"];
+
+/// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
+/// with their size and CRC-32 like the others.
+pub const OPTIONAL_STORE_FILES: [&str; 1] = ["levelset.f32"];
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

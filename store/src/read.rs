@@ -1,6 +1,6 @@
 //! Reading a store: the manifest, base mesh and block index at open, coded blocks on demand.
 
-use crate::{io_err, StoreError, STORE_FILES};
+use crate::{io_err, StoreError, OPTIONAL_STORE_FILES, STORE_FILES};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -74,7 +74,9 @@ impl Store {
         }
         for (name, sum) in &manifest.files {
             // only the store's own files: a name like `../x` or `/dev/zero` is never opened
-            if !STORE_FILES.contains(&name.as_str()) {
+            if !STORE_FILES.contains(&name.as_str())
+                && !OPTIONAL_STORE_FILES.contains(&name.as_str())
+            {
                 return Err(StoreError::Corrupt {
                     path: mpath,
                     reason: format!("{name:?} is not a file of a store"),
@@ -234,6 +236,33 @@ impl Store {
         Ok(b.chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
+    }
+
+    /// The signed distance to the input domain's boundary at every finest-level vertex (by vertex
+    /// key; positive inside), when the store has one (`levelset.f32` listed in the manifest).
+    pub fn read_levelset(&self) -> Result<Option<Vec<f32>>, StoreError> {
+        if !self.manifest.files.contains_key("levelset.f32") {
+            return Ok(None);
+        }
+        let p = self.dir.join("levelset.f32");
+        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        if b.len() as u64 != self.manifest.counts.vertices * 4 {
+            return Err(StoreError::Corrupt {
+                path: p,
+                reason: "size disagrees with the vertex count".into(),
+            });
+        }
+        let ls: Vec<f32> = b
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        if let Some(k) = ls.iter().position(|x| x.is_nan()) {
+            return Err(StoreError::Corrupt {
+                path: p,
+                reason: format!("vertex {k}: the level set is NaN"),
+            });
+        }
+        Ok(Some(ls))
     }
 
     /// Every finest-level vertex value (by vertex key), synthesized from all nodes.

@@ -68,6 +68,12 @@ pub struct StoreMeta {
     pub source: String,
     pub base: String,
     pub outside_vertices: u64,
+    /// The range of the input's scalar as the importer read it (the manifest's
+    /// `source_value_range`), when known.
+    pub source_value_range: Option<(f32, f32)>,
+    /// Per vertex key, the signed distance to the input domain's boundary (positive inside),
+    /// written as `levelset.f32`; `None` for inputs with no outside (a raw grid, a convex mesh).
+    pub levelset: Option<Vec<f32>>,
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. Over an existing store,
@@ -186,6 +192,32 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     }
     files.insert("reference.f32".into(), w.finish().map_err(io_err(&path))?);
 
+    let path = dir.join("levelset.f32");
+    match &meta.levelset {
+        Some(ls) => {
+            if ls.len() != a.reference.len() {
+                return Err(StoreError::Corrupt {
+                    path,
+                    reason: format!(
+                        "{} level-set values for {} vertices",
+                        ls.len(),
+                        a.reference.len()
+                    ),
+                });
+            }
+            let mut w = SumWriter::create(&path)?;
+            for &x in ls {
+                w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
+            }
+            files.insert("levelset.f32".into(), w.finish().map_err(io_err(&path))?);
+        }
+        // a level set left by an earlier store in this directory is not this store's
+        None => match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io_err(&path)(e)),
+            _ => {}
+        },
+    }
+
     let (lo, hi) = a.base.bounds();
     let manifest = Manifest {
         format: STORE_FORMAT.into(),
@@ -198,6 +230,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         base_vertices: a.base.positions.len() as u64,
         levels: a.base.levels,
         value_range: [a.value_range.0, a.value_range.1],
+        source_value_range: meta.source_value_range.map(|(lo, hi)| [lo, hi]),
         counts: Counts {
             tets_total: forest.total_tets(),
             leaves: forest.leaves(),

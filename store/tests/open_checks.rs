@@ -20,6 +20,11 @@ use tetwave_store::{
 /// Writes a `box5` store of `levels` levels of the unit-cube harmonic field into `dir`; returns
 /// its nodes.
 fn make_store(dir: &Path, levels: u8) -> Vec<DetailNode> {
+    make_store_with(dir, levels, None)
+}
+
+/// [`make_store`] with a level set (`levelset.f32`) and a source value range when `levelset`.
+fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<DetailNode> {
     let base = unsampled_base(levels, box5([0.0; 3], [1.0; 3]));
     let (base, nodes) = detail_nodes(base, |p| harmonic_unit(p) as f32);
     let reference = synthesize_all(&base, &base.vertex_keys(), nodes.iter().cloned()).unwrap();
@@ -46,6 +51,8 @@ fn make_store(dir: &Path, levels: u8) -> Vec<DetailNode> {
         source: "test".into(),
         base: "box5".into(),
         outside_vertices: 0,
+        source_value_range: levelset.as_ref().map(|_| (lo - 1.0, hi + 1.0)),
+        levelset,
     };
     write(dir, &content, meta).unwrap();
     nodes
@@ -116,6 +123,41 @@ fn an_intact_store_opens_and_reads_back() {
         },
     )
     .unwrap();
+}
+
+/// A store with a level set: `levelset.f32` is listed with its checksum, reads back as written,
+/// and the manifest's source value range (what renderers map by default) comes back; a store
+/// written over it without one loses the file. A truncated level set is refused at open.
+#[test]
+fn a_level_set_and_source_range_read_back() {
+    let d = tempfile::tempdir().unwrap();
+    let n = tetwave_protocol::testing::unsampled_base(3, box5([0.0; 3], [1.0; 3]))
+        .vertex_keys()
+        .vertex_count() as usize;
+    let ls: Vec<f32> = (0..n).map(|k| k as f32 - 10.0).collect();
+    make_store_with(d.path(), 3, Some(ls.clone()));
+    let s = Store::open_with(
+        d.path(),
+        OpenOptions {
+            verify_checksums: true,
+        },
+    )
+    .unwrap();
+    assert_eq!(s.read_levelset().unwrap(), Some(ls));
+    let [lo, hi] = s.manifest.value_range;
+    assert_eq!(s.manifest.source_value_range, Some([lo - 1.0, hi + 1.0]));
+    assert_eq!(s.manifest.display_value_range(), [lo - 1.0, hi + 1.0]);
+    // truncated: refused at open, naming the file
+    let path = d.path().join("levelset.f32");
+    let full = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &full[..full.len() - 4]).unwrap();
+    refused(d.path(), "levelset.f32", &["bytes"]);
+    // rewritten without a level set: no file, no range, the samples' range by default
+    make_store(d.path(), 3);
+    let s = Store::open(d.path()).unwrap();
+    assert_eq!(s.read_levelset().unwrap(), None);
+    assert!(!path.exists());
+    assert_eq!(s.manifest.display_value_range(), s.manifest.value_range);
 }
 
 #[test]

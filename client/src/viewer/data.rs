@@ -85,6 +85,8 @@ pub struct Data {
     pub session: Option<Session>,
     /// A mesh file's mesh (no session).
     pub mesh: Option<RenderMesh>,
+    /// The value range mapped to the transfer function (a store's
+    /// [`display_value_range`](tetwave_protocol::store_format::Manifest::display_value_range)).
     pub value_range: [f32; 2],
     /// Centre and diagonal of the dataset's bounding box, once known.
     pub frame: Option<(DVec3, f64)>,
@@ -165,7 +167,7 @@ impl Data {
                     .read_nodes(0, m.counts.nodes)
                     .map_err(|e| e.to_string())?;
                 let mut d = empty(Kind::Local { nodes, next: 0 });
-                d.value_range = m.value_range;
+                d.value_range = m.display_value_range();
                 d.start_session(store.base.clone(), tol)?;
                 Ok(d)
             }
@@ -338,7 +340,7 @@ impl Data {
             self.bytes_applied += nbytes;
             match msg {
                 Delivery::Manifest(m) => {
-                    self.value_range = m.value_range;
+                    self.value_range = m.display_value_range();
                     r.manifest = Some(*m);
                 }
                 Delivery::Base(b) => {

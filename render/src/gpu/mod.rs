@@ -19,6 +19,21 @@ pub enum RenderError {
     ImageSize { width: u32, height: u32, limit: u32 },
 }
 
+/// Keeps Mesa's Vulkan device-selection layer (`VK_LAYER_MESA_device_select`, an implicit layer
+/// on most Linux installs) from probing for a Wayland compositor when there is no display at all:
+/// its probe calls `wl_display_connect`, which prints "error: XDG_RUNTIME_DIR is invalid or not
+/// set in the environment." on every headless run, and without a display the layer has nothing
+/// to select by (the adapters keep the driver's order). Sets `NODEVICE_SELECT=1` (the layer's
+/// documented off switch) when neither `WAYLAND_DISPLAY` nor `DISPLAY` is set and the user has
+/// not set it. Call at the start of `main`, before any thread exists (it sets an environment
+/// variable); a process with a display is left as it is.
+pub fn quiet_headless_vulkan_layers() {
+    let set = |k: &str| std::env::var_os(k).is_some_and(|v| !v.is_empty());
+    if !set("WAYLAND_DISPLAY") && !set("DISPLAY") && std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 /// Instance, adapter, device and queue, created once and shared.
 pub struct GpuContext {
     /// The instance the adapter came from: a window's surface must be created from it to be

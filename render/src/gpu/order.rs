@@ -42,6 +42,81 @@ pub fn face_neighbors(tets: &[[u32; 4]]) -> Vec<[u32; 4]> {
     nb
 }
 
+/// Whether the mesh's domain is convex, judged from its boundary (the faces of one tet): every
+/// boundary edge joins exactly two boundary faces with a dihedral angle that is not reflex (the
+/// far corner of each face lies on the inner side of the other's plane, within `1e-9` of the
+/// mesh's size), and the boundary is one connected surface. A closed, connected surface that is
+/// locally convex at every edge bounds a convex body, so this is exact up to the tolerance; a mesh
+/// with gaps, holes, concavities, cavities or several parts is reported non-convex. MPVO is
+/// exact only on convex meshes ([`mpvo_order`]).
+pub fn is_convex(positions: &[[f64; 3]], tets: &[[u32; 4]], neighbors: &[[u32; 4]]) -> bool {
+    let p = |v: u32| DVec3::from_array(positions[v as usize]);
+    // boundary faces: their 3 vertices and the outward normal (away from the tet's 4th vertex)
+    let mut faces: Vec<([u32; 3], DVec3)> = Vec::new();
+    for (t, tet) in tets.iter().enumerate() {
+        for i in 0..4 {
+            if neighbors[t][i] != u32::MAX {
+                continue;
+            }
+            let f: [u32; 3] = std::array::from_fn(|k| tet[(i + 1 + k) % 4]);
+            let mut n = (p(f[1]) - p(f[0])).cross(p(f[2]) - p(f[0]));
+            if n.dot(p(tet[i]) - p(f[0])) > 0.0 {
+                n = -n;
+            }
+            faces.push((f, n.normalize_or_zero()));
+        }
+    }
+    if faces.is_empty() {
+        return false;
+    }
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for v in positions {
+        lo = lo.min(DVec3::from_array(*v));
+        hi = hi.max(DVec3::from_array(*v));
+    }
+    let eps = 1e-9 * (hi - lo).length();
+    let mut edges: HashMap<[u32; 2], Vec<u32>> = HashMap::with_capacity(faces.len() * 3 / 2);
+    for (fi, (f, _)) in faces.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (f[k], f[(k + 1) % 3]);
+            edges
+                .entry([a.min(b), a.max(b)])
+                .or_default()
+                .push(fi as u32);
+        }
+    }
+    // union-find over the faces, joined across their edges
+    let mut parent: Vec<u32> = (0..faces.len() as u32).collect();
+    fn root(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    for (e, fs) in &edges {
+        let &[f, g] = fs.as_slice() else {
+            return false;
+        };
+        let far = |of: u32| {
+            let vs = faces[of as usize].0;
+            *vs.iter()
+                .find(|&&v| !e.contains(&v))
+                .expect("a face has a vertex off its edge")
+        };
+        for (a, b) in [(f, g), (g, f)] {
+            let (va, na) = faces[a as usize];
+            if na.dot(p(far(b)) - p(va[0])) > eps {
+                return false;
+            }
+        }
+        let (rf, rg) = (root(&mut parent, f), root(&mut parent, g));
+        parent[rf as usize] = rg;
+    }
+    let r0 = root(&mut parent, 0);
+    (1..faces.len() as u32).all(|f| root(&mut parent, f) == r0)
+}
+
 /// Tets sorted farthest centroid first.
 pub fn centroid_order(centroids: &[[f32; 3]], eye: [f32; 3]) -> Vec<u32> {
     let mut keyed: Vec<(u32, u32)> = centroids
@@ -148,6 +223,27 @@ pub fn mpvo_order(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A Kuhn cube is convex; without one of its 8 sub-cubes (a notch at a corner), or as two
+    /// separate cubes, it is not.
+    #[test]
+    fn convexity_of_boundaries() {
+        let check = |keep: &dyn Fn(usize, usize, usize) -> bool, shift: bool| {
+            let (mut pts, mut tets) = tetwave_protocol::shapes::kuhn_grid(2, keep);
+            if shift {
+                // a second copy, apart from the first
+                let n = pts.len() as u32;
+                let more: Vec<[f64; 3]> = pts.iter().map(|p| [p[0] + 3.0, p[1], p[2]]).collect();
+                pts.extend(more);
+                let t2: Vec<[u32; 4]> = tets.iter().map(|t| t.map(|v| v + n)).collect();
+                tets.extend(t2);
+            }
+            is_convex(&pts, &tets, &face_neighbors(&tets))
+        };
+        assert!(check(&|_, _, _| true, false));
+        assert!(!check(&|i, j, k| (i, j, k) != (1, 1, 1), false));
+        assert!(!check(&|_, _, _| true, true));
+    }
     use crate::render_mesh::RenderMesh;
 
     /// On a convex Kuhn-cube mesh, MPVO respects every face: whenever two tets share a face, the one

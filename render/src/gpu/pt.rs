@@ -47,6 +47,8 @@ struct Globals {
 struct TetGeo {
     planes: [[f32; 4]; 4],
     grad: [f32; 4],
+    /// The level set `φ(x) = xyz·x + w` (`(0, 0, 0, 1)` without one: nothing is clipped).
+    lset: [f32; 4],
 }
 
 /// Intervals of the transfer-function table the fragment stage interpolates (a table lookup costs
@@ -314,9 +316,11 @@ impl PtRenderer {
             .into_par_iter()
             .map(|t| {
                 let (planes, g, c) = mesh.tet_geometry(t, origin);
+                let (lg, lc) = mesh.tet_levelset(t, origin);
                 TetGeo {
                     planes: planes.map(|(n, d)| [n.x as f32, n.y as f32, n.z as f32, d as f32]),
                     grad: [g.x as f32, g.y as f32, g.z as f32, c as f32],
+                    lset: [lg.x as f32, lg.y as f32, lg.z as f32, lc as f32],
                 }
             })
             .collect();

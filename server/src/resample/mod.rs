@@ -11,6 +11,7 @@
 //! parent's node (or the base mesh), never refined by the client and never drawn.
 
 pub mod base;
+pub mod levelset;
 pub mod raw;
 pub mod synthetic;
 pub mod unstructured;

@@ -120,6 +120,21 @@ impl RawGrid {
         })
     }
 
+    /// `(min, max)` of the finite samples (`None` when there is none).
+    pub fn value_range(&self) -> Option<(f32, f32)> {
+        let fold = |it: &mut dyn Iterator<Item = f32>| {
+            it.filter(|x| x.is_finite())
+                .fold(None, |r: Option<(f32, f32)>, x| {
+                    Some(r.map_or((x, x), |(lo, hi)| (lo.min(x), hi.max(x))))
+                })
+        };
+        match &self.data {
+            RawData::U8(v) => fold(&mut v.iter().map(|&x| x as f32)),
+            RawData::U16(v) => fold(&mut v.iter().map(|&x| x as f32)),
+            RawData::F32(v) => fold(&mut v.iter().copied()),
+        }
+    }
+
     /// Index of the first non-finite sample, if any (only f32 grids can have one).
     pub fn first_non_finite(&self) -> Option<usize> {
         match &self.data {
