@@ -4,6 +4,7 @@ use crate::{io_err, StoreError, OPTIONAL_STORE_FILES, STORE_FILES};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
+use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::store_format::{
     FormatError, Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES, STORE_FORMAT,
     STORE_VERSION,
@@ -159,6 +160,12 @@ impl Store {
 
     pub fn forest(&self) -> Forest {
         self.base.forest()
+    }
+
+    /// Codes and decodes this store's blocks (its base mesh and encoding): what a server sends is
+    /// coded with it, as the store's own blocks are.
+    pub fn coder(&self) -> &BlockCoder {
+        &self.head.coder
     }
 
     /// Recomputes every file's CRC-32 and compares it with the manifest, which must list every

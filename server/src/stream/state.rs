@@ -12,7 +12,7 @@ use glam::DVec3;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, OnceLock};
-use tetwave_protocol::block::{BlockCoder, NodeBlock};
+use tetwave_protocol::block::NodeBlock;
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
@@ -35,8 +35,6 @@ pub struct Shared {
     pub(super) manifest_json: Bytes,
     pub(super) manifest_frame: Bytes,
     pub(super) base_frame: Bytes,
-    /// Codes batches and `/v1/nodes` ranges into blocks.
-    coder: BlockCoder,
     /// Every node, when the store is small enough ([`ServeConfig::cache_limit_bytes`]).
     cache: Option<Vec<DetailNode>>,
     /// Otherwise the last decoded blocks of the store, most recent last ([`BLOCK_CACHE`]).
@@ -115,7 +113,6 @@ impl Shared {
             "store {} opened for serving",
             dir.display()
         );
-        let coder = BlockCoder::new(&store.base, &store.manifest.encoding);
         let render = RenderService::new(dir);
         let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
@@ -126,7 +123,6 @@ impl Shared {
             manifest_json,
             manifest_frame,
             base_frame,
-            coder,
             cache,
             recent: Mutex::new(VecDeque::with_capacity(BLOCK_CACHE)),
             smax,
@@ -208,7 +204,9 @@ impl Shared {
     /// Nodes `ids` (sorted in place) as one coded block.
     pub(super) fn fetch_block(&self, ids: &mut [TetId]) -> Result<NodeBlock, ServeError> {
         let nodes = self.fetch(ids)?;
-        self.coder
+        // the store's own coder: batches and `/v1/nodes` ranges code as its blocks do
+        self.store
+            .coder()
             .encode(&nodes)
             .map_err(|e| ServeError::Encode(e.to_string()))
     }
