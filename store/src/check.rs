@@ -16,6 +16,7 @@ use crate::{io_err, StoreError};
 use std::io::{BufReader, Read};
 use std::path::Path;
 use tetwave_protocol::store_format::{FormatError, StoreHead};
+use tetwave_protocol::DetailNode;
 
 fn corrupt(dir: &Path, file: &str, reason: String) -> StoreError {
     StoreError::Corrupt {
@@ -63,8 +64,13 @@ fn expect_size(
     Ok(())
 }
 
-/// Runs every check of the module docs on an open store's head and files.
-pub(crate) fn structure(dir: &Path, head: &StoreHead) -> Result<(), StoreError> {
+/// Runs every check of the module docs on an open store's head and files, handing each decoded
+/// block's nodes to `visit` (in id order).
+pub(crate) fn structure(
+    dir: &Path,
+    head: &StoreHead,
+    visit: &mut dyn FnMut(Vec<DetailNode>),
+) -> Result<(), StoreError> {
     let m = &head.manifest;
     let base = &head.base;
     let forest = base.forest();
@@ -166,6 +172,7 @@ pub(crate) fn structure(dir: &Path, head: &StoreHead) -> Result<(), StoreError> 
             },
         })?;
         owned += nodes.iter().map(|n| n.coeffs.len() as u64).sum::<u64>();
+        visit(nodes);
     }
     if owned != coefficients {
         return Err(corrupt(

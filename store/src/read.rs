@@ -55,6 +55,17 @@ impl Store {
     /// `blocks.bin`);
     /// with [`OpenOptions::verify_checksums`], every file's CRC-32 as well.
     pub fn open_with(dir: &Path, options: OpenOptions) -> Result<Self, StoreError> {
+        Self::open_visiting(dir, options, |_| {})
+    }
+
+    /// Opens a store like [`Self::open_with`] and hands every node to `visit`, block by block in
+    /// id order, as the structural check decodes them: a reader that needs every node (a server
+    /// loading its metadata) decodes the store once, not twice.
+    pub fn open_visiting(
+        dir: &Path,
+        options: OpenOptions,
+        mut visit: impl FnMut(Vec<DetailNode>),
+    ) -> Result<Self, StoreError> {
         let mpath = dir.join("manifest.json");
         let text = std::fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
         let manifest: Manifest =
@@ -144,7 +155,7 @@ impl Store {
                     },
                 },
             )?;
-        crate::check::structure(dir, &head)?;
+        crate::check::structure(dir, &head, &mut visit)?;
         let store = Store {
             dir: dir.to_path_buf(),
             manifest: head.manifest.clone(),

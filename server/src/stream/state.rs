@@ -58,8 +58,6 @@ pub struct Shared {
     pub(super) render_run: tokio::sync::Mutex<()>,
 }
 
-/// Nodes read per step while loading metadata.
-const LOAD_CHUNK: u64 = 1 << 16;
 /// Decoded store blocks kept when the store is not cached whole: batches of neighbouring
 /// connections and consecutive batches of one connection often touch the same blocks, and a
 /// decoded block of [`BLOCK`] nodes takes a few hundred kilobytes.
@@ -68,10 +66,30 @@ const BLOCK_CACHE: usize = 32;
 impl Shared {
     /// Opens the store and prepares what connections share.
     pub fn open(dir: &std::path::Path, config: ServeConfig) -> Result<Arc<Shared>, ServeError> {
-        let store = Store::open_with(
+        // the structural check decodes every block once: take the subtree bounds, and every
+        // node while their rough in-memory size (the struct, its allocation, its coefficients)
+        // stays within the cache limit
+        let per_node = std::mem::size_of::<DetailNode>() as u64 + 16;
+        let mut smax: Vec<f32> = Vec::new();
+        let mut cache: Option<Vec<DetailNode>> = Some(Vec::new());
+        let mut est = 0u64;
+        let store = Store::open_visiting(
             dir,
             OpenOptions {
                 verify_checksums: config.verify_checksums,
+            },
+            |part| {
+                smax.extend(part.iter().map(|n| n.subtree_max_abs));
+                est += part
+                    .iter()
+                    .map(|n| per_node + 4 * n.coeffs.len() as u64)
+                    .sum::<u64>();
+                if est > config.cache_limit_bytes {
+                    cache = None;
+                }
+                if let Some(c) = cache.as_mut() {
+                    c.extend(part);
+                }
             },
         )?;
         let forest = store.forest();
@@ -91,22 +109,7 @@ impl Shared {
             encode(&ServerMsg::Base(Box::new(store.base.clone())))
                 .map_err(|e| ServeError::Encode(e.to_string()))?,
         );
-        // rough in-memory size of every node: the struct, its allocation and its coefficients
-        let est = nodes * (std::mem::size_of::<DetailNode>() as u64 + 16)
-            + store.manifest.counts.coefficients * 4;
-        let keep = est <= config.cache_limit_bytes;
-        let mut cache = keep.then(|| Vec::with_capacity(nodes as usize));
-        let mut smax = Vec::with_capacity(nodes as usize);
-        let mut from = 0;
-        while from < nodes {
-            let to = (from + LOAD_CHUNK).min(nodes);
-            let part = store.read_nodes(from, to)?;
-            smax.extend(part.iter().map(|n| n.subtree_max_abs));
-            if let Some(c) = cache.as_mut() {
-                c.extend(part);
-            }
-            from = to;
-        }
+        let keep = cache.is_some();
         tracing::info!(
             nodes,
             cached = keep,
