@@ -13,11 +13,13 @@
 //! reference): 46.0, 43.1 and 40.5 dB for the three views (the same store drawn without its level
 //! set: 36.2, 35.2 and 34.2 dB, covering 0, 18 and 74 of the pixels that miss the mesh).
 
-use clap::Parser;
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
-use tetwave_client::render_cli::{file_mesh, run, store_mesh, RenderArgs, RenderReport};
+mod common;
+
+use common::{psnr_pixels as psnr, render_png};
+use tetwave_client::render_cli::{file_mesh, store_mesh};
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;
@@ -28,12 +30,6 @@ use tetwave_server::prepare::{prepare, PrepareOptions};
 use tetwave_server::render_service::{RenderParams, RenderService};
 use tetwave_server::resample::unstructured::ImportOptions;
 use tetwave_store::Store;
-
-#[derive(Parser)]
-struct Cli {
-    #[command(flatten)]
-    a: RenderArgs,
-}
 
 const SIZE: u32 = 96;
 const CUT: f64 = 0.4;
@@ -95,33 +91,6 @@ fn write_mesh(path: &Path) {
     std::fs::write(path, s).unwrap();
 }
 
-/// `tetwave render input -o out` with `extra` options: the PNG's pixels and the report.
-fn render(input: &Path, out: &Path, extra: &[String]) -> (Vec<[u8; 4]>, RenderReport) {
-    let mut args = vec![
-        "render".to_string(),
-        input.display().to_string(),
-        "--size".into(),
-        format!("{SIZE}x{SIZE}"),
-        "-o".into(),
-        out.display().to_string(),
-    ];
-    args.extend(extra.iter().cloned());
-    let cli = Cli::try_parse_from(&args).unwrap();
-    let report = run(&cli.a).unwrap();
-    let img = image::open(out).unwrap().to_rgba8();
-    (img.pixels().map(|p| p.0).collect(), report)
-}
-
-fn psnr(a: &[[u8; 4]], b: &[[u8; 4]]) -> f64 {
-    let sum: f64 = a
-        .iter()
-        .zip(b)
-        .flat_map(|(p, q)| (0..3).map(move |k| (p[k] as f64 - q[k] as f64).powi(2)))
-        .sum();
-    let rmse = (sum / (3 * a.len()) as f64).sqrt();
-    20.0 * (255.0 / rmse).log10()
-}
-
 /// Pixels where `original` is empty (transparent black: the ray meets no tet) and `img` is not.
 fn leaks(original: &Rgba8Image, img: &Rgba8Image) -> usize {
     let bg = [0u8; 4];
@@ -176,14 +145,11 @@ fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
     let mut measured = Vec::new();
     let mut unclipped_leaks = 0;
     for (az, el) in [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)] {
-        let view = [
-            format!("--azimuth={az}"),
-            format!("--elevation={el}"),
-            "--reference".into(),
-        ];
+        let (az_arg, el_arg) = (format!("--azimuth={az}"), format!("--elevation={el}"));
+        let view = [az_arg.as_str(), el_arg.as_str(), "--reference"];
         // `tetwave render` of both (PNG, RGB): the same default value range, and the PSNR
-        let (orig_png, rm) = render(&mesh, &d.path().join("m.png"), &view);
-        let (cpu_png, rs) = render(&store, &d.path().join("s.png"), &view);
+        let (orig_png, rm) = render_png(&mesh, &d.path().join("m.png"), SIZE, &view);
+        let (cpu_png, rs) = render_png(&store, &d.path().join("s.png"), SIZE, &view);
         assert_eq!(rs.value_range, rm.value_range, "same default value range");
         assert_eq!(rs.level, 4);
         // exact images (with alpha) for the misses: the same camera as `tetwave render`'s

@@ -11,16 +11,12 @@
 //! 295 and 294 pixels background in one image only. (Before the level set and the recorded value
 //! range: 24.42 and 25.24 dB, 70 pixels background in the mesh's image only.)
 
-use clap::Parser;
 use std::path::{Path, PathBuf};
-use tetwave_client::render_cli::{run, RenderArgs};
-use tetwave_server::prepare::{prepare, PrepareOptions};
+mod common;
 
-#[derive(Parser)]
-struct Cli {
-    #[command(flatten)]
-    a: RenderArgs,
-}
+use common::psnr_pixels as psnr;
+use tetwave_client::render_cli::RenderReport;
+use tetwave_server::prepare::{prepare, PrepareOptions};
 
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -28,35 +24,8 @@ fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// Renders `input` with `tetwave render` options `extra`; returns the RGBA pixels and the report.
-fn render(
-    input: &Path,
-    out: &Path,
-    extra: &[&str],
-) -> (Vec<[u8; 4]>, tetwave_client::render_cli::RenderReport) {
-    let mut args = vec![
-        "render".to_string(),
-        input.display().to_string(),
-        "--size".into(),
-        "64x64".into(),
-        "-o".into(),
-        out.display().to_string(),
-    ];
-    args.extend(extra.iter().map(|s| s.to_string()));
-    let cli = Cli::try_parse_from(&args).unwrap();
-    let report = run(&cli.a).unwrap();
-    let img = image::open(out).unwrap().to_rgba8();
-    (img.pixels().map(|p| p.0).collect(), report)
-}
-
-fn psnr(a: &[[u8; 4]], b: &[[u8; 4]]) -> f64 {
-    let sum: f64 = a
-        .iter()
-        .zip(b)
-        .flat_map(|(p, q)| (0..3).map(move |k| (p[k] as f64 - q[k] as f64).powi(2)))
-        .sum();
-    let rmse = (sum / (3 * a.len()) as f64).sqrt();
-    20.0 * (255.0 / rmse).log10()
+fn render(input: &Path, out: &Path, extra: &[&str]) -> (Vec<[u8; 4]>, RenderReport) {
+    common::render_png(input, out, 64, extra)
 }
 
 #[test]

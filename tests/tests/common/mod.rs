@@ -1,15 +1,57 @@
-//! Helpers shared by the cross-crate tests that run `tetwave bench progressive` on a store.
+//! Helpers shared by the cross-crate tests: stores, `tetwave bench progressive` arguments and
+//! `tetwave render` runs.
 #![allow(dead_code)] // each test binary uses some of the helpers
 
 use clap::Parser;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use tetwave_client::progressive::BenchArgs;
+use tetwave_client::render_cli::{run, RenderArgs, RenderReport};
+use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_server::prepare::{prepare, PrepareOptions};
 
 #[derive(Parser)]
 struct Cli {
     #[command(flatten)]
     bench: BenchArgs,
+}
+
+#[derive(Parser)]
+struct RenderCli {
+    #[command(flatten)]
+    a: RenderArgs,
+}
+
+/// `tetwave render input --size SIZE -o out` with `extra` options, parsed as the CLI parses them:
+/// the PNG's RGBA pixels and the report.
+pub fn render_png(
+    input: &Path,
+    out: &Path,
+    size: u32,
+    extra: &[&str],
+) -> (Vec<[u8; 4]>, RenderReport) {
+    let mut args = vec![
+        "render".to_string(),
+        input.display().to_string(),
+        "--size".into(),
+        format!("{size}x{size}"),
+        "-o".into(),
+        out.display().to_string(),
+    ];
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let cli = RenderCli::try_parse_from(&args).unwrap();
+    let report = run(&cli.a).unwrap();
+    let img = image::open(out).unwrap().to_rgba8();
+    (img.pixels().map(|p| p.0).collect(), report)
+}
+
+/// PSNR over RGB of two pixel lists of one size ([`tetwave_render::image_metrics::psnr`]).
+pub fn psnr_pixels(a: &[[u8; 4]], b: &[[u8; 4]]) -> f64 {
+    let img = |p: &[[u8; 4]]| Rgba8Image {
+        width: p.len() as u32,
+        height: 1,
+        pixels: p.to_vec(),
+    };
+    tetwave_render::image_metrics::psnr(&img(a), &img(b))
 }
 
 /// A harmonic store of `levels` levels prepared by the server in a new temporary directory (kept
