@@ -5,7 +5,7 @@ use super::node::{Node, NodeFlags};
 use super::{AdaptiveMesh, MeshError, NONE};
 use crate::detail_buffer::DetailBuffer;
 use tetwave_protocol::hierarchy::{BEY_CHILDREN, EDGES};
-use tetwave_protocol::wavelet::{predict, predict_split, split_edge, synthesize, SplitEdge};
+use tetwave_protocol::wavelet::{split_edge, SplitEdge};
 use tetwave_protocol::{LatticeTet, TetId};
 
 impl AdaptiveMesh {
@@ -58,15 +58,14 @@ impl AdaptiveMesh {
                 }
                 _ => {
                     let p = self.lattice_position(lt.base, &w);
-                    let (prediction, src) = match &parent {
-                        None => (
-                            predict(self.vval[sa as usize], self.vval[sb as usize]),
-                            [NONE; 4],
-                        ),
+                    // the parent points the prediction reads beyond the edge's ends
+                    // (`VertexPrediction`); the value comes from the same mechanism that
+                    // corrects it later
+                    let src = match &parent {
+                        None => [NONE; 4],
                         Some((pp, c)) => {
                             let (q0, q1) = (c[a], c[b]);
-                            let v10 = pp.map(|s| self.vval[s as usize]);
-                            let src = match split_edge(q0, q1) {
+                            match split_edge(q0, q1) {
                                 Some(SplitEdge::Face { opp, .. }) => {
                                     [pp[opp as usize], NONE, NONE, NONE]
                                 }
@@ -79,24 +78,18 @@ impl AdaptiveMesh {
                                     o
                                 }
                                 _ => [NONE; 4],
-                            };
-                            (predict_split(&v10, q0, q1), src)
+                            }
                         }
                     };
-                    let val = synthesize(buf.coeff(key).unwrap_or(0.0), prediction);
                     let s = self.new_vertex(
                         key,
                         [p[0] as f32, p[1] as f32, p[2] as f32],
                         level + 1,
                         [sa, sb],
                         src,
-                        val,
+                        f32::NAN,
                     );
-                    debug_assert_eq!(
-                        val.to_bits(),
-                        self.synth_value(buf, s).to_bits(),
-                        "creation and correction predict alike"
-                    );
+                    self.vval[s as usize] = self.synth_value(buf, s);
                     self.by_key.insert(key, s);
                     created[e] = true;
                     s
