@@ -15,9 +15,14 @@
 //!   decoded bound is `(2^k − 1) · step`, an upper bound within a factor 2, which is the safe side
 //!   for the selection's error estimate. A node that follows its sibling in the block sends one
 //!   adaptive flag when its class is the sibling's (so a group costs about one class). Lossless
-//!   stores send the f32 bits;
+//!   stores round the bound up to a power of two (within a factor 2, the same safe side) and code
+//!   its exponent the same way ([`pow2_class`]);
 //! - **coefficients**: quantized codes by magnitude under the class `k` (none at all when `k = 0`:
-//!   a zero subtree costs only its class), sign bits raw; lossless stores send the f32 bits.
+//!   a zero subtree costs only its class), sign bits raw. Lossless stores keep every bit of the
+//!   f32: its sign raw, its exponent as the difference to the previous coefficient's, how many
+//!   mantissa bits lie above the lowest set one (modelled by exponent: a detail `f(m) − P(m)` of
+//!   two values of one binade is a multiple of their ulp, so its low bits are zero), and those
+//!   bits raw.
 //!
 //! Decoding is total: malformed, truncated or oversized blocks are [`BlockError`]s, and the work
 //! is bounded by the node count the header declares (at most [`MAX_BLOCK_NODES`]).
@@ -34,6 +39,12 @@ use serde::{Deserialize, Serialize};
 pub const MAX_BLOCK_NODES: u32 = 1 << 16;
 /// Largest subtree class (bit length of a code magnitude).
 const MAX_CLASS: u32 = 40;
+/// Largest lossless subtree class ([`pow2_class`] of `f32::MAX`).
+const MAX_POW2_CLASS: u32 = 278;
+/// Contexts of a lossless coefficient's mantissa length: its biased exponent minus
+/// [`SIG_CONTEXT_FROM`], clamped to `0..SIG_CONTEXTS`.
+const SIG_CONTEXTS: usize = 48;
+const SIG_CONTEXT_FROM: u32 = 90;
 
 /// A coded set of detail nodes (see the module documentation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -88,6 +99,12 @@ struct Models {
     class: Vec<UInt>,
     same_class: Bit,
     magnitude: Vec<UInt>,
+    /// Lossless: the subtree class's difference to the previous one (zigzag).
+    class_delta: UInt,
+    /// Lossless: a coefficient's biased exponent's difference to the previous one (zigzag).
+    exponent_delta: UInt,
+    /// Lossless: mantissa bits down to the lowest set one, by exponent.
+    significant: Vec<UInt>,
 }
 
 impl Models {
@@ -100,6 +117,9 @@ impl Models {
             class: vec![UInt::default(); 16],
             same_class: Bit::default(),
             magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
+            class_delta: UInt::default(),
+            exponent_delta: UInt::default(),
+            significant: vec![UInt::default(); SIG_CONTEXTS],
         }
     }
 }
@@ -150,6 +170,7 @@ impl BlockCoder {
         let mut m = Models::new();
         let mut prev: Option<TetId> = None;
         let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
+        let mut prev_exponent = FIRST_EXPONENT;
         for n in &order {
             if n.id >= total {
                 return Err(BlockError::IdOutOfRange {
@@ -182,9 +203,35 @@ impl BlockCoder {
             }
             match self.coefficients {
                 Coefficients::Raw => {
-                    e.raw(n.subtree_max_abs.to_bits() as u64, 32);
+                    let class = pow2_class(n.subtree_max_abs);
+                    let same = after_sibling && class == prev_class;
+                    if after_sibling {
+                        e.bit(&mut m.same_class, same);
+                    }
+                    if !same {
+                        e.uint(&mut m.class_delta, zigzag(class as i64 - prev_class as i64))?;
+                    }
+                    prev_class = class;
                     for c in &n.coeffs {
-                        e.raw(c.to_bits() as u64, 32);
+                        let bits = c.to_bits();
+                        e.raw((bits >> 31) as u64, 1);
+                        let exponent = bits >> 23 & 0xff;
+                        e.uint(
+                            &mut m.exponent_delta,
+                            zigzag(exponent as i64 - prev_exponent as i64),
+                        )?;
+                        prev_exponent = exponent;
+                        let mantissa = bits & 0x7f_ffff;
+                        let sig = if mantissa == 0 {
+                            0
+                        } else {
+                            23 - mantissa.trailing_zeros()
+                        };
+                        e.uint_within(&mut m.significant[sig_context(exponent)], sig as u64, 5)?;
+                        if sig > 1 {
+                            // the bits above the lowest set one (which is implied)
+                            e.raw((mantissa >> (24 - sig)) as u64, sig - 1);
+                        }
                     }
                 }
                 Coefficients::Quantized(q) => {
@@ -253,6 +300,7 @@ impl BlockCoder {
         let mut id = block.first;
         let mut prev: Option<TetId> = None;
         let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
+        let mut prev_exponent = FIRST_EXPONENT;
         for i in 0..block.count {
             if i > 0 {
                 let gap = d.uint(&mut m.gap[gap_ctx])?;
@@ -285,11 +333,51 @@ impl BlockCoder {
             let n_coeffs = owned.count_ones() as usize;
             let (subtree_max_abs, coeffs) = match self.coefficients {
                 Coefficients::Raw => {
-                    let smax = f32::from_bits(d.raw(32)? as u32);
-                    let coeffs = (0..n_coeffs)
-                        .map(|_| d.raw(32).map(|b| f32::from_bits(b as u32)))
-                        .collect::<Result<Vec<_>, _>>()?;
-                    (smax, coeffs)
+                    let same = after_sibling && d.bit(&mut m.same_class)?;
+                    let class = if same {
+                        prev_class as i64
+                    } else {
+                        prev_class as i64 + unzigzag(d.uint(&mut m.class_delta)?)
+                    };
+                    if !(0..=MAX_POW2_CLASS as i64).contains(&class) {
+                        return Err(BlockError::BadNode {
+                            id,
+                            reason: format!(
+                                "subtree class {class} is outside 0..={MAX_POW2_CLASS}"
+                            ),
+                        });
+                    }
+                    prev_class = class as u32;
+                    let mut coeffs = Vec::with_capacity(n_coeffs);
+                    for _ in 0..n_coeffs {
+                        let sign = d.raw(1)? as u32;
+                        let exponent =
+                            prev_exponent as i64 + unzigzag(d.uint(&mut m.exponent_delta)?);
+                        if !(0..=0xff).contains(&exponent) {
+                            return Err(BlockError::BadNode {
+                                id,
+                                reason: format!("coefficient exponent {exponent} is out of range"),
+                            });
+                        }
+                        let exponent = exponent as u32;
+                        prev_exponent = exponent;
+                        let sig =
+                            d.uint_within(&mut m.significant[sig_context(exponent)], 5)? as u32;
+                        if sig > 23 {
+                            return Err(BlockError::BadNode {
+                                id,
+                                reason: format!("{sig} mantissa bits in an f32"),
+                            });
+                        }
+                        let mantissa = if sig == 0 {
+                            0
+                        } else {
+                            let above = if sig > 1 { d.raw(sig - 1)? as u32 } else { 0 };
+                            (above << 1 | 1) << (23 - sig)
+                        };
+                        coeffs.push(f32::from_bits(sign << 31 | exponent << 23 | mantissa));
+                    }
+                    (pow2_bound(prev_class), coeffs)
                 }
                 Coefficients::Quantized(q) => {
                     let same = after_sibling && d.bit(&mut m.same_class)?;
@@ -355,6 +443,52 @@ fn gap_context(gap: u64) -> usize {
     ((u64::BITS - gap.leading_zeros()) as usize).min(GAP_CONTEXTS - 1)
 }
 
+/// The exponent a block's first lossless coefficient is coded against (that of 2^-7).
+const FIRST_EXPONENT: u32 = 120;
+
+fn zigzag(v: i64) -> u64 {
+    ((v << 1) ^ (v >> 63)) as u64
+}
+
+fn unzigzag(z: u64) -> i64 {
+    (z >> 1) as i64 ^ -((z & 1) as i64)
+}
+
+fn sig_context(exponent: u32) -> usize {
+    (exponent.saturating_sub(SIG_CONTEXT_FROM) as usize).min(SIG_CONTEXTS - 1)
+}
+
+/// A lossless store's subtree class: 0 for a zero bound, else `150 + k` for the smallest power of
+/// two `2^k` at least `b` (`k` in `−149..=128`); decoded by [`pow2_bound`].
+pub fn pow2_class(b: f32) -> u32 {
+    if b.is_nan() || b <= 0.0 {
+        return 0;
+    }
+    let bits = b.to_bits();
+    let (exponent, mantissa) = (bits >> 23 & 0xff, bits & 0x7f_ffff);
+    let k = if exponent == 0 {
+        // subnormal: mantissa · 2^−149
+        (u32::BITS - (mantissa - 1).leading_zeros()) as i32 - 149
+    } else if mantissa == 0 {
+        exponent as i32 - 127
+    } else {
+        exponent as i32 - 126
+    };
+    (k + 150).min(MAX_POW2_CLASS as i32) as u32
+}
+
+/// The bound of lossless subtree class `c` ([`pow2_class`]): `2^(c − 150)`, `f32::MAX` for the
+/// top class (whose power is not an f32).
+pub fn pow2_bound(c: u32) -> f32 {
+    let k = c as i32 - 150;
+    match c {
+        0 => 0.0,
+        _ if k >= 128 => f32::MAX,
+        _ if k >= -126 => f32::from_bits(((k + 127) as u32) << 23),
+        _ => f32::from_bits(1 << (k + 149)),
+    }
+}
+
 /// The decoded subtree bound of class `k`: `(2^k − 1) · step`, rounded up to an f32.
 fn class_bound(k: u32, step: f32) -> f32 {
     let exact = ((1u64 << k) - 1) as f64 * step as f64;
@@ -390,12 +524,65 @@ mod tests {
             .collect()
     }
 
+    /// The nodes as a lossless store holds them: subtree bounds rounded up to powers of two.
+    fn pow2_bounds(nodes: &[DetailNode]) -> Vec<DetailNode> {
+        nodes
+            .iter()
+            .map(|n| DetailNode {
+                subtree_max_abs: pow2_bound(pow2_class(n.subtree_max_abs)),
+                ..n.clone()
+            })
+            .collect()
+    }
+
+    fn bits(nodes: &[DetailNode]) -> Vec<Vec<u32>> {
+        nodes
+            .iter()
+            .map(|n| n.coeffs.iter().map(|c| c.to_bits()).collect())
+            .collect()
+    }
+
     #[test]
     fn lossless_blocks_round_trip_exactly() {
         let (base, nodes) = harmonic(3);
         let coder = BlockCoder::new(&base, &Encoding::F32);
         let block = coder.encode(&nodes).unwrap();
-        assert_eq!(coder.decode(&block).unwrap(), nodes);
+        let back = coder.decode(&block).unwrap();
+        assert_eq!(back, pow2_bounds(&nodes));
+        assert_eq!(bits(&back), bits(&nodes));
+        for (a, b) in nodes.iter().zip(&back) {
+            assert!(b.subtree_max_abs >= a.subtree_max_abs);
+            assert!(b.subtree_max_abs <= 2.0 * a.subtree_max_abs);
+        }
+        // the smooth field's details keep their zero low bits out of the stream
+        let n_coeffs: usize = nodes.iter().map(|n| n.coeffs.len()).sum();
+        assert!(
+            block.bytes.len() * 10 < n_coeffs * 4 * 7,
+            "{} bytes for {n_coeffs} coefficients",
+            block.bytes.len()
+        );
+    }
+
+    #[test]
+    fn pow2_classes_bound_from_above_within_a_factor_two() {
+        for b in [
+            0.0f32,
+            f32::from_bits(1),
+            f32::from_bits(3),
+            f32::MIN_POSITIVE,
+            1e-30,
+            0.75,
+            1.0,
+            1.5,
+            3e38,
+            f32::MAX,
+        ] {
+            let c = pow2_class(b);
+            let up = pow2_bound(c);
+            assert!(up >= b && up.is_finite(), "{b} → {up}");
+            assert!(b == f32::MAX || up as f64 <= 2.0 * b as f64, "{b} → {up}");
+            assert_eq!(pow2_class(up), c, "{b}");
+        }
     }
 
     #[test]
@@ -450,7 +637,7 @@ mod tests {
         nodes[3].owned = 0;
         nodes[3].coeffs.clear();
         let block = coder.encode(&nodes[..10]).unwrap();
-        assert_eq!(coder.decode(&block).unwrap(), nodes[..10]);
+        assert_eq!(coder.decode(&block).unwrap(), pow2_bounds(&nodes[..10]));
     }
 
     #[test]
@@ -465,6 +652,31 @@ mod tests {
             coder.encode(&[far]),
             Err(BlockError::IdOutOfRange { .. })
         ));
+    }
+
+    proptest! {
+        #[test]
+        fn lossless_coefficients_keep_every_bit(raw in proptest::collection::vec(any::<u32>(), 1..60), bound in any::<u32>()) {
+            let (base, _) = harmonic(2);
+            let coder = BlockCoder::new(&base, &Encoding::F32);
+            // any finite f32: subnormals, both zeros, extreme exponents
+            let coeffs: Vec<f32> = raw.iter().map(|&b| f32::from_bits(b)).filter(|c| c.is_finite()).collect();
+            let bound = f32::from_bits(bound & 0x7fff_ffff);
+            let nodes: Vec<DetailNode> = coeffs
+                .chunks(6)
+                .enumerate()
+                .map(|(i, c)| DetailNode {
+                    id: i as u64 * 2,
+                    owned: ((1u16 << c.len()) - 1) as u8,
+                    empty_children: 0,
+                    subtree_max_abs: if bound.is_finite() { bound } else { 1.0 },
+                    coeffs: c.to_vec(),
+                })
+                .collect();
+            let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
+            prop_assert_eq!(bits(&back), bits(&nodes));
+            prop_assert_eq!(back, pow2_bounds(&nodes));
+        }
     }
 
     proptest! {

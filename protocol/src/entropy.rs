@@ -88,30 +88,39 @@ impl DecoderModel<PRECISION> for Binary {
     }
 }
 
-const EVEN: Binary = Binary(ONE / 2);
-
-/// 16 equiprobable bits as one symbol (raw bits cost one coder step per 16).
+/// `n` equiprobable bits (1 ≤ n ≤ 16) as one symbol: raw bits cost one coder step per 16.
 #[derive(Debug, Clone, Copy)]
-struct Raw16;
+struct RawBits(u32);
 
-impl EntropyModel<PRECISION> for Raw16 {
+impl EntropyModel<PRECISION> for RawBits {
     type Symbol = u32;
     type Probability = u32;
 }
 
-impl EncoderModel<PRECISION> for Raw16 {
+impl EncoderModel<PRECISION> for RawBits {
     fn left_cumulative_and_probability(
         &self,
         symbol: impl Borrow<u32>,
     ) -> Option<(u32, NonZeroU32)> {
-        let s = *symbol.borrow();
-        (s < ONE).then_some((s, NonZeroU32::MIN))
+        let (s, free) = (*symbol.borrow(), PRECISION as u32 - self.0);
+        (s < 1 << self.0).then(|| {
+            (
+                s << free,
+                NonZeroU32::new(1 << free).expect("a power of two"),
+            )
+        })
     }
 }
 
-impl DecoderModel<PRECISION> for Raw16 {
+impl DecoderModel<PRECISION> for RawBits {
     fn quantile_function(&self, quantile: u32) -> (u32, u32, NonZeroU32) {
-        (quantile, quantile, NonZeroU32::MIN)
+        let free = PRECISION as u32 - self.0;
+        let s = quantile >> free;
+        (
+            s,
+            s << free,
+            NonZeroU32::new(1 << free).expect("a power of two"),
+        )
     }
 }
 
@@ -167,20 +176,15 @@ impl Encoder {
         model.update(bit);
     }
 
-    /// The low `n` bits of `v` (at most 64), each with probability 1/2: 16 at a time, then one
-    /// at a time.
+    /// The low `n` bits of `v` (at most 64), each with probability 1/2, up to 16 at a time.
     pub fn raw(&mut self, v: u64, n: u32) {
         let mut i = 0;
-        while i + 16 <= n {
+        while i < n {
+            let k = (n - i).min(16);
             self.coder
-                .encode_symbol((v >> i & 0xffff) as u32, Raw16)
-                .expect("every 16-bit value has nonzero probability");
-            i += 16;
-        }
-        for i in i..n {
-            self.coder
-                .encode_symbol(v >> i & 1 == 1, EVEN)
-                .expect("both symbols have nonzero probability");
+                .encode_symbol((v >> i & ((1 << k) - 1)) as u32, RawBits(k))
+                .expect("every k-bit value has nonzero probability");
+            i += k;
         }
     }
 
@@ -207,15 +211,15 @@ impl Encoder {
         if bits < max_bits {
             self.bit(&mut model.len[bits as usize], false);
         }
-        for j in (0..bits.saturating_sub(1)).rev() {
-            let b = v >> j & 1 == 1;
-            let pos = (bits - 2 - j) as usize;
-            if pos < UInt::MODELLED {
-                self.bit(&mut model.mantissa[bits as usize][pos], b);
-            } else {
-                self.raw(b as u64, 1);
-            }
+        // the mantissa below the leading one: the first MODELLED bits adaptive, the rest raw
+        let below = bits.saturating_sub(1);
+        let modelled = below.min(UInt::MODELLED as u32);
+        for pos in 0..modelled {
+            let b = v >> (below - 1 - pos) & 1 == 1;
+            self.bit(&mut model.mantissa[bits as usize][pos as usize], b);
         }
+        let rest = below - modelled;
+        self.raw(v & ((1u64 << rest) - 1), rest);
         Ok(())
     }
 
@@ -260,20 +264,14 @@ impl Decoder {
     pub fn raw(&mut self, n: u32) -> Result<u64, EntropyError> {
         let mut v = 0u64;
         let mut i = 0;
-        while i + 16 <= n {
+        while i < n {
+            let k = (n - i).min(16);
             let w = self
                 .coder
-                .decode_symbol(Raw16)
+                .decode_symbol(RawBits(k))
                 .map_err(|_| EntropyError::Invalid)?;
             v |= (w as u64) << i;
-            i += 16;
-        }
-        for i in i..n {
-            let b = self
-                .coder
-                .decode_symbol(EVEN)
-                .map_err(|_| EntropyError::Invalid)?;
-            v |= (b as u64) << i;
+            i += k;
         }
         Ok(v)
     }
@@ -293,16 +291,13 @@ impl Decoder {
             return Ok(0);
         }
         let mut v = 1u64;
-        for j in (0..bits - 1).rev() {
-            let pos = (bits - 2 - j) as usize;
-            let b = if pos < UInt::MODELLED {
-                self.bit(&mut model.mantissa[bits as usize][pos])?
-            } else {
-                self.raw(1)? == 1
-            };
-            v = v << 1 | b as u64;
+        let below = bits - 1;
+        let modelled = below.min(UInt::MODELLED as u32);
+        for pos in 0..modelled {
+            v = v << 1 | self.bit(&mut model.mantissa[bits as usize][pos as usize])? as u64;
         }
-        Ok(v)
+        let rest = below - modelled;
+        Ok(v << rest | self.raw(rest)?)
     }
 }
 

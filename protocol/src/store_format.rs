@@ -33,7 +33,7 @@ pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
 /// 2: coded blocks (`blocks.bin`, `block_index.bin`); 1 had fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`) and is not read.
-pub const STORE_VERSION: u32 = 3;
+pub const STORE_VERSION: u32 = 4;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 

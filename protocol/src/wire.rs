@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 /// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes). 4: the manifest
 /// carries `source_value_range` (bincode is positional: a version-3 peer would misread it).
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.

@@ -6,7 +6,7 @@
 //! ([`OpenOptions::verify_checksums`]).
 
 use std::path::Path;
-use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::block::{pow2_bound, pow2_class, BlockCoder};
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::synthesis::synthesize_all;
@@ -55,7 +55,14 @@ fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<De
         levelset,
     };
     write(dir, &content, meta).unwrap();
+    // as the store codes them: lossless subtree bounds rounded up to powers of two
     nodes
+        .into_iter()
+        .map(|n| DetailNode {
+            subtree_max_abs: pow2_bound(pow2_class(n.subtree_max_abs)),
+            ..n
+        })
+        .collect()
 }
 
 /// A level-5 store (23,405 nodes: 6 blocks) in a temporary directory.
@@ -321,7 +328,7 @@ fn a_truncated_blocks_file_is_refused() {
 /// predictor) are refused with what to do about it, before their files are looked at.
 #[test]
 fn an_earlier_version_store_is_refused_with_what_to_do() {
-    for old in [1, 2] {
+    for old in [1, 2, 3] {
         let (d, _) = store();
         let mpath = d.path().join("manifest.json");
         let mut m: serde_json::Value =
@@ -336,7 +343,7 @@ fn an_earlier_version_store_is_refused_with_what_to_do() {
             "manifest.json",
             &[
                 &format!("v{old}"),
-                "expected tetwave-store v3",
+                "expected tetwave-store v4",
                 "re-run `tetwave-server prepare`",
             ],
         );
