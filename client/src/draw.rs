@@ -1,12 +1,20 @@
 //! The adaptive mesh as the renderers draw it.
 
 use crate::mesh::AdaptiveMesh;
+use tetwave_protocol::levelset::{NearLevelSet, FAR_OUTSIDE};
 use tetwave_render::render_mesh::RenderMesh;
 
 /// The drawable leaf mesh of an adaptive mesh (red leaves and green pieces), its scalar range set
-/// to `value_range` (the dataset's, so that colours agree from frame to frame).
-pub fn leaf_mesh(mesh: &AdaptiveMesh, value_range: [f32; 2]) -> RenderMesh {
-    let positions = mesh
+/// to `value_range` (the dataset's, so that colours agree from frame to frame), clipped to the
+/// domain's level set when `levelset` holds its near band: a far-outside vertex gets minus the
+/// mesh's diameter, a vertex not listed (far inside) plus it, which draws as the exact values do
+/// (see [`tetwave_protocol::levelset`]).
+pub fn leaf_mesh(
+    mesh: &AdaptiveMesh,
+    value_range: [f32; 2],
+    levelset: Option<&NearLevelSet>,
+) -> RenderMesh {
+    let positions: Vec<[f64; 3]> = mesh
         .positions()
         .iter()
         .map(|p| p.map(|x| x as f64))
@@ -14,5 +22,30 @@ pub fn leaf_mesh(mesh: &AdaptiveMesh, value_range: [f32; 2]) -> RenderMesh {
     let tets = mesh.drawable_leaf_tets().iter().map(|t| t.v).collect();
     let mut m = RenderMesh::new(positions, tets, mesh.values().to_vec());
     m.value_range = (value_range[0], value_range[1]);
+    if let Some(near) = levelset {
+        let (lo, hi) = m.positions.iter().fold(
+            ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+            |(lo, hi), p| {
+                (
+                    std::array::from_fn(|k| lo[k].min(p[k])),
+                    std::array::from_fn(|k| hi[k].max(p[k])),
+                )
+            },
+        );
+        let far = (0..3)
+            .map(|k| (hi[k] - lo[k]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            .max(1e-30) as f32;
+        m.levelset = Some(
+            (0..mesh.vertex_slot_len() as u32)
+                .map(|s| match near.get(mesh.vertex_key(s)) {
+                    Some(FAR_OUTSIDE) => -far,
+                    Some(v) => v,
+                    None => far,
+                })
+                .collect(),
+        );
+    }
     m
 }

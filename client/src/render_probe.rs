@@ -121,7 +121,7 @@ impl RenderProbe {
 
     fn draw(&mut self, step: usize, mesh: &AdaptiveMesh, cam: &Camera) -> Result<(), RenderError> {
         let t = Instant::now();
-        let rm = crate::draw::leaf_mesh(mesh, self.value_range);
+        let rm = crate::draw::leaf_mesh(mesh, self.value_range, None);
         let (img, draw_ms) = match &self.drawer {
             Drawer::Gpu(g) => {
                 let (ctx, pt) = &**g;

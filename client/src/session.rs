@@ -9,6 +9,7 @@
 use crate::detail_buffer::{Arrivals, BufferError, DetailBuffer, Inserted};
 use crate::mesh::{AdaptiveMesh, MeshError};
 use crate::select::{FrameStats, Mode, SelectParams, Selector};
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 use tetwave_render::render_mesh::RenderMesh;
@@ -38,6 +39,8 @@ pub struct Session {
     mesh: AdaptiveMesh,
     sel: Selector,
     arrivals: Arrivals,
+    /// The near band of the domain's level set, once fetched: drawn meshes are clipped to it.
+    levelset: Option<NearLevelSet>,
 }
 
 impl Session {
@@ -56,6 +59,7 @@ impl Session {
             mesh,
             sel,
             arrivals: Arrivals::default(),
+            levelset: None,
         })
     }
 
@@ -149,9 +153,26 @@ impl Session {
         held == total
     }
 
-    /// The drawable leaf mesh, its colours mapped over `value_range`.
+    /// The drawable leaf mesh, its colours mapped over `value_range`, clipped to the level set
+    /// when the session has one.
     pub fn leaf_mesh(&self, value_range: [f32; 2]) -> RenderMesh {
-        crate::draw::leaf_mesh(&self.mesh, value_range)
+        crate::draw::leaf_mesh(&self.mesh, value_range, self.levelset.as_ref())
+    }
+
+    /// Clips every mesh drawn from now on to the domain's level set (its near band, as
+    /// `/v1/levelset` serves it).
+    pub fn set_levelset(&mut self, near: NearLevelSet) {
+        self.levelset = Some(near);
+    }
+
+    /// Whether drawn meshes are clipped to a level set.
+    pub fn has_levelset(&self) -> bool {
+        self.levelset.is_some()
+    }
+
+    /// The level set's near band drawn meshes are clipped to.
+    pub fn levelset(&self) -> Option<&NearLevelSet> {
+        self.levelset.as_ref()
     }
 
     /// The session's parts, for a caller that ends it (e.g. to check the final mesh).

@@ -19,6 +19,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::view::Camera;
@@ -247,6 +248,11 @@ pub struct StreamReport {
     pub complete: bool,
     /// From connect to the first rendered frame.
     pub first_frame_ms: Option<f64>,
+    /// Whether the frames were clipped to the domain's level set (the store has one and it
+    /// arrived; it is asked for beside the stream, so the first frames may be drawn unclipped).
+    pub clipped: bool,
+    /// Why a store's level set could not be had, when it could not.
+    pub levelset_error: Option<String>,
 }
 
 /// Sorted, merged id ranges of a set.
@@ -263,6 +269,37 @@ pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
     }
     out
 }
+
+/// The store file whose presence in the manifest says `/v1/levelset` serves a level set.
+const LEVELSET_FILE: &str = "levelset_near.bin";
+
+/// GETs the near band of the domain's level set from the server of stream URL `ws_url` and
+/// decodes it for a hierarchy of `n_keys` vertices; returns it and the body's length.
+fn fetch_levelset(
+    ws_url: &str,
+    token: Option<&str>,
+    n_keys: u64,
+) -> Result<(NearLevelSet, u64), String> {
+    let url = ws_url
+        .replacen("ws://", "http://", 1)
+        .replacen("/v1/stream", "/v1/levelset", 1);
+    let mut req = ureq::get(&url);
+    if let Some(t) = token {
+        req = req.header("Authorization", &format!("Bearer {t}"));
+    }
+    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
+    let bytes = resp
+        .body_mut()
+        .with_config()
+        .limit(MAX_LEVELSET_BYTES)
+        .read_to_vec()
+        .map_err(|e| format!("GET {url}: {e}"))?;
+    let near = NearLevelSet::decode(&bytes, n_keys).map_err(|e| format!("GET {url}: {e}"))?;
+    Ok((near, bytes.len() as u64))
+}
+
+/// The largest level-set body a client reads (a band of about 40 M vertices).
+const MAX_LEVELSET_BYTES: u64 = 256 << 20;
 
 pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
     let rest = url
@@ -317,9 +354,18 @@ impl Net {
 pub(crate) enum Delivery {
     Manifest(Box<Manifest>),
     Base(Box<BaseMesh>),
-    Nodes { seq: u64, nodes: Vec<DetailNode> },
+    Nodes {
+        seq: u64,
+        nodes: Vec<DetailNode>,
+    },
+    /// The near band of the domain's level set (`/v1/levelset`), fetched once a manifest lists
+    /// one (drawn meshes are clipped to it from then on), or why it could not be had.
+    LevelSet(Result<Box<NearLevelSet>, String>),
     End,
-    Error { code: u16, message: String },
+    Error {
+        code: u16,
+        message: String,
+    },
 }
 
 /// Decodes node blocks with the coder of the manifest and base mesh that came before them.
@@ -384,6 +430,8 @@ pub(crate) async fn network(
     let mut batches = 0u64;
     let mut held_back: Vec<(Delivery, u64)> = Vec::new();
     let mut blocks = BlockDecoder::default();
+    // the level set is fetched once, after the first manifest
+    let mut levelset_asked = false;
     // why the last connection ended, once one has
     let mut lost: Option<String> = None;
     // a connect that fails for good: after a lost connection, that loss is the cause
@@ -452,6 +500,22 @@ pub(crate) async fn network(
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
                         let m = blocks.decode(m)?;
+                        if let (Delivery::Manifest(man), false) = (&m, levelset_asked) {
+                            levelset_asked = true;
+                            if man.files.contains_key(LEVELSET_FILE) {
+                                // beside the stream, so the base mesh does not wait for it
+                                let (u, t, tx, n) = (url.clone(), token.clone(), tx.clone(), man.counts.vertices);
+                                let bytes = net.bytes.clone();
+                                tokio::task::spawn_blocking(move || {
+                                    let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
+                                        Ok((near, len)) => (Ok(Box::new(near)), len),
+                                        Err(e) => (Err(e), 0),
+                                    };
+                                    bytes.fetch_add(len, Ordering::Relaxed);
+                                    let _ = tx.blocking_send((Delivery::LevelSet(got), len));
+                                });
+                            }
+                        }
                         let mut deliver = vec![(m, bytes.len() as u64)];
                         if let (Delivery::Nodes { nodes, .. }, _) = &deliver[0] {
                             batches += 1;
@@ -561,6 +625,8 @@ pub struct Streamed {
     pub report: StreamReport,
     pub base: Option<BaseMesh>,
     pub mesh: Option<AdaptiveMesh>,
+    /// The level set's near band the frames were clipped to, when one arrived.
+    pub levelset: Option<NearLevelSet>,
 }
 
 /// [`run`] with injected transport faults, returning the final mesh (tests).
@@ -610,6 +676,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
 
     let mut manifest: Option<Manifest> = None;
     let mut state: Option<Session> = None;
+    // the level set, when it comes before the base mesh; whether one is listed and not yet here
+    // (the fetch runs beside the stream, so its answer may come before or after the manifest)
+    let (mut levelset, mut levelset_answered): (Option<NearLevelSet>, bool) = (None, false);
+    let mut levelset_error: Option<String> = None;
     let mut received_nodes: Vec<DetailNode> = Vec::new();
     let mut frames = Vec::new();
     let mut cams = Vec::new();
@@ -687,7 +757,24 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             got_any = true;
             bytes_applied += nbytes;
             match msg {
-                Delivery::Manifest(m) => manifest = Some(*m),
+                Delivery::Manifest(m) => {
+                    manifest = Some(*m);
+                }
+                Delivery::LevelSet(got) => {
+                    levelset_answered = true;
+                    match got {
+                        Ok(near) => match state.as_mut() {
+                            Some(st) => st.set_levelset(*near),
+                            None => levelset = Some(*near),
+                        },
+                        Err(e) => {
+                            tracing::warn!(
+                                "drawing without clipping to the domain's boundary: {e}"
+                            );
+                            levelset_error = Some(e);
+                        }
+                    }
+                }
                 // a resumed connection sends the base mesh again: keep what is already built
                 Delivery::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
                 Delivery::Base(_) if state.is_some() => {
@@ -703,10 +790,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     check_hierarchy(&b, m, args.max_nodes)?;
                     let params =
                         SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
-                    state = Some(
-                        Session::new(*b, params)
-                            .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?,
-                    );
+                    let mut session = Session::new(*b, params)
+                        .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?;
+                    if let Some(near) = levelset.take() {
+                        session.set_levelset(near);
+                    }
+                    state = Some(session);
                 }
                 Delivery::Nodes { nodes, .. } => {
                     let session = state.as_mut().ok_or_else(|| {
@@ -839,13 +928,18 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             images.push(img);
         }
         frame += 1;
-        if args.until_complete && ended && session.is_converged() {
+        let levelset_pending = !levelset_answered
+            && manifest
+                .as_ref()
+                .is_some_and(|m| m.files.contains_key(LEVELSET_FILE));
+        if args.until_complete && ended && session.is_converged() && !levelset_pending {
             break;
         }
     }
     drop(out_tx);
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     let complete = nodes_total > 0 && nodes_received == nodes_total;
+    let clipped = state.as_ref().is_some_and(Session::has_levelset);
     // 5. accuracy against the full-resolution reference, once everything has arrived
     if args.psnr && failure.is_none() {
         if let (true, Some(session), Some(m)) = (complete, &state, &manifest) {
@@ -877,6 +971,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     if let Some(e) = failure {
         return Err(e);
     }
+    let levelset = state.as_ref().and_then(|s| s.levelset().cloned());
     let (base, mesh) = match state.map(Session::into_parts) {
         Some((base, _, mesh, _)) => (Some(base), Some(mesh)),
         None => (None, None),
@@ -890,6 +985,13 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         reconnects: net.reconnects.load(Ordering::Relaxed),
         complete,
         first_frame_ms,
+        clipped,
+        levelset_error,
     };
-    Ok(Streamed { report, base, mesh })
+    Ok(Streamed {
+        report,
+        base,
+        mesh,
+        levelset,
+    })
 }

@@ -2,11 +2,13 @@
 //! the wire decoders are total (an error value, never a panic, for any bytes), and a frame that
 //! decodes re-encodes to a frame that decodes to the same bytes again (idempotent round trip); a
 //! `Nodes` frame's block decodes (with the coders of a small hierarchy, lossless and quantized) to
-//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes; and
-//! every input is also fed to the block decoder directly as a block's coded bytes.
+//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes; every
+//! input is also fed to the block decoder directly as a block's coded bytes, and to the level-set
+//! band decoder (`/v1/levelset`), whose results re-code to themselves.
 
 use std::sync::OnceLock;
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::store_format::Encoding;
 use tetwave_protocol::wire::{
@@ -68,6 +70,14 @@ pub fn check(data: &[u8]) {
         if let ServerMsg::Nodes { block, .. } = &m {
             check_block(block);
         }
+    }
+    if let Ok(band) = NearLevelSet::decode(data, 1 << 20) {
+        let again = band.encode().expect("a decoded band re-codes");
+        assert_eq!(
+            NearLevelSet::decode(&again, 1 << 20).expect("a re-coded band decodes"),
+            band,
+            "band round trip"
+        );
     }
     // the same bytes as a block's coded data, straight into the block decoder: the first byte a
     // node count (0..=255), the next a first id (0..=255), the rest the range coder's bytes

@@ -27,7 +27,7 @@
 //! Decoding is total: malformed, truncated or oversized blocks are [`BlockError`]s, and the work
 //! is bounded by the node count the header declares (at most [`MAX_BLOCK_NODES`]).
 
-use crate::entropy::{Bit, Decoder, Encoder, EntropyError, UInt};
+use crate::entropy::{unzigzag, zigzag, Bit, Decoder, Encoder, EntropyError, Floats, UInt};
 use crate::hierarchy::Forest;
 use crate::ownership::Ownership;
 use crate::store_format::Encoding;
@@ -41,10 +41,6 @@ pub const MAX_BLOCK_NODES: u32 = 1 << 16;
 const MAX_CLASS: u32 = 40;
 /// Largest lossless subtree class ([`pow2_class`] of `f32::MAX`).
 const MAX_POW2_CLASS: u32 = 278;
-/// Contexts of a lossless coefficient's mantissa length: its biased exponent minus
-/// [`SIG_CONTEXT_FROM`], clamped to `0..SIG_CONTEXTS`.
-const SIG_CONTEXTS: usize = 48;
-const SIG_CONTEXT_FROM: u32 = 90;
 
 /// A coded set of detail nodes (see the module documentation).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,10 +97,8 @@ struct Models {
     magnitude: Vec<UInt>,
     /// Lossless: the subtree class's difference to the previous one (zigzag).
     class_delta: UInt,
-    /// Lossless: a coefficient's biased exponent's difference to the previous one (zigzag).
-    exponent_delta: UInt,
-    /// Lossless: mantissa bits down to the lowest set one, by exponent.
-    significant: Vec<UInt>,
+    /// Lossless: the coefficients' f32s.
+    floats: Floats,
 }
 
 impl Models {
@@ -118,8 +112,7 @@ impl Models {
             same_class: Bit::default(),
             magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
             class_delta: UInt::default(),
-            exponent_delta: UInt::default(),
-            significant: vec![UInt::default(); SIG_CONTEXTS],
+            floats: Floats::default(),
         }
     }
 }
@@ -170,7 +163,6 @@ impl BlockCoder {
         let mut m = Models::new();
         let mut prev: Option<TetId> = None;
         let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
-        let mut prev_exponent = FIRST_EXPONENT;
         for n in &order {
             if n.id >= total {
                 return Err(BlockError::IdOutOfRange {
@@ -212,26 +204,8 @@ impl BlockCoder {
                         e.uint(&mut m.class_delta, zigzag(class as i64 - prev_class as i64))?;
                     }
                     prev_class = class;
-                    for c in &n.coeffs {
-                        let bits = c.to_bits();
-                        e.raw((bits >> 31) as u64, 1);
-                        let exponent = bits >> 23 & 0xff;
-                        e.uint(
-                            &mut m.exponent_delta,
-                            zigzag(exponent as i64 - prev_exponent as i64),
-                        )?;
-                        prev_exponent = exponent;
-                        let mantissa = bits & 0x7f_ffff;
-                        let sig = if mantissa == 0 {
-                            0
-                        } else {
-                            23 - mantissa.trailing_zeros()
-                        };
-                        e.uint_within(&mut m.significant[sig_context(exponent)], sig as u64, 5)?;
-                        if sig > 1 {
-                            // the bits above the lowest set one (which is implied)
-                            e.raw((mantissa >> (24 - sig)) as u64, sig - 1);
-                        }
+                    for &c in &n.coeffs {
+                        e.float(&mut m.floats, c)?;
                     }
                 }
                 Coefficients::Quantized(q) => {
@@ -300,7 +274,6 @@ impl BlockCoder {
         let mut id = block.first;
         let mut prev: Option<TetId> = None;
         let (mut gap_ctx, mut prev_class) = (0usize, 0u32);
-        let mut prev_exponent = FIRST_EXPONENT;
         for i in 0..block.count {
             if i > 0 {
                 let gap = d.uint(&mut m.gap[gap_ctx])?;
@@ -348,35 +321,9 @@ impl BlockCoder {
                         });
                     }
                     prev_class = class as u32;
-                    let mut coeffs = Vec::with_capacity(n_coeffs);
-                    for _ in 0..n_coeffs {
-                        let sign = d.raw(1)? as u32;
-                        let exponent =
-                            prev_exponent as i64 + unzigzag(d.uint(&mut m.exponent_delta)?);
-                        if !(0..=0xff).contains(&exponent) {
-                            return Err(BlockError::BadNode {
-                                id,
-                                reason: format!("coefficient exponent {exponent} is out of range"),
-                            });
-                        }
-                        let exponent = exponent as u32;
-                        prev_exponent = exponent;
-                        let sig =
-                            d.uint_within(&mut m.significant[sig_context(exponent)], 5)? as u32;
-                        if sig > 23 {
-                            return Err(BlockError::BadNode {
-                                id,
-                                reason: format!("{sig} mantissa bits in an f32"),
-                            });
-                        }
-                        let mantissa = if sig == 0 {
-                            0
-                        } else {
-                            let above = if sig > 1 { d.raw(sig - 1)? as u32 } else { 0 };
-                            (above << 1 | 1) << (23 - sig)
-                        };
-                        coeffs.push(f32::from_bits(sign << 31 | exponent << 23 | mantissa));
-                    }
+                    let coeffs = (0..n_coeffs)
+                        .map(|_| d.float(&mut m.floats))
+                        .collect::<Result<Vec<_>, _>>()?;
                     (pow2_bound(prev_class), coeffs)
                 }
                 Coefficients::Quantized(q) => {
@@ -441,21 +388,6 @@ const GAP_CONTEXTS: usize = 12;
 
 fn gap_context(gap: u64) -> usize {
     ((u64::BITS - gap.leading_zeros()) as usize).min(GAP_CONTEXTS - 1)
-}
-
-/// The exponent a block's first lossless coefficient is coded against (that of 2^-7).
-const FIRST_EXPONENT: u32 = 120;
-
-fn zigzag(v: i64) -> u64 {
-    ((v << 1) ^ (v >> 63)) as u64
-}
-
-fn unzigzag(z: u64) -> i64 {
-    (z >> 1) as i64 ^ -((z & 1) as i64)
-}
-
-fn sig_context(exponent: u32) -> usize {
-    (exponent.saturating_sub(SIG_CONTEXT_FROM) as usize).min(SIG_CONTEXTS - 1)
 }
 
 /// A lossless store's subtree class: 0 for a zero bound, else `150 + k` for the smallest power of

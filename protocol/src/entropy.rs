@@ -147,6 +147,50 @@ impl UInt {
     const MODELLED: usize = 2;
 }
 
+/// The models of a sequence of f32s kept bit for bit ([`Encoder::float`]): sign raw, the biased
+/// exponent as its zigzag difference to the previous one's, the count `s` of mantissa bits down to
+/// the lowest set one (context: the exponent) and the `s − 1` bits above that one raw. A difference
+/// of two values of one binade is a multiple of their ulp, so its low mantissa bits are zeros and
+/// cost nothing; smooth sequences keep their exponents close.
+#[derive(Debug, Clone)]
+pub struct Floats {
+    exponent_delta: UInt,
+    significant: Vec<UInt>,
+    prev_exponent: u32,
+}
+
+impl Floats {
+    /// Contexts of the mantissa length: the biased exponent minus `SIG_CONTEXT_FROM`, clamped.
+    const SIG_CONTEXTS: usize = 48;
+    const SIG_CONTEXT_FROM: u32 = 90;
+    /// The exponent the first value is coded against (that of 2^−7).
+    const FIRST_EXPONENT: u32 = 120;
+
+    fn sig_context(exponent: u32) -> usize {
+        (exponent.saturating_sub(Self::SIG_CONTEXT_FROM) as usize).min(Self::SIG_CONTEXTS - 1)
+    }
+}
+
+impl Default for Floats {
+    fn default() -> Self {
+        Floats {
+            exponent_delta: UInt::default(),
+            significant: vec![UInt::default(); Self::SIG_CONTEXTS],
+            prev_exponent: Self::FIRST_EXPONENT,
+        }
+    }
+}
+
+/// A signed integer as an unsigned one: 0, −1, 1, −2, … → 0, 1, 2, 3, …
+pub fn zigzag(v: i64) -> u64 {
+    ((v << 1) ^ (v >> 63)) as u64
+}
+
+/// The inverse of [`zigzag`].
+pub fn unzigzag(z: u64) -> i64 {
+    (z >> 1) as i64 ^ -((z & 1) as i64)
+}
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum EntropyError {
     #[error("the coded data is invalid")]
@@ -220,6 +264,35 @@ impl Encoder {
         }
         let rest = below - modelled;
         self.raw(v & ((1u64 << rest) - 1), rest);
+        Ok(())
+    }
+
+    /// Every bit of `x` (see [`Floats`]).
+    pub fn float(&mut self, model: &mut Floats, x: f32) -> Result<(), EntropyError> {
+        let bits = x.to_bits();
+        self.raw((bits >> 31) as u64, 1);
+        let exponent = bits >> 23 & 0xff;
+        self.uint(
+            &mut model.exponent_delta,
+            zigzag(exponent as i64 - model.prev_exponent as i64),
+        )?;
+        model.prev_exponent = exponent;
+        let mantissa = bits & 0x7f_ffff;
+        let sig = if mantissa == 0 {
+            0
+        } else {
+            23 - mantissa.trailing_zeros()
+        };
+        self.uint_within(
+            &mut model.significant[Floats::sig_context(exponent)],
+            sig as u64,
+            5,
+        )?;
+        // the bits above the lowest set one (which is implied)
+        self.raw(
+            (mantissa >> (24 - sig.max(1))) as u64,
+            sig.saturating_sub(1),
+        );
         Ok(())
     }
 
@@ -298,6 +371,27 @@ impl Decoder {
         }
         let rest = below - modelled;
         Ok(v << rest | self.raw(rest)?)
+    }
+
+    /// Reads what [`Encoder::float`] wrote (any f32, NaN and infinities included).
+    pub fn float(&mut self, model: &mut Floats) -> Result<f32, EntropyError> {
+        let sign = self.raw(1)? as u32;
+        let exponent = model.prev_exponent as i64 + unzigzag(self.uint(&mut model.exponent_delta)?);
+        if !(0..=0xff).contains(&exponent) {
+            return Err(EntropyError::Invalid);
+        }
+        let exponent = exponent as u32;
+        model.prev_exponent = exponent;
+        let sig =
+            self.uint_within(&mut model.significant[Floats::sig_context(exponent)], 5)? as u32;
+        if sig > 23 {
+            return Err(EntropyError::Invalid);
+        }
+        let mantissa = match sig {
+            0 => 0,
+            _ => ((self.raw(sig - 1)? as u32) << 1 | 1) << (23 - sig),
+        };
+        Ok(f32::from_bits(sign << 31 | exponent << 23 | mantissa))
     }
 }
 

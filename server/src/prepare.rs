@@ -41,6 +41,8 @@ pub enum PrepareError {
     Resample(#[from] ResampleError),
     #[error(transparent)]
     Analysis(#[from] AnalysisError),
+    #[error("the domain's level set: {0}")]
+    LevelSet(#[from] tetwave_protocol::levelset::LevelSetError),
     #[error(transparent)]
     Store(#[from] StoreError),
     #[error("{what}: max abs error {error:e} exceeds the manifest's bound {bound:e}")]
@@ -117,6 +119,9 @@ pub struct Summary {
     /// Bytes of the domain's level set (`levelset.f32`, not streamed; 0 when the input has no
     /// outside).
     pub levelset_bytes: u64,
+    /// Bytes of its near band (`levelset_near.bin`, what `/v1/levelset` sends streaming clients;
+    /// counted in `bytes`).
+    pub levelset_near_bytes: u64,
     pub encoding: String,
     pub max_abs_error: f64,
     pub max_error_bound: f64,
@@ -249,9 +254,13 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let levelset = match boundary {
         Some(b) if outside > 0 => {
             tracing::info!(vertices = r.samples.len(), "level set of the domain");
-            Some(signed_distance(&r, &b))
+            Some(signed_distance(&r, &b)?)
         }
         _ => None,
+    };
+    let (levelset, levelset_near) = match levelset {
+        Some(l) => (Some(l.values), Some(l.near)),
+        None => (None, None),
     };
     tracing::info!(vertices = r.samples.len(), outside, "analysing");
     let precision = match (o.bits, o.max_error) {
@@ -277,6 +286,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         outside_vertices: outside,
         source_value_range: source_range,
         levelset,
+        levelset_near,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
     let bytes = m
@@ -299,6 +309,11 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         bytes,
         reference_bytes: m.files.get("reference.f32").map(|f| f.bytes).unwrap_or(0),
         levelset_bytes: m.files.get("levelset.f32").map(|f| f.bytes).unwrap_or(0),
+        levelset_near_bytes: m
+            .files
+            .get("levelset_near.bin")
+            .map(|f| f.bytes)
+            .unwrap_or(0),
         encoding: match m.encoding {
             store::Encoding::F32 => "f32".into(),
             store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),

@@ -14,6 +14,9 @@
 //! | `reference.f32`   | the sampled value of every vertex (for `verify`; not streamed)             |
 //! | `levelset.f32`    | optional: per vertex key, the signed distance to the input domain's        |
 //! |                   | boundary (positive inside), for clipping straddling tets; not streamed     |
+//! | `levelset_near.bin` | with `levelset.f32`: its near band, coded                                 |
+//! |                   | ([`NearLevelSet`](tetwave_protocol::levelset::NearLevelSet)), served whole |
+//! |                   | at `/v1/levelset` to streaming clients                                    |
 //!
 //! The blocks are what the wire carries (a `Nodes` frame is a coded block of any id set): the
 //! stream carries what the store holds. Reading nodes `a..b` reads the covering blocks' bytes (one
@@ -38,7 +41,7 @@ pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin",
 
 /// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
 /// with their size and CRC-32 like the others.
-pub const OPTIONAL_STORE_FILES: [&str; 1] = ["levelset.f32"];
+pub const OPTIONAL_STORE_FILES: [&str; 2] = ["levelset.f32", "levelset_near.bin"];
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

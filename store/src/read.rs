@@ -5,6 +5,7 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{
     FormatError, Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES, STORE_FORMAT,
     STORE_VERSION,
@@ -281,6 +282,24 @@ impl Store {
             });
         }
         Ok(Some(ls))
+    }
+
+    /// The level set's near band (`levelset_near.bin`), when the store has one: its coded bytes,
+    /// as `/v1/levelset` serves them, and what they decode to (checked: keys within the vertex
+    /// count, values finite).
+    pub fn read_levelset_near(&self) -> Result<Option<(Vec<u8>, NearLevelSet)>, StoreError> {
+        if !self.manifest.files.contains_key("levelset_near.bin") {
+            return Ok(None);
+        }
+        let p = self.dir.join("levelset_near.bin");
+        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        let near = NearLevelSet::decode(&b, self.manifest.counts.vertices).map_err(|e| {
+            StoreError::Corrupt {
+                path: p,
+                reason: e.to_string(),
+            }
+        })?;
+        Ok(Some((b, near)))
     }
 
     /// Every finest-level vertex value (by vertex key), synthesized from all nodes.

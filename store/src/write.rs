@@ -5,6 +5,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest};
 use tetwave_protocol::wavelet::Quantizer;
 use tetwave_protocol::{BaseMesh, DetailNode};
@@ -74,6 +75,9 @@ pub struct StoreMeta {
     /// Per vertex key, the signed distance to the input domain's boundary (positive inside),
     /// written as `levelset.f32`; `None` for inputs with no outside (a raw grid, a convex mesh).
     pub levelset: Option<Vec<f32>>,
+    /// The level set's near band (what streaming clients clip with), written coded as
+    /// `levelset_near.bin`; present exactly when `levelset` is.
+    pub levelset_near: Option<NearLevelSet>,
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. Over an existing store,
@@ -216,6 +220,32 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io_err(&path)(e)),
             _ => {}
         },
+    }
+
+    let path = dir.join("levelset_near.bin");
+    match (&meta.levelset, &meta.levelset_near) {
+        (Some(_), Some(near)) => {
+            let bytes = near.encode().map_err(|e| StoreError::Corrupt {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+            let mut w = SumWriter::create(&path)?;
+            w.put(&bytes).map_err(io_err(&path))?;
+            files.insert(
+                "levelset_near.bin".into(),
+                w.finish().map_err(io_err(&path))?,
+            );
+        }
+        (None, None) => match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io_err(&path)(e)),
+            _ => {}
+        },
+        _ => {
+            return Err(StoreError::Corrupt {
+                path,
+                reason: "a level set needs its near band and the near band its level set".into(),
+            })
+        }
     }
 
     let (lo, hi) = a.base.bounds();

@@ -8,6 +8,7 @@
 use std::path::Path;
 use tetwave_protocol::block::{pow2_bound, pow2_class, BlockCoder};
 use tetwave_protocol::fields::harmonic_unit;
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
@@ -52,6 +53,10 @@ fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<De
         base: "box5".into(),
         outside_vertices: 0,
         source_value_range: levelset.as_ref().map(|_| (lo - 1.0, hi + 1.0)),
+        levelset_near: levelset.as_ref().map(|ls| {
+            let band = ls.iter().enumerate().filter(|(_, v)| v.abs() < 0.5);
+            NearLevelSet::new(1e-3, band.map(|(k, v)| (k as u64, *v))).unwrap()
+        }),
         levelset,
     };
     write(dir, &content, meta).unwrap();

@@ -14,19 +14,21 @@
 //! set: 36.2, 35.2 and 34.2 dB, covering 0, 18 and 74 of the pixels that miss the mesh).
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 mod common;
 
-use common::{psnr_pixels as psnr, render_png};
+use common::{psnr_pixels as psnr, render_png, serve};
+use tetwave_client::draw::leaf_mesh;
 use tetwave_client::render_cli::{file_mesh, store_mesh};
+use tetwave_client::stream::{run_session, Faults, StreamArgs};
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference;
 use tetwave_render::transfer::TransferFunction;
-use tetwave_server::prepare::{prepare, PrepareOptions};
+use tetwave_server::prepare::{prepare, PrepareOptions, Summary};
 use tetwave_server::render_service::{RenderParams, RenderService};
 use tetwave_server::resample::unstructured::ImportOptions;
 use tetwave_store::Store;
@@ -102,15 +104,21 @@ fn leaks(original: &Rgba8Image, img: &Rgba8Image) -> usize {
         .count()
 }
 
-#[test]
-fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
-    let d = tempfile::tempdir().unwrap();
-    let mesh = d.path().join("notched.vtk");
+/// The notched mesh and its level-4 store in `d`, and prepare's summary.
+fn notched_store(d: &Path) -> (PathBuf, PathBuf, Summary) {
+    let mesh = d.join("notched.vtk");
     write_mesh(&mesh);
-    let store = d.path().join("notched.store");
+    let store = d.join("notched.store");
     let mut o = PrepareOptions::new(&mesh.display().to_string(), &store);
     o.levels = 4;
     let summary = prepare(&o).unwrap();
+    (mesh, store, summary)
+}
+
+#[test]
+fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
+    let d = tempfile::tempdir().unwrap();
+    let (mesh, store, summary) = notched_store(d.path());
     assert!(
         summary.outside_vertices > 0,
         "the notch leaves vertices outside"
@@ -209,4 +217,77 @@ fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
     for p in measured {
         assert!(p >= 30.0, "PSNR {p:.1} dB below 30");
     }
+}
+
+/// The streaming client clips too: it fetches the store's near band of the level set
+/// (`/v1/levelset`) beside the stream, and its final mesh, drawn as it draws it, leaves every
+/// pixel that misses the mesh empty (drawn without the band it does not), and agrees with the
+/// store's own clipped image.
+#[test]
+fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
+    let d = tempfile::tempdir().unwrap();
+    let (mesh, store, _) = notched_store(d.path());
+    let opened = Store::open(&store).unwrap();
+    let (band_bytes, band) = opened.read_levelset_near().unwrap().expect("a near band");
+    // far smaller than the level set's 4 bytes a vertex
+    let vertices = opened.manifest.counts.vertices;
+    eprintln!(
+        "near band: {} of {vertices} vertices listed, {} bytes",
+        band.len(),
+        band_bytes.len()
+    );
+    assert!(!band.is_empty() && (band_bytes.len() as u64) < vertices * 4 / 2);
+    let srv = serve(&store, "level");
+    let mut a = StreamArgs::new(&srv.1, &d.path().join("out"));
+    a.no_render = true;
+    // frames pass every 5 ms while the band is fetched beside the stream (seconds on a loaded
+    // machine): the session ends as soon as both are in
+    a.frames = 4000;
+    a.until_complete = true;
+    a.frame_ms = 5;
+    let s = run_session(&a, Faults::default()).expect("session");
+    assert!(
+        s.report.complete && s.report.clipped,
+        "complete {}, level set: {:?}",
+        s.report.complete,
+        s.report.levelset_error
+    );
+    let near = s.levelset.as_ref().expect("the band arrived");
+    assert_eq!(near, &band);
+    // the bytes received count the band's body
+    assert!(s.report.bytes_received > band_bytes.len() as u64);
+
+    let streamed = leaf_mesh(
+        s.mesh.as_ref().unwrap(),
+        opened.manifest.display_value_range(),
+        Some(near),
+    );
+    let mut unclipped = streamed.clone();
+    unclipped.levelset = None;
+    let (own, _) = store_mesh(&opened, None).unwrap();
+    let (original, _) = file_mesh(&mesh, None, &ImportOptions::default()).unwrap();
+    let tf = TransferFunction::preset("default").unwrap();
+    let mut unclipped_leaks = 0;
+    for (az, el) in [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)] {
+        let cam = Camera::orbit(
+            original.center(),
+            1.6 * original.diagonal(),
+            az,
+            el,
+            40.0,
+            SIZE,
+            SIZE,
+        );
+        let orig = render_reference(&original, &cam, &tf);
+        let img = render_reference(&streamed, &cam, &tf);
+        assert_eq!(leaks(&orig, &img), 0, "az {az}: the streamed mesh, clipped");
+        unclipped_leaks += leaks(&orig, &render_reference(&unclipped, &cam, &tf));
+        let p = tetwave_render::image_metrics::psnr(&img, &render_reference(&own, &cam, &tf));
+        eprintln!("az {az} el {el}: streamed and clipped vs the store's own image: {p:.1} dB");
+        assert!(p >= 50.0, "az {az}: {p:.1} dB from the store's own image");
+    }
+    assert!(
+        unclipped_leaks > 0,
+        "the band is what keeps the misses empty"
+    );
 }

@@ -3,52 +3,12 @@
 //! bounded.
 
 use std::path::Path;
-use std::time::Duration;
 use tetwave_client::stream::{run, run_session, Faults, StreamArgs, StreamError, Streamed};
-use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
 use tetwave_store::Store;
 
 mod common;
 
-/// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
-struct Server(Option<tokio::sync::oneshot::Sender<()>>, String);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        if let Some(stop) = self.0.take() {
-            let _ = stop.send(());
-        }
-    }
-}
-
-fn serve(store: &Path, order: &str) -> Server {
-    let config = ServeConfig {
-        order: Order::parse(order).expect("known order"),
-        ..Default::default()
-    };
-    let shared = Shared::open(store, config).expect("store opens");
-    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async move {
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-            addr_tx.send(listener.local_addr().unwrap()).unwrap();
-            tokio::select! {
-                _ = serve_on(listener, shared) => {}
-                _ = stop_rx => {}
-            }
-        });
-    });
-    let addr = addr_rx
-        .recv_timeout(Duration::from_secs(20))
-        .expect("server listens");
-    Server(Some(stop_tx), format!("http://{addr}"))
-}
+use common::serve;
 
 /// A harmonic store in `<dir>/s`, its synthesized values and its node count.
 fn store(levels: u8) -> (tempfile::TempDir, Vec<f32>, u64) {

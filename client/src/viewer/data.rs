@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{ClientMsg, IdRange, ViewParams, MAX_RANGES};
@@ -71,6 +72,8 @@ struct Remote {
     view_reconnects: u64,
     /// The server's HTTP address (`http://host:port`), for `/v1/render`.
     http: String,
+    /// The level set's near band when it comes before the base mesh.
+    levelset: Option<NearLevelSet>,
 }
 
 enum Kind {
@@ -158,6 +161,7 @@ impl Data {
                     last_view: None,
                     view_reconnects: 0,
                     http,
+                    levelset: None,
                 }))))
             }
             Source::Store(dir) => {
@@ -169,6 +173,12 @@ impl Data {
                 let mut d = empty(Kind::Local { nodes, next: 0 });
                 d.value_range = m.display_value_range();
                 d.start_session(store.base.clone(), tol)?;
+                if let (Some(s), Some((_, near))) = (
+                    d.session.as_mut(),
+                    store.read_levelset_near().map_err(|e| e.to_string())?,
+                ) {
+                    s.set_levelset(near);
+                }
                 Ok(d)
             }
             Source::Mesh(path) => {
@@ -358,8 +368,22 @@ impl Data {
                         .as_ref()
                         .ok_or("protocol: base before manifest")?;
                     check_hierarchy(&b, m, r.max_nodes).map_err(|e| e.to_string())?;
+                    let near = r.levelset.take();
                     self.start_session(*b, tol)?;
+                    if let (Some(s), Some(near)) = (self.session.as_mut(), near) {
+                        s.set_levelset(near);
+                    }
                     self.changed = true;
+                }
+                Delivery::LevelSet(Ok(near)) => match self.session.as_mut() {
+                    Some(s) => {
+                        s.set_levelset(*near);
+                        self.changed = true;
+                    }
+                    None => r.levelset = Some(*near),
+                },
+                Delivery::LevelSet(Err(e)) => {
+                    tracing::warn!("drawing without clipping to the domain's boundary: {e}");
                 }
                 Delivery::Nodes { nodes, .. } => {
                     let s = self

@@ -16,11 +16,25 @@ use super::Resampled;
 use rayon::prelude::*;
 use tetwave_import::clean::BoundaryDistance;
 use tetwave_protocol::hierarchy::LevelWalker;
+use tetwave_protocol::levelset::{LevelSetError, NearLevelSet, FAR_OUTSIDE};
 
-/// Per vertex key: `+min(d, cap)` inside the domain (a sample exists there), `−min(d, cap)`
-/// outside (`NaN` sample), `d` the distance to `boundary`, `cap` the diameter of the coarsest tet
-/// the vertex is a corner of (see the module docs).
-pub fn signed_distance(r: &Resampled, boundary: &BoundaryDistance) -> Vec<f32> {
+/// The level set of a store: every vertex's value and the near band streaming clients need.
+pub struct LevelSet {
+    /// Per vertex key: `+min(d, cap)` inside the domain (a sample exists there), `−min(d, cap)`
+    /// outside (`NaN` sample), `d` the distance to the boundary, `cap` the diameter of the
+    /// coarsest tet the vertex is a corner of (see the module docs).
+    pub values: Vec<f32>,
+    /// The vertices with `d < cap` (the only ones a straddling tet interpolates) and the far
+    /// outside ones ([`NearLevelSet`]).
+    pub near: NearLevelSet,
+}
+
+/// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
+/// 1/256 of the smallest tet's diameter.
+pub fn signed_distance(
+    r: &Resampled,
+    boundary: &BoundaryDistance,
+) -> Result<LevelSet, LevelSetError> {
     let base = &r.base;
     let keys = &r.keys;
     let forest = base.forest();
@@ -64,7 +78,30 @@ pub fn signed_distance(r: &Resampled, boundary: &BoundaryDistance) -> Vec<f32> {
             out[(key - start) as usize] = if r.samples[k].is_nan() { -d } else { d };
         });
     });
-    out
+    let finest = cap
+        .iter()
+        .copied()
+        .filter(|&c| c > 0.0)
+        .fold(f32::INFINITY, f32::min);
+    let step = if finest.is_finite() {
+        finest / 256.0
+    } else {
+        1.0
+    };
+    let near = NearLevelSet::new(
+        step,
+        out.iter()
+            .zip(&cap)
+            .enumerate()
+            .filter_map(|(k, (&v, &c))| {
+                if v.abs() < c {
+                    Some((k as u64, v))
+                } else {
+                    (v < 0.0).then_some((k as u64, FAR_OUTSIDE))
+                }
+            }),
+    )?;
+    Ok(LevelSet { values: out, near })
 }
 
 #[cfg(test)]
@@ -117,7 +154,8 @@ mod tests {
         let source = Source::Mesh(Box::new(loc), bounds);
         let r = resample(&source, &BaseSpec::Box6, 3).unwrap();
         let b = BoundaryDistance::new(&mesh.points, &mesh.tets);
-        let ls = signed_distance(&r, &b);
+        let set = signed_distance(&r, &b).unwrap();
+        let ls = &set.values;
         let fine_diam = 3f64.sqrt() / 8.0;
         let mut checked = 0;
         let mut negative = 0;
@@ -142,5 +180,37 @@ mod tests {
             });
         }
         assert!(checked > 100 && negative > 10, "{checked} {negative}");
+        // the near band holds every corner of every tet with corners on both sides (outside,
+        // and inside or on the boundary), at every level, with its value
+        let forest = r.base.forest();
+        let mut straddling = 0;
+        for level in 0..=forest.levels {
+            for (_, t) in LevelWalker::level(forest, level) {
+                let k = t.v.map(|w| r.keys.key(t.base, &w));
+                let v = k.map(|k| ls[k as usize]);
+                if v.iter().any(|&x| x < 0.0) && v.iter().any(|&x| x >= 0.0) {
+                    straddling += 1;
+                    for (k, v) in k.iter().zip(v) {
+                        let got = set
+                            .near
+                            .get(*k)
+                            .expect("a straddling tet's corner is listed");
+                        assert!(
+                            (got - v).abs() <= set.near.step() / 2.0 + 1e-7
+                                && (got < 0.0) == (v < 0.0),
+                            "key {k} at level {level}: {got} for {v}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(straddling > 50, "{straddling}");
+        // every outside vertex is listed (near with its value, or far outside)
+        for (k, &v) in ls.iter().enumerate() {
+            if v < 0.0 {
+                let got = set.near.get(k as u64).expect("an outside vertex is listed");
+                assert!(got < 0.0, "key {k}: {got} for {v}");
+            }
+        }
     }
 }

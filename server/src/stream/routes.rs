@@ -46,6 +46,7 @@ pub fn app(shared: Arc<Shared>) -> Router {
         .route("/v1/manifest", get(manifest))
         .route("/v1/base", get(base))
         .route("/v1/nodes", get(nodes))
+        .route("/v1/levelset", get(levelset))
         .route("/v1/render", render_route)
         .route_layer(middleware::from_fn_with_state(
             shared.clone(),
@@ -158,6 +159,19 @@ async fn manifest(State(s): State<Arc<Shared>>) -> Response {
 
 async fn base(State(s): State<Arc<Shared>>) -> Response {
     frame_response(&s, s.base_frame.clone())
+}
+
+/// The near band of the domain's level set ([`tetwave_protocol::levelset::NearLevelSet`]'s
+/// coded form); 404 for a store without one (an input with no outside).
+async fn levelset(State(s): State<Arc<Shared>>) -> Response {
+    match &s.levelset_near {
+        Some(b) => frame_response(&s, b.clone()),
+        None => (
+            StatusCode::NOT_FOUND,
+            "this store has no level set: its input has no outside\n",
+        )
+            .into_response(),
+    }
 }
 
 async fn nodes(State(s): State<Arc<Shared>>, Query(q): Query<HashMap<String, String>>) -> Response {

@@ -35,6 +35,8 @@ pub struct Shared {
     pub(super) manifest_json: Bytes,
     pub(super) manifest_frame: Bytes,
     pub(super) base_frame: Bytes,
+    /// The coded near band of the domain's level set (`/v1/levelset`), when the store has one.
+    pub(super) levelset_near: Option<Bytes>,
     /// Every node, when the store is small enough ([`ServeConfig::cache_limit_bytes`]).
     cache: Option<Vec<DetailNode>>,
     /// Otherwise the last decoded blocks of the store, most recent last ([`BLOCK_CACHE`]).
@@ -109,6 +111,8 @@ impl Shared {
             encode(&ServerMsg::Base(Box::new(store.base.clone())))
                 .map_err(|e| ServeError::Encode(e.to_string()))?,
         );
+        // decoded once here, so a corrupt band is refused at start, not on a client's request
+        let levelset_near = store.read_levelset_near()?.map(|(b, _)| Bytes::from(b));
         let keep = cache.is_some();
         tracing::info!(
             nodes,
@@ -126,6 +130,7 @@ impl Shared {
             manifest_json,
             manifest_frame,
             base_frame,
+            levelset_near,
             cache,
             recent: Mutex::new(VecDeque::with_capacity(BLOCK_CACHE)),
             smax,

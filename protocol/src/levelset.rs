@@ -1,0 +1,311 @@
+//! The part of a domain's level set a streaming client needs (`GET /v1/levelset`).
+//!
+//! A store of a mesh with an outside holds the signed distance `φ` to the domain's boundary at
+//! every vertex, clamped to `±cap` (the diameter of the coarsest tet the vertex is a corner of;
+//! see the server's `resample::levelset`). A vertex at the clamp is never interpolated across a
+//! tet that straddles the boundary: `φ` is 1-Lipschitz, so every tet it is a corner of lies on
+//! one side, and any value of that side's sign draws those tets as the exact one does (whole
+//! inside, nothing outside). So a client needs the value of the **near** vertices (`|φ| < cap`),
+//! a band around the boundary, only the sign of the **far outside** ones ([`FAR_OUTSIDE`]), and
+//! gives every vertex not listed a positive value (e.g. the domain's diameter).
+//!
+//! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the finest
+//! tets' diameter, so the clipped boundary moves by less than 1/512 of a finest tet), rounded
+//! so that the sign survives: a value `< 0` becomes a code `≤ −1`.
+//!
+//! Coded as `count: u64 LE`, `step: f32 LE`, then one [`crate::entropy`] stream: per entry its
+//! key's gap to the previous (adaptive integer, context: the previous gap's bit length), an
+//! adaptive flag "far outside" (context: the previous entry's), and otherwise its code (zigzag
+//! adaptive integer, context: the previous code's bit length); runs of far-outside vertices cost
+//! a fraction of a bit each. Decoding is total: a malformed, truncated or oversized body is an
+//! error.
+
+use crate::entropy::{unzigzag, zigzag, Bit, Decoder, Encoder, EntropyError, UInt};
+
+/// The value [`NearLevelSet::get`] gives a far-outside vertex: only its sign matters.
+pub const FAR_OUTSIDE: f32 = f32::NEG_INFINITY;
+
+/// The code of a far-outside vertex.
+const FAR: i32 = i32::MIN;
+/// Gap contexts: the previous gap's bit length, capped.
+const GAP_CONTEXTS: usize = 24;
+/// Code contexts: the previous code's bit length, capped.
+const CODE_CONTEXTS: usize = 24;
+/// Largest code magnitude (a near value is below its cap, a few thousand steps at most in any
+/// sensible hierarchy; this bounds what a decoder accepts).
+const MAX_CODE: u64 = 1 << 30;
+
+/// The near band of a level set: per listed vertex key (increasing), its value as a code of
+/// `step`, or far outside.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NearLevelSet {
+    step: f32,
+    keys: Vec<u64>,
+    codes: Vec<i32>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum LevelSetError {
+    #[error("level set: {0} bytes is too short for its header")]
+    Truncated(usize),
+    #[error("level set: {count} entries for a hierarchy of {keys} vertices")]
+    TooMany { count: u64, keys: u64 },
+    #[error("level set: key {key} is beyond the hierarchy's {keys} vertices")]
+    KeyOutOfRange { key: u64, keys: u64 },
+    #[error("level set: step {0} is not positive and finite")]
+    BadStep(f32),
+    #[error("level set: the value {value} of key {key} is not finite or beyond 2^30 steps")]
+    BadValue { key: u64, value: f32 },
+    #[error("level set: {0}")]
+    Coding(#[from] EntropyError),
+}
+
+fn context(v: u64, n: usize) -> usize {
+    ((u64::BITS - v.leading_zeros()) as usize).min(n - 1)
+}
+
+impl NearLevelSet {
+    /// The entries `(key, φ)` in any order (φ = [`FAR_OUTSIDE`] for a far-outside vertex; a
+    /// repeated key keeps its last value), values rounded to codes of `step`, signs kept.
+    pub fn new(
+        step: f32,
+        entries: impl IntoIterator<Item = (u64, f32)>,
+    ) -> Result<Self, LevelSetError> {
+        if !(step.is_finite() && step > 0.0) {
+            return Err(LevelSetError::BadStep(step));
+        }
+        let mut e: Vec<(u64, f32)> = entries.into_iter().collect();
+        e.sort_by_key(|x| x.0);
+        let mut out = NearLevelSet {
+            step,
+            keys: Vec::with_capacity(e.len()),
+            codes: Vec::with_capacity(e.len()),
+        };
+        for (key, value) in e {
+            let code = if value == FAR_OUTSIDE {
+                FAR
+            } else {
+                let q = (value as f64 / step as f64).round();
+                // a negative value stays negative
+                let q = if value < 0.0 { q.min(-1.0) } else { q };
+                if !(q.is_finite() && q.abs() <= MAX_CODE as f64) {
+                    return Err(LevelSetError::BadValue { key, value });
+                }
+                q as i32
+            };
+            if out.keys.last() == Some(&key) {
+                *out.codes.last_mut().expect("a code per key") = code;
+            } else {
+                out.keys.push(key);
+                out.codes.push(code);
+            }
+        }
+        Ok(out)
+    }
+
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    pub fn step(&self) -> f32 {
+        self.step
+    }
+
+    fn value(&self, code: i32) -> f32 {
+        match code {
+            FAR => FAR_OUTSIDE,
+            c => c as f32 * self.step,
+        }
+    }
+
+    /// `φ` (to within half a step, sign kept) at vertex `key` when it is near the boundary,
+    /// [`FAR_OUTSIDE`] when it is far outside, `None` when it is not listed (far inside).
+    pub fn get(&self, key: u64) -> Option<f32> {
+        self.keys
+            .binary_search(&key)
+            .ok()
+            .map(|i| self.value(self.codes[i]))
+    }
+
+    /// The entries in key order.
+    pub fn iter(&self) -> impl Iterator<Item = (u64, f32)> + '_ {
+        self.keys
+            .iter()
+            .zip(&self.codes)
+            .map(|(&k, &c)| (k, self.value(c)))
+    }
+
+    /// The coded form (see the module documentation).
+    pub fn encode(&self) -> Result<Vec<u8>, LevelSetError> {
+        let mut e = Encoder::default();
+        let mut m = Models::default();
+        let (mut prev, mut gap_ctx, mut code_ctx, mut prev_far) = (None::<u64>, 0, 0, false);
+        for (&k, &c) in self.keys.iter().zip(&self.codes) {
+            let gap = prev.map_or(k, |p| k - p - 1);
+            e.uint(&mut m.gaps[gap_ctx], gap)?;
+            gap_ctx = context(gap, GAP_CONTEXTS);
+            prev = Some(k);
+            let far = c == FAR;
+            e.bit(&mut m.far[prev_far as usize], far);
+            prev_far = far;
+            if !far {
+                let z = zigzag(c as i64);
+                e.uint(&mut m.codes[code_ctx], z)?;
+                code_ctx = context(z, CODE_CONTEXTS);
+            }
+        }
+        let mut out = (self.keys.len() as u64).to_le_bytes().to_vec();
+        out.extend(self.step.to_le_bytes());
+        out.extend(e.finish());
+        Ok(out)
+    }
+
+    /// Decodes a body of a hierarchy with `n_keys` vertices: keys increasing and below `n_keys`,
+    /// the step positive and finite, codes within 2^30.
+    pub fn decode(bytes: &[u8], n_keys: u64) -> Result<Self, LevelSetError> {
+        if bytes.len() < 12 {
+            return Err(LevelSetError::Truncated(bytes.len()));
+        }
+        let count = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes"));
+        let step = f32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+        if count > n_keys {
+            return Err(LevelSetError::TooMany {
+                count,
+                keys: n_keys,
+            });
+        }
+        let mut out = NearLevelSet::new(step, [])?;
+        if count == 0 {
+            return Ok(out);
+        }
+        let mut d = Decoder::new(&bytes[12..])?;
+        let mut m = Models::default();
+        let (mut prev, mut gap_ctx, mut code_ctx, mut prev_far) = (None::<u64>, 0, 0, false);
+        for _ in 0..count {
+            let gap = d.uint(&mut m.gaps[gap_ctx])?;
+            gap_ctx = context(gap, GAP_CONTEXTS);
+            let key = match prev {
+                None => Some(gap),
+                Some(p) => p.checked_add(gap).and_then(|k| k.checked_add(1)),
+            }
+            .filter(|&k| k < n_keys)
+            .ok_or(LevelSetError::KeyOutOfRange {
+                key: prev.unwrap_or(0).saturating_add(gap),
+                keys: n_keys,
+            })?;
+            prev = Some(key);
+            let far = d.bit(&mut m.far[prev_far as usize])?;
+            prev_far = far;
+            let code = if far {
+                FAR
+            } else {
+                let z = d.uint(&mut m.codes[code_ctx])?;
+                code_ctx = context(z, CODE_CONTEXTS);
+                let c = unzigzag(z);
+                if c.unsigned_abs() > MAX_CODE {
+                    return Err(LevelSetError::BadValue {
+                        key,
+                        value: c as f32 * step,
+                    });
+                }
+                c as i32
+            };
+            out.keys.push(key);
+            out.codes.push(code);
+        }
+        Ok(out)
+    }
+}
+
+/// The adaptive models of one body.
+struct Models {
+    gaps: Vec<UInt>,
+    far: [Bit; 2],
+    codes: Vec<UInt>,
+}
+
+impl Default for Models {
+    fn default() -> Self {
+        Models {
+            gaps: vec![UInt::default(); GAP_CONTEXTS],
+            far: [Bit::default(); 2],
+            codes: vec![UInt::default(); CODE_CONTEXTS],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn a_band_round_trips_and_answers_lookups() {
+        let step = 1e-3;
+        let set = NearLevelSet::new(
+            step,
+            (0..2000u64)
+                .map(|i| (i * 7 + 3, (i as f32 * 0.01).sin() * 0.1))
+                .chain((20_000..30_000).map(|k| (k, FAR_OUTSIDE))),
+        )
+        .unwrap();
+        let bytes = set.encode().unwrap();
+        let back = NearLevelSet::decode(&bytes, 30_000).unwrap();
+        assert_eq!(back, set);
+        assert_eq!(back.get(3), Some(0.0));
+        assert_eq!(back.get(4), None);
+        assert_eq!(back.get(25_000), Some(FAR_OUTSIDE));
+        let v = (1999f32 * 0.01).sin() * 0.1;
+        let got = back.get(7 * 1999 + 3).unwrap();
+        assert!((got - v).abs() <= step / 2.0 + 1e-7 && got.signum() == v.signum());
+        // a tiny negative value stays negative
+        let tiny = NearLevelSet::new(step, [(1, -1e-9), (2, 1e-9)]).unwrap();
+        assert!(tiny.get(1).unwrap() < 0.0 && tiny.get(2).unwrap() >= 0.0);
+        // about a byte a near entry (codes up to 100 steps); a run of far ones almost free
+        assert!(bytes.len() < 2000 * 2 + 200, "{} bytes", bytes.len());
+        // refused: keys or a count beyond the hierarchy, a short header, a bad step or value
+        assert!(matches!(
+            NearLevelSet::decode(&bytes, 100),
+            Err(LevelSetError::TooMany { .. } | LevelSetError::KeyOutOfRange { .. })
+        ));
+        assert_eq!(
+            NearLevelSet::decode(&[1, 2, 3], 10),
+            Err(LevelSetError::Truncated(3))
+        );
+        assert_eq!(
+            NearLevelSet::new(0.0, []).err(),
+            Some(LevelSetError::BadStep(0.0))
+        );
+        assert!(matches!(
+            NearLevelSet::new(1.0, [(5, f32::NAN)]),
+            Err(LevelSetError::BadValue { key: 5, .. })
+        ));
+    }
+
+    proptest! {
+        #[test]
+        fn any_entries_round_trip(entries in proptest::collection::vec((0u64..1 << 40, -1e6f32..1e6, any::<bool>()), 0..200), step in 1e-3f32..10.0) {
+            let set = NearLevelSet::new(
+                step,
+                entries.into_iter().map(|(k, v, far)| (k, if far { FAR_OUTSIDE } else { v })),
+            )
+            .unwrap();
+            let back = NearLevelSet::decode(&set.encode().unwrap(), 1 << 40).unwrap();
+            prop_assert_eq!(back, set);
+        }
+
+        #[test]
+        fn decoding_any_body_is_total(bytes in proptest::collection::vec(any::<u8>(), 0..200), n_keys in 0u64..1000) {
+            if let Ok(set) = NearLevelSet::decode(&bytes, n_keys) {
+                let keys: Vec<u64> = set.iter().map(|e| e.0).collect();
+                prop_assert!(keys.windows(2).all(|w| w[0] < w[1]));
+                prop_assert!(keys.iter().all(|&k| k < n_keys));
+                prop_assert!(set.iter().all(|e| !e.1.is_nan()));
+            }
+        }
+    }
+}
