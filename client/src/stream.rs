@@ -283,17 +283,7 @@ fn fetch_levelset(
     let url = ws_url
         .replacen("ws://", "http://", 1)
         .replacen("/v1/stream", "/v1/levelset", 1);
-    let mut req = ureq::get(&url);
-    if let Some(t) = token {
-        req = req.header("Authorization", &format!("Bearer {t}"));
-    }
-    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
-    let bytes = resp
-        .body_mut()
-        .with_config()
-        .limit(MAX_LEVELSET_BYTES)
-        .read_to_vec()
-        .map_err(|e| format!("GET {url}: {e}"))?;
+    let bytes = crate::http::get(&url, token, MAX_LEVELSET_BYTES)?;
     let near = NearLevelSet::decode(&bytes, n_keys).map_err(|e| format!("GET {url}: {e}"))?;
     Ok((near, bytes.len() as u64))
 }

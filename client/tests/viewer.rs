@@ -10,60 +10,15 @@ use std::sync::Arc;
 use std::time::Duration;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_server::prepare::{prepare, PrepareOptions};
-use tetwave_server::stream::{serve_on, ServeConfig, Shared};
+use tetwave_server::stream::{BackgroundServer, ServeConfig};
 
-/// A server in process (its own runtime on a thread), stopped when dropped: its runtime ends,
-/// and every connection with it.
-struct Server(
-    Option<tokio::sync::oneshot::Sender<()>>,
-    String,
-    Option<std::thread::JoinHandle<()>>,
-);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        if let Some(stop) = self.0.take() {
-            let _ = stop.send(());
-        }
-        if let Some(t) = self.2.take() {
-            let _ = t.join();
-        }
-    }
+/// A server on 127.0.0.1, on any free port (in process, stopped when dropped).
+fn serve(store: &Path) -> BackgroundServer {
+    serve_with(store, "127.0.0.1:0", ServeConfig::default())
 }
 
-/// A server on 127.0.0.1, on any free port.
-fn serve(store: &Path) -> Server {
-    serve_at(store, "127.0.0.1:0")
-}
-
-fn serve_at(store: &Path, addr: &str) -> Server {
-    serve_with(store, addr, ServeConfig::default())
-}
-
-fn serve_with(store: &Path, addr: &str, config: ServeConfig) -> Server {
-    let addr = addr.to_string();
-    let shared = Shared::open(store, config).expect("store opens");
-    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let thread = std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async move {
-            let listener = tokio::net::TcpListener::bind(&addr).await.unwrap();
-            addr_tx.send(listener.local_addr().unwrap()).unwrap();
-            tokio::select! {
-                _ = serve_on(listener, shared) => {}
-                _ = stop_rx => {}
-            }
-        });
-    });
-    let addr = addr_rx
-        .recv_timeout(Duration::from_secs(20))
-        .expect("server listens");
-    Server(Some(stop_tx), format!("http://{addr}"), Some(thread))
+fn serve_with(store: &Path, addr: &str, config: ServeConfig) -> BackgroundServer {
+    BackgroundServer::start(store, addr, config).expect("the store is served")
 }
 
 /// The default dataset (`synthetic:harmonic`) with `levels` levels, in `<dir>/s`.
@@ -256,7 +211,7 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
     std::fs::write(&sp, script.to_string()).unwrap();
     let out = view_under_xvfb(
         &[
-            &srv.1,
+            srv.url(),
             "--size",
             "256x224",
             "--script",
@@ -352,7 +307,7 @@ fn view_tolerance_coarsens_and_refines() {
         dir,
         &script,
         &[
-            &srv.1,
+            srv.url(),
             "--size",
             "160x160",
             "--mode",
@@ -456,7 +411,7 @@ fn view_json_carries_latency_and_the_worst_refinement_frame() {
     let r = view_script(
         dir,
         &script,
-        &[&srv.1, "--size", "160x120", "--frames", "20000"],
+        &[srv.url(), "--size", "160x120", "--frames", "20000"],
     );
     eprintln!("{r}");
     let p = &r["perf"];
@@ -708,7 +663,7 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
         ..ServeConfig::default()
     };
     let srv = serve_with(&s, "127.0.0.1:0", paced());
-    let addr: std::net::SocketAddr = srv.1.trim_start_matches("http://").parse().unwrap();
+    let addr: std::net::SocketAddr = srv.url().trim_start_matches("http://").parse().unwrap();
     let (port, passed) = slow_relay(addr, 40_000);
     let script = serde_json::json!([{"wait": "complete"}, {"quit": true}]);
     let sp = d.path().join("script.json");
@@ -750,7 +705,7 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
     // the same stream uncut, for its size
     let fresh = view_under_xvfb(
         &[
-            &srv.1,
+            srv.url(),
             "--size",
             "128x96",
             "--mode",

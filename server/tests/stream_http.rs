@@ -17,6 +17,26 @@ use tetwave_render::transfer::TransferFunction;
 use tetwave_server::stream::ServeConfig;
 use tetwave_store::{Manifest, Store};
 
+/// Clients see the input's file name, not where it lies on the server; a store without a level
+/// set has no `/v1/levelset`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_served_manifest_names_the_input_without_its_directories() {
+    let (_d, dir) = make_store(2);
+    let mpath = dir.join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["source"] = "/home/someone/private/run-7/input.vtu".into();
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    let r = get(addr, "/v1/manifest", &[]).await;
+    assert_eq!(r.status, 200);
+    let served: Manifest = serde_json::from_slice(&r.body).unwrap();
+    assert_eq!(served.source, "input.vtu");
+    assert!(!String::from_utf8_lossy(&r.body).contains("private"));
+    let r = get(addr, "/v1/levelset", &[]).await;
+    assert_eq!(r.status, 404);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn manifest_base_and_node_ranges_match_the_store() {
     let (_d, dir) = make_store(3);

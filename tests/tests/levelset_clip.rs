@@ -27,6 +27,7 @@ use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference;
+use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 use tetwave_server::prepare::{prepare, PrepareOptions, Summary};
 use tetwave_server::render_service::{RenderParams, RenderService};
@@ -91,6 +92,19 @@ fn write_mesh(path: &Path) {
         s += &format!("{v}\n");
     }
     std::fs::write(path, s).unwrap();
+}
+
+/// `tetwave render`'s default camera on `mesh` from azimuth `az`, elevation `el`.
+fn orbit_camera(mesh: &RenderMesh, az: f64, el: f64) -> Camera {
+    Camera::orbit(
+        mesh.center(),
+        1.6 * mesh.diagonal(),
+        az,
+        el,
+        40.0,
+        SIZE,
+        SIZE,
+    )
 }
 
 /// Pixels where `original` is empty (transparent black: the ray meets no tet) and `img` is not.
@@ -161,15 +175,7 @@ fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
         assert_eq!(rs.value_range, rm.value_range, "same default value range");
         assert_eq!(rs.level, 4);
         // exact images (with alpha) for the misses: the same camera as `tetwave render`'s
-        let cam = Camera::orbit(
-            original.center(),
-            1.6 * original.diagonal(),
-            az,
-            el,
-            40.0,
-            SIZE,
-            SIZE,
-        );
+        let cam = orbit_camera(&original, az, el);
         let orig = render_reference(&original, &cam, &tf);
         let misses = orig.pixels.iter().filter(|p| **p == [0u8; 4]).count();
         assert!(misses > 1000, "the view shows background");
@@ -238,7 +244,7 @@ fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
     );
     assert!(!band.is_empty() && (band_bytes.len() as u64) < vertices * 4 / 2);
     let srv = serve(&store, "level");
-    let mut a = StreamArgs::new(&srv.1, &d.path().join("out"));
+    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
     a.no_render = true;
     // frames pass every 5 ms while the band is fetched beside the stream (seconds on a loaded
     // machine): the session ends as soon as both are in
@@ -269,15 +275,7 @@ fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
     let tf = TransferFunction::preset("default").unwrap();
     let mut unclipped_leaks = 0;
     for (az, el) in [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)] {
-        let cam = Camera::orbit(
-            original.center(),
-            1.6 * original.diagonal(),
-            az,
-            el,
-            40.0,
-            SIZE,
-            SIZE,
-        );
+        let cam = orbit_camera(&original, az, el);
         let orig = render_reference(&original, &cam, &tf);
         let img = render_reference(&streamed, &cam, &tf);
         assert_eq!(leaks(&orig, &img), 0, "az {az}: the streamed mesh, clipped");

@@ -61,7 +61,7 @@ fn streamed_session_ends_identical_to_full_synthesis() {
     for order in ["level", "magnitude", "view", "random"] {
         let srv = serve(&d.path().join("s"), order);
         let s = session(
-            &srv.1,
+            srv.url(),
             &d.path().join(format!("out-{order}")),
             Faults::default(),
         );
@@ -80,7 +80,7 @@ fn reordered_duplicated_and_lost_batches_end_identical() {
         lose_every: Some(4),
         ..Default::default()
     };
-    let s = session_with(&srv.1, &d.path().join("out"), faults, false);
+    let s = session_with(srv.url(), &d.path().join("out"), faults, false);
     assert!(s.report.duplicates > 0);
     assert_identical(&s, &values);
 }
@@ -89,9 +89,9 @@ fn reordered_duplicated_and_lost_batches_end_identical() {
 fn disconnect_and_resume_loses_nothing_and_repeats_nothing() {
     let (d, values, _) = store(5);
     let srv = serve(&d.path().join("s"), "level");
-    let clean = session_with(&srv.1, &d.path().join("a"), Faults::default(), false);
+    let clean = session_with(srv.url(), &d.path().join("a"), Faults::default(), false);
     let cut = session_with(
-        &srv.1,
+        srv.url(),
         &d.path().join("b"),
         Faults {
             drop_after_batches: Some(5),
@@ -116,7 +116,7 @@ fn disconnect_and_resume_loses_nothing_and_repeats_nothing() {
 fn until_complete_and_incomplete_is_an_error() {
     let (d, _, n) = store(5);
     let srv = serve(&d.path().join("s"), "level");
-    let mut a = StreamArgs::new(&srv.1, &d.path().join("out"));
+    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
     a.no_render = true;
     a.frames = 1;
     a.per_frame = 10;

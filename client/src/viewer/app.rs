@@ -1053,17 +1053,7 @@ impl ViewerApp {
 
 /// GET a PNG and decode it.
 fn fetch_png(url: &str, token: Option<&str>) -> Result<Rgba8Image, String> {
-    let mut req = ureq::get(url);
-    if let Some(t) = token {
-        req = req.header("Authorization", &format!("Bearer {t}"));
-    }
-    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
-    let bytes = resp
-        .body_mut()
-        .with_config()
-        .limit(256 << 20)
-        .read_to_vec()
-        .map_err(|e| format!("GET {url}: {e}"))?;
+    let bytes = crate::http::get(url, token, 256 << 20)?;
     let img = image::load_from_memory(&bytes)
         .map_err(|e| format!("the server's PNG: {e}"))?
         .to_rgba8();

@@ -29,6 +29,7 @@
 
 mod admission;
 mod auth;
+mod background;
 mod config;
 mod connection;
 mod error;
@@ -38,6 +39,7 @@ mod schedule;
 mod state;
 
 pub use admission::{open_file_limit, Peer};
+pub use background::BackgroundServer;
 pub use config::{Limits, Order, ServeConfig};
 pub use error::ServeError;
 pub use origin::OriginPolicy;

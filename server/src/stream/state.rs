@@ -17,6 +17,7 @@ use tetwave_protocol::order::shuffle;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
+use tetwave_store::Manifest;
 use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
 
 /// Per-node geometry for view-dependent order: bounding spheres, in world units.
@@ -99,12 +100,12 @@ impl Shared {
         if nodes > u32::MAX as u64 {
             return Err(ServeError::TooLarge(nodes));
         }
+        let served = served_manifest(&store.manifest);
         let manifest_json = Bytes::from(
-            serde_json::to_vec_pretty(&store.manifest)
-                .map_err(|e| ServeError::Encode(e.to_string()))?,
+            serde_json::to_vec_pretty(&served).map_err(|e| ServeError::Encode(e.to_string()))?,
         );
         let manifest_frame = Bytes::from(
-            encode(&ServerMsg::Manifest(Box::new(store.manifest.clone())))
+            encode(&ServerMsg::Manifest(Box::new(served)))
                 .map_err(|e| ServeError::Encode(e.to_string()))?,
         );
         let base_frame = Bytes::from(
@@ -272,4 +273,15 @@ impl Shared {
         recent.push_back((b, nodes.clone()));
         Ok(nodes)
     }
+}
+
+/// The manifest as clients see it: the store's, with the input named by its file name only (the
+/// path `prepare` was given says where files lie on the server, which is none of a client's
+/// business).
+pub fn served_manifest(m: &Manifest) -> Manifest {
+    let mut served = m.clone();
+    if let Some(name) = std::path::Path::new(&m.source).file_name() {
+        served.source = name.to_string_lossy().into_owned();
+    }
+    served
 }

@@ -4,12 +4,11 @@
 
 use clap::Parser;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 use tetwave_client::progressive::BenchArgs;
 use tetwave_client::render_cli::{run, RenderArgs, RenderReport};
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_server::prepare::{prepare, PrepareOptions};
-use tetwave_server::stream::{serve_on, Order, ServeConfig, Shared};
+use tetwave_server::stream::{BackgroundServer, Order, ServeConfig};
 
 #[derive(Parser)]
 struct Cli {
@@ -74,42 +73,11 @@ pub fn bench_args(args: &[&str]) -> BenchArgs {
     Cli::try_parse_from(all).unwrap().bench
 }
 
-/// A server on 127.0.0.1:0, in process (its own runtime on a thread), stopped when dropped.
-pub struct Server(pub Option<tokio::sync::oneshot::Sender<()>>, pub String);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        if let Some(stop) = self.0.take() {
-            let _ = stop.send(());
-        }
-    }
-}
-
-pub fn serve(store: &Path, order: &str) -> Server {
+/// A server on 127.0.0.1, on any free port, in process; stopped when dropped.
+pub fn serve(store: &Path, order: &str) -> BackgroundServer {
     let config = ServeConfig {
         order: Order::parse(order).expect("known order"),
         ..Default::default()
     };
-    let shared = Shared::open(store, config).expect("store opens");
-    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async move {
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-            addr_tx.send(listener.local_addr().unwrap()).unwrap();
-            tokio::select! {
-                _ = serve_on(listener, shared) => {}
-                _ = stop_rx => {}
-            }
-        });
-    });
-    let addr = addr_rx
-        .recv_timeout(Duration::from_secs(20))
-        .expect("server listens");
-    Server(Some(stop_tx), format!("http://{addr}"))
+    BackgroundServer::start(store, "127.0.0.1:0", config).expect("the store is served")
 }

@@ -1,0 +1,17 @@
+//! Plain HTTP GETs of the server's routes beside the stream (`/v1/render`, `/v1/levelset`), with
+//! the stream's token.
+
+/// The body of `GET url` (at most `limit` bytes), sending `token` as a bearer token when given;
+/// an error names the URL.
+pub fn get(url: &str, token: Option<&str>, limit: u64) -> Result<Vec<u8>, String> {
+    let mut req = ureq::get(url);
+    if let Some(t) = token {
+        req = req.header("Authorization", &format!("Bearer {t}"));
+    }
+    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
+    resp.body_mut()
+        .with_config()
+        .limit(limit)
+        .read_to_vec()
+        .map_err(|e| format!("GET {url}: {e}"))
+}
