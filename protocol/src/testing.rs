@@ -107,3 +107,64 @@ pub fn detail_nodes(
     }
     (base, nodes)
 }
+
+/// The scalar of [`notched_cube_vtk`]'s points.
+pub fn notched_scalar(p: [f64; 3]) -> f64 {
+    p[0] + p[1] * p[1] + 0.5 * p[2]
+}
+
+/// The box `[0,1]³` without the corner `[cut,1]³` as legacy ASCII VTK: 7 hexahedra on the 27
+/// points of the planes 0, `cut` and 1, with the point scalar `f` = [`notched_scalar`]. A
+/// non-convex mesh whose boundary planes lie on no level of a store's lattice when `cut` is not
+/// dyadic (the level-set tests' fixture).
+pub fn notched_cube_vtk(cut: f64) -> String {
+    let c = [0.0, cut, 1.0];
+    let idx = |a: usize, b: usize, k: usize| a + 3 * b + 9 * k;
+    let mut s = String::from(
+        "# vtk DataFile Version 3.0\ncube minus a corner\nASCII\nDATASET UNSTRUCTURED_GRID\n",
+    );
+    s += "POINTS 27 double\n";
+    let mut values = Vec::new();
+    for k in 0..3 {
+        for b in 0..3 {
+            for a in 0..3 {
+                let p = [c[a], c[b], c[k]];
+                s += &format!("{} {} {}\n", p[0], p[1], p[2]);
+                values.push(notched_scalar(p));
+            }
+        }
+    }
+    let mut hexes = Vec::new();
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                if (i, j, k) == (1, 1, 1) {
+                    continue;
+                }
+                hexes.push([
+                    idx(i, j, k),
+                    idx(i + 1, j, k),
+                    idx(i + 1, j + 1, k),
+                    idx(i, j + 1, k),
+                    idx(i, j, k + 1),
+                    idx(i + 1, j, k + 1),
+                    idx(i + 1, j + 1, k + 1),
+                    idx(i, j + 1, k + 1),
+                ]);
+            }
+        }
+    }
+    s += &format!("CELLS {} {}\n", hexes.len(), hexes.len() * 9);
+    for h in &hexes {
+        s += &format!("8 {}\n", h.map(|v| v.to_string()).join(" "));
+    }
+    s += &format!("CELL_TYPES {}\n", hexes.len());
+    for _ in &hexes {
+        s += "12\n";
+    }
+    s += "POINT_DATA 27\nSCALARS f double 1\nLOOKUP_TABLE default\n";
+    for v in values {
+        s += &format!("{v}\n");
+    }
+    s
+}

@@ -22,6 +22,7 @@ use common::{psnr_pixels as psnr, render_png, serve};
 use tetwave_client::draw::leaf_mesh;
 use tetwave_client::render_cli::{file_mesh, store_mesh};
 use tetwave_client::stream::{run_session, Faults, StreamArgs};
+use tetwave_protocol::testing::notched_cube_vtk;
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::PtRenderer;
 use tetwave_render::gpu::GpuContext;
@@ -37,61 +38,9 @@ use tetwave_store::Store;
 const SIZE: u32 = 96;
 const CUT: f64 = 0.4;
 
-fn scalar(p: [f64; 3]) -> f64 {
-    p[0] + p[1] * p[1] + 0.5 * p[2]
-}
-
-/// Writes the cube-minus-a-corner mesh as legacy VTK (hexahedra, a point scalar `f`).
+/// Writes the cube-minus-a-corner mesh as legacy VTK.
 fn write_mesh(path: &Path) {
-    let c = [0.0, CUT, 1.0];
-    let idx = |a: usize, b: usize, k: usize| a + 3 * b + 9 * k;
-    let mut s = String::from(
-        "# vtk DataFile Version 3.0\ncube minus a corner\nASCII\nDATASET UNSTRUCTURED_GRID\n",
-    );
-    s += "POINTS 27 double\n";
-    let mut values = Vec::new();
-    for k in 0..3 {
-        for b in 0..3 {
-            for a in 0..3 {
-                let p = [c[a], c[b], c[k]];
-                s += &format!("{} {} {}\n", p[0], p[1], p[2]);
-                values.push(scalar(p));
-            }
-        }
-    }
-    let mut hexes = Vec::new();
-    for k in 0..2 {
-        for j in 0..2 {
-            for i in 0..2 {
-                if (i, j, k) == (1, 1, 1) {
-                    continue;
-                }
-                hexes.push([
-                    idx(i, j, k),
-                    idx(i + 1, j, k),
-                    idx(i + 1, j + 1, k),
-                    idx(i, j + 1, k),
-                    idx(i, j, k + 1),
-                    idx(i + 1, j, k + 1),
-                    idx(i + 1, j + 1, k + 1),
-                    idx(i, j + 1, k + 1),
-                ]);
-            }
-        }
-    }
-    s += &format!("CELLS {} {}\n", hexes.len(), hexes.len() * 9);
-    for h in &hexes {
-        s += &format!("8 {}\n", h.map(|v| v.to_string()).join(" "));
-    }
-    s += &format!("CELL_TYPES {}\n", hexes.len());
-    for _ in &hexes {
-        s += "12\n";
-    }
-    s += "POINT_DATA 27\nSCALARS f double 1\nLOOKUP_TABLE default\n";
-    for v in values {
-        s += &format!("{v}\n");
-    }
-    std::fs::write(path, s).unwrap();
+    std::fs::write(path, notched_cube_vtk(CUT)).unwrap();
 }
 
 /// `tetwave render`'s default camera on `mesh` from azimuth `az`, elevation `el`.
