@@ -5,9 +5,11 @@
 //! see the server's `resample::levelset`). A vertex at the clamp is never interpolated across a
 //! tet that straddles the boundary: `φ` is 1-Lipschitz, so every tet it is a corner of lies on
 //! one side, and any value of that side's sign draws those tets as the exact one does (whole
-//! inside, nothing outside). So a client needs the value of the **near** vertices (`|φ| < cap`),
-//! a band around the boundary, only the sign of the **far outside** ones ([`FAR_OUTSIDE`]), and
-//! gives every vertex not listed a positive value (e.g. the domain's diameter).
+//! inside, nothing outside). And a tet whose corners are all ≥ 0 is drawn whole whatever they
+//! hold. So the band lists the corners of the tets (of any level) that have a corner outside:
+//! near ones (`|φ| < cap`) with their value, far-outside ones flagged ([`FAR_OUTSIDE`]: only the
+//! sign matters); a client gives every vertex not listed (inside, in no such tet) a positive value
+//! (e.g. the domain's diameter).
 //!
 //! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the finest
 //! tets' diameter, so the clipped boundary moves by less than 1/512 of a finest tet), rounded

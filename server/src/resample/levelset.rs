@@ -24,8 +24,8 @@ pub struct LevelSet {
     /// outside (`NaN` sample), `d` the distance to the boundary, `cap` the diameter of the
     /// coarsest tet the vertex is a corner of (see the module docs).
     pub values: Vec<f32>,
-    /// The vertices with `d < cap` (the only ones a straddling tet interpolates) and the far
-    /// outside ones ([`NearLevelSet`]).
+    /// What streaming clients clip with ([`NearLevelSet`]): every corner of a tet (of any level)
+    /// with a corner outside, with its value, or flagged when it is outside beyond its clamp.
     pub near: NearLevelSet,
 }
 
@@ -88,17 +88,29 @@ pub fn signed_distance(
     } else {
         1.0
     };
+    // a vertex's value matters only in tets with a corner outside: elsewhere every corner is
+    // ≥ 0 and the tet is drawn whole whatever they hold
+    let mut beside_outside = vec![false; n];
+    for level in 0..=forest.levels {
+        for (_, t) in LevelWalker::level(forest, level) {
+            let k = t.v.map(|w| keys.key(t.base, &w) as usize);
+            if k.iter().any(|&k| out[k] < 0.0) {
+                for k in k {
+                    beside_outside[k] = true;
+                }
+            }
+        }
+    }
     let near = NearLevelSet::new(
         step,
         out.iter()
             .zip(&cap)
+            .zip(&beside_outside)
             .enumerate()
-            .filter_map(|(k, (&v, &c))| {
-                if v.abs() < c {
-                    Some((k as u64, v))
-                } else {
-                    (v < 0.0).then_some((k as u64, FAR_OUTSIDE))
-                }
+            .filter(|(_, (_, &beside))| beside)
+            .map(|(k, ((&v, &c), _))| {
+                let far_outside = v < 0.0 && v.abs() >= c;
+                (k as u64, if far_outside { FAR_OUTSIDE } else { v })
             }),
     )?;
     Ok(LevelSet { values: out, near })
