@@ -1,10 +1,20 @@
 //! Plain HTTP GETs of the server's routes beside the stream (`/v1/render`, `/v1/levelset`), with
 //! the stream's token.
 
-/// The body of `GET url` (at most `limit` bytes), sending `token` as a bearer token when given;
-/// an error names the URL.
-pub fn get(url: &str, token: Option<&str>, limit: u64) -> Result<Vec<u8>, String> {
-    let mut req = ureq::get(url);
+use std::time::Duration;
+
+/// The body of `GET url` (at most `limit` bytes, within `timeout` all told), sending `token` as a
+/// bearer token when given; an error names the URL.
+pub fn get(
+    url: &str,
+    token: Option<&str>,
+    limit: u64,
+    timeout: Duration,
+) -> Result<Vec<u8>, String> {
+    let mut req = ureq::get(url)
+        .config()
+        .timeout_global(Some(timeout))
+        .build();
     if let Some(t) = token {
         req = req.header("Authorization", &format!("Bearer {t}"));
     }

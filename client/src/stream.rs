@@ -283,13 +283,15 @@ fn fetch_levelset(
     let url = ws_url
         .replacen("ws://", "http://", 1)
         .replacen("/v1/stream", "/v1/levelset", 1);
-    let bytes = crate::http::get(&url, token, MAX_LEVELSET_BYTES)?;
+    let bytes = crate::http::get(&url, token, MAX_LEVELSET_BYTES, LEVELSET_TIMEOUT)?;
     let near = NearLevelSet::decode(&bytes, n_keys).map_err(|e| format!("GET {url}: {e}"))?;
     Ok((near, bytes.len() as u64))
 }
 
 /// The largest level-set body a client reads (a band of about 40 M vertices).
 const MAX_LEVELSET_BYTES: u64 = 256 << 20;
+/// How long the level set's request may take, all of it.
+const LEVELSET_TIMEOUT: Duration = Duration::from_secs(30);
 
 pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
     let rest = url
@@ -314,6 +316,14 @@ pub struct Faults {
     pub lose_every: Option<u64>,
     /// Deliver node batches in reversed groups of this many.
     pub reverse_groups: Option<usize>,
+}
+
+/// How the network task behaves: injected faults (tests), reconnection attempts, and the largest
+/// hierarchy (in nodes) it fetches a level set for.
+pub(crate) struct NetPolicy {
+    pub(crate) faults: Faults,
+    pub(crate) retries: u32,
+    pub(crate) max_nodes: u64,
 }
 
 /// The network task's counters, shared with the session that reads them (this module's frame
@@ -411,16 +421,20 @@ pub(crate) async fn network(
     net: Arc<Net>,
     tx: mpsc::Sender<(Delivery, u64)>,
     mut out: mpsc::UnboundedReceiver<ClientMsg>,
-    faults: Faults,
-    retries: u32,
+    policy: NetPolicy,
 ) -> Result<(), StreamError> {
+    let NetPolicy {
+        faults,
+        retries,
+        max_nodes,
+    } = policy;
     // consecutive connection attempts that brought no new node (a failed connect counts too)
     let mut failures = 0u32;
     let mut dropped = false;
     let mut batches = 0u64;
     let mut held_back: Vec<(Delivery, u64)> = Vec::new();
     let mut blocks = BlockDecoder::default();
-    // the level set is fetched once, after the first manifest
+    // the level set is asked for once, after the first base mesh
     let mut levelset_asked = false;
     // why the last connection ended, once one has
     let mut lost: Option<String> = None;
@@ -490,20 +504,34 @@ pub(crate) async fn network(
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
                         let m = blocks.decode(m)?;
-                        if let (Delivery::Manifest(man), false) = (&m, levelset_asked) {
+                        if let (Delivery::Base(base), false) = (&m, levelset_asked) {
                             levelset_asked = true;
-                            if man.files.contains_key(LEVELSET_FILE) {
-                                // beside the stream, so the base mesh does not wait for it
-                                let (u, t, tx, n) = (url.clone(), token.clone(), tx.clone(), man.counts.vertices);
-                                let bytes = net.bytes.clone();
-                                tokio::task::spawn_blocking(move || {
-                                    let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
-                                        Ok((near, len)) => (Ok(Box::new(near)), len),
-                                        Err(e) => (Err(e), 0),
-                                    };
-                                    bytes.fetch_add(len, Ordering::Relaxed);
-                                    let _ = tx.blocking_send((Delivery::LevelSet(got), len));
-                                });
+                            if let Some(man) = blocks.manifest.as_deref().filter(|m| m.files.contains_key(LEVELSET_FILE)) {
+                                // beside the stream, so the nodes do not wait for it; only for a
+                                // hierarchy within the client's budget (the frame loop refuses
+                                // any other), decoded for its exact vertex count
+                                let answer = tx.downgrade();
+                                match check_hierarchy(base, man, max_nodes) {
+                                    Ok(()) => {
+                                        let (u, t, n) = (url.clone(), token.clone(), base.vertex_keys().vertex_count());
+                                        let bytes = net.bytes.clone();
+                                        tokio::task::spawn_blocking(move || {
+                                            let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
+                                                Ok((near, len)) => (Ok(Box::new(near)), len),
+                                                Err(e) => (Err(e), 0),
+                                            };
+                                            bytes.fetch_add(len, Ordering::Relaxed);
+                                            // nobody to tell once the network task has ended
+                                            if let Some(tx) = answer.upgrade() {
+                                                let _ = tx.blocking_send((Delivery::LevelSet(got), len));
+                                            }
+                                        });
+                                    }
+                                    Err(e) => {
+                                        let why = format!("level set not fetched: {e}");
+                                        let _ = tx.send((Delivery::LevelSet(Err(why)), 0)).await;
+                                    }
+                                }
                             }
                         }
                         let mut deliver = vec![(m, bytes.len() as u64)];
@@ -660,8 +688,11 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         net.clone(),
         tx,
         out_rx,
-        faults,
-        args.retries,
+        NetPolicy {
+            faults,
+            retries: args.retries,
+            max_nodes: args.max_nodes,
+        },
     ));
 
     let mut manifest: Option<Manifest> = None;
@@ -695,8 +726,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             if args.per_frame > 0 && applied >= args.per_frame {
                 break;
             }
-            // once everything has arrived there is nothing to wait for
-            let msg = if state.is_none() || (!got_any && !ended) {
+            // once everything has arrived there is nothing to wait for but the level set
+            let levelset_pending = !levelset_answered
+                && manifest
+                    .as_ref()
+                    .is_some_and(|m| m.files.contains_key(LEVELSET_FILE));
+            let msg = if state.is_none() || (!got_any && (!ended || levelset_pending)) {
                 let left = if state.is_none() {
                     wait_base.saturating_sub(t0.elapsed())
                 } else {

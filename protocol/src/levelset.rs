@@ -11,8 +11,9 @@
 //! sign matters); a client gives every vertex not listed (inside, in no such tet) a positive value
 //! (e.g. the domain's diameter).
 //!
-//! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the finest
-//! tets' diameter, so the clipped boundary moves by less than 1/512 of a finest tet), rounded
+//! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the smallest
+//! clamp, about a finest tet's diameter, so the clipped boundary moves by less than 1/512 of a
+//! finest tet), rounded
 //! so that the sign survives: a value `< 0` becomes a code `≤ −1`.
 //!
 //! Coded as `count: u64 LE`, `step: f32 LE`, then one [`crate::entropy`] stream: per entry its
@@ -90,7 +91,7 @@ impl NearLevelSet {
                 let q = (value as f64 / step as f64).round();
                 // a negative value stays negative
                 let q = if value < 0.0 { q.min(-1.0) } else { q };
-                if !(q.is_finite() && q.abs() <= MAX_CODE as f64) {
+                if !(q.is_finite() && q.abs() <= MAX_CODE as f64 && (q as f32 * step).is_finite()) {
                     return Err(LevelSetError::BadValue { key, value });
                 }
                 q as i32
@@ -167,7 +168,9 @@ impl NearLevelSet {
     }
 
     /// Decodes a body of a hierarchy with `n_keys` vertices: keys increasing and below `n_keys`,
-    /// the step positive and finite, codes within 2^30.
+    /// the step positive and finite, codes within 2^30 and finite values. The count is bounded by
+    /// `n_keys` only (runs of far-outside entries cost a fraction of a bit), so pass a vertex
+    /// count the caller has accepted.
     pub fn decode(bytes: &[u8], n_keys: u64) -> Result<Self, LevelSetError> {
         if bytes.len() < 12 {
             return Err(LevelSetError::Truncated(bytes.len()));
@@ -196,7 +199,7 @@ impl NearLevelSet {
             }
             .filter(|&k| k < n_keys)
             .ok_or(LevelSetError::KeyOutOfRange {
-                key: prev.unwrap_or(0).saturating_add(gap),
+                key: prev.map_or(gap, |p| p.saturating_add(gap).saturating_add(1)),
                 keys: n_keys,
             })?;
             prev = Some(key);
@@ -208,7 +211,7 @@ impl NearLevelSet {
                 let z = d.uint(&mut m.codes[code_ctx])?;
                 code_ctx = context(z, CODE_CONTEXTS);
                 let c = unzigzag(z);
-                if c.unsigned_abs() > MAX_CODE {
+                if c.unsigned_abs() > MAX_CODE || !(c as f32 * step).is_finite() {
                     return Err(LevelSetError::BadValue {
                         key,
                         value: c as f32 * step,

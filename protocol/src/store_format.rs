@@ -31,8 +31,10 @@ pub const BLOCK: u64 = 4096;
 /// read allocates whatever the index says.
 pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
-/// 2: coded blocks (`blocks.bin`, `block_index.bin`); 1 had fixed-width records (`nodes.bin`,
-/// `coeffs.bin`, `coeff_index.bin`) and is not read.
+/// 4: lossless coefficients coded (sign, exponent, significant mantissa bits) and lossless subtree
+/// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
+/// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
+/// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
 pub const STORE_VERSION: u32 = 4;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;

@@ -5,7 +5,8 @@
 //! - the counts of the manifest agree with the base mesh's hierarchy (tets, leaves, vertices);
 //! - `block_index.bin` has `nblocks + 1` entries, starts at 0 and never decreases (checked by
 //!   [`StoreHead::decode`]), and its last entry is `blocks.bin`'s length;
-//! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it;
+//! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it
+//!   (with `levelset_near.bin`: one without the other is refused);
 //! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
 //!   subtree bound, and the blocks together own the manifest's coefficient count.
 //!
@@ -128,6 +129,15 @@ pub(crate) fn structure(
     }
     if m.files.contains_key("levelset.f32") {
         expect_size(dir, "levelset.f32", vertices, 4, "vertices")?;
+    }
+    // a level set and its near band go together (clients clip with the band, renderers with the
+    // whole set: they must describe the same domain)
+    if m.files.contains_key("levelset.f32") != m.files.contains_key("levelset_near.bin") {
+        return Err(corrupt(
+            dir,
+            mpath,
+            "the manifest lists one of levelset.f32 and levelset_near.bin without the other".into(),
+        ));
     }
     let bpath = dir.join("blocks.bin");
     let Some(len) = size_of(dir, "blocks.bin")? else {

@@ -138,8 +138,9 @@ fn an_intact_store_opens_and_reads_back() {
 }
 
 /// A store with a level set: `levelset.f32` is listed with its checksum, reads back as written,
-/// and the manifest's source value range (what renderers map by default) comes back; a store
-/// written over it without one loses the file. A truncated level set is refused at open.
+/// with its near band, and the manifest's source value range (what renderers map by default) comes
+/// back; a store written over it without one loses the files. A truncated level set, or one
+/// listed without its band, is refused at open.
 #[test]
 fn a_level_set_and_source_range_read_back() {
     let d = tempfile::tempdir().unwrap();
@@ -155,7 +156,11 @@ fn a_level_set_and_source_range_read_back() {
         },
     )
     .unwrap();
-    assert_eq!(s.read_levelset().unwrap(), Some(ls));
+    assert_eq!(s.read_levelset().unwrap(), Some(ls.clone()));
+    // its near band (|value| < 0.5 here) reads back too
+    let (_, band) = s.read_levelset_near().unwrap().expect("a near band");
+    assert_eq!(band.len(), ls.iter().filter(|v| v.abs() < 0.5).count());
+    assert_eq!(band.get(10), Some(0.0));
     let [lo, hi] = s.manifest.value_range;
     assert_eq!(s.manifest.source_value_range, Some([lo - 1.0, hi + 1.0]));
     assert_eq!(s.manifest.display_value_range(), [lo - 1.0, hi + 1.0]);
@@ -164,11 +169,23 @@ fn a_level_set_and_source_range_read_back() {
     let full = std::fs::read(&path).unwrap();
     std::fs::write(&path, &full[..full.len() - 4]).unwrap();
     refused(d.path(), "levelset.f32", &["bytes"]);
+    std::fs::write(&path, &full).unwrap();
+    // a manifest that lists the level set without its band is refused
+    let mpath = d.path().join("manifest.json");
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    m["files"]
+        .as_object_mut()
+        .unwrap()
+        .remove("levelset_near.bin");
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(d.path(), "manifest.json", &["without the other"]);
     // rewritten without a level set: no file, no range, the samples' range by default
     make_store(d.path(), 3);
     let s = Store::open(d.path()).unwrap();
     assert_eq!(s.read_levelset().unwrap(), None);
-    assert!(!path.exists());
+    assert!(s.read_levelset_near().unwrap().is_none());
+    assert!(!path.exists() && !d.path().join("levelset_near.bin").exists());
     assert_eq!(s.manifest.display_value_range(), s.manifest.value_range);
 }
 

@@ -238,3 +238,56 @@ fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
         "the band is what keeps the misses empty"
     );
 }
+
+/// With a view-dependent tolerance the client's mesh mixes levels and green pieces (a red tet's
+/// closure, whose corners are its corners and edge midpoints): drawn with the streamed band, it
+/// clips exactly where the store's whole level set (`levelset.f32`) clips the same mesh.
+#[test]
+fn a_partly_refined_streamed_mesh_clips_as_the_whole_level_set_does() {
+    let d = tempfile::tempdir().unwrap();
+    let (mesh, store, _) = notched_store(d.path());
+    let opened = Store::open(&store).unwrap();
+    let exact = opened.read_levelset().unwrap().expect("a level set");
+    let srv = serve(&store, "view");
+    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
+    a.no_render = true;
+    a.frames = 400;
+    a.until_complete = true;
+    a.frame_ms = 5;
+    a.tol = "20%".into();
+    a.size = (48, 48);
+    let s = run_session(&a, Faults::default()).expect("session");
+    assert!(s.report.clipped, "{:?}", s.report.levelset_error);
+    let m = s.mesh.as_ref().unwrap();
+    let leaves = m.drawable_leaf_tets();
+    let greens = leaves.iter().filter(|t| t.green).count();
+    eprintln!("{} leaves, {greens} green", leaves.len());
+    assert!(greens > 0, "the tolerance leaves green pieces");
+    let range = opened.manifest.display_value_range();
+    let streamed = leaf_mesh(m, range, s.levelset.as_ref());
+    let mut whole = leaf_mesh(m, range, None);
+    whole.levelset = Some(
+        (0..m.vertex_slot_len() as u32)
+            .map(|v| exact[m.vertex_key(v) as usize])
+            .collect(),
+    );
+    let (original, _) = file_mesh(&mesh, None, &ImportOptions::default()).unwrap();
+    let tf = TransferFunction::preset("default").unwrap();
+    for (az, el) in [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)] {
+        let cam = orbit_camera(&original, az, el);
+        let (a, b) = (
+            render_reference(&streamed, &cam, &tf),
+            render_reference(&whole, &cam, &tf),
+        );
+        let p = tetwave_render::image_metrics::psnr(&a, &b);
+        eprintln!(
+            "az {az} el {el}: {} drawn tets ({greens} green), band vs whole level set {p:.1} dB, \
+             {} and {} empty pixels drawn by one only",
+            leaves.len(),
+            leaks(&b, &a),
+            leaks(&a, &b)
+        );
+        assert_eq!(leaks(&b, &a) + leaks(&a, &b), 0, "az {az}");
+        assert!(p >= 50.0, "az {az}: {p:.1} dB");
+    }
+}

@@ -1053,7 +1053,8 @@ impl ViewerApp {
 
 /// GET a PNG and decode it.
 fn fetch_png(url: &str, token: Option<&str>) -> Result<Rgba8Image, String> {
-    let bytes = crate::http::get(url, token, 256 << 20)?;
+    // the server's render deadline is 30 s by default; a larger one waits this long at most
+    let bytes = crate::http::get(url, token, 256 << 20, std::time::Duration::from_secs(120))?;
     let img = image::load_from_memory(&bytes)
         .map_err(|e| format!("the server's PNG: {e}"))?
         .to_rgba8();

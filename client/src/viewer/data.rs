@@ -6,7 +6,7 @@
 use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
 use crate::stream::{
-    check_hierarchy, network, ws_url, Delivery, Faults, Net, StreamError, INGEST_QUEUE,
+    check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, StreamError, INGEST_QUEUE,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -145,8 +145,11 @@ impl Data {
                     net.clone(),
                     tx,
                     out_rx,
-                    Faults::default(),
-                    RECONNECT_ATTEMPTS,
+                    NetPolicy {
+                        faults: Faults::default(),
+                        retries: RECONNECT_ATTEMPTS,
+                        max_nodes,
+                    },
                 ));
                 Ok(empty(Kind::Remote(Box::new(Remote {
                     rt,

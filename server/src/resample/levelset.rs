@@ -6,27 +6,38 @@
 //!
 //! **Exactness where it matters.** The signed distance `φ` is 1-Lipschitz, so across a tet of
 //! diameter `h` whose corners have both signs every corner has `|φ| ≤ h`. A vertex is a corner of
-//! tets of every level from the one that created it to the finest; the coarsest of those is the
-//! largest, of diameter `cap`. Its value is therefore only ever interpolated across a straddling
-//! tet when `|φ| ≤ cap`, so `sign · min(|φ|, cap)` renders exactly as `φ` at every level, and the
-//! distance query stops at `cap` (a few box tests for the many fine vertices far from the
-//! boundary).
+//! tets of every level from the one that created it to the finest, and a streaming client's green
+//! closure draws pieces of its parent tet with it as a corner (the pieces' corners are the
+//! parent's corners and edge midpoints); `cap` is the largest diameter of all those tets. Its
+//! value is therefore only ever interpolated across a drawn tet with corners on both sides when
+//! `|φ| ≤ cap`, so `sign · min(|φ|, cap)` renders exactly as `φ` at every level and in every green
+//! piece, and the distance query stops at `cap` (a few box tests for the many fine vertices far
+//! from the boundary).
 
 use super::Resampled;
 use rayon::prelude::*;
 use tetwave_import::clean::BoundaryDistance;
-use tetwave_protocol::hierarchy::LevelWalker;
+use tetwave_protocol::hierarchy::{Bary, LatticeTet, LevelWalker};
 use tetwave_protocol::levelset::{LevelSetError, NearLevelSet, FAR_OUTSIDE};
 
 /// The level set of a store: every vertex's value and the near band streaming clients need.
 pub struct LevelSet {
     /// Per vertex key: `+min(d, cap)` inside the domain (a sample exists there), `−min(d, cap)`
-    /// outside (`NaN` sample), `d` the distance to the boundary, `cap` the diameter of the
-    /// coarsest tet the vertex is a corner of (see the module docs).
+    /// outside (`NaN` sample), `d` the distance to the boundary, `cap` the largest diameter of a
+    /// tet the vertex is a corner or an edge midpoint of (see the module docs).
     pub values: Vec<f32>,
-    /// What streaming clients clip with ([`NearLevelSet`]): every corner of a tet (of any level)
-    /// with a corner outside, with its value, or flagged when it is outside beyond its clamp.
+    /// What streaming clients clip with ([`NearLevelSet`]): every corner and edge midpoint of a
+    /// tet (of any level) with one of them outside, with its value, or flagged when it is outside
+    /// beyond its clamp.
     pub near: NearLevelSet,
+}
+
+/// The corners of `t` and, when `midpoints` (it is not a finest-level tet), its edge midpoints.
+fn points(t: &LatticeTet, midpoints: bool) -> impl Iterator<Item = Bary> + '_ {
+    let mids = if midpoints { 6 } else { 0 };
+    t.v.iter()
+        .copied()
+        .chain((0..mids).map(|e| t.edge_midpoint(e)))
 }
 
 /// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
@@ -52,8 +63,10 @@ pub fn signed_distance(
             }
             // rounded up so that the clamp never cuts a distance the tet can see
             let h = (h2.sqrt() * (1.0 + 1e-6)) as f32;
-            for w in &t.v {
-                let c = &mut cap[keys.key(t.base, w) as usize];
+            // its corners, and its edge midpoints, which a client's green closure joins to its
+            // corners in pieces of this tet
+            for w in points(&t, level < forest.levels) {
+                let c = &mut cap[keys.key(t.base, &w) as usize];
                 *c = c.max(h);
             }
         }
@@ -89,11 +102,14 @@ pub fn signed_distance(
         1.0
     };
     // a vertex's value matters only in tets with a corner outside: elsewhere every corner is
-    // ≥ 0 and the tet is drawn whole whatever they hold
+    // ≥ 0 and the tet is drawn whole whatever they hold; a client's green pieces of a tet have
+    // its corners and edge midpoints for corners, so those count as one tet's
     let mut beside_outside = vec![false; n];
     for level in 0..=forest.levels {
         for (_, t) in LevelWalker::level(forest, level) {
-            let k = t.v.map(|w| keys.key(t.base, &w) as usize);
+            let k: Vec<usize> = points(&t, level < forest.levels)
+                .map(|w| keys.key(t.base, &w) as usize)
+                .collect();
             if k.iter().any(|&k| out[k] < 0.0) {
                 for k in k {
                     beside_outside[k] = true;
@@ -192,17 +208,20 @@ mod tests {
             });
         }
         assert!(checked > 100 && negative > 10, "{checked} {negative}");
-        // the near band holds every corner of every tet with corners on both sides (outside,
-        // and inside or on the boundary), at every level, with its value
+        // the near band holds, with its value, every corner and edge midpoint (the corners of a
+        // client's green pieces) of every tet, at every level, whose corners and midpoints lie on
+        // both sides (outside, and inside or on the boundary)
         let forest = r.base.forest();
         let mut straddling = 0;
         for level in 0..=forest.levels {
             for (_, t) in LevelWalker::level(forest, level) {
-                let k = t.v.map(|w| r.keys.key(t.base, &w));
-                let v = k.map(|k| ls[k as usize]);
+                let k: Vec<u64> = points(&t, level < forest.levels)
+                    .map(|w| r.keys.key(t.base, &w))
+                    .collect();
+                let v: Vec<f32> = k.iter().map(|&k| ls[k as usize]).collect();
                 if v.iter().any(|&x| x < 0.0) && v.iter().any(|&x| x >= 0.0) {
                     straddling += 1;
-                    for (k, v) in k.iter().zip(v) {
+                    for (k, &v) in k.iter().zip(&v) {
                         let got = set
                             .near
                             .get(*k)

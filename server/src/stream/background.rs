@@ -43,7 +43,11 @@ impl BackgroundServer {
                 };
                 let _ = addr_tx.send(listener.local_addr());
                 tokio::select! {
-                    _ = serve_on(listener, shared) => {}
+                    r = serve_on(listener, shared) => {
+                        if let Err(e) = r {
+                            tracing::error!("the background server stopped: {e}");
+                        }
+                    }
                     _ = stop_rx => {}
                 }
             });
