@@ -1,15 +1,16 @@
 //! The part of a domain's level set a streaming client needs (`GET /v1/levelset`).
 //!
 //! A store of a mesh with an outside holds the signed distance `φ` to the domain's boundary at
-//! every vertex, clamped to `±cap` (the diameter of the coarsest tet the vertex is a corner of;
-//! see the server's `resample::levelset`). A vertex at the clamp is never interpolated across a
-//! tet that straddles the boundary: `φ` is 1-Lipschitz, so every tet it is a corner of lies on
-//! one side, and any value of that side's sign draws those tets as the exact one does (whole
-//! inside, nothing outside). And a tet whose corners are all ≥ 0 is drawn whole whatever they
-//! hold. So the band lists the corners of the tets (of any level) that have a corner outside:
-//! near ones (`|φ| < cap`) with their value, far-outside ones flagged ([`FAR_OUTSIDE`]: only the
-//! sign matters); a client gives every vertex not listed (inside, in no such tet) a positive value
-//! (e.g. the domain's diameter).
+//! every vertex, clamped to `±cap` (the largest diameter of a tet the vertex is a corner or an
+//! edge midpoint of; see the server's `resample::levelset`). A client draws hierarchy tets and
+//! green pieces, whose corners are a tet's corners and edge midpoints. A vertex at the clamp is
+//! never interpolated across a drawn tet that straddles the boundary: `φ` is 1-Lipschitz, so
+//! every such tet lies on one side, and any value of that side's sign draws it as the exact one
+//! does (whole inside, nothing outside). And a tet whose corners are all ≥ 0 is drawn whole
+//! whatever they hold. So the band lists the corners and edge midpoints of the tets (of any
+//! level) with one of them outside: near ones (`|φ| < cap`) with their value, far-outside ones
+//! flagged ([`FAR_OUTSIDE`]: only the sign matters); a client gives every vertex not listed
+//! (inside, in no such tet) a positive value (e.g. the domain's diameter).
 //!
 //! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the smallest
 //! clamp, about a finest tet's diameter, so the clipped boundary moves by less than 1/512 of a
