@@ -109,18 +109,26 @@ fn offscreen(store: &Path, az: f64, el: f64, size: (u32, u32), out: &Path) -> Rg
     png(out)
 }
 
+/// `tetwave view STORE --frames 1` (a level-2 store) with the environment changed by `env`
+/// (`None`: removed): its exit and its standard error.
+fn view_once(env: &[(&str, Option<&str>)]) -> (Output, String) {
+    let (_d, s) = store(2);
+    let mut c = Command::new(env!("CARGO_BIN_EXE_tetwave"));
+    c.arg("view").arg(&s).args(["--frames", "1"]);
+    for (k, v) in env {
+        match v {
+            Some(v) => c.env(k, v),
+            None => c.env_remove(k),
+        };
+    }
+    let out = c.output().expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out, err)
+}
+
 #[test]
 fn view_without_a_display_fails_with_one_clear_line() {
-    let (_d, s) = store(2);
-    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
-        .arg("view")
-        .arg(&s)
-        .args(["--frames", "1"])
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
-        .output()
-        .expect("tetwave runs");
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (out, err) = view_once(&[("DISPLAY", None), ("WAYLAND_DISPLAY", None)]);
     assert!(!out.status.success(), "no display yet success: {err}");
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
@@ -130,17 +138,8 @@ fn view_without_a_display_fails_with_one_clear_line() {
 
 #[test]
 fn view_with_an_unreachable_display_fails_with_one_clear_line() {
-    let (_d, s) = store(2);
-    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
-        .arg("view")
-        .arg(&s)
-        .args(["--frames", "1"])
-        // no X server listens on display 987
-        .env("DISPLAY", ":987")
-        .env_remove("WAYLAND_DISPLAY")
-        .output()
-        .expect("tetwave runs");
-    let err = String::from_utf8_lossy(&out.stderr);
+    // no X server listens on display 987
+    let (out, err) = view_once(&[("DISPLAY", Some(":987")), ("WAYLAND_DISPLAY", None)]);
     assert_eq!(out.status.code(), Some(1), "{err}");
     // the GPU driver may print its own lines first (Mesa's Vulkan WSI complains about an unset
     // XDG_RUNTIME_DIR); the viewer's own message is one line, the last
@@ -156,20 +155,14 @@ fn view_with_an_unreachable_display_fails_with_one_clear_line() {
 
 #[test]
 fn view_without_a_gpu_adapter_fails_with_one_clear_line() {
-    let (_d, s) = store(2);
-    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
-        .arg("view")
-        .arg(&s)
-        .args(["--frames", "1"])
-        // a display is set (none needs to listen: the adapter is looked for first), and the
-        // Vulkan loader finds no driver
-        .env("DISPLAY", ":987")
-        .env("WGPU_BACKEND", "vulkan")
-        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
-        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
-        .output()
-        .expect("tetwave runs");
-    let err = String::from_utf8_lossy(&out.stderr);
+    // a display is set (none needs to listen: the adapter is looked for first), and the
+    // Vulkan loader finds no driver
+    let (out, err) = view_once(&[
+        ("DISPLAY", Some(":987")),
+        ("WGPU_BACKEND", Some("vulkan")),
+        ("VK_ICD_FILENAMES", Some("/nonexistent/icd.json")),
+        ("VK_DRIVER_FILES", Some("/nonexistent/icd.json")),
+    ]);
     assert_eq!(out.status.code(), Some(1), "{err}");
     // wgpu logs the loader's own complaints first; the viewer's message is the last line
     let last = err.trim().lines().last().unwrap_or_default();
