@@ -15,7 +15,7 @@ use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::block::BlockCoder;
@@ -292,6 +292,14 @@ fn fetch_levelset(
 const MAX_LEVELSET_BYTES: u64 = 256 << 20;
 /// How long the level set's request may take, all of it.
 const LEVELSET_TIMEOUT: Duration = Duration::from_secs(30);
+/// Requests for the level set in one session at most (a failed one is made again after a
+/// reconnection).
+const LEVELSET_ATTEMPTS: u32 = 3;
+/// The level set's state in the network task: not asked for, asked, held, failed.
+const LEVELSET_IDLE: u32 = 0;
+const LEVELSET_ASKED: u32 = 1;
+const LEVELSET_HELD: u32 = 2;
+const LEVELSET_FAILED: u32 = 3;
 
 pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
     let rest = url
@@ -316,6 +324,36 @@ pub struct Faults {
     pub lose_every: Option<u64>,
     /// Deliver node batches in reversed groups of this many.
     pub reverse_groups: Option<usize>,
+}
+
+/// The runtime of a network task: one worker, and when dropped it does not wait for its blocking
+/// tasks (a level-set request still in flight ends on its own; nobody takes its answer).
+pub(crate) struct NetRuntime(Option<tokio::runtime::Runtime>);
+
+impl NetRuntime {
+    pub(crate) fn new(name: &str) -> std::io::Result<Self> {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name(name)
+            .enable_all()
+            .build()
+            .map(|rt| NetRuntime(Some(rt)))
+    }
+}
+
+impl std::ops::Deref for NetRuntime {
+    type Target = tokio::runtime::Runtime;
+    fn deref(&self) -> &Self::Target {
+        self.0.as_ref().expect("a runtime until dropped")
+    }
+}
+
+impl Drop for NetRuntime {
+    fn drop(&mut self) {
+        if let Some(rt) = self.0.take() {
+            rt.shutdown_background();
+        }
+    }
 }
 
 /// How the network task behaves: injected faults (tests), reconnection attempts, and the largest
@@ -434,8 +472,10 @@ pub(crate) async fn network(
     let mut batches = 0u64;
     let mut held_back: Vec<(Delivery, u64)> = Vec::new();
     let mut blocks = BlockDecoder::default();
-    // the level set is asked for once, after the first base mesh
-    let mut levelset_asked = false;
+    // the level set is asked for after the first base mesh, and again after a later one (a
+    // reconnection) while it has failed, at most LEVELSET_ATTEMPTS times in all
+    let levelset = Arc::new(AtomicU32::new(LEVELSET_IDLE));
+    let mut levelset_attempts = 0u32;
     // why the last connection ended, once one has
     let mut lost: Option<String> = None;
     // a connect that fails for good: after a lost connection, that loss is the cause
@@ -504,8 +544,10 @@ pub(crate) async fn network(
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
                         let m = blocks.decode(m)?;
-                        if let (Delivery::Base(base), false) = (&m, levelset_asked) {
-                            levelset_asked = true;
+                        let ask = matches!(levelset.load(Ordering::Acquire), LEVELSET_IDLE | LEVELSET_FAILED)
+                            && levelset_attempts < LEVELSET_ATTEMPTS;
+                        if let (Delivery::Base(base), true) = (&m, ask) {
+                            levelset_attempts += 1;
                             if let Some(man) = blocks.manifest.as_deref().filter(|m| m.files.contains_key(LEVELSET_FILE)) {
                                 // beside the stream, so the nodes do not wait for it; only for a
                                 // hierarchy within the client's budget (the frame loop refuses
@@ -514,12 +556,15 @@ pub(crate) async fn network(
                                 match check_hierarchy(base, man, max_nodes) {
                                     Ok(()) => {
                                         let (u, t, n) = (url.clone(), token.clone(), base.vertex_keys().vertex_count());
-                                        let bytes = net.bytes.clone();
+                                        let (bytes, state) = (net.bytes.clone(), levelset.clone());
+                                        state.store(LEVELSET_ASKED, Ordering::Release);
                                         tokio::task::spawn_blocking(move || {
                                             let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
                                                 Ok((near, len)) => (Ok(Box::new(near)), len),
                                                 Err(e) => (Err(e), 0),
                                             };
+                                            let done = if got.is_ok() { LEVELSET_HELD } else { LEVELSET_FAILED };
+                                            state.store(done, Ordering::Release);
                                             bytes.fetch_add(len, Ordering::Relaxed);
                                             // nobody to tell once the network task has ended
                                             if let Some(tx) = answer.upgrade() {
@@ -661,11 +706,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         reason: e.to_string(),
     })?;
     let url = ws_url(&args.url)?;
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .map_err(|e| StreamError::Protocol(e.to_string()))?;
+    let rt = NetRuntime::new("tetwave-net").map_err(|e| StreamError::Protocol(e.to_string()))?;
     // the renderer is set up before connecting: time to first image counts from the connect
     let gpu = if args.cpu || args.no_render {
         None
@@ -788,10 +829,14 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 Delivery::LevelSet(got) => {
                     levelset_answered = true;
                     match got {
-                        Ok(near) => match state.as_mut() {
-                            Some(st) => st.set_levelset(*near),
-                            None => levelset = Some(*near),
-                        },
+                        // (after a failed request, a reconnection asks again)
+                        Ok(near) => {
+                            levelset_error = None;
+                            match state.as_mut() {
+                                Some(st) => st.set_levelset(*near),
+                                None => levelset = Some(*near),
+                            }
+                        }
                         Err(e) => {
                             tracing::warn!(
                                 "drawing without clipping to the domain's boundary: {e}"

@@ -6,7 +6,8 @@
 use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
 use crate::stream::{
-    check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, StreamError, INGEST_QUEUE,
+    check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError,
+    INGEST_QUEUE,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -58,7 +59,7 @@ const MAX_WANT_ROUNDS: u32 = crate::stream::MAX_WANT_ROUNDS;
 
 struct Remote {
     /// The runtime whose one worker runs the network task (dropped with the viewer).
-    rt: tokio::runtime::Runtime,
+    rt: NetRuntime,
     task: tokio::task::JoinHandle<Result<(), StreamError>>,
     rx: mpsc::Receiver<(Delivery, u64)>,
     out: mpsc::UnboundedSender<ClientMsg>,
@@ -130,11 +131,7 @@ impl Data {
                     ws.trim_start_matches("ws://")
                         .trim_end_matches("/v1/stream")
                 );
-                let rt = tokio::runtime::Builder::new_multi_thread()
-                    .worker_threads(1)
-                    .thread_name("tetwave-view-net")
-                    .enable_all()
-                    .build()
+                let rt = NetRuntime::new("tetwave-view-net")
                     .map_err(|e| format!("network runtime: {e}"))?;
                 let net = Arc::new(Net::new());
                 let (tx, rx) = mpsc::channel(INGEST_QUEUE);
