@@ -228,6 +228,8 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
     assert_eq!(r["script_steps"], serde_json::json!([9, 9]), "{r}");
     assert_eq!(r["view"], serde_json::json!([256, 224]), "{r}");
     assert_eq!(r["screenshots"].as_array().unwrap().len(), 4, "{r}");
+    // a grid-like synthetic store has no outside: nothing to clip
+    assert_eq!(r["clipped"], false, "{r}");
     let server_psnr = r["server_psnr_db"].as_f64().expect("a server image");
     assert!(
         server_psnr >= 40.0,
@@ -313,6 +315,7 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
         &[srv.url(), "--size", "192x160", "--frames", "5000"],
     );
     assert_eq!(r["complete"], true, "{r}");
+    assert_eq!(r["clipped"], true, "{r}");
     let mut leaks_total = 0;
     for (i, &(az, el)) in views.iter().enumerate() {
         let shot = png(&dir.join(format!("v{i}.png")));

@@ -988,6 +988,12 @@ impl ViewerApp {
             ui.colored_label(Color32::YELLOW, "connection lost: reconnecting…");
             self.frames_reconnecting += 1;
         }
+        if let Some(e) = &self.data.levelset_error {
+            ui.colored_label(Color32::YELLOW, format!("not clipped to the domain: {e}"))
+                .on_hover_text("the store's level set (/v1/levelset) could not be had");
+        } else if self.data.clipped() {
+            ui.label(egui::RichText::new("clipped to the mesh's domain").small());
+        }
         if !self.status.is_empty() {
             ui.label(egui::RichText::new(&self.status).small());
         }
@@ -1046,6 +1052,7 @@ impl ViewerApp {
             errors,
             perf: self.perf.report(),
             complete_s: self.complete_s,
+            clipped: self.data.clipped(),
         };
         *self.report.lock().unwrap_or_else(|e| e.into_inner()) = r;
     }

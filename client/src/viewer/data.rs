@@ -98,6 +98,9 @@ pub struct Data {
     pub bytes_applied: u64,
     /// Why the data stopped (a failed connection, a refused node, …): shown, and the exit status.
     pub error: Option<String>,
+    /// Why drawn meshes are not clipped to the store's level set when it has one (its band could
+    /// not be had); shown in the panel.
+    pub levelset_error: Option<String>,
     /// Nodes were applied since [`Self::take_changed`].
     changed: bool,
     /// Number of levels of the hierarchy (0 for a mesh file).
@@ -120,6 +123,7 @@ impl Data {
             frame: None,
             bytes_applied: 0,
             error: None,
+            levelset_error: None,
             changed: true,
             levels: 0,
         };
@@ -214,6 +218,11 @@ impl Data {
             Kind::Remote(r) => Some(&r.http),
             _ => None,
         }
+    }
+
+    /// Whether drawn meshes are clipped to the store's level set.
+    pub fn clipped(&self) -> bool {
+        self.session.as_ref().is_some_and(Session::has_levelset)
     }
 
     /// Nodes held and in total (a mesh file: 0 of 0).
@@ -375,15 +384,19 @@ impl Data {
                     }
                     self.changed = true;
                 }
-                Delivery::LevelSet(Ok(near)) => match self.session.as_mut() {
-                    Some(s) => {
-                        s.set_levelset(*near);
-                        self.changed = true;
+                Delivery::LevelSet(Ok(near)) => {
+                    self.levelset_error = None;
+                    match self.session.as_mut() {
+                        Some(s) => {
+                            s.set_levelset(*near);
+                            self.changed = true;
+                        }
+                        None => r.levelset = Some(*near),
                     }
-                    None => r.levelset = Some(*near),
-                },
+                }
                 Delivery::LevelSet(Err(e)) => {
                     tracing::warn!("drawing without clipping to the domain's boundary: {e}");
+                    self.levelset_error = Some(e);
                 }
                 Delivery::Nodes { nodes, .. } => {
                     let s = self

@@ -196,6 +196,8 @@ pub struct ViewReport {
     pub perf: perf::PerfReport,
     /// Seconds from the window's opening until every node was held.
     pub complete_s: Option<f64>,
+    /// Whether the last frame was clipped to the store's level set (its near band arrived).
+    pub clipped: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
