@@ -271,7 +271,7 @@ pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
 }
 
 /// The store file whose presence in the manifest says `/v1/levelset` serves a level set.
-const LEVELSET_FILE: &str = "levelset_near.bin";
+pub(crate) const LEVELSET_FILE: &str = "levelset_near.bin";
 
 /// GETs the near band of the domain's level set from the server of stream URL `ws_url` and
 /// decodes it for a hierarchy of `n_keys` vertices; returns it and the body's length.
@@ -564,15 +564,18 @@ pub(crate) async fn network(
                                                 Err(e) => (Err(e), 0),
                                             };
                                             let done = if got.is_ok() { LEVELSET_HELD } else { LEVELSET_FAILED };
-                                            state.store(done, Ordering::Release);
                                             bytes.fetch_add(len, Ordering::Relaxed);
-                                            // nobody to tell once the network task has ended
+                                            // nobody to tell once the network task has ended; the
+                                            // answer goes first, so a retry cannot overtake it
                                             if let Some(tx) = answer.upgrade() {
                                                 let _ = tx.blocking_send((Delivery::LevelSet(got), len));
                                             }
+                                            state.store(done, Ordering::Release);
                                         });
                                     }
                                     Err(e) => {
+                                        // the frame loop refuses this hierarchy too: no retry
+                                        levelset_attempts = LEVELSET_ATTEMPTS;
                                         let why = format!("level set not fetched: {e}");
                                         let _ = tx.send((Delivery::LevelSet(Err(why)), 0)).await;
                                     }
@@ -793,6 +796,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                         // everything has arrived
                         if !net_done {
                             net_done = true;
+                            // no answer about the level set can come any more
+                            levelset_answered = true;
                             let why = rt.block_on(&mut task);
                             if !state.as_ref().is_some_and(Session::is_complete) {
                                 failure = Some(match why {
@@ -837,6 +842,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                                 None => levelset = Some(*near),
                             }
                         }
+                        // (an earlier request's failure, once a later one has brought the band)
+                        Err(_)
+                            if levelset.is_some()
+                                || state.as_ref().is_some_and(Session::has_levelset) => {}
                         Err(e) => {
                             tracing::warn!(
                                 "drawing without clipping to the domain's boundary: {e}"

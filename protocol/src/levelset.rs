@@ -13,7 +13,7 @@
 //! (inside, in no such tet) a positive value (e.g. the domain's diameter).
 //!
 //! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the smallest
-//! clamp, about a finest tet's diameter, so the clipped boundary moves by less than 1/512 of a
+//! clamp, about two finest tets' diameter, so the clipped boundary moves by less than 1/256 of a
 //! finest tet), rounded
 //! so that the sign survives: a value `< 0` becomes a code `≤ −1`.
 //!

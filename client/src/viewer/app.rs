@@ -764,7 +764,8 @@ impl ViewerApp {
         // converged for the user's tolerance, not the coarser one of motion
         if converged && drawn && tol == self.tol {
             // converged for the nodes held at this frame's start, which may be all of them
-            self.settled = Some((self.frames, self.data.is_complete()));
+            let complete = self.data.is_complete() && !self.data.awaiting_levelset();
+            self.settled = Some((self.frames, complete));
         }
     }
 

@@ -7,7 +7,7 @@ use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
 use crate::stream::{
     check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError,
-    INGEST_QUEUE,
+    INGEST_QUEUE, LEVELSET_FILE,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -75,6 +75,8 @@ struct Remote {
     http: String,
     /// The level set's near band when it comes before the base mesh.
     levelset: Option<NearLevelSet>,
+    /// The manifest lists a level set and no answer about it has come yet.
+    levelset_pending: bool,
 }
 
 enum Kind {
@@ -166,6 +168,7 @@ impl Data {
                     view_reconnects: 0,
                     http,
                     levelset: None,
+                    levelset_pending: false,
                 }))))
             }
             Source::Store(dir) => {
@@ -218,6 +221,12 @@ impl Data {
             Kind::Remote(r) => Some(&r.http),
             _ => None,
         }
+    }
+
+    /// The store has a level set and no answer about it has come yet (a script's `wait` waits
+    /// for it too).
+    pub fn awaiting_levelset(&self) -> bool {
+        matches!(&self.kind, Kind::Remote(r) if r.levelset_pending)
     }
 
     /// Whether drawn meshes are clipped to the store's level set.
@@ -344,6 +353,8 @@ impl Data {
                 Ok(m) => m,
                 Err(mpsc::error::TryRecvError::Empty) => return Ok(applied),
                 Err(mpsc::error::TryRecvError::Disconnected) => {
+                    // no answer about the level set can come any more
+                    r.levelset_pending = false;
                     if self.session.as_ref().is_some_and(Session::is_complete) {
                         return Ok(applied);
                     }
@@ -360,6 +371,7 @@ impl Data {
             match msg {
                 Delivery::Manifest(m) => {
                     self.value_range = m.display_value_range();
+                    r.levelset_pending |= m.files.contains_key(LEVELSET_FILE);
                     r.manifest = Some(*m);
                 }
                 Delivery::Base(b) => {
@@ -385,6 +397,7 @@ impl Data {
                     self.changed = true;
                 }
                 Delivery::LevelSet(Ok(near)) => {
+                    r.levelset_pending = false;
                     self.levelset_error = None;
                     match self.session.as_mut() {
                         Some(s) => {
@@ -394,7 +407,12 @@ impl Data {
                         None => r.levelset = Some(*near),
                     }
                 }
+                // (an earlier request's failure, once a later one has brought the band)
+                Delivery::LevelSet(Err(_))
+                    if r.levelset.is_some()
+                        || self.session.as_ref().is_some_and(Session::has_levelset) => {}
                 Delivery::LevelSet(Err(e)) => {
+                    r.levelset_pending = false;
                     tracing::warn!("drawing without clipping to the domain's boundary: {e}");
                     self.levelset_error = Some(e);
                 }

@@ -41,7 +41,8 @@ fn points(t: &LatticeTet, midpoints: bool) -> impl Iterator<Item = Bary> + '_ {
 }
 
 /// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
-/// 1/256 of the smallest tet's diameter.
+/// 1/256 of the smallest clamp (a finest vertex is an edge midpoint of a level-`L − 1` tet, so
+/// about two finest tets' diameter).
 pub fn signed_distance(
     r: &Resampled,
     boundary: &BoundaryDistance,
@@ -107,11 +108,13 @@ pub fn signed_distance(
     let mut beside_outside = vec![false; n];
     for level in 0..=forest.levels {
         for (_, t) in LevelWalker::level(forest, level) {
-            let k: Vec<usize> = points(&t, level < forest.levels)
-                .map(|w| keys.key(t.base, &w) as usize)
-                .collect();
-            if k.iter().any(|&k| out[k] < 0.0) {
-                for k in k {
+            let (mut k, mut n) = ([0usize; 10], 0);
+            for w in points(&t, level < forest.levels) {
+                k[n] = keys.key(t.base, &w) as usize;
+                n += 1;
+            }
+            if k[..n].iter().any(|&k| out[k] < 0.0) {
+                for &k in &k[..n] {
                     beside_outside[k] = true;
                 }
             }
