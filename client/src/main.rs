@@ -115,8 +115,13 @@ fn main() -> ExitCode {
                 for f in &r.frames {
                     println!("{}", serde_json::to_string(f).expect("serializes"));
                 }
+                let clip = match (&r.levelset_error, r.clipped) {
+                    (Some(e), _) => format!(", not clipped to the domain: {e}"),
+                    (None, true) => ", clipped to the mesh's domain".to_string(),
+                    (None, false) => String::new(),
+                };
                 eprintln!(
-                    "stream: {} frames, {}/{} nodes ({} duplicates), {} bytes, {} reconnects, first frame {:.1} ms -> {}",
+                    "stream: {} frames, {}/{} nodes ({} duplicates), {} bytes, {} reconnects, first frame {:.1} ms{clip} -> {}",
                     r.frames.len(),
                     r.nodes_received,
                     r.nodes_total,

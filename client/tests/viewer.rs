@@ -341,6 +341,30 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
     assert!(leaks_total <= 3, "{leaks_total} empty pixels drawn");
 }
 
+/// `tetwave stream` of the same kind of store says in its summary line that it clipped.
+#[test]
+fn stream_says_it_clipped_a_nonconvex_store() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = d.path().join("notched.vtk");
+    std::fs::write(&mesh, tetwave_protocol::testing::notched_cube_vtk(0.4)).unwrap();
+    let s = d.path().join("notched.store");
+    let mut o = PrepareOptions::new(&mesh.display().to_string(), &s);
+    o.levels = 3;
+    prepare(&o).unwrap();
+    let srv = serve(&s);
+    let out = Command::new("timeout")
+        .arg("120")
+        .arg(env!("CARGO_BIN_EXE_tetwave"))
+        .args(["stream", srv.url(), "--no-render", "--until-complete"])
+        .args(["--frames", "4000", "--frame-ms", "5", "--out"])
+        .arg(d.path().join("out"))
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("clipped to the mesh's domain"), "{err}");
+}
+
 /// The tolerance drives refinement: a coarse tolerance draws fewer tets and a worse image, 0
 /// draws the finest level, which agrees with the offscreen render.
 #[test]
