@@ -273,46 +273,28 @@ fn missing_file() {
     );
 }
 
+/// Garbage and truncated mesh files: an error naming the file, never a panic.
 #[test]
-fn garbage_vtu() {
-    let d = tmp();
-    let p = write_raw(
-        d.path(),
-        "garbage.vtu",
-        b"\x00\x01this is not xml at all\xff\xfe",
-    );
-    expect_error(
-        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
-        &["garbage.vtu"],
-    );
-}
-
-#[test]
-fn truncated_msh() {
-    let d = tmp();
-    let p = write_raw(
-        d.path(),
-        "cut.msh",
-        b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n8\n1 0 0 0\n2 1 0 0\n3 0 1",
-    );
-    expect_error(
-        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
-        &["cut.msh"],
-    );
-}
-
-#[test]
-fn truncated_vtu() {
-    let d = tmp();
-    let p = write_raw(
-        d.path(),
-        "cut.vtu",
-        b"<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\"><UnstructuredGrid><Piece NumberOfPoints=\"8\" NumberOfCells=\"6\"><Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0",
-    );
-    expect_error(
-        &["prepare", s(&p), "--out", s(&d.path().join("o"))],
-        &["cut.vtu"],
-    );
+fn garbage_and_truncated_meshes_name_the_file() {
+    let cases: [(&str, &[u8]); 3] = [
+        ("garbage.vtu", b"\x00\x01this is not xml at all\xff\xfe"),
+        (
+            "cut.msh",
+            b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n8\n1 0 0 0\n2 1 0 0\n3 0 1",
+        ),
+        (
+            "cut.vtu",
+            b"<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\"><UnstructuredGrid><Piece NumberOfPoints=\"8\" NumberOfCells=\"6\"><Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0",
+        ),
+    ];
+    for (name, bytes) in cases {
+        let d = tmp();
+        let p = write_raw(d.path(), name, bytes);
+        expect_error(
+            &["prepare", s(&p), "--out", s(&d.path().join("o"))],
+            &[name],
+        );
+    }
 }
 
 #[test]
