@@ -336,7 +336,7 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
         assert!(p >= 45.0, "view {az}/{el}: {p:.2} dB");
         leaks_total += leaks;
     }
-    // the band is quantized (1/256 of a finest tet), so a boundary pixel may flip; an unclipped
+    // the band is quantized (1/32 of a finest tet), so a boundary pixel may flip; an unclipped
     // store draws the staircase over hundreds
     assert!(leaks_total <= 3, "{leaks_total} empty pixels drawn");
 }

@@ -12,8 +12,8 @@
 //! flagged ([`FAR_OUTSIDE`]: only the sign matters); a client gives every vertex not listed
 //! (inside, in no such tet) a positive value (e.g. the domain's diameter).
 //!
-//! Near values are kept as integer multiples of a `step` (the server takes 1/256 of the smallest
-//! clamp, about two finest tets' diameter, so the clipped boundary moves by less than 1/256 of a
+//! Near values are kept as integer multiples of a `step` (the server takes 1/32 of the smallest
+//! clamp, about two finest tets' diameter, so the clipped boundary moves by less than 1/32 of a
 //! finest tet), rounded
 //! so that the sign survives: a value `< 0` becomes a code `≤ −1`.
 //!

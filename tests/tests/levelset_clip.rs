@@ -243,7 +243,7 @@ fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
 /// With a view-dependent tolerance and a close camera the client's mesh mixes levels and green
 /// pieces (a red tet's closure, whose corners are its corners and edge midpoints), some across
 /// the notch's boundary (measured: 94 of 1,070): drawn with the streamed band, it clips exactly
-/// where the store's whole level set (`levelset.f32`) clips the same mesh (71–76 dB, no empty
+/// where the store's whole level set (`levelset.f32`) clips the same mesh (55–62 dB, no empty
 /// pixel drawn by one only). That the clamp covers green pieces is the server's unit test.
 #[test]
 fn a_partly_refined_streamed_mesh_clips_as_the_whole_level_set_does() {

@@ -41,7 +41,7 @@ fn points(t: &LatticeTet, midpoints: bool) -> impl Iterator<Item = Bary> + '_ {
 }
 
 /// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
-/// 1/256 of the smallest clamp (a finest vertex is an edge midpoint of a level-`L − 1` tet, so
+/// 1/32 of the smallest clamp (a finest vertex is an edge midpoint of a level-`L − 1` tet, so
 /// about two finest tets' diameter).
 pub fn signed_distance(
     r: &Resampled,
@@ -98,7 +98,7 @@ pub fn signed_distance(
         .filter(|&c| c > 0.0)
         .fold(f32::INFINITY, f32::min);
     let step = if finest.is_finite() {
-        finest / 256.0
+        finest / 32.0
     } else {
         1.0
     };
