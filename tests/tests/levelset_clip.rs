@@ -44,6 +44,18 @@ fn write_mesh(path: &Path) {
     std::fs::write(path, notched_cube_vtk(CUT)).unwrap();
 }
 
+/// A headless session until everything, the level set's band included, has arrived: frames pass
+/// every 5 ms while the band is fetched beside the stream (seconds on a loaded machine), and the
+/// session ends as soon as both are in.
+fn stream_args(url: &str, out: &Path) -> StreamArgs {
+    let mut a = StreamArgs::new(url, out);
+    a.no_render = true;
+    a.frames = 4000;
+    a.until_complete = true;
+    a.frame_ms = 5;
+    a
+}
+
 /// `tetwave render`'s default camera on `mesh` from azimuth `az`, elevation `el`.
 fn orbit_camera(mesh: &RenderMesh, az: f64, el: f64) -> Camera {
     Camera::orbit(
@@ -194,13 +206,7 @@ fn a_streamed_store_of_a_nonconvex_mesh_is_clipped_too() {
     );
     assert!(!band.is_empty() && (band_bytes.len() as u64) < vertices * 4 / 2);
     let srv = serve(&store, "level");
-    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
-    a.no_render = true;
-    // frames pass every 5 ms while the band is fetched beside the stream (seconds on a loaded
-    // machine): the session ends as soon as both are in
-    a.frames = 4000;
-    a.until_complete = true;
-    a.frame_ms = 5;
+    let a = stream_args(srv.url(), &d.path().join("out"));
     let s = run_session(&a, Faults::default()).expect("session");
     assert!(
         s.report.complete && s.report.clipped,
@@ -252,11 +258,7 @@ fn a_partly_refined_streamed_mesh_clips_as_the_whole_level_set_does() {
     let opened = Store::open(&store).unwrap();
     let exact = opened.read_levelset().unwrap().expect("a level set");
     let srv = serve(&store, "view");
-    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
-    a.no_render = true;
-    a.frames = 400;
-    a.until_complete = true;
-    a.frame_ms = 5;
+    let mut a = stream_args(srv.url(), &d.path().join("out"));
     a.tol = "20%".into();
     a.size = (96, 96);
     a.camera.distance = Some(DIST);
