@@ -74,9 +74,14 @@ fn view_script(dir: &Path, script: &serde_json::Value, args: &[&str]) -> serde_j
     std::fs::write(&sp, script.to_string()).unwrap();
     let mut all = args.to_vec();
     all.extend(["--script", sp.to_str().unwrap(), "--json"]);
-    let out = view_under_xvfb(&all, 240);
+    json_report(&view_under_xvfb(&all, 240))
+}
+
+/// The JSON report of a `tetwave view … --json` run, which must have succeeded.
+fn json_report(out: &Output) -> serde_json::Value {
     assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap()
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(stdout.trim()).expect(&stdout)
 }
 
 fn png(path: &Path) -> Rgba8Image {
@@ -200,26 +205,19 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
         {"screenshot": b},
         {"quit": true}
     ]);
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, script.to_string()).unwrap();
-    let out = view_under_xvfb(
+    let r = view_script(
+        dir,
+        &script,
         &[
             srv.url(),
             "--size",
             "256x224",
-            "--script",
-            sp.to_str().unwrap(),
             "--screenshot",
             last.to_str().unwrap(),
             "--frames",
             "5000",
-            "--json",
         ],
-        240,
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let r: serde_json::Value = serde_json::from_str(stdout.trim()).expect(&stdout);
     eprintln!("{r}");
     assert_eq!(r["complete"], true, "{r}");
     assert!(r["nodes_total"].as_u64().unwrap() > 0);
@@ -431,9 +429,7 @@ fn view_opens_a_store_and_a_mesh_file() {
         ],
         120,
     );
-    assert!(out.status.success(), "store: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    let r = json_report(&out);
     assert!(r["frames"].as_u64().unwrap() >= 40, "{r}");
     assert_eq!(r["nodes"], r["nodes_total"], "{r}");
     let img = png(&shot);
@@ -649,26 +645,19 @@ fn view_resizes_and_screenshots_at_the_new_size() {
         {"screenshot": large},
         {"quit": true}
     ]);
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, script.to_string()).unwrap();
-    let out = view_under_xvfb(
+    let r = view_script(
+        dir,
+        &script,
         &[
             s.to_str().unwrap(),
             "--size",
             "128x96",
             "--mode",
             "complete",
-            "--script",
-            sp.to_str().unwrap(),
             "--frames",
             "5000",
-            "--json",
         ],
-        180,
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     eprintln!("{r}");
     assert_eq!(r["view"], serde_json::json!([300, 180]), "{r}");
     let (a, b) = (png(&small), png(&large));
@@ -797,12 +786,8 @@ fn view_reconnects_when_the_server_restarts_mid_stream() {
         240,
     );
     drop(srv);
-    assert!(fresh.status.success());
-    let fresh: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&fresh.stdout).trim()).unwrap();
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    let fresh = json_report(&fresh);
+    let r = json_report(&out);
     eprintln!("{r}\n{at_cut} bytes before the cut, {after} after");
     assert_eq!(r["complete"], true, "{r}");
     assert_eq!(r["nodes"], r["nodes_total"], "{r}");
@@ -843,9 +828,9 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
         steps.push(serde_json::json!({"wait": "complete"}));
         steps.push(serde_json::json!({"screenshot": shot}));
         steps.push(serde_json::json!({"quit": true}));
-        let sp = dir.join(format!("script-{motion_ms}.json"));
-        std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
-        let out = view_under_xvfb(
+        let r = view_script(
+            dir,
+            &serde_json::Value::Array(steps),
             &[
                 s.to_str().unwrap(),
                 "--size",
@@ -855,17 +840,10 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
                 "--motion-lod",
                 "--motion-ms",
                 motion_ms,
-                "--script",
-                sp.to_str().unwrap(),
                 "--frames",
                 "20000",
-                "--json",
             ],
-            240,
         );
-        assert!(out.status.success(), "tetwave view failed: {}", out.status);
-        let r: serde_json::Value =
-            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
         eprintln!("--motion-ms {motion_ms}: {}", r["perf"]);
         r
     };
@@ -907,9 +885,10 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     steps.push(serde_json::json!({"wait": "complete"}));
     steps.push(serde_json::json!({"screenshot": shot}));
     steps.push(serde_json::json!({"quit": true}));
-    let sp = dir.join("script.json");
-    std::fs::write(&sp, serde_json::Value::Array(steps).to_string()).unwrap();
-    let out = view_under_xvfb(
+    let script = serde_json::Value::Array(steps);
+    let r = view_script(
+        dir,
+        &script,
         &[
             s.to_str().unwrap(),
             "--size",
@@ -918,17 +897,10 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
             "2",
             "--motion-ms",
             "0.001",
-            "--script",
-            sp.to_str().unwrap(),
             "--frames",
             "20000",
-            "--json",
         ],
-        240,
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     let p = &r["perf"];
     eprintln!("{p}");
     assert!(p["frames_drawn_scaled"].as_u64().unwrap() >= 5, "{p}");
@@ -940,24 +912,19 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     eprintln!("at rest after a half-size motion vs offscreen: {at_rest:.2} dB");
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 
-    let out = view_under_xvfb(
+    let r = view_script(
+        dir,
+        &script,
         &[
             s.to_str().unwrap(),
             "--size",
             "160x120",
             "--motion-ms",
             "0",
-            "--script",
-            sp.to_str().unwrap(),
             "--frames",
             "20000",
-            "--json",
         ],
-        240,
     );
-    assert!(out.status.success(), "tetwave view failed: {}", out.status);
-    let r: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
     assert_eq!(r["perf"]["frames_drawn_scaled"], 0, "{r}");
     assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }
