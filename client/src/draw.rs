@@ -23,20 +23,7 @@ pub fn leaf_mesh(
     let mut m = RenderMesh::new(positions, tets, mesh.values().to_vec());
     m.value_range = (value_range[0], value_range[1]);
     if let Some(near) = levelset {
-        let (lo, hi) = m.positions.iter().fold(
-            ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-            |(lo, hi), p| {
-                (
-                    std::array::from_fn(|k| lo[k].min(p[k])),
-                    std::array::from_fn(|k| hi[k].max(p[k])),
-                )
-            },
-        );
-        let far = (0..3)
-            .map(|k| (hi[k] - lo[k]).powi(2))
-            .sum::<f64>()
-            .sqrt()
-            .max(1e-30) as f32;
+        let far = m.diagonal() as f32;
         m.levelset = Some(
             (0..mesh.vertex_slot_len() as u32)
                 .map(|s| match near.get(mesh.vertex_key(s)) {

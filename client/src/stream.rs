@@ -270,9 +270,6 @@ pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
     out
 }
 
-/// The store file whose presence in the manifest says `/v1/levelset` serves a level set.
-pub(crate) const LEVELSET_FILE: &str = "levelset_near.bin";
-
 /// GETs the near band of the domain's level set from the server of stream URL `ws_url` and
 /// decodes it for a hierarchy of `n_keys` vertices; returns it and the body's length.
 fn fetch_levelset(
@@ -548,7 +545,7 @@ pub(crate) async fn network(
                             && levelset_attempts < LEVELSET_ATTEMPTS;
                         if let (Delivery::Base(base), true) = (&m, ask) {
                             levelset_attempts += 1;
-                            if let Some(man) = blocks.manifest.as_deref().filter(|m| m.files.contains_key(LEVELSET_FILE)) {
+                            if let Some(man) = blocks.manifest.as_deref().filter(|m| m.has_levelset_band()) {
                                 // beside the stream, so the nodes do not wait for it; only for a
                                 // hierarchy within the client's budget (the frame loop refuses
                                 // any other), decoded for its exact vertex count
@@ -771,10 +768,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 break;
             }
             // once everything has arrived there is nothing to wait for but the level set
-            let levelset_pending = !levelset_answered
-                && manifest
-                    .as_ref()
-                    .is_some_and(|m| m.files.contains_key(LEVELSET_FILE));
+            let levelset_pending =
+                !levelset_answered && manifest.as_ref().is_some_and(Manifest::has_levelset_band);
             let msg = if state.is_none() || (!got_any && (!ended || levelset_pending)) {
                 let left = if state.is_none() {
                     wait_base.saturating_sub(t0.elapsed())
@@ -1007,10 +1002,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             images.push(img);
         }
         frame += 1;
-        let levelset_pending = !levelset_answered
-            && manifest
-                .as_ref()
-                .is_some_and(|m| m.files.contains_key(LEVELSET_FILE));
+        let levelset_pending =
+            !levelset_answered && manifest.as_ref().is_some_and(Manifest::has_levelset_band);
         if args.until_complete && ended && session.is_converged() && !levelset_pending {
             break;
         }

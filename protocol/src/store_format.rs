@@ -125,7 +125,16 @@ pub struct Manifest {
     pub files: std::collections::BTreeMap<String, FileSum>,
 }
 
+/// The store file holding a level set's near band ([`crate::levelset::NearLevelSet`]), which
+/// `/v1/levelset` serves.
+pub const LEVELSET_BAND_FILE: &str = "levelset_near.bin";
+
 impl Manifest {
+    /// Whether the store has a level set's near band for streaming clients to clip with.
+    pub fn has_levelset_band(&self) -> bool {
+        self.files.contains_key(LEVELSET_BAND_FILE)
+    }
+
     /// The value range a renderer maps to the transfer function by default: the input's
     /// ([`Manifest::source_value_range`]) when recorded, so that a store and the file it was
     /// prepared from frame the same default view, else the samples' ([`Manifest::value_range`]).

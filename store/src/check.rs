@@ -132,7 +132,7 @@ pub(crate) fn structure(
     }
     // a level set and its near band go together (clients clip with the band, renderers with the
     // whole set: they must describe the same domain)
-    if m.files.contains_key("levelset.f32") != m.files.contains_key("levelset_near.bin") {
+    if m.files.contains_key("levelset.f32") != m.has_levelset_band() {
         return Err(corrupt(
             dir,
             mpath,

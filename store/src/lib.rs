@@ -26,7 +26,7 @@
 use std::path::{Path, PathBuf};
 pub use tetwave_protocol::store_format::{
     Counts, Encoding, FileSum, FormatError, Manifest, StoreFiles, StoreHead, BLOCK,
-    MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION,
+    LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION,
 };
 
 mod check;
@@ -41,7 +41,7 @@ pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin",
 
 /// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
 /// with their size and CRC-32 like the others.
-pub const OPTIONAL_STORE_FILES: [&str; 2] = ["levelset.f32", "levelset_near.bin"];
+pub const OPTIONAL_STORE_FILES: [&str; 2] = ["levelset.f32", LEVELSET_BAND_FILE];
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

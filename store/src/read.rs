@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{
-    FormatError, Manifest, StoreFiles, StoreHead, BLOCK, MAX_BASE_BYTES, STORE_FORMAT,
-    STORE_VERSION,
+    FormatError, Manifest, StoreFiles, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
+    STORE_FORMAT, STORE_VERSION,
 };
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
@@ -288,10 +288,10 @@ impl Store {
     /// as `/v1/levelset` serves them, and what they decode to (checked: keys within the vertex
     /// count, values finite).
     pub fn read_levelset_near(&self) -> Result<Option<(Vec<u8>, NearLevelSet)>, StoreError> {
-        if !self.manifest.files.contains_key("levelset_near.bin") {
+        if !self.manifest.has_levelset_band() {
             return Ok(None);
         }
-        let p = self.dir.join("levelset_near.bin");
+        let p = self.dir.join(LEVELSET_BAND_FILE);
         let b = std::fs::read(&p).map_err(io_err(&p))?;
         let near = NearLevelSet::decode(&b, self.manifest.counts.vertices).map_err(|e| {
             StoreError::Corrupt {

@@ -6,7 +6,7 @@ use std::io::{BufWriter, Write};
 use std::path::Path;
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::NearLevelSet;
-use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest};
+use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest, LEVELSET_BAND_FILE};
 use tetwave_protocol::wavelet::Quantizer;
 use tetwave_protocol::{BaseMesh, DetailNode};
 
@@ -222,7 +222,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         },
     }
 
-    let path = dir.join("levelset_near.bin");
+    let path = dir.join(LEVELSET_BAND_FILE);
     match (&meta.levelset, &meta.levelset_near) {
         (Some(_), Some(near)) => {
             let bytes = near.encode().map_err(|e| StoreError::Corrupt {
@@ -232,7 +232,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
             let mut w = SumWriter::create(&path)?;
             w.put(&bytes).map_err(io_err(&path))?;
             files.insert(
-                "levelset_near.bin".into(),
+                LEVELSET_BAND_FILE.into(),
                 w.finish().map_err(io_err(&path))?,
             );
         }

@@ -7,7 +7,7 @@ use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
 use crate::stream::{
     check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError,
-    INGEST_QUEUE, LEVELSET_FILE,
+    INGEST_QUEUE,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
@@ -371,7 +371,7 @@ impl Data {
             match msg {
                 Delivery::Manifest(m) => {
                     self.value_range = m.display_value_range();
-                    r.levelset_pending |= m.files.contains_key(LEVELSET_FILE);
+                    r.levelset_pending |= m.has_levelset_band();
                     r.manifest = Some(*m);
                 }
                 Delivery::Base(b) => {
