@@ -16,6 +16,13 @@
 //!   tet's parent), which reads only vertices every tet around the new vertex holds;
 //! - `p4-grandparent`: the quartic interpolant of the grandparent (its 35 level-`k` points), which
 //!   needs every grandchild of it refined, so a client refining selectively cannot always use it;
+//! - `cubic-edge-line`: the 4-point cubic along the new vertex's own edge `(a, b)` through the
+//!   coarser points `2a − b` and `2b − a` (one-sided, then linear, at the border): reads the
+//!   coarser level's 1-ring of the edge's ends, outside the tets a selective client holds;
+//! - `cubic-tensor`: the tensor-product cubic over the 4, 16 or 64 coarser points around a vertex
+//!   odd along 1, 2 or 3 axes: reads the coarser level only, but its 2-ring;
+//! - `p2|tensor`: the better of `p2` and `cubic-tensor` on each level (a choice a manifest could
+//!   record);
 //! - `cubic-axes`: SZ3's interpolation: level by level, cubic splines along x, then y, then z
 //!   through the points already reconstructed, including this level's (non-local: a vertex reads
 //!   neighbours 3 steps away along an axis, in tets a selective client may never hold).
@@ -68,7 +75,15 @@ struct Grandparent {
 }
 
 /// The tet hierarchy's predictors: `quartic` uses the grandparent's P4 interpolant from level 2 on.
-fn hierarchy_bits(g: &Grid, levels: u8, quartic: bool) -> Vec<f64> {
+#[derive(Clone, Copy, PartialEq)]
+enum Stencil {
+    P2,
+    Quartic,
+    /// Cubic along the edge's own line through the coarse points `2a − b` and `2b − a`.
+    EdgeLine,
+}
+
+fn hierarchy_bits(g: &Grid, levels: u8, stencil: Stencil) -> Vec<f64> {
     let base = BaseMesh {
         levels,
         values: vec![0.0; 8],
@@ -93,9 +108,20 @@ fn hierarchy_bits(g: &Grid, levels: u8, quartic: bool) -> Vec<f64> {
                 if std::mem::replace(&mut done[mi], true) {
                     continue;
                 }
-                let prediction = if k == 0 {
+                let prediction = if stencil == Stencil::EdgeLine {
+                    let g3 =
+                        |w: &[u32; 4]| base.position(t.base, w).map(|x| (x * m).round() as i64);
+                    let (pa, pb) = (g3(&t.v[a]), g3(&t.v[b]));
+                    let outer = |p: [i64; 3], q: [i64; 3]| {
+                        let r: [i64; 3] = std::array::from_fn(|j| 2 * p[j] - q[j]);
+                        r.iter()
+                            .all(|&x| (0..=m as i64).contains(&x))
+                            .then(|| rec[g.at(r)])
+                    };
+                    cubic(outer(pa, pb), rec[g.at(pa)], rec[g.at(pb)], outer(pb, pa))
+                } else if k == 0 {
                     predict(rec[index(&t.v[a])], rec[index(&t.v[b])])
-                } else if !quartic || k == 1 {
+                } else if stencil == Stencil::P2 || k == 1 {
                     let parent = LatticeTet::from_id(&forest, forest.parent(id).unwrap());
                     let c = BEY_CHILDREN[forest.child_index(id).unwrap()];
                     let v10 = parent.split_points().map(|w| rec[index(&w)]);
@@ -145,6 +171,79 @@ fn hierarchy_bits(g: &Grid, levels: u8, quartic: bool) -> Vec<f64> {
             }
         }
         out.push(entropy_bits(&codes));
+    }
+    out
+}
+
+/// The 4-point cubic midpoint rule (one-sided at a border, linear with both outer points missing).
+fn cubic(a: Option<f32>, b: f32, c: f32, d: Option<f32>) -> f32 {
+    match (a, d) {
+        (Some(a), Some(d)) => (-a + 9.0 * b + 9.0 * c - d) / 16.0,
+        (None, Some(d)) => (3.0 * b + 6.0 * c - d) / 8.0,
+        (Some(a), None) => (-a + 6.0 * b + 3.0 * c) / 8.0,
+        (None, None) => predict(b, c),
+    }
+}
+
+/// Tensor-product cubic from the coarser level only: a point odd along the axes `S` reads the
+/// 4^|S| coarse points at offsets ±1, ±3 (in steps of the level) along those axes.
+fn tensor_bits(g: &Grid) -> Vec<f64> {
+    let m = g.n as i64 - 1;
+    let mut rec = vec![f32::NAN; g.f.len()];
+    corners(g, &mut rec);
+    let mut out = Vec::new();
+    let mut s = m / 2;
+    while s >= 1 {
+        let mut codes = HashMap::new();
+        let mut preds = Vec::new();
+        for z in (0..=m).step_by(s as usize) {
+            for y in (0..=m).step_by(s as usize) {
+                for x in (0..=m).step_by(s as usize) {
+                    let p = [x, y, z];
+                    if p.iter().all(|c| c % (2 * s) == 0) {
+                        continue;
+                    }
+                    // weights per axis: offsets and weights
+                    let axis = |d: usize| -> Vec<(i64, f32)> {
+                        if p[d] % (2 * s) == 0 {
+                            return vec![(0, 1.0)];
+                        }
+                        let ok = |o: i64| (0..=m).contains(&(p[d] + o * s));
+                        match (ok(-3), ok(3)) {
+                            (true, true) => vec![
+                                (-3, -1.0 / 16.0),
+                                (-1, 9.0 / 16.0),
+                                (1, 9.0 / 16.0),
+                                (3, -1.0 / 16.0),
+                            ],
+                            (false, true) => vec![(-1, 3.0 / 8.0), (1, 6.0 / 8.0), (3, -1.0 / 8.0)],
+                            (true, false) => {
+                                vec![(-3, -1.0 / 8.0), (-1, 6.0 / 8.0), (1, 3.0 / 8.0)]
+                            }
+                            (false, false) => vec![(-1, 0.5), (1, 0.5)],
+                        }
+                    };
+                    let (wx, wy, wz) = (axis(0), axis(1), axis(2));
+                    let mut pred = 0.0f32;
+                    for &(oz, az) in &wz {
+                        for &(oy, ay) in &wy {
+                            for &(ox, ax) in &wx {
+                                pred +=
+                                    az * ay * ax * rec[g.at([x + ox * s, y + oy * s, z + oz * s])];
+                            }
+                        }
+                    }
+                    preds.push((g.at(p), pred));
+                }
+            }
+        }
+        for (i, pred) in preds {
+            let (q, r) = g.quantize(i, pred);
+            rec[i] = r;
+            *codes.entry(q).or_default() += 1;
+        }
+        out.push(entropy_bits(&codes));
+        s /= 2;
     }
     out
 }
@@ -245,9 +344,20 @@ fn main() {
         step: 2.0 * bound * (hi - lo),
     };
     println!("{path}: {n}³, bound {bound} × range {}", hi - lo);
+    let (p2, tensor) = (hierarchy_bits(&g, levels, Stencil::P2), tensor_bits(&g));
+    let best: Vec<f64> = p2.iter().zip(&tensor).map(|(a, b)| a.min(*b)).collect();
     for (name, bits) in [
-        ("p2", hierarchy_bits(&g, levels, false)),
-        ("p4-grandparent", hierarchy_bits(&g, levels, true)),
+        ("p2", p2),
+        (
+            "p4-grandparent",
+            hierarchy_bits(&g, levels, Stencil::Quartic),
+        ),
+        (
+            "cubic-edge-line",
+            hierarchy_bits(&g, levels, Stencil::EdgeLine),
+        ),
+        ("cubic-tensor", tensor),
+        ("p2|tensor", best),
         ("cubic-axes", axes_bits(&g)),
     ] {
         let per_level: Vec<String> = bits.iter().map(|b| format!("{:.0}", b / 8.0)).collect();
