@@ -9,6 +9,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BaseMesh {
     pub levels: u8,
+    /// Serialized as f32 when every coordinate is one exactly (a box's corners, a grid's
+    /// bounds), else as f64: half the bytes of a typical base mesh, never a rounded position.
+    #[serde(with = "positions")]
     pub positions: Vec<[f64; 3]>,
     pub tets: Vec<[u32; 4]>,
     pub values: Vec<f32>,
@@ -152,4 +155,71 @@ pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 
     (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
         + u[2] * (v[0] * w[1] - v[1] * w[0]))
         / 6.0
+}
+
+/// Base positions on the wire and in `base.bin`: f32 when that loses nothing.
+mod positions {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize, Deserialize)]
+    enum Coords {
+        F32(Vec<[f32; 3]>),
+        F64(Vec<[f64; 3]>),
+    }
+
+    pub fn serialize<S: Serializer>(p: &[[f64; 3]], s: S) -> Result<S::Ok, S::Error> {
+        let exact = p
+            .iter()
+            .flatten()
+            .all(|&x| x as f32 as f64 == x || x.is_nan());
+        if exact {
+            Coords::F32(p.iter().map(|c| c.map(|x| x as f32)).collect()).serialize(s)
+        } else {
+            Coords::F64(p.to_vec()).serialize(s)
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[f64; 3]>, D::Error> {
+        Ok(match Coords::deserialize(d)? {
+            Coords::F32(v) => v.into_iter().map(|c| c.map(f64::from)).collect(),
+            Coords::F64(v) => v,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn round_trip(b: &BaseMesh) -> (BaseMesh, usize) {
+        let bytes = bincode::serde::encode_to_vec(b, bincode::config::standard()).unwrap();
+        let (back, _) =
+            bincode::serde::decode_from_slice(&bytes, bincode::config::standard()).unwrap();
+        (back, bytes.len())
+    }
+
+    #[test]
+    fn positions_go_as_f32_only_when_that_is_exact() {
+        let (positions, tets) = crate::shapes::box6([0.0; 3], [2.5, 1.0, 0.75]);
+        let exact = BaseMesh {
+            levels: 2,
+            values: vec![0.5; positions.len()],
+            empty: vec![false; tets.len()],
+            positions,
+            tets,
+        };
+        let (back, small) = round_trip(&exact);
+        assert_eq!(back, exact);
+        // 0.1 is no f32: every coordinate must come back bit for bit, in f64
+        let mut inexact = exact.clone();
+        inexact.positions[3][1] = 0.1;
+        inexact.positions[5][2] = 1.0 + f64::EPSILON;
+        let (back, large) = round_trip(&inexact);
+        assert_eq!(back, inexact);
+        assert_eq!(
+            large - small,
+            8 * 3 * 4,
+            "f64 costs 4 more bytes per coordinate"
+        );
+    }
 }

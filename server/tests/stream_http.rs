@@ -52,7 +52,12 @@ async fn manifest_base_and_node_ranges_match_the_store() {
     assert_eq!(r.status, 200);
     assert_eq!(r.headers["content-type"], "application/json");
     let m: Manifest = serde_json::from_slice(&r.body).unwrap();
-    assert_eq!(m, store.manifest);
+    // the store's manifest, less the sums of files only the server reads (this store has no
+    // level-set band, the one file a client fetches)
+    let mut want = store.manifest.clone();
+    assert!(want.files.contains_key("blocks.bin"));
+    want.files.clear();
+    assert_eq!(m, want);
 
     let r = get(addr, "/v1/base", &[]).await;
     assert_eq!(r.status, 200);

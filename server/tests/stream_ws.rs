@@ -11,7 +11,7 @@ use stream_common::*;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::wire::{encode, ClientMsg, IdRange, ServerMsg};
 use tetwave_protocol::{DetailNode, LatticeTet};
-use tetwave_server::stream::ServeConfig;
+use tetwave_server::stream::{served_manifest, ServeConfig};
 use tetwave_store::Store;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -30,7 +30,7 @@ fn store_values(store: &Store) -> Vec<f32> {
 /// Every node exactly once, and synthesis of the received nodes (sorted by id) equals the store's.
 fn assert_complete(s: &Session, store: &Store, values: &[f32]) {
     let n = store.manifest.counts.nodes;
-    assert_eq!(s.manifest, store.manifest);
+    assert_eq!(s.manifest, served_manifest(&store.manifest));
     assert_eq!(s.base, store.base);
     assert_eq!(s.nodes.len() as u64, n, "node count");
     assert_eq!(s.end_nodes_sent, n);

@@ -10,6 +10,7 @@ use tetwave_protocol::block::{pow2_bound, pow2_class, BlockCoder};
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::shapes::box5;
+use tetwave_protocol::store_format::STORE_VERSION;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::DetailNode;
@@ -350,7 +351,7 @@ fn a_truncated_blocks_file_is_refused() {
 /// predictor) are refused with what to do about it, before their files are looked at.
 #[test]
 fn an_earlier_version_store_is_refused_with_what_to_do() {
-    for old in [1, 2, 3] {
+    for old in 1..STORE_VERSION {
         let (d, _) = store();
         let mpath = d.path().join("manifest.json");
         let mut m: serde_json::Value =
@@ -365,7 +366,7 @@ fn an_earlier_version_store_is_refused_with_what_to_do() {
             "manifest.json",
             &[
                 &format!("v{old}"),
-                "expected tetwave-store v4",
+                &format!("expected tetwave-store v{STORE_VERSION}"),
                 "re-run `tetwave-server prepare`",
             ],
         );

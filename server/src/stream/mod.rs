@@ -45,7 +45,7 @@ pub use error::ServeError;
 pub use origin::OriginPolicy;
 pub use routes::{app, rss_kib};
 pub use schedule::DATA_DELTA;
-pub use state::Shared;
+pub use state::{served_manifest, Shared};
 
 use std::sync::Arc;
 

@@ -14,6 +14,7 @@ use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::block::NodeBlock;
 use tetwave_protocol::order::shuffle;
+use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
 use tetwave_protocol::view::tet_sphere;
 use tetwave_protocol::wire::{encode, ServerMsg};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
@@ -277,11 +278,14 @@ impl Shared {
 
 /// The manifest as clients see it: the store's, with the input named by its file name only (the
 /// path `prepare` was given says where files lie on the server, which is none of a client's
-/// business).
+/// business) and only the files a client fetches listed.
 pub fn served_manifest(m: &Manifest) -> Manifest {
     let mut served = m.clone();
     if let Some(name) = std::path::Path::new(&m.source).file_name() {
         served.source = name.to_string_lossy().into_owned();
     }
+    // a client fetches the level-set band; the other files' sums are the server's to check, and
+    // would cost every session about 90 bytes
+    served.files.retain(|name, _| name == LEVELSET_BAND_FILE);
     served
 }
