@@ -9,6 +9,7 @@ pub mod camera_arg;
 pub mod detail_buffer;
 pub mod draw;
 mod http;
+mod ingest;
 pub mod mesh;
 pub mod progressive;
 pub mod render_cli;

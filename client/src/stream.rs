@@ -8,6 +8,7 @@
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
+use crate::ingest::{Ingest, Step};
 use crate::mesh::AdaptiveMesh;
 use crate::select::{Mode, SelectParams, Tolerance};
 use crate::session::{NodeRejected, Session};
@@ -736,18 +737,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         },
     ));
 
-    let mut manifest: Option<Manifest> = None;
+    let mut ingest = Ingest::new(args.max_nodes);
     let mut state: Option<Session> = None;
-    // the level set, when it comes before the base mesh; whether one is listed and not yet here
-    // (the fetch runs beside the stream, so its answer may come before or after the manifest)
-    let (mut levelset, mut levelset_answered): (Option<NearLevelSet>, bool) = (None, false);
-    let mut levelset_error: Option<String> = None;
     let mut received_nodes: Vec<DetailNode> = Vec::new();
     let mut frames = Vec::new();
     let mut cams = Vec::new();
     let mut images = Vec::new();
-    let mut ended = false;
-    let mut want_rounds = 0u32;
     let mut duplicates = 0u64;
     let mut first_frame_ms = None;
     // wire bytes of the messages the client has applied (what its frames show)
@@ -768,9 +763,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 break;
             }
             // once everything has arrived there is nothing to wait for but the level set
-            let levelset_pending =
-                !levelset_answered && manifest.as_ref().is_some_and(Manifest::has_levelset_band);
-            let msg = if state.is_none() || (!got_any && (!ended || levelset_pending)) {
+            let msg = if state.is_none()
+                || (!got_any && (!ingest.ended() || ingest.levelset_pending()))
+            {
                 let left = if state.is_none() {
                     wait_base.saturating_sub(t0.elapsed())
                 } else {
@@ -791,8 +786,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                         // everything has arrived
                         if !net_done {
                             net_done = true;
-                            // no answer about the level set can come any more
-                            levelset_answered = true;
+                            ingest.network_ended();
                             let why = rt.block_on(&mut task);
                             if !state.as_ref().is_some_and(Session::is_complete) {
                                 failure = Some(match why {
@@ -822,100 +816,27 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             let Some((msg, nbytes)) = msg else { break };
             got_any = true;
             bytes_applied += nbytes;
-            match msg {
-                Delivery::Manifest(m) => {
-                    manifest = Some(*m);
-                }
-                Delivery::LevelSet(got) => {
-                    levelset_answered = true;
-                    match got {
-                        // (after a failed request, a reconnection asks again)
-                        Ok(near) => {
-                            levelset_error = None;
-                            match state.as_mut() {
-                                Some(st) => st.set_levelset(*near),
-                                None => levelset = Some(*near),
-                            }
-                        }
-                        // (an earlier request's failure, once a later one has brought the band)
-                        Err(_)
-                            if levelset.is_some()
-                                || state.as_ref().is_some_and(Session::has_levelset) => {}
-                        Err(e) => {
-                            tracing::warn!(
-                                "drawing without clipping to the domain's boundary: {e}"
-                            );
-                            levelset_error = Some(e);
-                        }
-                    }
-                }
-                // a resumed connection sends the base mesh again: keep what is already built
-                Delivery::Base(b) if state.as_ref().is_some_and(|st| *st.base() == *b) => {}
-                Delivery::Base(_) if state.is_some() => {
-                    failure = Some(StreamError::Protocol(
-                        "the server sent a different base mesh on a resumed connection".into(),
-                    ));
-                    break 'frames;
-                }
-                Delivery::Base(b) => {
-                    let m = manifest
-                        .as_ref()
-                        .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-                    check_hierarchy(&b, m, args.max_nodes)?;
-                    let params =
-                        SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
-                    let mut session = Session::new(*b, params)
-                        .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))?;
-                    if let Some(near) = levelset.take() {
-                        session.set_levelset(near);
-                    }
-                    state = Some(session);
-                }
-                Delivery::Nodes { nodes, .. } => {
-                    let session = state.as_mut().ok_or_else(|| {
-                        StreamError::Protocol("nodes before the base mesh".into())
-                    })?;
-                    let done = match session.insert(&nodes) {
-                        Ok(done) => done,
-                        Err(e) => {
-                            failure = Some(e.into());
-                            break 'frames;
-                        }
-                    };
-                    duplicates += done.duplicates as u64;
-                    if args.psnr {
-                        received_nodes.extend(nodes.iter().cloned());
-                    }
+            let start = |b: BaseMesh, m: &Manifest| {
+                let params =
+                    SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
+                Session::new(b, params)
+                    .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
+            };
+            match ingest.apply(msg, &mut state, start, &out_tx) {
+                Ok(Step::Nodes {
+                    nodes,
+                    duplicates: d,
+                }) => {
+                    duplicates += d as u64;
                     applied += nodes.len();
-                }
-                Delivery::End => {
-                    // re-request whatever was lost on the way (bounded rounds); the missing ids
-                    // are walked as ranges, in time and memory of what arrived, whatever the
-                    // hierarchy's size
-                    if let Some(session) = &state {
-                        let (held, total) = session.progress();
-                        if held == total {
-                            ended = true;
-                        } else if want_rounds < MAX_WANT_ROUNDS {
-                            want_rounds += 1;
-                            let want: Vec<IdRange> =
-                                session.buffer().missing_ranges().take(MAX_RANGES).collect();
-                            let _ = out_tx.send(ClientMsg::Want(want));
-                        } else {
-                            failure = Some(StreamError::Unavailable {
-                                missing: total - held,
-                                total,
-                                rounds: want_rounds,
-                            });
-                            break 'frames;
-                        }
+                    if args.psnr {
+                        received_nodes.extend(nodes);
                     }
                 }
-                Delivery::Error { code, message } => {
-                    let e = StreamError::Server { code, message };
-                    if state.is_none() {
-                        return Err(e);
-                    }
+                Ok(_) => {}
+                // before the base mesh there are no frames to keep
+                Err(e) if state.is_none() => return Err(e),
+                Err(e) => {
                     failure = Some(e);
                     break 'frames;
                 }
@@ -928,7 +849,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let Some(session) = state.as_mut() else {
             continue;
         };
-        let m = manifest.as_ref().expect("manifest precedes base");
+        let m = ingest.manifest().expect("manifest precedes base");
         // 2. camera and view
         let (lo, hi) = session.base().bounds();
         let center = glam::DVec3::from_array([
@@ -1002,9 +923,11 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             images.push(img);
         }
         frame += 1;
-        let levelset_pending =
-            !levelset_answered && manifest.as_ref().is_some_and(Manifest::has_levelset_band);
-        if args.until_complete && ended && session.is_converged() && !levelset_pending {
+        if args.until_complete
+            && ingest.ended()
+            && session.is_converged()
+            && !ingest.levelset_pending()
+        {
             break;
         }
     }
@@ -1014,7 +937,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let clipped = state.as_ref().is_some_and(Session::has_levelset);
     // 5. accuracy against the full-resolution reference, once everything has arrived
     if args.psnr && failure.is_none() {
-        if let (true, Some(session), Some(m)) = (complete, &state, &manifest) {
+        if let (true, Some(session), Some(m)) = (complete, &state, ingest.manifest()) {
             let base = session.base();
             received_nodes.sort_by_key(|n| n.id);
             received_nodes.dedup_by_key(|n| n.id);
@@ -1058,7 +981,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         complete,
         first_frame_ms,
         clipped,
-        levelset_error,
+        levelset_error: ingest.levelset_error().map(str::to_owned),
     };
     Ok(Streamed {
         report,

@@ -989,7 +989,7 @@ impl ViewerApp {
             ui.colored_label(Color32::YELLOW, "connection lost: reconnecting…");
             self.frames_reconnecting += 1;
         }
-        if let Some(e) = &self.data.levelset_error {
+        if let Some(e) = self.data.levelset_error() {
             ui.colored_label(Color32::YELLOW, format!("not clipped to the domain: {e}"))
                 .on_hover_text("the store's level set (/v1/levelset) could not be had");
         } else if self.data.clipped() {

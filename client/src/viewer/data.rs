@@ -3,21 +3,20 @@
 //! or a mesh file drawn as it is. Each frame takes what has arrived within a time budget, so the
 //! window never waits on the network or on a large arrival.
 
+use crate::ingest::{Ingest, Step};
 use crate::select::{SelectParams, Tolerance};
 use crate::session::Session;
 use crate::stream::{
-    check_hierarchy, network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError,
-    INGEST_QUEUE,
+    network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError, INGEST_QUEUE,
 };
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::wire::{ClientMsg, IdRange, ViewParams, MAX_RANGES};
+use tetwave_protocol::wire::{ClientMsg, ViewParams};
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::render_mesh::RenderMesh;
 use tokio::sync::mpsc;
@@ -53,10 +52,6 @@ const LOCAL_CHUNK: usize = 512;
 /// server to restart.
 const RECONNECT_ATTEMPTS: u32 = 20;
 
-/// Messages re-requesting lost nodes after `End` before the stream counts as failed (as the
-/// headless client's [`crate::stream::MAX_WANT_ROUNDS`]).
-const MAX_WANT_ROUNDS: u32 = crate::stream::MAX_WANT_ROUNDS;
-
 struct Remote {
     /// The runtime whose one worker runs the network task (dropped with the viewer).
     rt: NetRuntime,
@@ -64,19 +59,12 @@ struct Remote {
     rx: mpsc::Receiver<(Delivery, u64)>,
     out: mpsc::UnboundedSender<ClientMsg>,
     net: Arc<Net>,
-    manifest: Option<Manifest>,
-    ended: bool,
-    want_rounds: u32,
-    max_nodes: u64,
+    ingest: Ingest,
     last_view: Option<ViewParams>,
     /// Reconnections when the view was last sent (a new connection needs it again).
     view_reconnects: u64,
     /// The server's HTTP address (`http://host:port`), for `/v1/render`.
     http: String,
-    /// The level set's near band when it comes before the base mesh.
-    levelset: Option<NearLevelSet>,
-    /// The manifest lists a level set and no answer about it has come yet.
-    levelset_pending: bool,
 }
 
 enum Kind {
@@ -100,9 +88,6 @@ pub struct Data {
     pub bytes_applied: u64,
     /// Why the data stopped (a failed connection, a refused node, …): shown, and the exit status.
     pub error: Option<String>,
-    /// Why drawn meshes are not clipped to the store's level set when it has one (its band could
-    /// not be had); shown in the panel.
-    pub levelset_error: Option<String>,
     /// Nodes were applied since [`Self::take_changed`].
     changed: bool,
     /// Number of levels of the hierarchy (0 for a mesh file).
@@ -125,7 +110,6 @@ impl Data {
             frame: None,
             bytes_applied: 0,
             error: None,
-            levelset_error: None,
             changed: true,
             levels: 0,
         };
@@ -160,15 +144,10 @@ impl Data {
                     rx,
                     out,
                     net,
-                    manifest: None,
-                    ended: false,
-                    want_rounds: 0,
-                    max_nodes,
+                    ingest: Ingest::new(max_nodes),
                     last_view: None,
                     view_reconnects: 0,
                     http,
-                    levelset: None,
-                    levelset_pending: false,
                 }))))
             }
             Source::Store(dir) => {
@@ -206,13 +185,31 @@ impl Data {
     }
 
     fn start_session(&mut self, base: BaseMesh, tol: Tolerance) -> Result<(), String> {
+        let params = SelectParams::new(tol, self.value_range);
+        self.session = Some(Session::new(base, params).map_err(|e| format!("base mesh: {e}"))?);
+        self.session_started();
+        Ok(())
+    }
+
+    /// Frames the view on a new session's base mesh.
+    fn session_started(&mut self) {
+        let Some(base) = self.session.as_ref().map(Session::base) else {
+            return;
+        };
         let (lo, hi) = base.bounds();
         let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
         self.frame = Some(((lo + hi) * 0.5, hi.distance(lo)));
         self.levels = base.levels;
-        let params = SelectParams::new(tol, self.value_range);
-        self.session = Some(Session::new(base, params).map_err(|e| format!("base mesh: {e}"))?);
-        Ok(())
+        self.changed = true;
+    }
+
+    /// Why drawn meshes are not clipped to the store's level set when it has one (its band could
+    /// not be had); shown in the panel.
+    pub fn levelset_error(&self) -> Option<&str> {
+        match &self.kind {
+            Kind::Remote(r) => r.ingest.levelset_error(),
+            _ => None,
+        }
     }
 
     /// The server's HTTP address, for a stream.
@@ -226,7 +223,7 @@ impl Data {
     /// The store has a level set and no answer about it has come yet (a script's `wait` waits
     /// for it too).
     pub fn awaiting_levelset(&self) -> bool {
-        matches!(&self.kind, Kind::Remote(r) if r.levelset_pending)
+        matches!(&self.kind, Kind::Remote(r) if r.ingest.levelset_pending())
     }
 
     /// Whether drawn meshes are clipped to the store's level set.
@@ -353,8 +350,7 @@ impl Data {
                 Ok(m) => m,
                 Err(mpsc::error::TryRecvError::Empty) => return Ok(applied),
                 Err(mpsc::error::TryRecvError::Disconnected) => {
-                    // no answer about the level set can come any more
-                    r.levelset_pending = false;
+                    r.ingest.network_ended();
                     if self.session.as_ref().is_some_and(Session::is_complete) {
                         return Ok(applied);
                     }
@@ -368,82 +364,24 @@ impl Data {
                 }
             };
             self.bytes_applied += nbytes;
-            match msg {
-                Delivery::Manifest(m) => {
-                    self.value_range = m.display_value_range();
-                    r.levelset_pending |= m.has_levelset_band();
-                    r.manifest = Some(*m);
-                }
-                Delivery::Base(b) => {
-                    if let Some(s) = &self.session {
-                        if *s.base() != *b {
-                            return Err(
-                                "the server sent a different base mesh on a resumed connection"
-                                    .into(),
-                            );
-                        }
-                        continue;
-                    }
-                    let m = r
-                        .manifest
-                        .as_ref()
-                        .ok_or("protocol: base before manifest")?;
-                    check_hierarchy(&b, m, r.max_nodes).map_err(|e| e.to_string())?;
-                    let near = r.levelset.take();
-                    self.start_session(*b, tol)?;
-                    if let (Some(s), Some(near)) = (self.session.as_mut(), near) {
-                        s.set_levelset(near);
-                    }
-                    self.changed = true;
-                }
-                Delivery::LevelSet(Ok(near)) => {
-                    r.levelset_pending = false;
-                    self.levelset_error = None;
-                    match self.session.as_mut() {
-                        Some(s) => {
-                            s.set_levelset(*near);
-                            self.changed = true;
-                        }
-                        None => r.levelset = Some(*near),
+            let start = |b: BaseMesh, m: &Manifest| {
+                Session::new(b, SelectParams::new(tol, m.display_value_range()))
+                    .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
+            };
+            let step = r
+                .ingest
+                .apply(msg, &mut self.session, start, &r.out)
+                .map_err(|e| e.to_string())?;
+            match step {
+                Step::Manifest => {
+                    if let Some(m) = r.ingest.manifest() {
+                        self.value_range = m.display_value_range();
                     }
                 }
-                // (an earlier request's failure, once a later one has brought the band)
-                Delivery::LevelSet(Err(_))
-                    if r.levelset.is_some()
-                        || self.session.as_ref().is_some_and(Session::has_levelset) => {}
-                Delivery::LevelSet(Err(e)) => {
-                    r.levelset_pending = false;
-                    tracing::warn!("drawing without clipping to the domain's boundary: {e}");
-                    self.levelset_error = Some(e);
-                }
-                Delivery::Nodes { nodes, .. } => {
-                    let s = self
-                        .session
-                        .as_mut()
-                        .ok_or("protocol: nodes before the base mesh")?;
-                    s.insert(&nodes).map_err(|e| e.to_string())?;
-                    applied += nodes.len();
-                }
-                Delivery::End => {
-                    let Some(s) = &self.session else { continue };
-                    let (held, total) = s.progress();
-                    if held == total {
-                        r.ended = true;
-                    } else if r.want_rounds < MAX_WANT_ROUNDS {
-                        r.want_rounds += 1;
-                        let want: Vec<IdRange> =
-                            s.buffer().missing_ranges().take(MAX_RANGES).collect();
-                        let _ = r.out.send(ClientMsg::Want(want));
-                    } else {
-                        return Err(format!(
-                            "the server ended the stream with {} of {total} nodes missing",
-                            total - held
-                        ));
-                    }
-                }
-                Delivery::Error { code, message } => {
-                    return Err(format!("server error {code}: {message}"));
-                }
+                Step::Started => self.session_started(),
+                Step::LevelSet => self.changed = true,
+                Step::Nodes { nodes, .. } => applied += nodes.len(),
+                Step::End | Step::Nothing => {}
             }
         }
     }
