@@ -18,7 +18,8 @@
 //!   stores round the bound up to a power of two (within a factor 2, the same safe side) and code
 //!   its exponent the same way ([`pow2_class`]);
 //! - **coefficients**: quantized codes by magnitude under the class `k` (none at all when `k = 0`:
-//!   a zero subtree costs only its class), sign bits raw. Lossless stores keep every bit of the
+//!   a zero subtree costs only its class), each nonzero code's sign by an adaptive bit whose context
+//!   is the node's two previous nonzero signs. Lossless stores keep every bit of the
 //!   f32: its sign raw, its exponent as the difference to the previous coefficient's, how many
 //!   mantissa bits lie above the lowest set one (modelled by exponent: a detail `f(m) − P(m)` of
 //!   two values of one binade is a multiple of their ulp, so its low bits are zero), and those
@@ -95,6 +96,8 @@ struct Models {
     class: Vec<UInt>,
     same_class: Bit,
     magnitude: Vec<UInt>,
+    /// Signs, by the node's two previous nonzero signs ([`NodeSigns`]).
+    sign: [Bit; 9],
     /// Lossless: the subtree class's difference to the previous one (zigzag).
     class_delta: UInt,
     /// Lossless: the coefficients' f32s.
@@ -111,6 +114,7 @@ impl Models {
             class: vec![UInt::default(); 16],
             same_class: Bit::default(),
             magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
+            sign: [Bit::default(); 9],
             class_delta: UInt::default(),
             floats: Floats::default(),
         }
@@ -236,6 +240,7 @@ impl BlockCoder {
                     }
                     prev_class = class;
                     if class > 0 {
+                        let mut signs = NodeSigns::default();
                         for &c in &codes {
                             // a class-k magnitude has at most k bits
                             e.uint_within(
@@ -244,8 +249,9 @@ impl BlockCoder {
                                 class,
                             )?;
                             if c != 0 {
-                                e.raw((c < 0) as u64, 1);
+                                e.bit(&mut m.sign[signs.context()], c < 0);
                             }
+                            signs.push(c);
                         }
                     }
                 }
@@ -344,6 +350,7 @@ impl BlockCoder {
                     let mut coeffs = vec![0f32; n_coeffs];
                     if class > 0 {
                         let limit = ((1u64 << class) - 1).min(Quantizer::max_code(q.bits) as u64);
+                        let mut signs = NodeSigns::default();
                         for c in coeffs.iter_mut() {
                             let mag = d.uint_within(&mut m.magnitude[class as usize], class)?;
                             if mag > limit {
@@ -352,8 +359,9 @@ impl BlockCoder {
                                     reason: format!("code {mag} exceeds its class {class}"),
                                 });
                             }
-                            let negative = mag != 0 && d.raw(1)? == 1;
+                            let negative = mag != 0 && d.bit(&mut m.sign[signs.context()])?;
                             let code = if negative { -(mag as i32) } else { mag as i32 };
+                            signs.push(code);
                             *c = q.decode(code);
                         }
                     }
@@ -380,6 +388,27 @@ impl BlockCoder {
             out.push(node);
         }
         Ok(out)
+    }
+}
+
+/// A node's signs so far, the context of its next one: the residuals of one refinement share the
+/// field's local third derivative, so their signs go together (bench-rd's quantized stores are
+/// 1–3 % smaller than with raw sign bits; the same kind of context for magnitudes cost more in
+/// diluted statistics than it saved).
+#[derive(Default)]
+struct NodeSigns {
+    /// The last two nonzero signs, 0 none, 1 +, 2 − (older × 3 + newer).
+    last: usize,
+}
+
+impl NodeSigns {
+    fn context(&self) -> usize {
+        self.last
+    }
+    fn push(&mut self, code: i32) {
+        if code != 0 {
+            self.last = self.last % 3 * 3 + 1 + (code < 0) as usize;
+        }
     }
 }
 

@@ -14,7 +14,8 @@ use serde::{Deserialize, Serialize};
 /// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes). 3: the blocks of
 /// store format 3. 4: the manifest carries `source_value_range` (bincode is positional: a
 /// version-3 peer would misread it). 5: the blocks of store format 4 (lossless coefficients
-/// coded). 6: the base mesh of store format 5 (positions as f32 where exact).
+/// coded). 6: the base mesh and blocks of store format 5 (positions as f32
+/// where exact, modelled signs).
 pub const PROTOCOL_VERSION: u16 = 6;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
