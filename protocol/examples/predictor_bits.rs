@@ -27,11 +27,12 @@
 //!   through the points already reconstructed, including this level's (non-local: a vertex reads
 //!   neighbours 3 steps away along an axis, in tets a selective client may never hold).
 
+mod common;
+
+use common::{read_grid, unit_box6};
 use std::collections::HashMap;
 use tetwave_protocol::hierarchy::{LatticeTet, LevelWalker, BEY_CHILDREN, EDGES};
-use tetwave_protocol::shapes::box6;
 use tetwave_protocol::wavelet::{predict, predict_split};
-use tetwave_protocol::BaseMesh;
 
 struct Grid {
     n: usize,
@@ -84,13 +85,7 @@ enum Stencil {
 }
 
 fn hierarchy_bits(g: &Grid, levels: u8, stencil: Stencil) -> Vec<f64> {
-    let base = BaseMesh {
-        levels,
-        values: vec![0.0; 8],
-        empty: vec![false; 6],
-        positions: box6([0.0; 3], [1.0; 3]).0,
-        tets: box6([0.0; 3], [1.0; 3]).1,
-    };
+    let base = unit_box6(levels);
     let forest = base.forest();
     let m = (g.n - 1) as f64;
     let mut rec = vec![f32::NAN; g.f.len()];
@@ -185,16 +180,30 @@ fn cubic(a: Option<f32>, b: f32, c: f32, d: Option<f32>) -> f32 {
     }
 }
 
+/// Runs `level` on each level of the grid, coarse to fine, with the reconstruction so far (the
+/// corners first), the level's step `s` (grid points) and its code histogram; the bits of each.
+fn coarse_to_fine(
+    g: &Grid,
+    mut level: impl FnMut(&mut [f32], i64, &mut HashMap<i64, usize>),
+) -> Vec<f64> {
+    let mut rec = vec![f32::NAN; g.f.len()];
+    corners(g, &mut rec);
+    let mut out = Vec::new();
+    let mut s = (g.n as i64 - 1) / 2;
+    while s >= 1 {
+        let mut codes = HashMap::new();
+        level(&mut rec, s, &mut codes);
+        out.push(entropy_bits(&codes));
+        s /= 2;
+    }
+    out
+}
+
 /// Tensor-product cubic from the coarser level only: a point odd along the axes `S` reads the
 /// 4^|S| coarse points at offsets ±1, ±3 (in steps of the level) along those axes.
 fn tensor_bits(g: &Grid) -> Vec<f64> {
     let m = g.n as i64 - 1;
-    let mut rec = vec![f32::NAN; g.f.len()];
-    corners(g, &mut rec);
-    let mut out = Vec::new();
-    let mut s = m / 2;
-    while s >= 1 {
-        let mut codes = HashMap::new();
+    coarse_to_fine(g, |rec, s, codes| {
         let mut preds = Vec::new();
         for z in (0..=m).step_by(s as usize) {
             for y in (0..=m).step_by(s as usize) {
@@ -242,21 +251,13 @@ fn tensor_bits(g: &Grid) -> Vec<f64> {
             rec[i] = r;
             *codes.entry(q).or_default() += 1;
         }
-        out.push(entropy_bits(&codes));
-        s /= 2;
-    }
-    out
+    })
 }
 
 /// SZ3's interpolation predictor: per level, cubic along x, then y, then z.
 fn axes_bits(g: &Grid) -> Vec<f64> {
     let m = g.n as i64 - 1;
-    let mut rec = vec![f32::NAN; g.f.len()];
-    corners(g, &mut rec);
-    let mut out = Vec::new();
-    let mut s = m / 2;
-    while s >= 1 {
-        let mut codes = HashMap::new();
+    coarse_to_fine(g, |rec, s, codes| {
         for dim in 0..3 {
             // points odd along `dim` (in steps of s); earlier axes on the fine grid, later ones coarse
             let stride = |d: usize| if d < dim { s } else { 2 * s };
@@ -293,10 +294,7 @@ fn axes_bits(g: &Grid) -> Vec<f64> {
                 }
             }
         }
-        out.push(entropy_bits(&codes));
-        s /= 2;
-    }
-    out
+    })
 }
 
 fn main() {
@@ -317,22 +315,7 @@ fn main() {
             std::process::exit(2)
         });
     let n = (1usize << levels) + 1;
-    let bytes = std::fs::read(path).unwrap_or_else(|e| {
-        eprintln!("predictor_bits: {path}: {e}");
-        std::process::exit(1)
-    });
-    if bytes.len() != n * n * n * 4 {
-        eprintln!(
-            "predictor_bits: {path} has {} bytes, a {n}³ f32 grid has {}",
-            bytes.len(),
-            n * n * n * 4
-        );
-        std::process::exit(1);
-    }
-    let f: Vec<f32> = bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let f = read_grid("predictor_bits", path, levels);
     let (lo, hi) = f
         .iter()
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {

@@ -12,10 +12,11 @@
 //! tet holds. A least-squares fit per configuration (child index, parent's child index, edge) on
 //! the data itself, so the reduction it prints is an upper bound for any fixed local correction.
 
+mod common;
+
+use common::{read_grid, unit_box6};
 use std::collections::HashMap;
 use tetwave_protocol::hierarchy::{LatticeTet, LevelWalker, EDGES};
-use tetwave_protocol::shapes::box6;
-use tetwave_protocol::BaseMesh;
 
 /// Solves `a x = b` by Gaussian elimination with partial pivoting; `None` when singular.
 fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
@@ -77,25 +78,11 @@ fn main() {
         }
     };
     let n = (1usize << levels) + 1;
-    let bytes = std::fs::read(path).unwrap_or_else(|e| {
-        eprintln!("residual_fit: {path}: {e}");
-        std::process::exit(1)
-    });
-    if bytes.len() != n * n * n * 4 {
-        eprintln!("residual_fit: {path} is no {n}³ f32 grid");
-        std::process::exit(1);
-    }
-    let f: Vec<f64> = bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64)
+    let f: Vec<f64> = read_grid("residual_fit", path, levels)
+        .into_iter()
+        .map(f64::from)
         .collect();
-    let base = BaseMesh {
-        levels,
-        values: vec![0.0; 8],
-        empty: vec![false; 6],
-        positions: box6([0.0; 3], [1.0; 3]).0,
-        tets: box6([0.0; 3], [1.0; 3]).1,
-    };
+    let base = unit_box6(levels);
     let forest = base.forest();
     let m = (n - 1) as f64;
     let val = |t: &LatticeTet, w: &[u32; 4]| {
