@@ -37,8 +37,7 @@ async fn health(addr: SocketAddr) -> serde_json::Value {
 async fn opened(addr: SocketAddr, have: Vec<IdRange>) -> Ws {
     let mut ws = connect_from(ATTACKER, addr, "", &[]).await.unwrap();
     send(&mut ws, &hello(None, have)).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    expect_opening(&mut ws).await;
     ws
 }
 

@@ -181,8 +181,7 @@ async fn view_order_follows_the_camera() {
     let mut ws = connect(addr, "?order=view").await;
     send(&mut ws, &hello(None, vec![])).await;
     send(&mut ws, &ClientMsg::View(view_from(ea, c))).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    expect_opening(&mut ws).await;
     // take 40 batches under view A (acking), then switch to view B
     let mut under_a = Vec::new();
     let mut seq_last = 0;
@@ -373,10 +372,7 @@ async fn unacknowledged_batches_are_bounded_by_the_window() {
         ..ServeConfig::default()
     };
     let (addr, _) = start(&dir, cfg).await;
-    let mut ws = connect(addr, "").await;
-    send(&mut ws, &hello(None, vec![])).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut ws = open(addr, "").await;
     let mut got = Vec::new();
     for round in 0..3 {
         let mut seqs = Vec::new();
@@ -484,10 +480,7 @@ async fn batches_grow_and_a_view_starts_them_small_again() {
 
     // view order: a View after a few batches makes the next batch small again
     let coder = coder_for(&dir);
-    let mut ws = connect(addr, "?order=view").await;
-    send(&mut ws, &hello(None, vec![])).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
+    let mut ws = open(addr, "?order=view").await;
     let mut sizes = Vec::new();
     for i in 0..8 {
         match recv(&mut ws).await {

@@ -188,6 +188,20 @@ pub fn hello(token: Option<&str>, have: Vec<IdRange>) -> ClientMsg {
     }
 }
 
+/// Takes a session's opening after `Hello`: the manifest, then the base mesh.
+pub async fn expect_opening(ws: &mut Ws) {
+    assert!(matches!(recv(ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(ws).await, Some(ServerMsg::Base(_))));
+}
+
+/// A stream opened with `Hello` (no token, no `have`), past the manifest and base mesh.
+pub async fn open(addr: SocketAddr, query: &str) -> Ws {
+    let mut ws = connect(addr, query).await;
+    send(&mut ws, &hello(None, vec![])).await;
+    expect_opening(&mut ws).await;
+    ws
+}
+
 /// The next server message (`None` when the socket closed), bounded by `T`.
 pub async fn recv(ws: &mut Ws) -> Option<ServerMsg> {
     recv_within(ws, T).await.expect("server message timed out")
