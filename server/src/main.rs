@@ -4,7 +4,6 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tetwave_server::prepare::{prepare, verify, PrepareOptions};
-use tetwave_server::resample::BaseSpec;
 
 #[derive(Parser)]
 #[command(
@@ -24,51 +23,8 @@ struct Cli {
 enum Cmd {
     /// Resample a volume onto a semi-regular tet mesh, run the wavelet analysis and write a store.
     Prepare {
-        /// `synthetic:harmonic` (the embedded default), `synthetic:linear`, a raw grid (.raw or with
-        /// --dims), or an unstructured tet mesh (.vtu, .vtk, .msh).
-        input: String,
-        /// Store directory to write.
-        #[arg(long)]
-        out: PathBuf,
-        /// Levels of Bey refinement.
-        #[arg(long, default_value_t = 5)]
-        levels: u8,
-        /// Base mesh: `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet mesh file.
-        #[arg(long, default_value = "box5")]
-        base: BaseSpec,
-        /// Quantize details uniformly to this many bits (8..=24); lossless f32 when absent.
-        #[arg(long, conflicts_with = "max_error")]
-        bits: Option<u8>,
-        /// Keep every reconstructed vertex within this of its sample: `E` in the field's units, or
-        /// `E%` of the value range (e.g. `0.1%`). The quantizer's step and code width follow from
-        /// it; the manifest records the bound and the measured error, and `verify` checks them.
-        /// Lossless f32 when absent.
-        #[arg(long, value_parser = parse_max_error)]
-        max_error: Option<tetwave_server::analysis::ErrorBound>,
-        /// Raw grid dimensions `X,Y,Z` (x fastest).
-        #[arg(long, value_parser = parse_dims)]
-        dims: Option<[usize; 3]>,
-        /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
-        #[arg(long, default_value = "u8")]
-        dtype: String,
-        /// Raw grid spacing `sx,sy,sz`.
-        #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
-        spacing: [f64; 3],
-        /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
-        /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
-        /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
-        /// averaged to the points, weighted by volume. Default: the first point scalar.
-        #[arg(long)]
-        scalar: Option<String>,
-        /// A geometric scalar instead of an array, for a bare mesh: `distance` (to the boundary).
-        #[arg(long)]
-        field: Option<String>,
-        /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
-        #[arg(long)]
-        format: Option<tetwave_import::MeshFormat>,
-        /// Replace NaN/Inf input values by this value instead of refusing the input.
-        #[arg(long)]
-        nan_as: Option<f64>,
+        #[command(flatten)]
+        options: PrepareOptions,
         /// Print one JSON object instead of the summary.
         #[arg(long)]
         json: bool,
@@ -151,35 +107,6 @@ enum Cmd {
     },
 }
 
-fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
-    let parts: Vec<&str> = s.split(',').collect();
-    if parts.len() != 3 {
-        return Err(format!("expected three comma-separated numbers, got {s:?}"));
-    }
-    let mut out = Vec::with_capacity(3);
-    for p in parts {
-        out.push(
-            p.trim()
-                .parse::<T>()
-                .map_err(|_| format!("not a number: {p:?}"))?,
-        );
-    }
-    out.try_into()
-        .map_err(|_| "expected three numbers".to_string())
-}
-
-fn parse_max_error(s: &str) -> Result<tetwave_server::analysis::ErrorBound, String> {
-    tetwave_server::analysis::ErrorBound::parse(s)
-}
-
-fn parse_dims(s: &str) -> Result<[usize; 3], String> {
-    parse_triple(s)
-}
-
-fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
-    parse_triple(s)
-}
-
 fn main() -> ExitCode {
     // before any thread: fallback renders would otherwise print a Wayland probe's error
     tetwave_render::gpu::quiet_headless_vulkan_layers();
@@ -202,37 +129,10 @@ fn main() -> ExitCode {
 fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
     let interactive = std::io::IsTerminal::is_terminal(&std::io::stderr());
     match cmd {
-        Cmd::Prepare {
-            input,
-            out,
-            levels,
-            base,
-            bits,
-            max_error,
-            dims,
-            dtype,
-            spacing,
-            scalar,
-            field,
-            format,
-            nan_as,
-            json,
-        } => {
+        Cmd::Prepare { options, json } => {
             let o = PrepareOptions {
-                input,
-                out,
-                levels,
-                base,
-                bits,
-                max_error,
-                dims,
-                dtype,
-                spacing,
-                scalar,
-                field,
-                format,
-                nan_as,
                 progress: interactive && !json,
+                ..options
             };
             let s = prepare(&o)?;
             if json {

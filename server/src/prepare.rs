@@ -55,26 +55,57 @@ pub enum PrepareError {
     Synthesis(String),
 }
 
-/// Options of `tetwave-server prepare`.
-#[derive(Debug, Clone)]
+/// What `tetwave-server prepare` is asked to do (its command-line arguments, which are also the
+/// library's options).
+#[derive(Debug, Clone, clap::Args)]
 pub struct PrepareOptions {
+    /// `synthetic:harmonic` (the embedded default), `synthetic:linear`, a raw grid (.raw or with
+    /// --dims), or an unstructured tet mesh (.vtu, .vtk, .msh).
     pub input: String,
+    /// Store directory to write.
+    #[arg(long)]
     pub out: PathBuf,
+    /// Levels of Bey refinement.
+    #[arg(long, default_value_t = 5)]
     pub levels: u8,
+    /// Base mesh: `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet mesh file.
+    #[arg(long, default_value = "box5")]
     pub base: BaseSpec,
+    /// Quantize details uniformly to this many bits (8..=24); lossless f32 when absent.
+    #[arg(long, conflicts_with = "max_error")]
     pub bits: Option<u8>,
-    /// Every reconstructed vertex within this of its sample (not with `bits`).
+    /// Keep every reconstructed vertex within this of its sample: `E` in the field's units, or
+    /// `E%` of the value range (e.g. `0.1%`). The quantizer's step and code width follow from
+    /// it; the manifest records the bound and the measured error, and `verify` checks them.
+    /// Lossless f32 when absent.
+    #[arg(long, value_parser = parse_max_error)]
     pub max_error: Option<ErrorBound>,
+    /// Raw grid dimensions `X,Y,Z` (x fastest).
+    #[arg(long, value_parser = parse_dims)]
     pub dims: Option<[usize; 3]>,
+    /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
+    #[arg(long, default_value = "u8")]
     pub dtype: String,
+    /// Raw grid spacing `sx,sy,sz`.
+    #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
     pub spacing: [f64; 3],
-    /// `NAME`, `NAME:mag` or `NAME:K` among the mesh's point and cell arrays.
+    /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
+    /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
+    /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
+    /// averaged to the points, weighted by volume. Default: the first point scalar.
+    #[arg(long)]
     pub scalar: Option<String>,
-    /// A geometric scalar instead of an array (`distance`: to the mesh's boundary).
+    /// A geometric scalar instead of an array, for a bare mesh: `distance` (to the boundary).
+    #[arg(long)]
     pub field: Option<String>,
-    /// The mesh format, whatever the content and the extension say.
+    /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
+    #[arg(long)]
     pub format: Option<MeshFormat>,
+    /// Replace NaN/Inf input values by this value instead of refusing the input.
+    #[arg(long)]
     pub nan_as: Option<f64>,
+    /// Show progress bars (on a terminal, without --json).
+    #[arg(skip)]
     pub progress: bool,
 }
 
@@ -405,4 +436,33 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
         exact_vertices: exact,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers, got {s:?}"));
+    }
+    let mut out = Vec::with_capacity(3);
+    for p in parts {
+        out.push(
+            p.trim()
+                .parse::<T>()
+                .map_err(|_| format!("not a number: {p:?}"))?,
+        );
+    }
+    out.try_into()
+        .map_err(|_| "expected three numbers".to_string())
+}
+
+fn parse_max_error(s: &str) -> Result<ErrorBound, String> {
+    ErrorBound::parse(s)
+}
+
+fn parse_dims(s: &str) -> Result<[usize; 3], String> {
+    parse_triple(s)
+}
+
+fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
+    parse_triple(s)
 }
