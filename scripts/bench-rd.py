@@ -201,11 +201,12 @@ def free_port():
 class Server:
     """`tetwave-server serve` on a free loopback port, until close()."""
 
-    def __init__(self, bindir, store, order, log_path):
+    def __init__(self, bindir, store, order, log_path, extra=()):
         self.port = free_port()
         self.log = open(log_path, "w")
         self.proc = subprocess.Popen(
-            [os.path.join(bindir, "tetwave-server"), "serve", store, "--addr", f"127.0.0.1:{self.port}", "--order", order],
+            [os.path.join(bindir, "tetwave-server"), "serve", store, "--addr", f"127.0.0.1:{self.port}", "--order", order,
+             *extra],
             stdout=self.log,
             stderr=subprocess.STDOUT,
         )
@@ -296,10 +297,11 @@ STREAM_SUMMARY = re.compile(
 )
 
 
-def stream(bindir, store, order, outdir, extra):
-    """Serves `store`, streams it completely through the counting relay, returns the counts."""
+def stream(bindir, store, order, outdir, extra, serve_extra=()):
+    """Serves `store` (`serve_extra`: more `serve` options), streams it completely through the
+    counting relay, returns the counts."""
     os.makedirs(outdir, exist_ok=True)
-    srv = Server(bindir, store, order, os.path.join(outdir, "server.log"))
+    srv = Server(bindir, store, order, os.path.join(outdir, "server.log"), serve_extra)
     relay = CountingRelay(srv.port)
     try:
         t0 = time.time()
@@ -447,6 +449,9 @@ def main():
     ap.add_argument("--image-size", default="256x256")
     ap.add_argument("--image-bound", default="1e-3")
     ap.add_argument("--image-per-frame", type=int, default=0, help="nodes per frame (0: about 1/16 of them)")
+    ap.add_argument("--image-max-batch", type=int, default=0,
+                    help="the server's --max-batch for the image run (0: its default); smaller batches place the curve "
+                         "finely at the cost of more, smaller coded blocks")
     ap.add_argument("--no-image", action="store_true")
     ap.add_argument("--quick", action="store_true", help="level 3, bound 1e-3, 64x64 image: a smoke test")
     args = ap.parse_args()
@@ -571,7 +576,8 @@ def image_part(args, bindir, work):
     nodes = 6 * ((8**L) - 1) // 7
     per = args.image_per_frame or max(1, nodes // 16)
     st = stream(bindir, store, "view", os.path.join(d, "stream"),
-                ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0"])
+                ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0"],
+                ["--max-batch", str(args.image_max_batch)] if args.image_max_batch else [])
     frames = []
     for fr in st["frames"]:
         img = read_png(os.path.join(d, "stream", f"frame_{fr['frame']:04d}.png"))
@@ -593,6 +599,7 @@ def image_part(args, bindir, work):
         "view": "azimuth 35, elevation 25, distance 1.6 x diagonal, fov 40",
         "renderer": "GPU projected tetrahedra (tetwave stream / tetwave render); reference: CPU integrator",
         "per_frame": per,
+        "max_batch": args.image_max_batch or None,
         "store_bytes": prep["bytes"],
         "stream_wire_bytes": st["wire_bytes_down"],
         "stream_message_bytes": st["message_bytes"],
