@@ -16,8 +16,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::shapes::box5;
-use tetwave_protocol::store_format::{Counts, Encoding, Manifest};
-use tetwave_protocol::testing::{detail_nodes, unsampled_base};
+use tetwave_protocol::store_format::Manifest;
+use tetwave_protocol::testing::{detail_nodes, manifest_for, unsampled_base};
 use tetwave_protocol::wire::{
     decode_client, encode, ClientMsg, IdRange, ServerMsg, MAX_FRAME_BYTES,
 };
@@ -37,39 +37,7 @@ fn dataset(levels: u8) -> (Manifest, BaseMesh, Vec<DetailNode>) {
     let (base, nodes) = detail_nodes(unsampled_base(levels, box5([0.0; 3], [1.0; 3])), |p| {
         (p[0] + 2.0 * p[1] - p[2]) as f32
     });
-    (manifest(&base), base, nodes)
-}
-
-/// The manifest a store of `base` would have (counts from its hierarchy).
-fn manifest(base: &BaseMesh) -> Manifest {
-    let f = base.forest();
-    let (lo, hi) = base.bounds();
-    Manifest {
-        format: "tetwave-store".into(),
-        version: 1,
-        dataset: "fake".into(),
-        source: "test".into(),
-        bounds: [lo, hi],
-        base: "box5".into(),
-        base_tets: base.tets.len() as u64,
-        base_vertices: base.positions.len() as u64,
-        levels: base.levels,
-        value_range: [-2.0, 3.0],
-        source_value_range: None,
-        counts: Counts {
-            tets_total: f.total_tets(),
-            leaves: f.leaves(),
-            nodes: f.nodes(),
-            vertices: base.vertex_keys().vertex_count(),
-            coefficients: 0,
-            outside_vertices: 0,
-            empty_base_tets: 0,
-        },
-        encoding: Encoding::F32,
-        max_error_bound: 1e-6,
-        max_abs_error: 0.0,
-        files: Default::default(),
-    }
+    (manifest_for(&base), base, nodes)
 }
 
 /// A fake server: runs `script(connection index, socket)` for each connection, at most
@@ -387,7 +355,7 @@ async fn a_message_over_the_limit_is_an_error() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_hierarchy_over_the_budget_is_refused_and_end_is_bounded() {
     let base = unsampled_base(10, box5([0.0; 3], [1.0; 3]));
-    let m = manifest(&base);
+    let m = manifest_for(&base);
     let nodes = m.counts.nodes;
     assert_eq!(nodes, 766_958_445);
     let wants = Arc::new(Mutex::new(Vec::<Vec<IdRange>>::new()));

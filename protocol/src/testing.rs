@@ -26,6 +26,40 @@ pub fn unsampled_base(levels: u8, shape: PointsAndTets) -> BaseMesh {
     }
 }
 
+/// The manifest a lossless store of `base` would have (counts from its hierarchy, no files, a
+/// value range of `[−2, 3]`): what a fake server sends before `base`.
+pub fn manifest_for(base: &BaseMesh) -> crate::store_format::Manifest {
+    use crate::store_format::{Counts, Encoding, Manifest, STORE_FORMAT, STORE_VERSION};
+    let f = base.forest();
+    let (lo, hi) = base.bounds();
+    Manifest {
+        format: STORE_FORMAT.into(),
+        version: STORE_VERSION,
+        dataset: "fake".into(),
+        source: "test".into(),
+        bounds: [lo, hi],
+        base: "box5".into(),
+        base_tets: base.tets.len() as u64,
+        base_vertices: base.positions.len() as u64,
+        levels: base.levels,
+        value_range: [-2.0, 3.0],
+        source_value_range: None,
+        counts: Counts {
+            tets_total: f.total_tets(),
+            leaves: f.leaves(),
+            nodes: f.nodes(),
+            vertices: base.vertex_keys().vertex_count(),
+            coefficients: 0,
+            outside_vertices: 0,
+            empty_base_tets: 0,
+        },
+        encoding: Encoding::F32,
+        max_error_bound: 1e-6,
+        max_abs_error: 0.0,
+        files: Default::default(),
+    }
+}
+
 /// Samples `f` at every vertex of `base`'s hierarchy, sets the base values, and computes every
 /// detail node in id order: one coefficient per new vertex, `analyze(f(m), P(m))` with the
 /// prediction ([`crate::wavelet`]) evaluated on the samples, owned by the lowest id of its level whose tet has the edge; no empty
