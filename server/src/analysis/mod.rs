@@ -25,6 +25,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use samples::SampleStats;
 use std::sync::atomic::{AtomicU32, Ordering};
+use tetwave_protocol::store_format::QUANTIZED_BITS;
+use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::wavelet::Quantizer;
 use tetwave_protocol::BaseMesh;
 use walk::{load, Cell, Walk, UNOWNED};
@@ -196,19 +198,85 @@ pub fn analyze_hierarchy(
     if levels > 0 && forest.nodes() > MAX_NODES {
         return Err(AnalysisError::TooLarge(forest.level_len(levels - 1)));
     }
-    let nodes = forest.nodes() as usize;
-    let nv = r.base.positions.len();
-    let n = r.samples.len();
     let stats = SampleStats::of(&r.samples);
-    let (lo, hi) = (stats.lo, stats.hi);
-    let quantizer = samples::size_quantizer(precision, &r, &stats)?;
+    let mut quantizer = samples::size_quantizer(precision, &r, &stats)?;
     let Resampled {
-        mut base,
+        base,
         keys,
         samples,
         ..
     } = r;
-    let reference = samples::reference_values(samples, &stats, nv);
+    // The code width covers the details the samples show; with an outside, the inside vertices
+    // beside it are predicted from the field extended past the domain (see `walk`), which the
+    // samples do not show, and a code may be clamped. Then the walk is run again, wider.
+    let spare =
+        (quantizer.is_some() && stats.any_outside()).then(|| (base.clone(), samples.clone()));
+    let mut a = walk_all(base, &keys, samples, &stats, quantizer, progress);
+    let Some((base, samples)) = spare else {
+        return Ok(a);
+    };
+    while a.max_abs_error > a.error_bound {
+        let q = quantizer.expect("a quantized walk");
+        let wider = match precision {
+            // the same step (it makes the bound), one more bit
+            Precision::MaxError(_) if q.bits < *QUANTIZED_BITS.end() => Quantizer {
+                bits: q.bits + 1,
+                ..q
+            },
+            Precision::MaxError(_) => {
+                return Err(AnalysisError::MaxErrorNeedsTooManyBits {
+                    bound: a.error_bound,
+                    detail: a.max_abs_error,
+                })
+            }
+            // the width the user chose, a coarser step (finite details: a bounded number of
+            // doublings covers them)
+            _ if (q.step * 2.0).is_finite() => Quantizer {
+                step: q.step * 2.0,
+                ..q
+            },
+            _ => {
+                return Err(AnalysisError::MaxErrorNeedsTooManyBits {
+                    bound: a.error_bound,
+                    detail: a.max_abs_error,
+                })
+            }
+        };
+        tracing::info!(
+            bits = wider.bits,
+            step = wider.step,
+            clamped_error = a.max_abs_error,
+            "details beside the outside exceed the codes; analysing again"
+        );
+        quantizer = Some(wider);
+        a = walk_all(
+            base.clone(),
+            &keys,
+            samples.clone(),
+            &stats,
+            quantizer,
+            progress,
+        );
+    }
+    Ok(a)
+}
+
+/// One analysis of `samples` (outside vertices NaN) with details kept by `quantizer`.
+fn walk_all(
+    mut base: BaseMesh,
+    keys: &VertexKeys,
+    samples: Vec<f32>,
+    stats: &SampleStats,
+    quantizer: Option<Quantizer>,
+    progress: bool,
+) -> Analysis {
+    let forest = base.forest();
+    let levels = forest.levels;
+    let nodes = forest.nodes() as usize;
+    let nv = base.positions.len();
+    let n = samples.len();
+    let (lo, hi) = (stats.lo, stats.hi);
+    let reference = samples::reference_values(samples, stats, nv);
     let cell = |r: &AtomicU32| Cell {
         rec: AtomicU32::new(r.load(Ordering::Relaxed)),
         owner: AtomicU32::new(UNOWNED),
@@ -236,7 +304,7 @@ pub fn analyze_hierarchy(
     };
     let max_err = walk.levels(
         forest,
-        &keys,
+        keys,
         &mut subtree_max_abs,
         &mut empty_children,
         progress,
@@ -262,7 +330,7 @@ pub fn analyze_hierarchy(
         .map(|a| f32::from_bits(a.into_inner()))
         .collect();
     let error_bound = samples::error_bound(quantizer.as_ref(), lo, hi);
-    Ok(Analysis {
+    Analysis {
         base,
         owned,
         empty_children,
@@ -273,5 +341,5 @@ pub fn analyze_hierarchy(
         value_range: (lo, hi),
         max_abs_error: max_err,
         error_bound,
-    })
+    }
 }
