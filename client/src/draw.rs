@@ -26,13 +26,19 @@ pub fn leaf_mesh(
         let far = m.diagonal() as f32;
         m.levelset = Some(
             (0..mesh.vertex_slot_len() as u32)
-                .map(|s| match near.get(mesh.vertex_key(s)) {
-                    Some(FAR_OUTSIDE) => -far,
-                    Some(v) => v,
-                    None => far,
-                })
+                .map(|s| levelset_value(near, mesh.vertex_key(s), far))
                 .collect(),
         );
     }
     m
+}
+
+/// The level set a drawn vertex gets from the band: a listed value as listed, a far-outside one
+/// `−far`, an unlisted one (no tet beside the outside has it) `+far`; `far` beyond any tet.
+pub fn levelset_value(near: &NearLevelSet, key: u64, far: f32) -> f32 {
+    match near.get(key) {
+        Some(FAR_OUTSIDE) => -far,
+        Some(v) => v,
+        None => far,
+    }
 }

@@ -8,6 +8,7 @@
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
+use crate::draw::levelset_value;
 use crate::ingest::{Ingest, Step};
 use crate::mesh::AdaptiveMesh;
 use crate::select::{Mode, SelectParams, Tolerance};
@@ -47,8 +48,8 @@ pub struct StreamArgs {
     /// No window: write PNG frames and JSON lines (the only mode this build has).
     #[arg(long)]
     pub headless: bool,
-    /// Frames to render.
-    #[arg(long, default_value_t = 30)]
+    /// Frames to render (at least 1).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: u32,
     /// Output directory for `frame_NNNN.png` and `frames.jsonl`.
     #[arg(long, default_value = "out/stream")]
@@ -933,7 +934,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     }
     drop(out_tx);
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
-    let complete = nodes_total > 0 && nodes_received == nodes_total;
+    // (a base mesh of 0 levels has no nodes: it is complete as soon as it is there)
+    let complete = state.is_some() && nodes_received == nodes_total;
     let clipped = state.as_ref().is_some_and(Session::has_levelset);
     // 5. accuracy against the full-resolution reference, once everything has arrived
     if args.psnr && failure.is_none() {
@@ -944,7 +946,22 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             let empty: Vec<u8> = received_nodes.iter().map(|n| n.empty_children).collect();
             let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
                 .map_err(|e| StreamError::Protocol(e.to_string()))?;
-            let mut full = RenderMesh::uniform_level(base, &values, &empty, base.levels);
+            // clipped as the session draws (with the band it has), so that the reference is
+            // what a complete stream should show
+            let levelset: Option<Vec<f32>> = session.levelset().map(|near| {
+                let (lo, hi) = base.bounds();
+                let far = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt() as f32;
+                (0..values.len() as u64)
+                    .map(|key| levelset_value(near, key, far))
+                    .collect()
+            });
+            let mut full = RenderMesh::uniform_level_clipped(
+                base,
+                &values,
+                &empty,
+                base.levels,
+                levelset.as_deref(),
+            );
             let [lo, hi] = m.display_value_range();
             full.value_range = (lo, hi);
             for (rec, (cam, img)) in frames.iter_mut().zip(cams.iter().zip(&images)) {

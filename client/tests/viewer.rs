@@ -361,6 +361,81 @@ fn stream_says_it_clipped_a_nonconvex_store() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("clipped to the mesh's domain"), "{err}");
+    // its accuracy figure compares with the whole store drawn clipped the same way: a complete
+    // lossless stream at the finest level matches it (it read 22 dB against an unclipped one)
+    let psnr_out = d.path().join("psnr");
+    let out = Command::new("timeout")
+        .arg("120")
+        .arg(env!("CARGO_BIN_EXE_tetwave"))
+        .args([
+            "stream",
+            srv.url(),
+            "--headless",
+            "--cpu",
+            "--psnr",
+            "--until-complete",
+        ])
+        .args([
+            "--tol",
+            "0",
+            "--size",
+            "64x64",
+            "--frames",
+            "4000",
+            "--frame-ms",
+            "5",
+        ])
+        .arg("--out")
+        .arg(&psnr_out)
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let frames = std::fs::read_to_string(psnr_out.join("frames.jsonl")).unwrap();
+    let last: serde_json::Value = serde_json::from_str(frames.lines().last().unwrap()).unwrap();
+    let psnr = last["psnr_db"].as_f64().expect("a PSNR once complete");
+    assert!(
+        psnr > 60.0,
+        "final frame {psnr} dB against the clipped store"
+    );
+}
+
+/// A store of no levels (the base mesh alone, no nodes) is complete as soon as its base mesh is
+/// there, with an accuracy figure; and `--frames 0` is refused, not a silent success.
+#[test]
+fn a_store_without_nodes_streams_complete() {
+    let (d, s) = store(0);
+    let srv = serve(&s);
+    let out_dir = d.path().join("out");
+    let run = |extra: &[&str]| {
+        Command::new("timeout")
+            .arg("120")
+            .arg(env!("CARGO_BIN_EXE_tetwave"))
+            .args([
+                "stream",
+                srv.url(),
+                "--headless",
+                "--cpu",
+                "--size",
+                "32x32",
+            ])
+            .args(extra)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .expect("tetwave runs")
+    };
+    let out = run(&["--until-complete", "--psnr", "--frames", "400"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("0/0 nodes"), "{err}");
+    let frames = std::fs::read_to_string(out_dir.join("frames.jsonl")).unwrap();
+    let last: serde_json::Value = serde_json::from_str(frames.lines().last().unwrap()).unwrap();
+    assert!(last["psnr_db"].as_f64().expect("a PSNR once complete") > 60.0);
+    let out = run(&["--frames", "0"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--frames"), "{err}");
 }
 
 /// The tolerance drives refinement: a coarse tolerance draws fewer tets and a worse image, 0
