@@ -180,6 +180,30 @@ struct Loaded {
 }
 
 fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
+    if let Some(v) = o.nan_as {
+        if !(v.is_finite() && (v as f32).is_finite()) {
+            return Err(PrepareError::Usage(format!(
+                "--nan-as {v}: give a finite value that fits in f32"
+            )));
+        }
+    }
+    let path = PathBuf::from(&o.input);
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let grid = o.input.starts_with("synthetic:") || o.dims.is_some() || ext == "raw";
+    let mesh_only = [
+        ("--scalar", o.scalar.is_some()),
+        ("--field", o.field.is_some()),
+        ("--format", o.format.is_some()),
+    ];
+    if let (true, Some((flag, _))) = (grid, mesh_only.iter().find(|(_, given)| *given)) {
+        return Err(PrepareError::Usage(format!(
+            "{flag} applies to mesh files (.vtu, .vtk, .msh); {} is a grid",
+            o.input
+        )));
+    }
     if let Some(name) = o.input.strip_prefix("synthetic:") {
         let s = Synthetic::parse(name)
             .ok_or_else(|| PrepareError::UnknownSynthetic(name.to_string()))?;
@@ -191,15 +215,10 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
             boundary: None,
         });
     }
-    let path = PathBuf::from(&o.input);
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| o.input.clone());
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
     if o.dims.is_some() || ext == "raw" {
         let dims = o.dims.ok_or(RawError::MissingDims)?;
         let dtype =

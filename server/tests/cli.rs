@@ -405,6 +405,63 @@ fn nan_in_raw_is_refused_or_replaced() {
         "--json",
     ]);
     assert!(j["max_abs_error"].as_f64().unwrap() <= j["max_error_bound"].as_f64().unwrap());
+    // a replacement that is itself no finite f32 is refused up front, naming the option
+    for bad in ["1e39", "inf", "NaN"] {
+        expect_error(
+            &[
+                "prepare",
+                s(&p),
+                "--dims",
+                "3,3,3",
+                "--dtype",
+                "f32",
+                "--nan-as",
+                bad,
+                "--out",
+                s(&d.path().join("o3")),
+            ],
+            &["--nan-as", "finite"],
+        );
+    }
+}
+
+/// Options that only a mesh file has are refused for a grid instead of being ignored, and a
+/// bound in percent of a constant field's range (0) says so.
+#[test]
+fn grid_inputs_refuse_mesh_options_and_a_percent_of_no_range() {
+    let d = tmp();
+    let p = write_raw(d.path(), "c.raw", &[9u8; 27]);
+    let grid = ["prepare", s(&p), "--dims", "3,3,3", "--levels", "2"];
+    for (flag, value) in [
+        ("--scalar", "u"),
+        ("--field", "distance"),
+        ("--format", "vtu"),
+    ] {
+        let out = d.path().join("o");
+        let args: Vec<&str> = grid
+            .iter()
+            .copied()
+            .chain([flag, value, "--out", s(&out)])
+            .collect();
+        expect_error(&args, &[flag, "mesh files"]);
+        let synthetic = ["prepare", "synthetic:linear", flag, value, "--out", s(&out)];
+        expect_error(&synthetic, &[flag, "mesh files"]);
+    }
+    let out = d.path().join("c");
+    let args: Vec<&str> = grid
+        .iter()
+        .copied()
+        .chain(["--max-error", "0.1%", "--out", s(&out)])
+        .collect();
+    expect_error(&args, &["0.1%", "constant", "absolute bound"]);
+    // an absolute bound on the same constant grid is fine
+    let args: Vec<&str> = grid
+        .iter()
+        .copied()
+        .chain(["--max-error", "0.5", "--out", s(&out), "--json"])
+        .collect();
+    let j = prepare_json(&args);
+    assert_eq!(j["max_abs_error"].as_f64(), Some(0.0));
 }
 
 #[test]

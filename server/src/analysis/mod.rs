@@ -99,6 +99,11 @@ pub enum AnalysisError {
     #[error("--max-error {0}: give a positive, finite bound")]
     BadMaxError(f64),
     #[error(
+        "--max-error {percent}%: the samples' value range is 0 (a constant field), so the bound \
+         would be 0; give an absolute bound, or leave it out for a lossless store"
+    )]
+    ZeroRange { percent: f64 },
+    #[error(
         "--max-error {bound}: below what f32 values of magnitude {magnitude} can hold; \
          leave it out for a lossless store"
     )]

@@ -122,6 +122,12 @@ pub(super) fn size_quantizer(
         Precision::MaxError(bound) => {
             let e = match bound {
                 ErrorBound::Absolute(e) => e,
+                ErrorBound::OfRange(f) if stats.hi > stats.lo => {
+                    f * (stats.hi as f64 - stats.lo as f64)
+                }
+                ErrorBound::OfRange(f) if f.is_finite() && f > 0.0 => {
+                    return Err(AnalysisError::ZeroRange { percent: f * 100.0 })
+                }
                 ErrorBound::OfRange(f) => f * (stats.hi as f64 - stats.lo as f64),
             };
             if !(e.is_finite() && e > 0.0) {
