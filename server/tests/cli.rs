@@ -464,6 +464,54 @@ fn grid_inputs_refuse_mesh_options_and_a_percent_of_no_range() {
     assert_eq!(j["max_abs_error"].as_f64(), Some(0.0));
 }
 
+/// A mesh that the coarse lattice misses entirely (an octahedron: no corner of its bounding box
+/// is inside it) asks for more levels, and is prepared with them.
+#[test]
+fn a_lattice_too_coarse_for_the_mesh_asks_for_more_levels() {
+    let d = tmp();
+    let mut pts = vec![[0.0; 3]];
+    for axis in 0..3 {
+        for sign in [1.0, -1.0] {
+            let mut p = [0.0; 3];
+            p[axis] = sign;
+            pts.push(p);
+        }
+    }
+    // one tet per octant: the centre and the three half-axes bounding it
+    let mut tets = Vec::new();
+    for o in 0..8u32 {
+        let [x, y, z] = [1 + (o & 1), 3 + (o >> 1 & 1), 5 + (o >> 2 & 1)];
+        tets.push((10u8, vec![0, x, y, z]));
+    }
+    let p = write_vtk(
+        d.path(),
+        "octahedron.vtk",
+        &pts,
+        &tets,
+        &[("f", pts.iter().map(lin).collect())],
+    );
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--levels",
+            "0",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["0 levels", "raise --levels"],
+    );
+    prepare_json(&[
+        "prepare",
+        s(&p),
+        "--levels",
+        "2",
+        "--out",
+        s(&d.path().join("o2")),
+        "--json",
+    ]);
+}
+
 #[test]
 fn nan_in_mesh_scalar_is_refused_or_replaced() {
     let d = tmp();

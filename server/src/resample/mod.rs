@@ -86,8 +86,11 @@ pub enum ResampleError {
     BaseFile(#[from] import::ImportError),
     #[error("base mesh: {0}")]
     BaseInvalid(String),
-    #[error("no vertex of the semi-regular mesh falls inside the input's domain")]
-    NothingInside,
+    #[error(
+        "no vertex of the semi-regular mesh falls inside the input's domain at {0} levels: its \
+         lattice is too coarse for this mesh; raise --levels"
+    )]
+    NothingInside(u8),
     #[error("sampled value {value} at {pos:?} does not fit in f32")]
     OutOfRange { value: f64, pos: [f64; 3] },
     #[error("the finest level has {0} vertices; that is more than this build can index")]
@@ -218,7 +221,7 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
     }
     let outside = samples.iter().filter(|x| x.is_nan()).count() as u64;
     if outside == n {
-        return Err(ResampleError::NothingInside);
+        return Err(ResampleError::NothingInside(levels));
     }
     base.values = samples[..base.positions.len()].to_vec();
     Ok(Resampled {
