@@ -350,54 +350,67 @@ fn stream_says_it_clipped_a_nonconvex_store() {
     o.levels = 3;
     prepare(&o).unwrap();
     let srv = serve(&s);
-    let out = Command::new("timeout")
-        .arg("120")
-        .arg(env!("CARGO_BIN_EXE_tetwave"))
-        .args(["stream", srv.url(), "--no-render", "--until-complete"])
-        .args(["--frames", "4000", "--frame-ms", "5", "--out"])
-        .arg(d.path().join("out"))
-        .output()
-        .expect("tetwave runs");
+    let (out, _) = stream_cli(
+        srv.url(),
+        &[
+            "--no-render",
+            "--until-complete",
+            "--frames",
+            "4000",
+            "--frame-ms",
+            "5",
+        ],
+        &d.path().join("out"),
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("clipped to the mesh's domain"), "{err}");
     // its accuracy figure compares with the whole store drawn clipped the same way: a complete
     // lossless stream at the finest level matches it (it read 22 dB against an unclipped one)
-    let psnr_out = d.path().join("psnr");
-    let out = Command::new("timeout")
-        .arg("120")
-        .arg(env!("CARGO_BIN_EXE_tetwave"))
-        .args([
-            "stream",
-            srv.url(),
-            "--headless",
-            "--cpu",
-            "--psnr",
-            "--until-complete",
-        ])
-        .args([
-            "--tol",
-            "0",
-            "--size",
-            "64x64",
-            "--frames",
-            "4000",
-            "--frame-ms",
-            "5",
-        ])
-        .arg("--out")
-        .arg(&psnr_out)
-        .output()
-        .expect("tetwave runs");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    let frames = std::fs::read_to_string(psnr_out.join("frames.jsonl")).unwrap();
-    let last: serde_json::Value = serde_json::from_str(frames.lines().last().unwrap()).unwrap();
-    let psnr = last["psnr_db"].as_f64().expect("a PSNR once complete");
+    let args = [
+        "--cpu",
+        "--psnr",
+        "--until-complete",
+        "--tol",
+        "0",
+        "--size",
+        "64x64",
+        "--frames",
+        "4000",
+        "--frame-ms",
+        "5",
+    ];
+    let (out, psnr) = stream_cli(srv.url(), &args, &d.path().join("psnr"));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let psnr = psnr.expect("a PSNR once complete");
     assert!(
         psnr > 60.0,
         "final frame {psnr} dB against the clipped store"
     );
+}
+
+/// `tetwave stream URL --headless ARGS --out OUT` (bounded by 120 s), and the last frame's PSNR
+/// when it has one.
+fn stream_cli(url: &str, args: &[&str], out: &Path) -> (std::process::Output, Option<f64>) {
+    let output = Command::new("timeout")
+        .arg("120")
+        .arg(env!("CARGO_BIN_EXE_tetwave"))
+        .args(["stream", url, "--headless"])
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("tetwave runs");
+    let psnr = std::fs::read_to_string(out.join("frames.jsonl"))
+        .ok()
+        .and_then(|f| f.lines().last().map(str::to_owned))
+        .and_then(|l| serde_json::from_str::<serde_json::Value>(&l).ok())
+        .and_then(|v| v["psnr_db"].as_f64());
+    (output, psnr)
 }
 
 /// A store of no levels (the base mesh alone, no nodes) is complete as soon as its base mesh is
@@ -407,35 +420,28 @@ fn a_store_without_nodes_streams_complete() {
     let (d, s) = store(0);
     let srv = serve(&s);
     let out_dir = d.path().join("out");
-    let run = |extra: &[&str]| {
-        Command::new("timeout")
-            .arg("120")
-            .arg(env!("CARGO_BIN_EXE_tetwave"))
-            .args([
-                "stream",
-                srv.url(),
-                "--headless",
-                "--cpu",
-                "--size",
-                "32x32",
-            ])
-            .args(extra)
-            .arg("--out")
-            .arg(&out_dir)
-            .output()
-            .expect("tetwave runs")
-    };
-    let out = run(&["--until-complete", "--psnr", "--frames", "400"]);
+    let args = [
+        "--cpu",
+        "--size",
+        "32x32",
+        "--until-complete",
+        "--psnr",
+        "--frames",
+        "400",
+    ];
+    let (out, psnr) = stream_cli(srv.url(), &args, &out_dir);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("0/0 nodes"), "{err}");
-    let frames = std::fs::read_to_string(out_dir.join("frames.jsonl")).unwrap();
-    let last: serde_json::Value = serde_json::from_str(frames.lines().last().unwrap()).unwrap();
-    assert!(last["psnr_db"].as_f64().expect("a PSNR once complete") > 60.0);
-    let out = run(&["--frames", "0"]);
+    assert!(psnr.expect("a PSNR once complete") > 60.0);
+    let (out, _) = stream_cli(
+        srv.url(),
+        &["--cpu", "--frames", "0"],
+        &d.path().join("none"),
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("--frames"), "{err}");
+    assert!(err.contains("invalid value '0' for '--frames"), "{err}");
 }
 
 /// The tolerance drives refinement: a coarse tolerance draws fewer tets and a worse image, 0
