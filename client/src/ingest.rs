@@ -211,167 +211,123 @@ mod tests {
         Box::new(NearLevelSet::new(0.25, [(0, -0.5), (1, 0.75)]).unwrap())
     }
 
+    /// A client's ingestion, its session and its outgoing messages.
+    struct Client {
+        ingest: Ingest,
+        session: Option<Session>,
+        out: mpsc::UnboundedSender<ClientMsg>,
+        sent: mpsc::UnboundedReceiver<ClientMsg>,
+    }
+
+    impl Client {
+        fn new(max_nodes: u64) -> Self {
+            let (out, sent) = mpsc::unbounded_channel();
+            Client {
+                ingest: Ingest::new(max_nodes),
+                session: None,
+                out,
+                sent,
+            }
+        }
+        fn give(&mut self, d: Delivery) -> Result<Step, StreamError> {
+            self.ingest.apply(d, &mut self.session, start, &self.out)
+        }
+        fn base(b: &BaseMesh) -> Delivery {
+            Delivery::Base(Box::new(b.clone()))
+        }
+        fn nodes(nodes: &[DetailNode]) -> Delivery {
+            Delivery::Nodes {
+                seq: 0,
+                nodes: nodes.to_vec(),
+            }
+        }
+    }
+
     #[test]
     fn a_band_before_the_base_mesh_clips_the_session_it_starts() {
         let (base, _, m) = data(true);
-        let (out, _rx) = mpsc::unbounded_channel();
-        let (mut ingest, mut session) = (Ingest::new(u64::MAX), None);
-        ingest
-            .apply(Delivery::Manifest(Box::new(m)), &mut session, start, &out)
-            .unwrap();
-        assert!(ingest.levelset_pending());
-        let step = ingest.apply(Delivery::LevelSet(Ok(band())), &mut session, start, &out);
+        let mut c = Client::new(u64::MAX);
+        c.give(Delivery::Manifest(Box::new(m))).unwrap();
+        assert!(c.ingest.levelset_pending());
+        let step = c.give(Delivery::LevelSet(Ok(band())));
         assert!(matches!(step, Ok(Step::LevelSet)));
-        assert!(!ingest.levelset_pending() && session.is_none());
-        let step = ingest.apply(Delivery::Base(Box::new(base)), &mut session, start, &out);
+        assert!(!c.ingest.levelset_pending() && c.session.is_none());
+        let step = c.give(Client::base(&base));
         assert!(matches!(step, Ok(Step::Started)));
-        assert!(session.as_ref().is_some_and(Session::has_levelset));
+        assert!(c.session.as_ref().is_some_and(Session::has_levelset));
         // an earlier request's failure, arriving late, does not undo it
-        ingest
-            .apply(
-                Delivery::LevelSet(Err("gone".into())),
-                &mut session,
-                start,
-                &out,
-            )
-            .unwrap();
-        assert_eq!(ingest.levelset_error(), None);
+        c.give(Delivery::LevelSet(Err("gone".into()))).unwrap();
+        assert_eq!(c.ingest.levelset_error(), None);
     }
 
     #[test]
     fn a_failed_band_is_reported_and_no_longer_awaited() {
         let (base, _, m) = data(true);
-        let (out, _rx) = mpsc::unbounded_channel();
-        let (mut ingest, mut session) = (Ingest::new(u64::MAX), None);
-        for d in [
-            Delivery::Manifest(Box::new(m)),
-            Delivery::Base(Box::new(base)),
-        ] {
-            ingest.apply(d, &mut session, start, &out).unwrap();
-        }
-        assert!(ingest.levelset_pending());
-        ingest
-            .apply(
-                Delivery::LevelSet(Err("404".into())),
-                &mut session,
-                start,
-                &out,
-            )
-            .unwrap();
-        assert_eq!(ingest.levelset_error(), Some("404"));
-        assert!(!ingest.levelset_pending());
-        assert!(!session.as_ref().unwrap().has_levelset());
+        let mut c = Client::new(u64::MAX);
+        c.give(Delivery::Manifest(Box::new(m))).unwrap();
+        c.give(Client::base(&base)).unwrap();
+        assert!(c.ingest.levelset_pending());
+        c.give(Delivery::LevelSet(Err("404".into()))).unwrap();
+        assert_eq!(c.ingest.levelset_error(), Some("404"));
+        assert!(!c.ingest.levelset_pending());
+        assert!(!c.session.as_ref().unwrap().has_levelset());
         // a later success (after a reconnection) clears the failure
-        ingest
-            .apply(Delivery::LevelSet(Ok(band())), &mut session, start, &out)
-            .unwrap();
-        assert_eq!(ingest.levelset_error(), None);
-        assert!(session.as_ref().unwrap().has_levelset());
+        c.give(Delivery::LevelSet(Ok(band()))).unwrap();
+        assert_eq!(c.ingest.levelset_error(), None);
+        assert!(c.session.as_ref().unwrap().has_levelset());
     }
 
     #[test]
     fn out_of_order_and_resumed_openings() {
         let (base, nodes, m) = data(false);
-        let (out, _rx) = mpsc::unbounded_channel();
-        let (mut ingest, mut session) = (Ingest::new(u64::MAX), None);
-        let before_manifest = ingest.apply(
-            Delivery::Base(Box::new(base.clone())),
-            &mut session,
-            start,
-            &out,
-        );
+        let mut c = Client::new(u64::MAX);
+        let before_manifest = c.give(Client::base(&base));
         assert!(matches!(before_manifest, Err(StreamError::Protocol(_))));
-        let nodes_first = Delivery::Nodes {
-            seq: 0,
-            nodes: nodes.clone(),
-        };
-        assert!(ingest
-            .apply(nodes_first, &mut session, start, &out)
-            .is_err());
-        assert!(!ingest.levelset_pending(), "no band listed");
-        ingest
-            .apply(
-                Delivery::Manifest(Box::new(m.clone())),
-                &mut session,
-                start,
-                &out,
-            )
-            .unwrap();
+        assert!(c.give(Client::nodes(&nodes)).is_err());
+        assert!(!c.ingest.levelset_pending(), "no band listed");
+        c.give(Delivery::Manifest(Box::new(m.clone()))).unwrap();
         // over the client's node limit: refused before any session exists
-        let mut small = Ingest::new(1);
-        small
-            .apply(Delivery::Manifest(Box::new(m)), &mut None, start, &out)
-            .unwrap();
-        let too_large = small.apply(
-            Delivery::Base(Box::new(base.clone())),
-            &mut None,
-            start,
-            &out,
-        );
+        let mut small = Client::new(1);
+        small.give(Delivery::Manifest(Box::new(m))).unwrap();
+        let too_large = small.give(Client::base(&base));
         assert!(matches!(too_large, Err(StreamError::TooLarge { .. })));
-        ingest
-            .apply(
-                Delivery::Base(Box::new(base.clone())),
-                &mut session,
-                start,
-                &out,
-            )
-            .unwrap();
+        c.give(Client::base(&base)).unwrap();
         // a resumed connection's base mesh: the same one is kept, another one is refused
-        let again = ingest.apply(
-            Delivery::Base(Box::new(base.clone())),
-            &mut session,
-            start,
-            &out,
-        );
+        let again = c.give(Client::base(&base));
         assert!(matches!(again, Ok(Step::Nothing)));
         let mut other = base;
         other.positions[0][0] -= 0.5;
-        let other = ingest.apply(Delivery::Base(Box::new(other)), &mut session, start, &out);
+        let other = c.give(Client::base(&other));
         assert!(matches!(other, Err(StreamError::Protocol(_))));
-        let server = ingest.apply(
-            Delivery::Error {
-                code: 7,
-                message: "bye".into(),
-            },
-            &mut session,
-            start,
-            &out,
-        );
+        let server = c.give(Delivery::Error {
+            code: 7,
+            message: "bye".into(),
+        });
         assert!(matches!(server, Err(StreamError::Server { code: 7, .. })));
     }
 
     #[test]
     fn the_end_asks_for_what_is_missing_a_bounded_number_of_times() {
         let (base, nodes, m) = data(false);
-        let (out, mut rx) = mpsc::unbounded_channel();
-        let (mut ingest, mut session) = (Ingest::new(u64::MAX), None);
-        for d in [
-            Delivery::Manifest(Box::new(m)),
-            Delivery::Base(Box::new(base)),
-        ] {
-            ingest.apply(d, &mut session, start, &out).unwrap();
-        }
+        let mut c = Client::new(u64::MAX);
+        c.give(Delivery::Manifest(Box::new(m))).unwrap();
+        c.give(Client::base(&base)).unwrap();
         let (half, rest) = nodes.split_at(nodes.len() / 2);
-        let first = Delivery::Nodes {
-            seq: 0,
-            nodes: half.to_vec(),
-        };
-        let step = ingest.apply(first, &mut session, start, &out).unwrap();
+        let step = c.give(Client::nodes(half)).unwrap();
         assert!(
             matches!(step, Step::Nodes { ref nodes, duplicates: 0 } if nodes.len() == half.len())
         );
         for _ in 0..MAX_WANT_ROUNDS {
-            let step = ingest.apply(Delivery::End, &mut session, start, &out);
+            let step = c.give(Delivery::End);
             assert!(matches!(step, Ok(Step::End)));
-            let Ok(ClientMsg::Want(want)) = rx.try_recv() else {
+            let Ok(ClientMsg::Want(want)) = c.sent.try_recv() else {
                 panic!("a Want after an incomplete End")
             };
             let asked: u64 = want.iter().map(|r| r.to.saturating_sub(r.from)).sum();
             assert_eq!(asked, rest.len() as u64);
         }
-        assert!(!ingest.ended());
-        let gave_up = ingest.apply(Delivery::End, &mut session, start, &out);
+        assert!(!c.ingest.ended());
+        let gave_up = c.give(Delivery::End);
         assert!(matches!(
             gave_up,
             Err(StreamError::Unavailable { missing, rounds: MAX_WANT_ROUNDS, .. })
@@ -379,15 +335,9 @@ mod tests {
         ));
         // the rest arrives (twice): the next End completes the stream
         for _ in 0..2 {
-            let d = Delivery::Nodes {
-                seq: 1,
-                nodes: rest.to_vec(),
-            };
-            ingest.apply(d, &mut session, start, &out).unwrap();
+            c.give(Client::nodes(rest)).unwrap();
         }
-        ingest
-            .apply(Delivery::End, &mut session, start, &out)
-            .unwrap();
-        assert!(ingest.ended());
+        c.give(Delivery::End).unwrap();
+        assert!(c.ingest.ended());
     }
 }

@@ -376,53 +376,26 @@ fn nan_in_raw_is_refused_or_replaced() {
         b.extend_from_slice(&v.to_le_bytes());
     }
     let p = write_raw(d.path(), "nan.raw", &b);
-    expect_error(
-        &[
-            "prepare",
-            s(&p),
-            "--dims",
-            "3,3,3",
-            "--dtype",
-            "f32",
-            "--out",
-            s(&d.path().join("o")),
-        ],
-        &["NaN", "--nan-as"],
-    );
-    let j = prepare_json(&[
-        "prepare",
-        s(&p),
-        "--dims",
-        "3,3,3",
-        "--dtype",
-        "f32",
-        "--nan-as",
-        "0",
-        "--levels",
-        "2",
-        "--out",
-        s(&d.path().join("o2")),
-        "--json",
-    ]);
+    let raw = ["prepare", s(&p), "--dims", "3,3,3", "--dtype", "f32"];
+    let (o, o2, o3) = (d.path().join("o"), d.path().join("o2"), d.path().join("o3"));
+    expect_error(&then(&raw, &["--out", s(&o)]), &["NaN", "--nan-as"]);
+    let j = prepare_json(&then(
+        &raw,
+        &["--nan-as", "0", "--levels", "2", "--out", s(&o2), "--json"],
+    ));
     assert!(j["max_abs_error"].as_f64().unwrap() <= j["max_error_bound"].as_f64().unwrap());
     // a replacement that is itself no finite f32 is refused up front, naming the option
     for bad in ["1e39", "inf", "NaN"] {
         expect_error(
-            &[
-                "prepare",
-                s(&p),
-                "--dims",
-                "3,3,3",
-                "--dtype",
-                "f32",
-                "--nan-as",
-                bad,
-                "--out",
-                s(&d.path().join("o3")),
-            ],
+            &then(&raw, &["--nan-as", bad, "--out", s(&o3)]),
             &["--nan-as", "finite"],
         );
     }
+}
+
+/// The arguments `head` then `tail`.
+fn then<'a>(head: &[&'a str], tail: &[&'a str]) -> Vec<&'a str> {
+    head.iter().chain(tail).copied().collect()
 }
 
 /// Options that only a mesh file has are refused for a grid instead of being ignored, and a
@@ -438,29 +411,23 @@ fn grid_inputs_refuse_mesh_options_and_a_percent_of_no_range() {
         ("--format", "vtu"),
     ] {
         let out = d.path().join("o");
-        let args: Vec<&str> = grid
-            .iter()
-            .copied()
-            .chain([flag, value, "--out", s(&out)])
-            .collect();
-        expect_error(&args, &[flag, "mesh files"]);
+        expect_error(
+            &then(&grid, &[flag, value, "--out", s(&out)]),
+            &[flag, "mesh files"],
+        );
         let synthetic = ["prepare", "synthetic:linear", flag, value, "--out", s(&out)];
         expect_error(&synthetic, &[flag, "mesh files"]);
     }
     let out = d.path().join("c");
-    let args: Vec<&str> = grid
-        .iter()
-        .copied()
-        .chain(["--max-error", "0.1%", "--out", s(&out)])
-        .collect();
-    expect_error(&args, &["0.1%", "constant", "absolute bound"]);
+    expect_error(
+        &then(&grid, &["--max-error", "0.1%", "--out", s(&out)]),
+        &["0.1%", "constant", "absolute bound"],
+    );
     // an absolute bound on the same constant grid is fine
-    let args: Vec<&str> = grid
-        .iter()
-        .copied()
-        .chain(["--max-error", "0.5", "--out", s(&out), "--json"])
-        .collect();
-    let j = prepare_json(&args);
+    let j = prepare_json(&then(
+        &grid,
+        &["--max-error", "0.5", "--out", s(&out), "--json"],
+    ));
     assert_eq!(j["max_abs_error"].as_f64(), Some(0.0));
 }
 
