@@ -24,6 +24,7 @@ fn base() -> BaseMesh {
         levels: 3,
         values: vec![0.0; positions.len()],
         empty: vec![false; tets.len()],
+        predictor: Default::default(),
         positions,
         tets,
     }
@@ -172,6 +173,7 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
             tets: vec![[0, 1, 2, 3]],
             values: vec![0.0, 1.0, 2.0, 3.0],
             empty: vec![false],
+            predictor: Default::default(),
         })),
     ];
     client

@@ -2,6 +2,7 @@
 
 use crate::hierarchy::{Bary, Forest, Lattice, MAX_LEVELS};
 use crate::vertex::VertexKeys;
+use crate::wavelet::Predictor;
 use serde::{Deserialize, Serialize};
 
 /// Base mesh as stored and sent: positions, tets (vertex order is part of the contract), the scalar at
@@ -16,6 +17,8 @@ pub struct BaseMesh {
     pub tets: Vec<[u32; 4]>,
     pub values: Vec<f32>,
     pub empty: Vec<bool>,
+    /// How new vertices are predicted ([`Predictor::Axes`] only on a `box6` base).
+    pub predictor: Predictor,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -38,6 +41,8 @@ pub enum BaseError {
     NonFinite,
     #[error("base mesh: tet {tet} repeats a vertex")]
     DegenerateTet { tet: usize },
+    #[error("base mesh: {0}")]
+    Predictor(#[from] crate::axes::AxesError),
 }
 
 impl BaseMesh {
@@ -86,6 +91,9 @@ impl BaseMesh {
             || self.values.iter().any(|x| !x.is_finite())
         {
             return Err(BaseError::NonFinite);
+        }
+        if self.predictor == Predictor::Axes {
+            crate::axes::check_base(self)?;
         }
         Ok(())
     }
@@ -205,6 +213,7 @@ mod tests {
             levels: 2,
             values: vec![0.5; positions.len()],
             empty: vec![false; tets.len()],
+            predictor: Default::default(),
             positions,
             tets,
         };

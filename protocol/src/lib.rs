@@ -10,6 +10,7 @@
 //! `testing` holds fixtures for other crates' tests.
 //! This crate does no I/O.
 
+pub mod axes;
 pub mod base;
 pub mod block;
 pub mod entropy;

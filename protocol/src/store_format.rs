@@ -36,7 +36,7 @@ pub const STORE_FORMAT: &str = "tetwave-store";
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
-pub const STORE_VERSION: u32 = 5;
+pub const STORE_VERSION: u32 = 6;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 

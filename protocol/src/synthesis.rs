@@ -1,12 +1,16 @@
 //! Whole-hierarchy synthesis: every vertex value of the finest level from the base values and all
 //! detail nodes. The server's `verify` and the client's "complete" mode both use it.
+//!
+//! With [`Predictor::Axes`] the nodes give every vertex its detail first, and the axes passes
+//! ([`Grid::predict_all`]) then synthesize the values, coarse to fine.
 
+use crate::axes::{AxesError, Grid};
 use crate::base::BaseMesh;
 use crate::hierarchy::{Forest, LevelWalker};
 use crate::hierarchy::{TetId, BEY_CHILDREN, EDGES};
 use crate::node::{DetailNode, NodeError};
 use crate::vertex::VertexKeys;
-use crate::wavelet::{predict, predict_split, synthesize};
+use crate::wavelet::{predict, predict_split, synthesize, Predictor};
 use crate::LatticeTet;
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -25,6 +29,8 @@ pub enum SynthesisError {
     OwnedTwice { key: u64, id: TetId },
     #[error(transparent)]
     Node(#[from] NodeError),
+    #[error(transparent)]
+    Axes(#[from] AxesError),
 }
 
 /// Values of all `keys.vertex_count()` vertices, from nodes given in increasing id order `0..nodes`.
@@ -33,6 +39,10 @@ pub fn synthesize_all(
     keys: &VertexKeys,
     nodes: impl IntoIterator<Item = DetailNode>,
 ) -> Result<Vec<f32>, SynthesisError> {
+    let grid = match base.predictor {
+        Predictor::Parent => None,
+        Predictor::Axes => Some(Grid::of(base, keys)?),
+    };
     let forest = base.forest();
     let n = keys.vertex_count() as usize;
     let mut values = vec![f32::NAN; n];
@@ -82,7 +92,10 @@ pub fn synthesize_all(
                 }
             }
         };
-        apply_node(keys, &at, &node, &mut values, &mut set)?;
+        match grid {
+            None => apply_node(keys, &at, &node, &mut values, &mut set)?,
+            Some(_) => place_details(keys, &at, &node, &mut values, &mut set)?,
+        }
     }
     if expected != total {
         return Err(SynthesisError::Missing {
@@ -92,7 +105,36 @@ pub fn synthesize_all(
     if let Some(k) = set.iter().position(|&s| !s) {
         return Err(SynthesisError::Uncovered { key: k as u64 });
     }
+    if let Some(grid) = grid {
+        let details = values.clone();
+        grid.predict_all(&mut values, |k, p| synthesize(details[k], p));
+    }
     Ok(values)
+}
+
+/// Puts the details of the vertices `node` owns into `values` (the axes predictor synthesizes
+/// them once every detail is in place).
+fn place_details(
+    keys: &VertexKeys,
+    at: &NodeAt,
+    node: &DetailNode,
+    values: &mut [f32],
+    set: &mut [bool],
+) -> Result<(), SynthesisError> {
+    let tet = at.tet();
+    for e in 0..6 {
+        if let Some(d) = node.coeff(e) {
+            let k = keys.key(tet.base, &tet.edge_midpoint(e)) as usize;
+            if std::mem::replace(&mut set[k], true) {
+                return Err(SynthesisError::OwnedTwice {
+                    key: k as u64,
+                    id: node.id,
+                });
+            }
+            values[k] = d;
+        }
+    }
+    Ok(())
 }
 
 /// Where a node's tet sits: a base tet, or child `child` (Bey order) of a parent tet.
@@ -123,8 +165,9 @@ impl NodeAt {
     }
 }
 
-/// Sets the values of the vertices `node` owns on its tet (the points its predictions read — the
-/// edge's ends, or the parent's 10 split points — must already have values).
+/// Sets the values of the vertices `node` owns on its tet with [`Predictor::Parent`] (the points
+/// its predictions read — the edge's ends, or the parent's 10 split points — must already have
+/// values).
 pub fn apply_node(
     keys: &VertexKeys,
     at: &NodeAt,

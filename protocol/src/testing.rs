@@ -21,6 +21,7 @@ pub fn unsampled_base(levels: u8, shape: PointsAndTets) -> BaseMesh {
         levels,
         values: vec![0.0; positions.len()],
         empty: vec![false; tets.len()],
+        predictor: Default::default(),
         positions,
         tets,
     }
@@ -77,6 +78,16 @@ pub fn detail_nodes(
         keys.for_each_in(e, |k, t, w| v[k as usize] = f(base.position(t, &w)));
     }
     base.values = v[..base.positions.len()].to_vec();
+    // the axes predictor's details, closed loop (what synthesis will read back)
+    let axes_details = (base.predictor == crate::wavelet::Predictor::Axes).then(|| {
+        let grid = crate::axes::Grid::of(&base, &keys).expect("a box6 base");
+        let (mut rec, mut d) = (v.clone(), vec![0f32; n]);
+        grid.predict_all(&mut rec, |k, p| {
+            d[k] = analyze(v[k], p);
+            crate::wavelet::synthesize(d[k], p)
+        });
+        d
+    });
     let forest = base.forest();
     let mut claimed = vec![false; n];
     let mut nodes: Vec<DetailNode> = Vec::new();
@@ -112,7 +123,10 @@ pub fn detail_nodes(
                             predict_split(&v10, c[a], c[b])
                         }
                     };
-                    coeffs.push(analyze(v[m], p));
+                    coeffs.push(match &axes_details {
+                        Some(d) => d[m],
+                        None => analyze(v[m], p),
+                    });
                 }
             }
             nodes.push(DetailNode {

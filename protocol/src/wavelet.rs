@@ -19,6 +19,31 @@
 //! ulp of the prediction).
 
 use crate::hierarchy::EDGES;
+use serde::{Deserialize, Serialize};
+
+/// How a hierarchy predicts its new vertices: part of the base mesh, so that both sides read it
+/// from the same place.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum Predictor {
+    /// Linear on base edges, then the refined tet's parent's quadratic interpolant (this module):
+    /// reads only the points every tet around the new vertex holds.
+    #[default]
+    Parent,
+    /// SZ3's cubic interpolation along the grid's axes, level by level ([`crate::axes`]): about a
+    /// third of the coded bits on smooth fields, but it reads vertices a selectively refined
+    /// mesh may not hold, and needs a `box6` base.
+    Axes,
+}
+
+impl Predictor {
+    /// The name `prepare --predictor` takes and the manifest shows.
+    pub fn name(self) -> &'static str {
+        match self {
+            Predictor::Parent => "parent",
+            Predictor::Axes => "axes",
+        }
+    }
+}
 
 /// Linear prediction of the midpoint value from the edge's end values.
 #[inline]

@@ -12,7 +12,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
-use tetwave_protocol::synthesis::{apply_node, NodeAt};
+use tetwave_protocol::wavelet::Predictor;
 use tetwave_store::{self as store, Store, StoreError, StoreMeta};
 
 #[derive(Debug, thiserror::Error)]
@@ -51,8 +51,6 @@ pub enum PrepareError {
         error: f64,
         bound: f64,
     },
-    #[error("synthesis failed: {0}")]
-    Synthesis(String),
 }
 
 /// What `tetwave-server prepare` is asked to do (its command-line arguments, which are also the
@@ -80,6 +78,12 @@ pub struct PrepareOptions {
     /// Lossless f32 when absent.
     #[arg(long, value_parser = parse_max_error)]
     pub max_error: Option<ErrorBound>,
+    /// How new vertices are predicted: `parent` (the refined tet's parent's quadratic, what
+    /// streaming clients synthesize) or `axes` (SZ3's cubic interpolation along the grid's axes:
+    /// far fewer bytes on smooth fields, but only with `--base box6`, data at every vertex, and
+    /// for `verify`, `render` and the HTTP API; streaming clients refuse it for now).
+    #[arg(long, default_value = "parent", value_parser = parse_predictor)]
+    pub predictor: Predictor,
     /// Raw grid dimensions `X,Y,Z` (x fastest).
     #[arg(long, value_parser = parse_dims)]
     pub dims: Option<[usize; 3]>,
@@ -118,6 +122,7 @@ impl PrepareOptions {
             base: BaseSpec::Box5,
             bits: None,
             max_error: None,
+            predictor: Predictor::Parent,
             dims: None,
             dtype: "u8".into(),
             spacing: [1.0; 3],
@@ -154,6 +159,8 @@ pub struct Summary {
     /// counted in `bytes`).
     pub levelset_near_bytes: u64,
     pub encoding: String,
+    /// `parent` or `axes` (`--predictor`).
+    pub predictor: &'static str,
     pub max_abs_error: f64,
     pub max_error_bound: f64,
     pub value_range: [f32; 2],
@@ -296,8 +303,15 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         source_range,
         boundary,
     } = load_source(o)?;
+    if o.predictor == Predictor::Axes && !matches!(o.base, BaseSpec::Box6) {
+        return Err(PrepareError::Usage(
+            "--predictor axes needs --base box6 (the refined vertices of its 6 Kuhn tets are a grid)"
+                .into(),
+        ));
+    }
     tracing::info!(input = %o.input, levels = o.levels, "resampling");
-    let r = resample(&source, &o.base, o.levels)?;
+    let mut r = resample(&source, &o.base, o.levels)?;
+    r.base.predictor = o.predictor;
     drop(source);
     let outside = r.outside;
     // only an input with an outside needs clipping: inside every vertex the level set is ≥ 0
@@ -368,6 +382,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
             store::Encoding::F32 => "f32".into(),
             store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),
         },
+        predictor: o.predictor.name(),
         max_abs_error: m.max_abs_error,
         max_error_bound: m.max_error_bound,
         value_range: m.value_range,
@@ -399,32 +414,8 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
     let t0 = Instant::now();
     let store = Store::open(dir)?;
     store.check_sums()?;
-    let keys = store.base.vertex_keys();
-    let forest = store.forest();
-    let n = keys.vertex_count() as usize;
-    let mut values = vec![f32::NAN; n];
-    let mut set = vec![false; n];
-    for (v, &x) in store.base.values.iter().enumerate() {
-        values[v] = x;
-        set[v] = true;
-    }
-    let nodes = forest.nodes();
-    let chunk = 1u64 << 16;
-    let mut s = 0;
-    while s < nodes {
-        let batch = store.read_nodes(s, (s + chunk).min(nodes))?;
-        for node in &batch {
-            let at = NodeAt::from_id(&forest, node.id);
-            apply_node(&keys, &at, node, &mut values, &mut set)
-                .map_err(|e| PrepareError::Synthesis(e.to_string()))?;
-        }
-        s += chunk;
-    }
-    if let Some(k) = set.iter().position(|&x| !x) {
-        return Err(PrepareError::Synthesis(format!(
-            "vertex {k} is owned by no node"
-        )));
-    }
+    let values = store.synthesize_all()?;
+    let (n, nodes) = (values.len(), store.manifest.counts.nodes);
     let reference = store.read_reference()?;
     let mut max_err = 0f64;
     let mut sum_sq = 0f64;
@@ -476,6 +467,13 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
 
 fn parse_max_error(s: &str) -> Result<ErrorBound, String> {
     ErrorBound::parse(s)
+}
+
+fn parse_predictor(s: &str) -> Result<Predictor, String> {
+    [Predictor::Parent, Predictor::Axes]
+        .into_iter()
+        .find(|p| p.name() == s)
+        .ok_or_else(|| format!("{s:?}: expected parent or axes"))
 }
 
 fn parse_dims(s: &str) -> Result<[usize; 3], String> {

@@ -303,13 +303,29 @@ impl Store {
     }
 
     /// Every finest-level vertex value (by vertex key), synthesized from all nodes.
+    /// Nodes are read 2^16 at a time, so only one such batch is decoded at once.
     pub fn synthesize_all(&self) -> Result<Vec<f32>, StoreError> {
-        let nodes = self.read_nodes(0, self.manifest.counts.nodes)?;
-        synthesize_all(&self.base, &self.base.vertex_keys(), nodes).map_err(|source| {
-            StoreError::Synthesis {
-                path: self.dir.clone(),
-                source,
-            }
+        const CHUNK: u64 = 1 << 16;
+        let total = self.manifest.counts.nodes;
+        let mut read_error = None;
+        let nodes = (0..total.div_ceil(CHUNK))
+            .map_while(
+                |c| match self.read_nodes(c * CHUNK, ((c + 1) * CHUNK).min(total)) {
+                    Ok(batch) => Some(batch),
+                    Err(e) => {
+                        read_error = Some(e);
+                        None
+                    }
+                },
+            )
+            .flatten();
+        let values = synthesize_all(&self.base, &self.base.vertex_keys(), nodes);
+        if let Some(e) = read_error {
+            return Err(e);
+        }
+        values.map_err(|source| StoreError::Synthesis {
+            path: self.dir.clone(),
+            source,
         })
     }
 }

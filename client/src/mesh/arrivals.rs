@@ -10,8 +10,11 @@ impl AdaptiveMesh {
     /// whose prediction reads a changed one (level by level); children of arrived nodes get their `empty`
     /// flags. Returns the number of vertex values recomputed.
     pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
-        let mut dirty: Vec<u32> = Vec::new();
         let nbase = self.keys.base_vertex_count();
+        if self.axes.is_some() {
+            return self.apply_arrivals_axes(buf, arrivals);
+        }
+        let mut dirty: Vec<u32> = Vec::new();
         for &key in &arrivals.keys {
             if let Some(s) = self.slot_of_key(key).filter(|&s| s as u64 >= nbase) {
                 self.vval[s as usize] = self.synth_value(buf, s);
@@ -54,6 +57,31 @@ impl AdaptiveMesh {
                 }
             }
         }
+        self.refresh_arrived_nodes(buf, arrivals);
+        count
+    }
+
+    /// [`Self::apply_arrivals`] with the axes predictor: a coefficient changes vertices far
+    /// from its owner (every one whose stencils read it, transitively), so every present vertex
+    /// is synthesized again from the values by key.
+    fn apply_arrivals_axes(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
+        let nbase = self.keys.base_vertex_count() as usize;
+        let mut count = 0;
+        if !arrivals.keys.is_empty() {
+            self.axes.as_mut().expect("axes values").invalidate();
+            for s in nbase..self.vkey.len() {
+                if self.vref[s] != 0 {
+                    self.vval[s] = self.synth_value(buf, s as u32);
+                    count += 1;
+                }
+            }
+        }
+        self.refresh_arrived_nodes(buf, arrivals);
+        count
+    }
+
+    /// Children of arrived nodes get their `empty` flags.
+    fn refresh_arrived_nodes(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) {
         for &id in &arrivals.nodes {
             if let Some(slot) = self.find(id) {
                 if !self.nodes[slot as usize].is_leaf() {
@@ -61,7 +89,6 @@ impl AdaptiveMesh {
                 }
             }
         }
-        count
     }
 
     fn refresh_empty(&mut self, slot: u32, buf: &DetailBuffer) {

@@ -24,4 +24,6 @@ pub enum MeshError {
     TooManyKeys(u64),
     #[error("the hierarchy has {0} tets: the adaptive mesh holds at most 2^40")]
     TooManyTets(u64),
+    #[error(transparent)]
+    Axes(#[from] tetwave_protocol::axes::AxesError),
 }

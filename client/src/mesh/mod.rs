@@ -45,6 +45,7 @@
 //! witnesses), `arrivals`, `changes` (the change log) and `conformity` (the invariant check).
 
 mod arrivals;
+mod axes_values;
 mod changes;
 mod closure;
 mod coarsen;
@@ -144,6 +145,8 @@ pub struct AdaptiveMesh {
     /// [`Self::trim_changes`].
     changes: Vec<SlotChange>,
     changes_start: u64,
+    /// Values by key for a hierarchy with the axes predictor.
+    axes: Option<axes_values::AxesValues>,
 }
 
 impl AdaptiveMesh {
@@ -232,7 +235,11 @@ impl AdaptiveMesh {
             uid: MeshUid::new(),
             changes: Vec::new(),
             changes_start: 0,
+            axes: None,
         };
+        if base.predictor == tetwave_protocol::wavelet::Predictor::Axes {
+            m.axes = Some(axes_values::AxesValues::new(base, &m.keys)?);
+        }
         for g in 0..nv {
             let p = base.positions[g];
             m.vkey.push(g as u64);
@@ -298,7 +305,10 @@ impl AdaptiveMesh {
                     + self.vowner.bytes()
                     + self.free_vertices.capacity() * 4,
             ),
-            ("keys", self.by_key.bytes()),
+            (
+                "keys",
+                self.by_key.bytes() + self.axes.as_ref().map_or(0, |a| a.bytes()),
+            ),
             (
                 "refusals",
                 self.refused.capacity() * (size_of::<(u32, Refusal)>() + 1)

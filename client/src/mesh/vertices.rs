@@ -160,8 +160,12 @@ impl AdaptiveMesh {
 
     /// Vertex slot `s`'s value from its coefficient (0 while missing) and its prediction.
     #[inline]
-    pub(super) fn synth_value(&self, buf: &DetailBuffer, s: u32) -> f32 {
-        let d = buf.coeff(self.vkey[s as usize]).unwrap_or(0.0);
+    pub(super) fn synth_value(&mut self, buf: &DetailBuffer, s: u32) -> f32 {
+        let key = self.vkey[s as usize];
+        if let Some(axes) = self.axes.as_mut() {
+            return axes.value(key as usize, buf);
+        }
+        let d = buf.coeff(key).unwrap_or(0.0);
         synthesize(d, self.prediction_value(&self.vertex_prediction(s)))
     }
 

@@ -34,6 +34,7 @@ pub fn unit_box6(levels: u8) -> BaseMesh {
         levels,
         values: vec![0.0; positions.len()],
         empty: vec![false; tets.len()],
+        predictor: Default::default(),
         positions,
         tets,
     }

@@ -14,6 +14,7 @@
 //! error estimate: what drawing the tet without its subtree costs, whatever the predictor; one
 //! value per group codes as one), and which children are empty (outside the input's domain, see [`crate::resample`]).
 
+mod axes;
 mod gather;
 mod keys;
 mod par;
@@ -27,7 +28,7 @@ use samples::SampleStats;
 use std::sync::atomic::{AtomicU32, Ordering};
 use tetwave_protocol::store_format::QUANTIZED_BITS;
 use tetwave_protocol::vertex::VertexKeys;
-use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::wavelet::{Predictor, Quantizer};
 use tetwave_protocol::BaseMesh;
 use walk::{load, Cell, Walk, UNOWNED};
 
@@ -115,6 +116,13 @@ pub enum AnalysisError {
     MaxErrorNeedsTooManyBits { bound: f64, detail: f64 },
     #[error("{0} tets in one level is more than this build can index")]
     TooLarge(u64),
+    #[error("--predictor axes: {0}")]
+    Axes(#[from] tetwave_protocol::axes::AxesError),
+    #[error(
+        "--predictor axes needs data at every vertex (a grid or synthetic input), and {0} \
+         vertices lie outside the input's domain; use the parent predictor for meshes"
+    )]
+    AxesOutside(u64),
 }
 
 fn bar(len: u64, msg: &str, show: bool) -> ProgressBar {
@@ -211,12 +219,17 @@ pub fn analyze_hierarchy(
         samples,
         ..
     } = r;
+    let axes = base.predictor == Predictor::Axes;
+    if axes && stats.any_outside() {
+        return Err(AnalysisError::AxesOutside(stats.outside_count()));
+    }
     // The code width covers the details the samples show; with an outside, the inside vertices
     // beside it are predicted from the field extended past the domain (see `walk`), which the
-    // samples do not show, and a code may be clamped. Then the walk is run again, wider.
-    let spare =
-        (quantizer.is_some() && stats.any_outside()).then(|| (base.clone(), samples.clone()));
-    let mut a = walk_all(base, &keys, samples, &stats, quantizer, progress);
+    // samples do not show, and the axes predictor's cubic can overshoot the details they show:
+    // either way a code may be clamped. Then the walk is run again, wider.
+    let spare = (quantizer.is_some() && (stats.any_outside() || axes))
+        .then(|| (base.clone(), samples.clone()));
+    let mut a = walk_all(base, &keys, samples, &stats, quantizer, progress)?;
     let Some((base, samples)) = spare else {
         return Ok(a);
     };
@@ -251,7 +264,7 @@ pub fn analyze_hierarchy(
             bits = wider.bits,
             step = wider.step,
             clamped_error = a.max_abs_error,
-            "details beside the outside exceed the codes; analysing again"
+            "details exceed the codes; analysing again"
         );
         quantizer = Some(wider);
         a = walk_all(
@@ -261,7 +274,7 @@ pub fn analyze_hierarchy(
             &stats,
             quantizer,
             progress,
-        );
+        )?;
     }
     Ok(a)
 }
@@ -274,7 +287,7 @@ fn walk_all(
     stats: &SampleStats,
     quantizer: Option<Quantizer>,
     progress: bool,
-) -> Analysis {
+) -> Result<Analysis, AnalysisError> {
     let forest = base.forest();
     let levels = forest.levels;
     let nodes = forest.nodes() as usize;
@@ -307,13 +320,16 @@ fn walk_all(
         outside: stats.any_outside().then_some(&stats.outside_bits[..]),
         quantizer,
     };
-    let max_err = walk.levels(
+    let mut max_err = walk.levels(
         forest,
         keys,
         &mut subtree_max_abs,
         &mut empty_children,
         progress,
     );
+    if base.predictor == Predictor::Axes {
+        max_err = axes::details(&base, keys, &reference, &cells, &detail, quantizer)?;
+    }
     let (owned, coeffs) = gather::owned_coefficients(&cells, &detail, nodes, nv);
     drop(detail);
     gather::fold_subtrees(forest, &mut empty_children, &mut subtree_max_abs);
@@ -335,7 +351,7 @@ fn walk_all(
         .map(|a| f32::from_bits(a.into_inner()))
         .collect();
     let error_bound = samples::error_bound(quantizer.as_ref(), lo, hi);
-    Analysis {
+    Ok(Analysis {
         base,
         owned,
         empty_children,
@@ -346,5 +362,5 @@ fn walk_all(
         value_range: (lo, hi),
         max_abs_error: max_err,
         error_bound,
-    }
+    })
 }

@@ -86,6 +86,13 @@ impl SampleStats {
         !self.outside_bits.is_empty()
     }
 
+    pub(super) fn outside_count(&self) -> u64 {
+        self.outside_bits
+            .iter()
+            .map(|w| w.count_ones() as u64)
+            .sum()
+    }
+
     #[inline]
     pub(super) fn is_outside(&self, v: usize) -> bool {
         self.any_outside() && (self.outside_bits[v >> 6] >> (v & 63)) & 1 != 0

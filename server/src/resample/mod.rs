@@ -168,6 +168,7 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
         tets,
         values: Vec::new(),
         empty: Vec::new(),
+        predictor: Default::default(),
     };
     let forest = base.forest();
     if levels > 0 && forest.nodes() > MAX_NODES {

@@ -1,0 +1,40 @@
+//! Details for [`Predictor::Axes`] stores: after the level walks have settled ownership, subtree
+//! bounds and empty children (none of which depend on the predictor), every new vertex's detail
+//! is computed again against the axes prediction, in the order synthesis will run it (closed
+//! loop, as for the parent predictor).
+//!
+//! [`Predictor::Axes`]: tetwave_protocol::wavelet::Predictor::Axes
+
+use super::walk::{load, store, Cell};
+use std::sync::atomic::AtomicU32;
+use tetwave_protocol::axes::{AxesError, Grid};
+use tetwave_protocol::wavelet::{analyze, synthesize, Quantizer};
+use tetwave_protocol::{BaseMesh, VertexKeys};
+
+/// Replaces `detail` and the reconstructions in `cells` with the axes predictor's; returns the
+/// max |synthesis − sample|.
+pub(super) fn details(
+    base: &BaseMesh,
+    keys: &VertexKeys,
+    reference: &[AtomicU32],
+    cells: &[Cell],
+    detail: &[AtomicU32],
+    quantizer: Option<Quantizer>,
+) -> Result<f64, AxesError> {
+    let grid = Grid::of(base, keys)?;
+    let mut rec: Vec<f32> = cells.iter().map(|c| load(&c.rec)).collect();
+    let mut err = 0f64;
+    grid.predict_all(&mut rec, |k, p| {
+        let f = load(&reference[k]);
+        let d = match quantizer {
+            None => analyze(f, p),
+            Some(q) => q.decode(q.encode(f - p)),
+        };
+        let x = synthesize(d, p);
+        store(&detail[k], d);
+        store(&cells[k].rec, x);
+        err = err.max((x as f64 - f as f64).abs());
+        x
+    });
+    Ok(err)
+}
