@@ -24,7 +24,7 @@ samples_vs_grid). Fields:
 For every bound b (a fraction of the samples' value range R; absolute bound E = b R):
 
   tetwave   `tetwave-server prepare <grid> --dims --dtype f32 --base box6 --levels L
-            --max-error E --json` (store bytes: the streamable files, `bytes` of its report),
+            --max-error E --predictor P --json` (P from --predictor: axes by default; store bytes: the streamable files, `bytes` of its report),
             `tetwave-server verify --json` (max error and RMS error over every vertex),
             `tetwave-server serve` on 127.0.0.1 behind a byte-counting TCP relay and
             `tetwave stream --headless --no-render --until-complete`: wire bytes are every TCP
@@ -384,7 +384,7 @@ def sz3_row(arr, e, value_range):
 # ----------------------------------------------------------------------------------------- tetwave
 
 
-def prepare(bindir, raw, n, spacing, levels, store, max_error=None):
+def prepare(bindir, raw, n, spacing, levels, store, max_error=None, predictor="parent"):
     cmd = [
         os.path.join(bindir, "tetwave-server"),
         "prepare",
@@ -401,6 +401,8 @@ def prepare(bindir, raw, n, spacing, levels, store, max_error=None):
         levels,
         "--out",
         store,
+        "--predictor",
+        predictor,
         "--json",
     ]
     if max_error is not None:
@@ -452,6 +454,8 @@ def main():
     ap.add_argument("--image-max-batch", type=int, default=0,
                     help="the server's --max-batch for the image run (0: its default); smaller batches place the curve "
                          "finely at the cost of more, smaller coded blocks")
+    ap.add_argument("--predictor", default="axes", choices=("axes", "parent"),
+                    help="tetwave's predictor for the bounded stores (prepare --predictor)")
     ap.add_argument("--no-image", action="store_true")
     ap.add_argument("--quick", action="store_true", help="level 3, bound 1e-3, 64x64 image: a smoke test")
     args = ap.parse_args()
@@ -494,7 +498,7 @@ def main():
                 key = {"field": field, "level": L, "grid": f"{n}^3", "bound": b, "abs_bound": e, "value_range": vr, "raw_f32_bytes": raw_bytes}
                 print(f"bench-rd: {field} {n}^3 bound {b} x range = {e:.4g}", file=sys.stderr)
                 store = os.path.join(work, f"{field}-l{L}-{b}")
-                prep = prepare(bindir, raw, n, spacing, L, store, e)
+                prep = prepare(bindir, raw, n, spacing, L, store, e, args.predictor)
                 dev = check_samples(store, arr)
                 ver = verify(bindir, store)
                 st = stream(bindir, store, "level", os.path.join(work, f"{field}-l{L}-{b}-stream"), ["--no-render", "--frames", "1000000"])
@@ -520,6 +524,7 @@ def main():
     image = None if args.no_image else image_part(args, bindir, work)
     result = {
         "command": " ".join(sys.argv),
+        "predictor": args.predictor,
         "bin_dir": bindir,
         "fem": fem_info,
         "rows": rows,
@@ -572,7 +577,7 @@ def image_part(args, bindir, work):
     run([tw, "render", lossless, "--size", size, "-o", orig_png, "--json"], "render original")
     # ours: stream the bounded store in view order, a GPU frame as nodes arrive
     store = os.path.join(d, f"tetwave-{args.image_bound}")
-    prep = prepare(bindir, raw, n, spacing, L, store, e)
+    prep = prepare(bindir, raw, n, spacing, L, store, e, args.predictor)
     nodes = 6 * ((8**L) - 1) // 7
     per = args.image_per_frame or max(1, nodes // 16)
     st = stream(bindir, store, "view", os.path.join(d, "stream"),

@@ -92,13 +92,16 @@ impl Session {
         }
     }
 
-    /// One frame of selective refinement for `cam`, within the selector's budget for `mode`.
+    /// One frame of selective refinement for `cam`, within the selector's budget for `mode`
+    /// (first bringing vertex values up to the nodes held, where arrivals defer that).
     pub fn frame(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
+        self.mesh.refresh_values(&self.buf);
         self.sel.frame(&mut self.mesh, &self.buf, cam, mode)
     }
 
     /// Refines until the selector is satisfied for `cam`, whatever the budget.
     pub fn converge(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
+        self.mesh.refresh_values(&self.buf);
         self.sel.converge(&mut self.mesh, &self.buf, cam, mode)
     }
 

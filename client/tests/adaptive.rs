@@ -280,6 +280,7 @@ fn deliver_and_refine(data: &Data, order: Order) -> (AdaptiveMesh, DetailBuffer)
             }
         }
         mesh.apply_arrivals(&buf, &arr);
+        mesh.refresh_values(&buf);
         arr.clear();
         // interleave refinement with delivery for the random order
         refine_all_usable(&mut mesh, &buf);
@@ -385,6 +386,7 @@ fn axes_values_follow_arrivals_in_any_order() {
             buf.insert(n, &mut arr).unwrap();
         }
         mesh.apply_arrivals(&buf, &arr);
+        mesh.refresh_values(&buf);
         arr.clear();
         refine_all_usable(&mut mesh, &buf);
         check_values(&mesh, &buf, &data);
@@ -479,6 +481,7 @@ fn fallback_prediction_then_correction() {
         .collect();
     assert!(!owned.is_empty());
     let changed = mesh.apply_arrivals(&buf, &arr);
+    mesh.refresh_values(&buf);
     arr.clear();
     assert!(changed > owned.len(), "finer vertices depend on node 1's");
     check_values(&mesh, &buf, &data);
@@ -496,6 +499,7 @@ fn fallback_prediction_then_correction() {
         buf.insert(n, &mut arr).unwrap();
     }
     mesh.apply_arrivals(&buf, &arr);
+    mesh.refresh_values(&buf);
     for s in mesh.vertex_slots() {
         assert_eq!(
             mesh.vertex_value(s).to_bits(),
@@ -630,6 +634,7 @@ fn run_sequence(kind: u8, levels: u8, seed: u64, empties: bool, ops: &[Op]) -> S
                     }
                 }
                 stats.corrected += mesh.apply_arrivals(&buf, &arr);
+                mesh.refresh_values(&buf);
                 twin.apply_arrivals(&buf, &arr);
                 arr.clear();
             }

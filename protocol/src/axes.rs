@@ -48,6 +48,10 @@ pub struct Grid {
     points: Vec<u32>,
 }
 
+/// How far (in multiples of its level's step, along every axis) the vertices whose values read
+/// a vertex can lie from it ([`Grid::stencil`]).
+pub const DEPENDENCY_REACH: u32 = 6;
+
 /// The points a new vertex's prediction reads along its axis, by key: 3 and 1 steps before it, 1
 /// and 3 steps after it (the outer ones `None` past the box).
 pub type Stencil = [Option<usize>; 4];
@@ -102,16 +106,23 @@ impl Grid {
         (self.keys.len() + self.points.len()) * 4
     }
 
+    /// Finest-grid steps per axis (`2^levels`): grid points run over `0..=m()` on each axis.
+    pub fn m(&self) -> u32 {
+        self.m
+    }
+
     /// The grid point of vertex `key`.
     #[inline]
-    fn point(&self, key: usize) -> [u32; 3] {
+    pub fn point(&self, key: usize) -> [u32; 3] {
         let n = self.m + 1;
         let i = self.points[key];
         [i % n, i / n % n, i / (n * n)]
     }
 
-    /// What vertex `key`'s prediction reads; `None` for a base vertex (a corner of the box).
-    pub fn stencil(&self, key: usize) -> Option<Stencil> {
+    /// The step `s` (in finest steps) of the level that makes vertex `key` and the axis it is
+    /// predicted along; `None` for a base vertex (a corner of the box).
+    #[inline]
+    pub fn step_and_axis(&self, key: usize) -> Option<(u32, usize)> {
         let p = self.point(key);
         // its level's step: the largest power of two dividing every coordinate; the axis: the
         // last one odd in that step (the pass that makes the point)
@@ -121,7 +132,17 @@ impl Grid {
             return None;
         }
         let axis = (0..3).rev().find(|&a| tz[a] == t).expect("an odd axis");
-        Some(self.stencil_at(p, axis, 1 << t))
+        Some((1 << t, axis))
+    }
+
+    /// What vertex `key`'s prediction reads; `None` for a base vertex.
+    ///
+    /// Following stencils from a vertex made with step `s` moves at most `3σ` along each axis
+    /// per level of step `σ ≤ s` (one pass per axis), so every vertex whose value reads it,
+    /// transitively, lies within `6s` of it along every axis ([`DEPENDENCY_REACH`]).
+    pub fn stencil(&self, key: usize) -> Option<Stencil> {
+        let (s, axis) = self.step_and_axis(key)?;
+        Some(self.stencil_at(self.point(key), axis, s))
     }
 
     #[inline]
@@ -372,5 +393,39 @@ mod tests {
             (predict(quadratic([0, 0, 0]), quadratic([m, 0, 0])) - quadratic([m / 2, 0, 0])).abs()
                 > 1e-3
         );
+    }
+
+    /// Every vertex whose value reads a vertex made with step `s`, transitively, lies within
+    /// `DEPENDENCY_REACH · s` of it along every axis (what the client's stale marking relies on),
+    /// and the bound is reached by some pair less than 2× over (it is not loose by much).
+    #[test]
+    fn dependencies_stay_within_their_reach() {
+        let b = base(4, box6([0.0; 3], [1.0; 3]));
+        let keys = b.vertex_keys();
+        let g = Grid::of(&b, &keys).unwrap();
+        let n = keys.vertex_count() as usize;
+        let mut worst = 0f64;
+        for q in 0..n {
+            let pq = g.point(q);
+            let mut stack = vec![q];
+            let mut seen = vec![false; n];
+            while let Some(v) = stack.pop() {
+                for r in g.stencil(v).into_iter().flatten().flatten() {
+                    if !std::mem::replace(&mut seen[r], true) {
+                        stack.push(r);
+                        let Some((s, _)) = g.step_and_axis(r) else {
+                            continue;
+                        };
+                        let pr = g.point(r);
+                        for a in 0..3 {
+                            let d = pq[a].abs_diff(pr[a]);
+                            assert!(d <= DEPENDENCY_REACH * s, "{pq:?} reads {pr:?} (step {s})");
+                            worst = worst.max(d as f64 / (DEPENDENCY_REACH * s) as f64);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(worst > 0.5, "{worst}");
     }
 }

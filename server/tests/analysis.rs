@@ -3,6 +3,7 @@
 use proptest::prelude::*;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::unsampled_base;
+use tetwave_protocol::wavelet::Predictor;
 use tetwave_protocol::LatticeTet;
 use tetwave_server::analysis::{analyze_hierarchy, Precision};
 use tetwave_server::resample::synthetic::kuhn_cube_mesh;
@@ -52,13 +53,16 @@ proptest! {
 
     /// synthesis ∘ analysis = identity, bit for bit, for smooth fields whose predictions stay within
     /// a factor 2 of the values (the f32 lifting step is then exact by Sterbenz' lemma), at any
-    /// level 0–6.
+    /// level 0–6, on box5 and box6, and with the axes predictor.
     #[test]
-    fn round_trip_bit_exact(levels in 0u8..=6, seed in any::<u64>(), box6 in any::<bool>()) {
+    fn round_trip_bit_exact(levels in 0u8..=6, seed in any::<u64>(), kind in 0u8..3) {
         let (a0, a1) = (hash(seed, 1), hash(seed, 2));
-        let r = resampled_with_positions(levels, box6, |p| {
+        let mut r = resampled_with_positions(levels, kind > 0, |p| {
             (1.2 + 0.3 * (3.0 * p[0] + a0).sin() * (2.0 * p[1] - a1).cos() + 0.2 * p[2] * p[2]) as f32
         });
+        if kind == 2 {
+            r.base.predictor = Predictor::Axes;
+        }
         let reference = r.samples.clone();
         let a = analyze_hierarchy(r, Precision::Lossless, false).unwrap();
         let keys = a.base.vertex_keys();
@@ -96,10 +100,14 @@ proptest! {
         prop_assert!(err <= a.error_bound);
     }
 
-    /// Quantized: every vertex within the manifest bound (q/2), whatever the level.
+    /// Quantized: every vertex within the manifest bound (q/2), whatever the level and predictor
+    /// (white noise is where the axes predictor's cubic overshoots the codes' width most).
     #[test]
-    fn quantized_error_within_bound(levels in 1u8..=5, seed in any::<u64>(), bits in 8u8..=16) {
-        let r = resampled_with(levels, false, |k| (hash(seed, k) * 100.0) as f32);
+    fn quantized_error_within_bound(levels in 1u8..=5, seed in any::<u64>(), bits in 8u8..=16, axes in any::<bool>()) {
+        let mut r = resampled_with(levels, axes, |k| (hash(seed, k) * 100.0) as f32);
+        if axes {
+            r.base.predictor = Predictor::Axes;
+        }
         let reference = r.samples.clone();
         let a = analyze_hierarchy(r, Precision::Bits(bits), false).unwrap();
         let keys = a.base.vertex_keys();

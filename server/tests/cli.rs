@@ -477,6 +477,67 @@ fn a_lattice_too_coarse_for_the_mesh_asks_for_more_levels() {
         s(&d.path().join("o2")),
         "--json",
     ]);
+    // the axes predictor needs data at every vertex: refused on this mesh, and `auto` takes the
+    // parent predictor instead
+    let o3 = d.path().join("o3");
+    let box6 = [
+        "prepare",
+        s(&p),
+        "--base",
+        "box6",
+        "--levels",
+        "2",
+        "--out",
+        s(&o3),
+    ];
+    expect_error(
+        &then(&box6, &["--predictor", "axes"]),
+        &["--predictor axes", "outside", "parent"],
+    );
+    let j = prepare_json(&then(&box6, &["--json"]));
+    assert_eq!(j["predictor"], "parent");
+}
+
+/// `--predictor`: `auto` takes the axes predictor on a box6 grid, `parent` on the default box5;
+/// `axes` without box6 is refused; both predictors' stores verify.
+#[test]
+fn predictor_choice() {
+    let d = tmp();
+    let out = |name: &str| d.path().join(name).to_str().unwrap().to_string();
+    let (a, b, c) = (out("a"), out("b"), out("c"));
+    let grid = [
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "3",
+        "--max-error",
+        "0.1%",
+    ];
+    let j = prepare_json(&then(&grid, &["--base", "box6", "--out", &a, "--json"]));
+    assert_eq!(j["predictor"], "axes");
+    let j = prepare_json(&then(&grid, &["--out", &b, "--json"]));
+    assert_eq!(j["predictor"], "parent");
+    let j = prepare_json(&then(
+        &grid,
+        &[
+            "--base",
+            "box6",
+            "--predictor",
+            "parent",
+            "--out",
+            &c,
+            "--json",
+        ],
+    ));
+    assert_eq!(j["predictor"], "parent");
+    for store in [&a, &b, &c] {
+        let r = run(&["verify", store]);
+        assert!(r.ok, "verify {store}: {}", r.stderr);
+    }
+    expect_error(
+        &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
+        &["--predictor axes needs --base box6"],
+    );
 }
 
 #[test]

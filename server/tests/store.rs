@@ -204,7 +204,7 @@ proptest! {
     /// `--max-error E`: over random fields (a raw f32 grid: a smooth wave plus noise of random
     /// amplitude, offset and scale) and random bounds (absolute or a percentage of the range), every
     /// synthesized vertex is within `E` of its sample, the manifest's bound is at most `E`, and
-    /// `verify` passes.
+    /// `verify` passes; with either predictor (box6 grids get the axes predictor).
     #[test]
     fn every_vertex_within_max_error(
         seed in any::<u64>(),
@@ -214,6 +214,7 @@ proptest! {
         exp in -5.0f64..-1.0,
         pct in any::<bool>(),
         levels in 2u8..4,
+        box6 in any::<bool>(),
     ) {
         use tetwave_server::analysis::ErrorBound;
         let d = tempfile::tempdir().unwrap();
@@ -242,6 +243,10 @@ proptest! {
         o.dims = Some([n, n, n]);
         o.dtype = "f32".into();
         o.levels = levels;
+        if box6 {
+            // the axes predictor (`--predictor auto` on a box6 grid)
+            o.base = tetwave_server::resample::BaseSpec::Box6;
+        }
         let frac = 10f64.powf(exp);
         let bound = if pct { ErrorBound::OfRange(frac) } else { ErrorBound::Absolute(frac * scale) };
         o.max_error = Some(bound);
@@ -274,6 +279,8 @@ proptest! {
         prop_assert!(store.manifest.max_error_bound <= e);
         prop_assert!(worst <= store.manifest.max_error_bound);
         prop_assert!(verify(&out).is_ok());
+        let axes = store.base.predictor == tetwave_protocol::wavelet::Predictor::Axes;
+        prop_assert_eq!(axes, box6);
     }
 }
 

@@ -8,7 +8,8 @@ impl AdaptiveMesh {
     /// Applies coefficients and node metadata that arrived in `buf` (as recorded in `arrivals`):
     /// present vertices owning a new coefficient are recomputed in place, then every present vertex
     /// whose prediction reads a changed one (level by level); children of arrived nodes get their `empty`
-    /// flags. Returns the number of vertex values recomputed.
+    /// flags. Returns the number of vertex values recomputed. With the axes predictor values are
+    /// brought up to date by [`Self::refresh_values`] instead (0 here).
     pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
         let nbase = self.keys.base_vertex_count();
         if self.axes.is_some() {
@@ -62,21 +63,35 @@ impl AdaptiveMesh {
     }
 
     /// [`Self::apply_arrivals`] with the axes predictor: a coefficient changes vertices far
-    /// from its owner (every one whose stencils read it, transitively), so every present vertex
-    /// is synthesized again from the values by key.
+    /// from its owner (every one whose stencils read it, transitively), so arrivals only mark
+    /// where values may have changed, and [`Self::refresh_values`] recomputes the present
+    /// vertices there once per frame rather than once per batch.
     fn apply_arrivals_axes(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
+        self.axes
+            .as_mut()
+            .expect("axes values")
+            .arrived(&arrivals.keys);
+        self.refresh_arrived_nodes(buf, arrivals);
+        0
+    }
+
+    /// Brings every present vertex's value up to the coefficients `buf` holds; returns how many
+    /// were recomputed. Only meshes with the axes predictor defer this (see
+    /// [`Self::apply_arrivals`]); for the others values are always current and this is free.
+    pub fn refresh_values(&mut self, buf: &DetailBuffer) -> usize {
+        if !self.axes.as_ref().is_some_and(|a| a.any_stale()) {
+            return 0;
+        }
         let nbase = self.keys.base_vertex_count() as usize;
         let mut count = 0;
-        if !arrivals.keys.is_empty() {
-            self.axes.as_mut().expect("axes values").invalidate();
-            for s in nbase..self.vkey.len() {
-                if self.vref[s] != 0 {
-                    self.vval[s] = self.synth_value(buf, s as u32);
-                    count += 1;
-                }
+        for s in nbase..self.vkey.len() {
+            let key = self.vkey[s] as usize;
+            if self.vref[s] != 0 && self.axes.as_ref().is_some_and(|a| a.stale(key)) {
+                self.vval[s] = self.synth_value(buf, s as u32);
+                count += 1;
             }
         }
-        self.refresh_arrived_nodes(buf, arrivals);
+        self.axes.as_mut().expect("axes values").refreshed();
         count
     }
 
