@@ -175,6 +175,18 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
             empty: vec![false],
             predictor: Default::default(),
         })),
+        // a box6 base with the axes predictor (its validation checks the Kuhn structure)
+        ServerMsg::Base(Box::new({
+            let (positions, tets) = tetwave_protocol::shapes::box6([0.0; 3], [1.0; 3]);
+            tetwave_protocol::BaseMesh {
+                levels: 2,
+                values: vec![0.5; positions.len()],
+                empty: vec![false; tets.len()],
+                predictor: tetwave_protocol::wavelet::Predictor::Axes,
+                positions,
+                tets,
+            }
+        })),
     ];
     client
         .iter()
