@@ -122,6 +122,69 @@ async fn every_order_delivers_everything_once_and_synthesis_matches() {
     assert!(tokio_tungstenite::connect_async(url).await.is_err());
 }
 
+/// With the axes predictor every order sends a node no later than the nodes owning what its
+/// stencils read (in the same batch at the latest), so a client draws each new vertex exactly as
+/// soon as its node arrives; and everything still arrives once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn axes_stencils_arrive_with_their_nodes() {
+    use tetwave_protocol::axes::Grid;
+    use tetwave_protocol::ownership::Ownership;
+    use tetwave_protocol::synthesis::NodeAt;
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path().join("store");
+    let mut o = tetwave_server::prepare::PrepareOptions::new("synthetic:harmonic", &dir);
+    o.levels = 4;
+    o.base = tetwave_server::resample::BaseSpec::Box6;
+    o.max_error = Some(tetwave_server::analysis::ErrorBound::OfRange(1e-3));
+    tetwave_server::prepare::prepare(&o).unwrap();
+    let store = Store::open(&dir).unwrap();
+    let base = &store.base;
+    assert_eq!(base.predictor, tetwave_protocol::wavelet::Predictor::Axes);
+    // who owns each vertex, and each node's owned vertices, from the contract alone
+    let (forest, keys) = (base.forest(), base.vertex_keys());
+    let (grid, ownership) = (Grid::of(base, &keys).unwrap(), Ownership::new(base));
+    let owned_keys = |id: u64| -> Vec<usize> {
+        let tet = NodeAt::from_id(&forest, id).tet();
+        let mask = ownership.owned(id);
+        (0..6)
+            .filter(|e| mask >> e & 1 == 1)
+            .map(|e| keys.key(tet.base, &tet.edge_midpoint(e)) as usize)
+            .collect()
+    };
+    let mut owner = vec![u64::MAX; keys.vertex_count() as usize];
+    for id in 0..forest.nodes() {
+        for k in owned_keys(id) {
+            owner[k] = id;
+        }
+    }
+    let values = store_values(&store);
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    for order in ["level", "magnitude", "view", "random"] {
+        let s = session(addr, &format!("?order={order}"), None).await;
+        assert_complete(&s, &store, &values);
+        let mut held = HashSet::new();
+        let mut pulled = 0;
+        for batch in by_batch(&s) {
+            held.extend(batch.iter().map(|n| n.id));
+            for n in batch {
+                for k in owned_keys(n.id) {
+                    for r in grid.stencil(k).into_iter().flatten().flatten() {
+                        let o = owner[r];
+                        assert!(
+                            o == u64::MAX || held.contains(&o),
+                            "{order}: node {} reads vertex {r} of node {o}, not yet sent",
+                            n.id
+                        );
+                        pulled += usize::from(o != u64::MAX && o > n.id);
+                    }
+                }
+            }
+        }
+        // (the check can fail: nodes read vertices of later ids)
+        assert!(pulled > 0, "{order}");
+    }
+}
+
 fn centre(store: &Store, id: u64) -> [f64; 3] {
     let t = LatticeTet::from_id(&store.forest(), id);
     let mut c = [0.0; 3];

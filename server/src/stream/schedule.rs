@@ -5,6 +5,7 @@
 
 use super::config::Order;
 use super::state::Shared;
+use super::stencils::StencilDeps;
 use glam::DVec3;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -277,8 +278,29 @@ impl Schedule {
         self.rescans
     }
 
-    /// Up to `max` ids to send next (wanted ranges first, then the order).
+    /// Marks `i` sent and appends it to `out`, after the unsent nodes that own what its
+    /// stencils read (with the axes predictor; transitively, so each of those comes after its
+    /// own). A node's dependencies can lead back to it (it owns vertices of several passes), so
+    /// `i` is marked before they are visited: then both land in this batch.
+    fn send(&mut self, deps: Option<&StencilDeps>, i: TetId, out: &mut Vec<TetId>) {
+        self.mark_done(i);
+        if let Some(d) = deps {
+            let mut reads = Vec::new();
+            d.reads(i, &mut reads);
+            for j in reads {
+                if !self.done.get(j) {
+                    self.send(deps, j, out);
+                }
+            }
+        }
+        out.push(i);
+    }
+
+    /// Up to `max` ids to send next (wanted ranges first, then the order; with the axes
+    /// predictor, the order's nodes come with what their stencils read, which may go past `max`).
     pub(super) fn next_batch(&mut self, s: &Shared, max: usize) -> Vec<TetId> {
+        let deps = s.stencil_deps();
+        let deps = deps.as_deref();
         let mut out = Vec::with_capacity(max.min(self.n as usize));
         while out.len() < max {
             let Some((a, b)) = self.wants.pop_front((max - out.len()) as u64) else {
@@ -326,14 +348,12 @@ impl Schedule {
                             // with its unsent siblings: they lie beside it (about the same
                             // priority), and a batch of whole sibling groups codes its ids as
                             // runs (protocol::block) instead of scattered gaps
-                            self.mark_done(i);
-                            out.push(i);
+                            self.send(deps, i, &mut out);
                             if let Some(c) = s.forest().child_index(i) {
                                 let first = i - c as u64;
                                 for j in first..first + 8 {
                                     if out.len() < max && !self.done.get(j) {
-                                        self.mark_done(j);
-                                        out.push(j);
+                                        self.send(deps, j, &mut out);
                                     }
                                 }
                             }
@@ -343,8 +363,7 @@ impl Schedule {
                     }
                 }
             };
-            self.mark_done(i);
-            out.push(i);
+            self.send(deps, i, &mut out);
         }
         out
     }

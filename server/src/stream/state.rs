@@ -6,6 +6,7 @@ use super::admission::{Admission, PeerBudgets};
 use super::auth::FailureLimiter;
 use super::config::ServeConfig;
 use super::error::ServeError;
+use super::stencils::StencilDeps;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
 use glam::DVec3;
@@ -48,6 +49,7 @@ pub struct Shared {
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
+    stencil_deps: OnceLock<Option<Arc<StencilDeps>>>,
     pub(super) connections: AtomicU64,
     /// View-order rescans over every connection (`/healthz` reports it).
     pub(super) view_rescans: AtomicU64,
@@ -139,6 +141,7 @@ impl Shared {
             magnitude_perm: OnceLock::new(),
             random_perm: OnceLock::new(),
             geometry: OnceLock::new(),
+            stencil_deps: OnceLock::new(),
             connections: AtomicU64::new(0),
             view_rescans: AtomicU64::new(0),
             render,
@@ -203,6 +206,14 @@ impl Shared {
                 }
                 Arc::new(Geometry { centre, radius })
             })
+            .clone()
+    }
+
+    /// With the axes predictor, who owns what each node's stencils read; computed when an order
+    /// first asks.
+    pub(super) fn stencil_deps(&self) -> Option<Arc<StencilDeps>> {
+        self.stencil_deps
+            .get_or_init(|| StencilDeps::new(&self.store.base).map(Arc::new))
             .clone()
     }
 
