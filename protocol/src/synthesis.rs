@@ -92,10 +92,7 @@ pub fn synthesize_all(
                 }
             }
         };
-        match grid {
-            None => apply_node(keys, &at, &node, &mut values, &mut set)?,
-            Some(_) => place_details(keys, &at, &node, &mut values, &mut set)?,
-        }
+        apply_node(keys, &at, &node, grid.is_some(), &mut values, &mut set)?;
     }
     if expected != total {
         return Err(SynthesisError::Missing {
@@ -110,31 +107,6 @@ pub fn synthesize_all(
         grid.predict_all(&mut values, |k, p| synthesize(details[k], p));
     }
     Ok(values)
-}
-
-/// Puts the details of the vertices `node` owns into `values` (the axes predictor synthesizes
-/// them once every detail is in place).
-fn place_details(
-    keys: &VertexKeys,
-    at: &NodeAt,
-    node: &DetailNode,
-    values: &mut [f32],
-    set: &mut [bool],
-) -> Result<(), SynthesisError> {
-    let tet = at.tet();
-    for e in 0..6 {
-        if let Some(d) = node.coeff(e) {
-            let k = keys.key(tet.base, &tet.edge_midpoint(e)) as usize;
-            if std::mem::replace(&mut set[k], true) {
-                return Err(SynthesisError::OwnedTwice {
-                    key: k as u64,
-                    id: node.id,
-                });
-            }
-            values[k] = d;
-        }
-    }
-    Ok(())
 }
 
 /// Where a node's tet sits: a base tet, or child `child` (Bey order) of a parent tet.
@@ -165,46 +137,50 @@ impl NodeAt {
     }
 }
 
-/// Sets the values of the vertices `node` owns on its tet with [`Predictor::Parent`] (the points
-/// its predictions read — the edge's ends, or the parent's 10 split points — must already have
-/// values).
-pub fn apply_node(
+/// Sets the values of the vertices `node` owns on its tet (the points its parent predictions
+/// read — the edge's ends, or the parent's 10 split points — must already have values); with
+/// `axes`, their details instead (the axes passes synthesize them once every detail is in place).
+fn apply_node(
     keys: &VertexKeys,
     at: &NodeAt,
     node: &DetailNode,
+    axes: bool,
     values: &mut [f32],
     set: &mut [bool],
 ) -> Result<(), SynthesisError> {
     let tet = at.tet();
     let parent_values = match at {
-        NodeAt::Base(_) => None,
-        NodeAt::Child { parent, child } => {
+        NodeAt::Child { parent, child } if !axes => {
             let sp = parent.split_points();
             Some((
                 sp.map(|w| values[keys.key(parent.base, &w) as usize]),
                 BEY_CHILDREN[*child],
             ))
         }
+        _ => None,
     };
     for (e, &(a, b)) in EDGES.iter().enumerate() {
         if let Some(d) = node.coeff(e) {
             let k = keys.key(tet.base, &tet.edge_midpoint(e)) as usize;
-            if set[k] {
+            if std::mem::replace(&mut set[k], true) {
                 return Err(SynthesisError::OwnedTwice {
                     key: k as u64,
                     id: node.id,
                 });
             }
-            let p = match &parent_values {
-                Some((v, c)) => predict_split(v, c[a], c[b]),
-                None => {
-                    let u = keys.key(tet.base, &tet.v[a]) as usize;
-                    let v = keys.key(tet.base, &tet.v[b]) as usize;
-                    predict(values[u], values[v])
-                }
+            values[k] = if axes {
+                d
+            } else {
+                let p = match &parent_values {
+                    Some((v, c)) => predict_split(v, c[a], c[b]),
+                    None => {
+                        let u = keys.key(tet.base, &tet.v[a]) as usize;
+                        let v = keys.key(tet.base, &tet.v[b]) as usize;
+                        predict(values[u], values[v])
+                    }
+                };
+                synthesize(d, p)
             };
-            values[k] = synthesize(d, p);
-            set[k] = true;
         }
     }
     Ok(())
