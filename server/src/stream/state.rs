@@ -49,7 +49,9 @@ pub struct Shared {
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
-    stencil_deps: OnceLock<Option<Arc<StencilDeps>>>,
+    /// With the axes predictor, who owns what each node's stencils read (built at open, so
+    /// that no connection waits for it).
+    stencil_deps: Option<Arc<StencilDeps>>,
     pub(super) connections: AtomicU64,
     /// View-order rescans over every connection (`/healthz` reports it).
     pub(super) view_rescans: AtomicU64,
@@ -124,6 +126,7 @@ impl Shared {
             "store {} opened for serving",
             dir.display()
         );
+        let stencil_deps = StencilDeps::new(&store.base).map(Arc::new);
         let render = RenderService::new(dir);
         let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
@@ -141,7 +144,7 @@ impl Shared {
             magnitude_perm: OnceLock::new(),
             random_perm: OnceLock::new(),
             geometry: OnceLock::new(),
-            stencil_deps: OnceLock::new(),
+            stencil_deps,
             connections: AtomicU64::new(0),
             view_rescans: AtomicU64::new(0),
             render,
@@ -209,12 +212,9 @@ impl Shared {
             .clone()
     }
 
-    /// With the axes predictor, who owns what each node's stencils read; computed when an order
-    /// first asks.
+    /// With the axes predictor, who owns what each node's stencils read.
     pub(super) fn stencil_deps(&self) -> Option<Arc<StencilDeps>> {
-        self.stencil_deps
-            .get_or_init(|| StencilDeps::new(&self.store.base).map(Arc::new))
-            .clone()
+        self.stencil_deps.clone()
     }
 
     /// The nodes `ids` (in that order when cached, else in increasing id order).

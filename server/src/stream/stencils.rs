@@ -1,8 +1,10 @@
 //! For stores with the axes predictor ([`tetwave_protocol::axes`]): which nodes own the vertices
-//! a node's stencils read, so that every order sends them no later than the node itself, in the
-//! same batch at the latest. A client then holds, with each node, every coefficient its new
-//! vertices' predictions read (transitively, since each of those owners came with its own), and
-//! draws those vertices exactly as soon as they arrive, whatever the order or the view.
+//! a node's stencils read, transitively, so that an order sends them no later than the node it
+//! chose (in the same batch at the latest). A client then draws the chosen node's new vertices
+//! exactly as soon as they arrive, whatever the order or the view. The nodes pulled in this way
+//! bring other vertices too, whose own stencils are not followed (that would pull in a whole level
+//! node by node, each owning vertices of several passes): those are exact once the order reaches
+//! them, and everything is once the stream is complete.
 
 use tetwave_protocol::axes::Grid;
 use tetwave_protocol::ownership::Ownership;
@@ -57,16 +59,50 @@ impl StencilDeps {
         }
     }
 
-    /// The nodes owning the vertices node `id`'s new vertices' stencils read (not `id` itself;
-    /// with repeats).
-    pub(super) fn reads(&self, id: TetId, out: &mut Vec<TetId>) {
-        self.for_each_owned_key(id, |k| {
-            for r in self.grid.stencil(k).into_iter().flatten().flatten() {
-                let o = self.owner[r];
-                if o != u32::MAX && o as TetId != id {
-                    out.push(o as TetId);
-                }
-            }
-        });
+    /// Calls `need` with the owner of every vertex that the stencils of node `id`'s own vertices
+    /// read, transitively, deepest first (`id` itself among them), skipping the vertices already
+    /// set in `closed` (per key: its closure has been handed out) and setting those it visits.
+    pub(super) fn closure(&self, id: TetId, closed: &mut [u64], need: &mut impl FnMut(TetId)) {
+        self.for_each_owned_key(id, |k| self.close(k, closed, need));
+    }
+
+    /// The recursion of [`Self::closure`]: its depth is at most three passes a level.
+    fn close(&self, k: usize, closed: &mut [u64], need: &mut impl FnMut(TetId)) {
+        let (w, bit) = (k / 64, 1u64 << (k % 64));
+        if closed[w] & bit != 0 {
+            return;
+        }
+        closed[w] |= bit;
+        for r in self.grid.stencil(k).into_iter().flatten().flatten() {
+            self.close(r, closed, need);
+        }
+        if self.owner[k] != u32::MAX {
+            need(self.owner[k] as TetId);
+        }
+    }
+
+    /// Words of a [`Self::closure`] bitset.
+    pub(super) fn closed_words(&self) -> usize {
+        self.owner.len().div_ceil(64)
+    }
+
+    /// The owner of vertex `key` (`None` for a base vertex).
+    #[cfg(test)]
+    pub(super) fn owner(&self, key: usize) -> Option<TetId> {
+        (self.owner[key] != u32::MAX).then_some(self.owner[key] as TetId)
+    }
+
+    /// The stencil of vertex `key`.
+    #[cfg(test)]
+    pub(super) fn stencil(&self, key: usize) -> Option<tetwave_protocol::axes::Stencil> {
+        self.grid.stencil(key)
+    }
+
+    /// The vertices node `id` owns.
+    #[cfg(test)]
+    pub(super) fn owned_keys(&self, id: TetId) -> Vec<usize> {
+        let mut v = Vec::new();
+        self.for_each_owned_key(id, |k| v.push(k));
+        v
     }
 }
