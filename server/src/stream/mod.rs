@@ -37,7 +37,6 @@ mod origin;
 mod routes;
 mod schedule;
 mod state;
-mod stencils;
 
 pub use admission::{open_file_limit, Peer};
 pub use background::BackgroundServer;

@@ -5,7 +5,6 @@
 
 use super::config::Order;
 use super::state::Shared;
-use super::stencils::StencilDeps;
 use glam::DVec3;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -184,12 +183,6 @@ pub(super) struct Schedule {
     plan: Plan,
     /// View rescans so far (tests read it).
     rescans: u64,
-    /// With the axes predictor, per vertex key: the owners of what its stencils read have been
-    /// sent ([`StencilDeps::closure`]).
-    closed: Option<Vec<u64>>,
-    /// The ids the order chose, in order (not those sent as their dependencies).
-    #[cfg(test)]
-    chosen: Vec<TetId>,
 }
 
 /// Most disjoint `Want` ranges a connection may have queued (after merging).
@@ -224,9 +217,6 @@ impl Schedule {
             wants: RangeSet::default(),
             plan,
             rescans: 0,
-            closed: None,
-            #[cfg(test)]
-            chosen: Vec::new(),
         }
     }
 
@@ -287,32 +277,8 @@ impl Schedule {
         self.rescans
     }
 
-    /// Marks `i` sent and appends it to `out`, after the unsent nodes that own what its
-    /// stencils read, transitively (with the axes predictor: [`StencilDeps::closure`]).
-    fn send(&mut self, deps: Option<&StencilDeps>, i: TetId, out: &mut Vec<TetId>) {
-        if let Some(d) = deps {
-            let closed = self.closed.get_or_insert_with(|| vec![0; d.closed_words()]);
-            let mut need = Vec::new();
-            d.closure(i, closed, &mut |o| need.push(o));
-            for o in need {
-                if o != i && !self.done.get(o) {
-                    self.mark_done(o);
-                    out.push(o);
-                }
-            }
-        }
-        #[cfg(test)]
-        self.chosen.push(i);
-        self.mark_done(i);
-        out.push(i);
-    }
-
-    /// Up to `max` ids to send next (wanted ranges first, then the order; with the axes
-    /// predictor, the order's nodes come with the owners of what their stencils read, which may
-    /// go past `max` by a bounded number: those within reach of the node, `axes::DEPENDENCY_REACH`).
+    /// Up to `max` ids to send next (wanted ranges first, then the order).
     pub(super) fn next_batch(&mut self, s: &Shared, max: usize) -> Vec<TetId> {
-        let deps = s.stencil_deps();
-        let deps = deps.as_deref();
         let mut out = Vec::with_capacity(max.min(self.n as usize));
         while out.len() < max {
             let Some((a, b)) = self.wants.pop_front((max - out.len()) as u64) else {
@@ -360,12 +326,14 @@ impl Schedule {
                             // with its unsent siblings: they lie beside it (about the same
                             // priority), and a batch of whole sibling groups codes its ids as
                             // runs (protocol::block) instead of scattered gaps
-                            self.send(deps, i, &mut out);
+                            self.mark_done(i);
+                            out.push(i);
                             if let Some(c) = s.forest().child_index(i) {
                                 let first = i - c as u64;
                                 for j in first..first + 8 {
                                     if out.len() < max && !self.done.get(j) {
-                                        self.send(deps, j, &mut out);
+                                        self.mark_done(j);
+                                        out.push(j);
                                     }
                                 }
                             }
@@ -375,7 +343,8 @@ impl Schedule {
                     }
                 }
             };
-            self.send(deps, i, &mut out);
+            self.mark_done(i);
+            out.push(i);
         }
         out
     }
@@ -564,57 +533,5 @@ mod tests {
             32,
         );
         assert_eq!(m, vec![(0, 6), (8, 12), (30, 32)]);
-    }
-
-    /// With the axes predictor, every order sends each node it chooses no later than the owner
-    /// of every vertex the stencils of its vertices read, transitively (in the same batch at the
-    /// latest); every node still goes once, and batches grow by a bounded amount.
-    #[test]
-    fn axes_orders_send_what_a_chosen_node_reads_first() {
-        use super::super::config::ServeConfig;
-        use std::collections::HashSet;
-        let d = tempfile::tempdir().unwrap();
-        let dir = d.path().join("s");
-        let mut o = crate::prepare::PrepareOptions::new("synthetic:harmonic", &dir);
-        o.levels = 4;
-        o.base = crate::resample::BaseSpec::Box6;
-        o.max_error = Some(crate::analysis::ErrorBound::OfRange(1e-3));
-        crate::prepare::prepare(&o).unwrap();
-        let s = Shared::open(&dir, ServeConfig::default()).unwrap();
-        let deps = s.stencil_deps().expect("an axes store");
-        const MAX: usize = 64;
-        for order in [Order::Level, Order::Magnitude, Order::Random, Order::View] {
-            let mut sch = Schedule::new(&s, order);
-            let mut held = vec![false; s.nodes as usize];
-            let (mut pulled, mut largest) = (0, 0);
-            while sch.has_work() {
-                let before = sch.chosen.len();
-                let batch = sch.next_batch(&s, MAX);
-                assert!(!batch.is_empty());
-                for &i in &batch {
-                    assert!(!std::mem::replace(&mut held[i as usize], true), "{i} twice");
-                }
-                pulled += batch.len() - (sch.chosen.len() - before);
-                largest = largest.max(batch.len());
-                for &c in &sch.chosen[before..] {
-                    let mut stack = deps.owned_keys(c);
-                    let mut seen: HashSet<usize> = stack.iter().copied().collect();
-                    while let Some(k) = stack.pop() {
-                        if let Some(o) = deps.owner(k) {
-                            assert!(held[o as usize], "{order:?}: {c} reads {k} of {o}, unsent");
-                        }
-                        for r in deps.stencil(k).into_iter().flatten().flatten() {
-                            if seen.insert(r) {
-                                stack.push(r);
-                            }
-                        }
-                    }
-                }
-            }
-            assert!(held.iter().all(|&h| h), "{order:?}: every node");
-            // the check can fail: some nodes come as others' dependencies
-            assert!(pulled > 0, "{order:?}");
-            assert!(largest <= 8 * MAX, "{order:?}: a batch of {largest}");
-        }
     }
 }

@@ -6,7 +6,6 @@ use super::admission::{Admission, PeerBudgets};
 use super::auth::FailureLimiter;
 use super::config::ServeConfig;
 use super::error::ServeError;
-use super::stencils::StencilDeps;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
 use glam::DVec3;
@@ -49,9 +48,6 @@ pub struct Shared {
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
-    /// With the axes predictor, who owns what each node's stencils read (built at open, so
-    /// that no connection waits for it).
-    stencil_deps: Option<Arc<StencilDeps>>,
     pub(super) connections: AtomicU64,
     /// View-order rescans over every connection (`/healthz` reports it).
     pub(super) view_rescans: AtomicU64,
@@ -126,7 +122,6 @@ impl Shared {
             "store {} opened for serving",
             dir.display()
         );
-        let stencil_deps = StencilDeps::new(&store.base).map(Arc::new);
         let render = RenderService::new(dir);
         let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
@@ -144,7 +139,6 @@ impl Shared {
             magnitude_perm: OnceLock::new(),
             random_perm: OnceLock::new(),
             geometry: OnceLock::new(),
-            stencil_deps,
             connections: AtomicU64::new(0),
             view_rescans: AtomicU64::new(0),
             render,
@@ -210,11 +204,6 @@ impl Shared {
                 Arc::new(Geometry { centre, radius })
             })
             .clone()
-    }
-
-    /// With the axes predictor, who owns what each node's stencils read.
-    pub(super) fn stencil_deps(&self) -> Option<Arc<StencilDeps>> {
-        self.stencil_deps.clone()
     }
 
     /// The nodes `ids` (in that order when cached, else in increasing id order).
