@@ -37,27 +37,34 @@ pub enum AxesError {
     TooLarge(u64),
 }
 
-/// The vertex key of every grid point of a `box6` hierarchy (x fastest), and the grid point of
-/// every key.
-#[derive(Debug, Clone)]
-pub struct Grid {
-    /// Finest-grid steps per axis: `2^levels`.
-    m: u32,
-    keys: Vec<u32>,
-    /// Per key, its grid point's index into `keys`.
-    points: Vec<u32>,
-}
-
 /// How far (in multiples of its level's step, along every axis) the vertices whose values read
 /// a vertex can lie from it ([`Grid::stencil`]).
 pub const DEPENDENCY_REACH: u32 = 6;
 
-/// The points a new vertex's prediction reads along its axis, by key: 3 and 1 steps before it, 1
-/// and 3 steps after it (the outer ones `None` past the box).
-pub type Stencil = [Option<usize>; 4];
+/// A grid point, in finest steps (`0..=m` on each axis).
+pub type Point = [u32; 3];
+
+/// The points a new vertex's prediction reads along its axis: 3 and 1 steps before it, 1 and 3
+/// steps after it (the outer ones `None` past the box).
+pub type Stencil = [Option<Point>; 4];
+
+/// The grid of a `box6` hierarchy: vertex keys of grid points and grid points of lattice points,
+/// by arithmetic (no table per vertex: a client holding a small part of a large hierarchy pays
+/// for what it touches only).
+#[derive(Debug, Clone)]
+pub struct Grid {
+    /// Finest-grid steps per axis: `2^levels`.
+    m: u32,
+    /// Per base vertex, its corner of the box (bit `a` set at the maximum along axis `a`).
+    corners: Vec<u8>,
+    /// Per Kuhn path (index `3a + b` for first axis `a`, second `b`): the base tet whose
+    /// vertices are `000, e_a, e_a + e_b, 111`, and the local index of each.
+    paths: [(u32, [u8; 4]); 9],
+    keys: VertexKeys,
+}
 
 impl Grid {
-    /// The grid of `base`'s hierarchy, or why it has none.
+    /// The grid of `base`'s hierarchy (`keys` its numbering), or why it has none.
     pub fn of(base: &BaseMesh, keys: &VertexKeys) -> Result<Self, AxesError> {
         let corners = kuhn_corners(base)?;
         let m = base.lattice().m();
@@ -65,45 +72,20 @@ impl Grid {
         if n * n * n > u32::MAX as u64 || keys.vertex_count() > u32::MAX as u64 {
             return Err(AxesError::TooLarge(n * n * n));
         }
-        let n = n as usize;
-        let mut grid = vec![u32::MAX; n * n * n];
+        let mut paths = [(u32::MAX, [0u8; 4]); 9];
         for (t, tet) in base.tets.iter().enumerate() {
-            let bits = tet.map(|v| corners[v as usize]);
-            // every lattice point w of the tet: its grid point is Σ w_i · corner_i
-            for w0 in 0..=m {
-                for w1 in 0..=m - w0 {
-                    for w2 in 0..=m - w0 - w1 {
-                        let w: Bary = [w0, w1, w2, m - w0 - w1 - w2];
-                        let c = |axis: u32| -> usize {
-                            (0..4)
-                                .filter(|&i| bits[i] >> axis & 1 == 1)
-                                .map(|i| w[i] as usize)
-                                .sum()
-                        };
-                        grid[c(0) + n * (c(1) + n * c(2))] = keys.key(t as u32, &w) as u32;
-                    }
-                }
-            }
-        }
-        if grid.contains(&u32::MAX) {
-            return Err(AxesError::NotKuhnBox(
-                "its tets leave grid points uncovered",
-            ));
-        }
-        let mut points = vec![u32::MAX; keys.vertex_count() as usize];
-        for (i, &k) in grid.iter().enumerate() {
-            points[k as usize] = i as u32;
+            let mut local: [u8; 4] = [0, 1, 2, 3];
+            local.sort_by_key(|&i| corners[tet[i as usize] as usize].count_ones());
+            let c = local.map(|i| corners[tet[i as usize] as usize]);
+            let (a, b) = (c[1].trailing_zeros(), (c[2] ^ c[1]).trailing_zeros());
+            paths[(3 * a + b) as usize] = (t as u32, local);
         }
         Ok(Grid {
             m,
-            keys: grid,
-            points,
+            corners,
+            paths,
+            keys: keys.clone(),
         })
-    }
-
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        (self.keys.len() + self.points.len()) * 4
     }
 
     /// Finest-grid steps per axis (`2^levels`): grid points run over `0..=m()` on each axis.
@@ -111,19 +93,49 @@ impl Grid {
         self.m
     }
 
-    /// The grid point of vertex `key`.
+    /// The vertex key of grid point `p`.
     #[inline]
-    pub fn point(&self, key: usize) -> [u32; 3] {
-        let n = self.m + 1;
-        let i = self.points[key];
-        [i % n, i / n % n, i / (n * n)]
+    pub fn key(&self, p: Point) -> usize {
+        // the Kuhn tet {p_a ≥ p_b ≥ p_c} holds p (on a shared face either does: keys are global)
+        let (mut a, mut b, mut c) = (0, 1, 2);
+        if p[b] > p[a] {
+            std::mem::swap(&mut a, &mut b);
+        }
+        if p[c] > p[b] {
+            std::mem::swap(&mut b, &mut c);
+            if p[b] > p[a] {
+                std::mem::swap(&mut a, &mut b);
+            }
+        }
+        let (t, local) = self.paths[3 * a + b];
+        let mut w = [0u32; 4];
+        w[local[0] as usize] = self.m - p[a];
+        w[local[1] as usize] = p[a] - p[b];
+        w[local[2] as usize] = p[b] - p[c];
+        w[local[3] as usize] = p[c];
+        self.keys.key(t, &w) as usize
     }
 
-    /// The step `s` (in finest steps) of the level that makes vertex `key` and the axis it is
+    /// The grid point of lattice point `w` of base tet `tet`.
+    #[inline]
+    pub fn point(&self, tet: u32, w: &Bary) -> Point {
+        let t = &self.keys.base_tets()[tet as usize];
+        let mut p = [0u32; 3];
+        for i in 0..4 {
+            let c = self.corners[t[i] as usize];
+            for (a, pa) in p.iter_mut().enumerate() {
+                if c >> a & 1 == 1 {
+                    *pa += w[i];
+                }
+            }
+        }
+        p
+    }
+
+    /// The step `s` (in finest steps) of the level that makes point `p` and the axis it is
     /// predicted along; `None` for a base vertex (a corner of the box).
     #[inline]
-    pub fn step_and_axis(&self, key: usize) -> Option<(u32, usize)> {
-        let p = self.point(key);
+    pub fn step_and_axis(&self, p: Point) -> Option<(u32, usize)> {
         // its level's step: the largest power of two dividing every coordinate; the axis: the
         // last one odd in that step (the pass that makes the point)
         let tz = p.map(|c| if c == 0 { u32::MAX } else { c.trailing_zeros() });
@@ -135,41 +147,47 @@ impl Grid {
         Some((1 << t, axis))
     }
 
-    /// What vertex `key`'s prediction reads; `None` for a base vertex.
+    /// What point `p`'s prediction reads; `None` for a base vertex.
     ///
-    /// Following stencils from a vertex made with step `s` moves at most `3σ` along each axis
-    /// per level of step `σ ≤ s` (one pass per axis), so every vertex whose value reads it,
+    /// Following stencils from a point made with step `s` moves at most `3σ` along each axis
+    /// per level of step `σ ≤ s` (one pass per axis), so every point whose value reads it,
     /// transitively, lies within `6s` of it along every axis ([`DEPENDENCY_REACH`]).
-    pub fn stencil(&self, key: usize) -> Option<Stencil> {
-        let (s, axis) = self.step_and_axis(key)?;
-        Some(self.stencil_at(self.point(key), axis, s))
+    #[inline]
+    pub fn stencil(&self, p: Point) -> Option<Stencil> {
+        let (s, axis) = self.step_and_axis(p)?;
+        Some(self.stencil_at(p, axis, s))
     }
 
     #[inline]
-    fn stencil_at(&self, p: [u32; 3], axis: usize, s: u32) -> Stencil {
-        let at = |o: i64| -> Option<usize> {
+    fn stencil_at(&self, p: Point, axis: usize, s: u32) -> Stencil {
+        let at = |o: i64| -> Option<Point> {
             let c = p[axis] as i64 + o * s as i64;
             (0..=self.m as i64).contains(&c).then(|| {
                 let mut q = p;
                 q[axis] = c as u32;
-                self.key(q)
+                q
             })
         };
         [at(-3), at(-1), at(1), at(3)]
     }
 
-    /// The key of grid point `p` (finest steps).
-    #[inline]
-    fn key(&self, p: [u32; 3]) -> usize {
-        let n = self.m as usize + 1;
-        self.keys[p[0] as usize + n * (p[1] as usize + n * p[2] as usize)] as usize
-    }
-
     /// Visits every vertex above the base level in the predictor's order (coarse to fine, then
     /// x, y, z passes) with its key and its prediction from `values` (by vertex key); `value`
     /// returns the vertex's value, which `values` takes before any later prediction reads it.
+    /// Holds a key per grid point while it runs.
     pub fn predict_all(&self, values: &mut [f32], mut value: impl FnMut(usize, f32) -> f32) {
         let m = self.m;
+        let n = m as usize + 1;
+        let mut keys = vec![0u32; n * n * n];
+        for z in 0..=m {
+            for y in 0..=m {
+                for x in 0..=m {
+                    keys[x as usize + n * (y as usize + n * z as usize)] =
+                        self.key([x, y, z]) as u32;
+                }
+            }
+        }
+        let key = |q: Point| keys[q[0] as usize + n * (q[1] as usize + n * q[2] as usize)] as usize;
         let mut s = m / 2;
         while s >= 1 {
             for axis in 0..3 {
@@ -184,8 +202,8 @@ impl Grid {
                         p[0] = first(0);
                         while p[0] <= m {
                             let st = self.stencil_at(p, axis, s);
-                            let prediction = predict_from(st, |k| values[k]);
-                            let k = self.key(p);
+                            let prediction = predict_from(st, |q| values[key(q)]);
+                            let k = key(p);
                             values[k] = value(k, prediction);
                             p[0] += step(0);
                         }
@@ -201,7 +219,7 @@ impl Grid {
 
 /// The prediction from a stencil's points, `value` giving their values.
 #[inline]
-pub fn predict_from(st: Stencil, value: impl Fn(usize) -> f32) -> f32 {
+pub fn predict_from(st: Stencil, value: impl Fn(Point) -> f32) -> f32 {
     let (b, c) = (st[1].expect("inside"), st[2].expect("inside"));
     along_axis(st[0].map(&value), value(b), value(c), st[3].map(&value))
 }
@@ -284,19 +302,39 @@ mod tests {
         b
     }
 
+    fn points(m: u32) -> impl Iterator<Item = Point> {
+        (0..=m).flat_map(move |z| (0..=m).flat_map(move |y| (0..=m).map(move |x| [x, y, z])))
+    }
+
+    /// Grid points and vertex keys are one-to-one, and a lattice point of any base tet is the
+    /// grid point whose key it has (base tets in any vertex order).
     #[test]
     fn box6_grid_keys_are_every_vertex_once() {
         for levels in 0..4 {
-            let b = base(levels, box6([0.0; 3], [2.0, 1.0, 0.5]));
+            let mut b = base(levels, box6([0.0; 3], [2.0, 1.0, 0.5]));
+            for t in b.tets.iter_mut().skip(1).step_by(2) {
+                t.swap(0, 2);
+                t.swap(1, 3);
+            }
             let keys = b.vertex_keys();
             let g = Grid::of(&b, &keys).unwrap();
             let mut seen = vec![false; keys.vertex_count() as usize];
-            for &k in &g.keys {
-                assert!(!seen[k as usize], "key {k} twice");
-                seen[k as usize] = true;
+            for p in points(g.m()) {
+                let k = g.key(p);
+                assert!(!std::mem::replace(&mut seen[k], true), "key {k} twice");
             }
             assert!(seen.iter().all(|&s| s));
-            assert_eq!(g.keys.len(), ((1usize << levels) + 1).pow(3));
+            let m = b.lattice().m();
+            for t in 0..6u32 {
+                for w0 in 0..=m {
+                    for w1 in 0..=m - w0 {
+                        for w2 in 0..=m - w0 - w1 {
+                            let w = [w0, w1, w2, m - w0 - w1 - w2];
+                            assert_eq!(g.key(g.point(t, &w)), keys.key(t, &w) as usize);
+                        }
+                    }
+                }
+            }
         }
     }
 
@@ -325,35 +363,22 @@ mod tests {
         let keys = b.vertex_keys();
         let g = Grid::of(&b, &keys).unwrap();
         let n = keys.vertex_count() as usize;
-        let m = g.m;
+        let m = g.m();
         let mut pos = vec![[0u32; 3]; n];
-        for z in 0..=m {
-            for y in 0..=m {
-                for x in 0..=m {
-                    pos[g.key([x, y, z])] = [x, y, z];
-                }
-            }
+        for p in points(m) {
+            pos[g.key(p)] = p;
         }
-        // the step s of the level that makes point p, the axis it is predicted along, and
-        // whether both outer points (3 steps away) are inside
-        let rule = |p: [u32; 3]| {
-            let tz = p.map(|c| if c == 0 { 32 } else { c.trailing_zeros() });
-            let t = *tz.iter().min().unwrap();
-            let axis = (0..3).rev().find(|&a| tz[a] == t).unwrap();
-            let s = 1u32 << t;
-            (s, p[axis] >= 3 * s && p[axis] + 3 * s <= m)
-        };
-        let cubic = |p: [u32; 3]| {
+        let cubic = |p: Point| {
             let [x, y, z] = p.map(|c| c as f32 / m as f32);
             1.0 + x * x * x - 2.0 * y * y * y + 0.5 * z * z * z + x * y * z
         };
-        let quadratic = |p: [u32; 3]| {
+        let quadratic = |p: Point| {
             let [x, y, z] = p.map(|c| c as f32 / m as f32);
             1.0 + x * x - 2.0 * y * y + 0.5 * z * z + x * y - y * z
         };
         for (f, exact_when) in [
-            (&cubic as &dyn Fn([u32; 3]) -> f32, 0),
-            (&quadratic as &dyn Fn([u32; 3]) -> f32, 1),
+            (&cubic as &dyn Fn(Point) -> f32, 0),
+            (&quadratic as &dyn Fn(Point) -> f32, 1),
         ] {
             let mut values = vec![f32::NAN; n];
             for v in 0..8 {
@@ -364,14 +389,15 @@ mod tests {
             seen[..8].fill(true);
             g.predict_all(&mut values, |k, p| {
                 visits += 1;
-                // the stencil a client reads by key is the one the pass used, and its points
-                // were visited before
-                let st = g.stencil(k).expect("not a corner");
-                assert!(st.iter().flatten().all(|&q| seen[q]), "{:?}", pos[k]);
-                assert_eq!(p.to_bits(), predict_from(st, |q| f(pos[q])).to_bits());
-                seen[k] = true;
                 assert!(p.is_finite(), "vertex {k} read an unset point");
-                let (s, four) = rule(pos[k]);
+                // the stencil a client reads by point is the one the pass used, and its points
+                // were visited before
+                let st = g.stencil(pos[k]).expect("not a corner");
+                assert!(st.iter().flatten().all(|&q| seen[g.key(q)]), "{:?}", pos[k]);
+                assert_eq!(p.to_bits(), predict_from(st, f).to_bits());
+                seen[k] = true;
+                let (s, axis) = g.step_and_axis(pos[k]).unwrap();
+                let four = pos[k][axis] >= 3 * s && pos[k][axis] + 3 * s <= m;
                 let applies = if exact_when == 0 { four } else { s < m / 2 };
                 if applies {
                     checked += 1;
@@ -385,17 +411,15 @@ mod tests {
                 f(pos[k])
             });
             assert_eq!(visits, n - 8);
-            assert!((0..8).all(|k| g.stencil(k).is_none()));
+            assert!((0..8).all(|k| g.stencil(pos[k]).is_none()));
             assert!(checked > n / 4, "{checked} of {n}");
         }
         // the test could fail: the linear midpoint is not exact on the quadratic
-        assert!(
-            (predict(quadratic([0, 0, 0]), quadratic([m, 0, 0])) - quadratic([m / 2, 0, 0])).abs()
-                > 1e-3
-        );
+        let mid = predict(quadratic([0, 0, 0]), quadratic([m, 0, 0]));
+        assert!((mid - quadratic([m / 2, 0, 0])).abs() > 1e-3);
     }
 
-    /// Every vertex whose value reads a vertex made with step `s`, transitively, lies within
+    /// Every point whose value reads a point made with step `s`, transitively, lies within
     /// `DEPENDENCY_REACH · s` of it along every axis (what the client's stale marking relies on),
     /// and the bound is reached by some pair less than 2× over (it is not loose by much).
     #[test]
@@ -403,23 +427,20 @@ mod tests {
         let b = base(4, box6([0.0; 3], [1.0; 3]));
         let keys = b.vertex_keys();
         let g = Grid::of(&b, &keys).unwrap();
-        let n = keys.vertex_count() as usize;
         let mut worst = 0f64;
-        for q in 0..n {
-            let pq = g.point(q);
+        for q in points(g.m()) {
             let mut stack = vec![q];
-            let mut seen = vec![false; n];
+            let mut seen = std::collections::HashSet::new();
             while let Some(v) = stack.pop() {
                 for r in g.stencil(v).into_iter().flatten().flatten() {
-                    if !std::mem::replace(&mut seen[r], true) {
+                    if seen.insert(r) {
                         stack.push(r);
                         let Some((s, _)) = g.step_and_axis(r) else {
                             continue;
                         };
-                        let pr = g.point(r);
                         for a in 0..3 {
-                            let d = pq[a].abs_diff(pr[a]);
-                            assert!(d <= DEPENDENCY_REACH * s, "{pq:?} reads {pr:?} (step {s})");
+                            let d = q[a].abs_diff(r[a]);
+                            assert!(d <= DEPENDENCY_REACH * s, "{q:?} reads {r:?} (step {s})");
                             worst = worst.max(d as f64 / (DEPENDENCY_REACH * s) as f64);
                         }
                     }

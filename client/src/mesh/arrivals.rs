@@ -63,14 +63,15 @@ impl AdaptiveMesh {
     }
 
     /// [`Self::apply_arrivals`] with the axes predictor: a coefficient changes vertices far
-    /// from its owner (every one whose stencils read it, transitively), so arrivals only mark
-    /// where values may have changed, and [`Self::refresh_values`] recomputes the present
-    /// vertices there once per frame rather than once per batch.
+    /// from its owner (every one whose stencils read it, transitively), so arrivals are only
+    /// queued, and [`Self::refresh_values`] marks where values may have changed and recomputes
+    /// the present vertices there, once per frame rather than once per batch (and off the
+    /// network side). Values must be refreshed before they are read or new vertices made.
     fn apply_arrivals_axes(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
         self.axes
             .as_mut()
             .expect("axes values")
-            .arrived(&arrivals.keys);
+            .arrived(&arrivals.nodes);
         self.refresh_arrived_nodes(buf, arrivals);
         0
     }
@@ -79,14 +80,17 @@ impl AdaptiveMesh {
     /// were recomputed. Only meshes with the axes predictor defer this (see
     /// [`Self::apply_arrivals`]); for the others values are always current and this is free.
     pub fn refresh_values(&mut self, buf: &DetailBuffer) -> usize {
-        if !self.axes.as_ref().is_some_and(|a| a.any_stale()) {
+        let Some(axes) = self.axes.as_mut() else {
+            return 0;
+        };
+        axes.mark_arrived();
+        if !axes.any_stale() {
             return 0;
         }
         let nbase = self.keys.base_vertex_count() as usize;
         let mut count = 0;
         for s in nbase..self.vkey.len() {
-            let key = self.vkey[s] as usize;
-            if self.vref[s] != 0 && self.axes.as_ref().is_some_and(|a| a.stale(key)) {
+            if self.vref[s] != 0 && self.axes.as_ref().is_some_and(|a| a.stale(self.vpoint[s])) {
                 self.vval[s] = self.synth_value(buf, s as u32);
                 count += 1;
             }

@@ -145,8 +145,9 @@ pub struct AdaptiveMesh {
     /// [`Self::trim_changes`].
     changes: Vec<SlotChange>,
     changes_start: u64,
-    /// Values by key for a hierarchy with the axes predictor.
+    /// Values by grid point for a hierarchy with the axes predictor, and each vertex's point.
     axes: Option<axes_values::AxesValues>,
+    vpoint: SegVec<[u32; 3]>,
 }
 
 impl AdaptiveMesh {
@@ -236,9 +237,20 @@ impl AdaptiveMesh {
             changes: Vec::new(),
             changes_start: 0,
             axes: None,
+            vpoint: SegVec::new(),
         };
         if base.predictor == tetwave_protocol::wavelet::Predictor::Axes {
-            m.axes = Some(axes_values::AxesValues::new(base, &m.keys)?);
+            let axes = axes_values::AxesValues::new(base, &m.keys)?;
+            let lm = m.keys.lattice().m();
+            for g in 0..nv {
+                // a base vertex is the lattice point with all of a tet's weight on it
+                let t = m.vertex_tets[g][0];
+                let i = base.tets[t as usize].iter().position(|&v| v as usize == g);
+                let mut w = [0u32; 4];
+                w[i.expect("the tet has the vertex")] = lm;
+                m.vpoint.push(axes.point(t, &w));
+            }
+            m.axes = Some(axes);
         }
         for g in 0..nv {
             let p = base.positions[g];
@@ -303,6 +315,7 @@ impl AdaptiveMesh {
                     + self.vdeps.bytes()
                     + self.vsrc.bytes()
                     + self.vowner.bytes()
+                    + self.vpoint.bytes()
                     + self.free_vertices.capacity() * 4,
             ),
             (

@@ -88,6 +88,7 @@ impl AdaptiveMesh {
                         [sa, sb],
                         src,
                         f32::NAN,
+                        self.axes.as_ref().map(|a| a.point(lt.base, &w)),
                     );
                     self.vval[s as usize] = self.synth_value(buf, s);
                     self.by_key.insert(key, s);

@@ -48,6 +48,7 @@ impl AdaptiveMesh {
         ends: [u32; 2],
         src: [u32; 4],
         val: f32,
+        point: Option<[u32; 3]>,
     ) -> u32 {
         let s = match self.free_vertices.pop() {
             Some(s) => {
@@ -61,6 +62,9 @@ impl AdaptiveMesh {
                 self.vdeps[i] = 0;
                 self.vsrc[i] = src;
                 self.vowner[i] = [NONE; OWNERS];
+                if let Some(p) = point {
+                    self.vpoint[i] = p;
+                }
                 s
             }
             None => {
@@ -75,6 +79,9 @@ impl AdaptiveMesh {
                 self.vdeps.push(0);
                 self.vsrc.push(src);
                 self.vowner.push([NONE; OWNERS]);
+                if let Some(p) = point {
+                    self.vpoint.push(p);
+                }
                 (self.vkey.len() - 1) as u32
             }
         };
@@ -163,7 +170,7 @@ impl AdaptiveMesh {
     pub(super) fn synth_value(&mut self, buf: &DetailBuffer, s: u32) -> f32 {
         let key = self.vkey[s as usize];
         if let Some(axes) = self.axes.as_mut() {
-            return axes.value(key as usize, buf);
+            return axes.value(key as usize, self.vpoint[s as usize], buf);
         }
         let d = buf.coeff(key).unwrap_or(0.0);
         synthesize(d, self.prediction_value(&self.vertex_prediction(s)))
