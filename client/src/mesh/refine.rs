@@ -87,7 +87,6 @@ impl AdaptiveMesh {
                         level + 1,
                         [sa, sb],
                         src,
-                        f32::NAN,
                         self.axes.as_ref().map(|a| a.point(lt.base, &w)),
                     );
                     self.vval[s as usize] = self.synth_value(buf, s);

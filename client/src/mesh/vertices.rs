@@ -47,9 +47,10 @@ impl AdaptiveMesh {
         level: u8,
         ends: [u32; 2],
         src: [u32; 4],
-        val: f32,
         point: Option<[u32; 3]>,
     ) -> u32 {
+        // the caller synthesizes the value once the vertex is in place
+        let val = f32::NAN;
         let s = match self.free_vertices.pop() {
             Some(s) => {
                 let i = s as usize;
