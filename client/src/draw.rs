@@ -14,6 +14,10 @@ pub fn leaf_mesh(
     value_range: [f32; 2],
     levelset: Option<&NearLevelSet>,
 ) -> RenderMesh {
+    debug_assert!(
+        mesh.values_current(),
+        "values drawn before AdaptiveMesh::refresh_values (Session::frame does it)"
+    );
     let positions: Vec<[f64; 3]> = mesh
         .positions()
         .iter()

@@ -64,7 +64,8 @@ impl Session {
     }
 
     /// Takes arrived nodes, in any order and with duplicates. Stops at the first invalid node: the
-    /// nodes before it are held and applied, it and the ones after it are not.
+    /// nodes before it are held and applied, it and the ones after it are not. With the axes
+    /// predictor the mesh's values catch up at the next [`Self::frame`] or [`Self::converge`].
     pub fn insert<'a>(
         &mut self,
         nodes: impl IntoIterator<Item = &'a DetailNode>,

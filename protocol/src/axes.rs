@@ -66,12 +66,9 @@ pub struct Grid {
 impl Grid {
     /// The grid of `base`'s hierarchy (`keys` its numbering), or why it has none.
     pub fn of(base: &BaseMesh, keys: &VertexKeys) -> Result<Self, AxesError> {
+        check_base(base)?;
         let corners = kuhn_corners(base)?;
         let m = base.lattice().m();
-        let n = m as u64 + 1;
-        if n * n * n > u32::MAX as u64 || keys.vertex_count() > u32::MAX as u64 {
-            return Err(AxesError::TooLarge(n * n * n));
-        }
         let mut paths = [(u32::MAX, [0u8; 4]); 9];
         for (t, tet) in base.tets.iter().enumerate() {
             let mut local: [u8; 4] = [0, 1, 2, 3];
@@ -236,9 +233,14 @@ pub fn along_axis(a: Option<f32>, b: f32, c: f32, d: Option<f32>) -> f32 {
     }
 }
 
-/// Whether `base` can carry the axes predictor (a `box6` mesh), without building its grid.
+/// Whether `base` can carry the axes predictor: a `box6` mesh whose grid points a `u32` counts.
 pub fn check_base(base: &BaseMesh) -> Result<(), AxesError> {
-    kuhn_corners(base).map(|_| ())
+    kuhn_corners(base)?;
+    let n = base.lattice().m() as u64 + 1;
+    if n * n * n > u32::MAX as u64 {
+        return Err(AxesError::TooLarge(n * n * n));
+    }
+    Ok(())
 }
 
 /// Per base vertex its corner of the box as 3 bits (bit `a` set at the box's maximum along axis
@@ -351,6 +353,11 @@ mod tests {
         let mut b = base(2, box6([0.0; 3], [1.0; 3]));
         b.tets[1] = b.tets[0];
         assert!(Grid::of(&b, &b.vertex_keys()).is_err());
+        // a grid of more points than a u32 counts is refused by validation, before any table
+        let b = base(11, box6([0.0; 3], [1.0; 3]));
+        assert!(matches!(check_base(&b), Err(AxesError::TooLarge(_))));
+        assert!(b.validate().is_err());
+        assert!(check_base(&base(10, box6([0.0; 3], [1.0; 3]))).is_ok());
     }
 
     /// Every vertex is visited once, after the points its prediction reads; a field cubic along

@@ -1,6 +1,8 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
-use crate::analysis::{analyze_hierarchy, AnalysisError, ErrorBound, Precision};
+use crate::analysis::{
+    analyze_hierarchy, AnalysisError, ErrorBound, Precision, AXES_MAX_MAGNITUDE,
+};
 use crate::resample::levelset::signed_distance;
 use crate::resample::raw::{RawError, RawGrid, RawType};
 use crate::resample::synthetic::Synthetic;
@@ -315,7 +317,13 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     r.base.predictor = match o.predictor {
         PredictorChoice::Parent => Predictor::Parent,
         PredictorChoice::Axes => Predictor::Axes,
-        PredictorChoice::Auto if box6 && r.outside == 0 => Predictor::Axes,
+        PredictorChoice::Auto
+            if box6
+                && r.outside == 0
+                && r.samples.iter().all(|v| v.abs() <= AXES_MAX_MAGNITUDE) =>
+        {
+            Predictor::Axes
+        }
         PredictorChoice::Auto => Predictor::Parent,
     };
     let predictor = r.base.predictor;

@@ -538,6 +538,31 @@ fn predictor_choice() {
         &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
         &["--predictor axes needs --base box6"],
     );
+    // samples whose cubic predictions would overflow f32: auto takes the parent predictor, and
+    // axes is refused rather than writing infinite details
+    // (3e37 at most: the parent's sums of 6 values stay finite, the cubic's 18 do not)
+    let huge: Vec<u8> = (0..729u32)
+        .flat_map(|i| ((i % 5) as f32 * 0.75e37).to_le_bytes())
+        .collect();
+    let raw = write_raw(d.path(), "huge.raw", &huge);
+    let head = [
+        "prepare",
+        s(&raw),
+        "--dims",
+        "9,9,9",
+        "--dtype",
+        "f32",
+        "--base",
+        "box6",
+        "--levels",
+        "3",
+    ];
+    let j = prepare_json(&then(&head, &["--out", &out("e"), "--json"]));
+    assert_eq!(j["predictor"], "parent");
+    expect_error(
+        &then(&head, &["--predictor", "axes", "--out", &out("f")]),
+        &["overflow", "--predictor parent"],
+    );
 }
 
 #[test]

@@ -99,6 +99,12 @@ impl AdaptiveMesh {
         count
     }
 
+    /// Whether every present vertex's value reflects the coefficients held (always, but with the
+    /// axes predictor between arrivals and [`Self::refresh_values`]).
+    pub fn values_current(&self) -> bool {
+        !self.axes.as_ref().is_some_and(|a| a.behind())
+    }
+
     /// Children of arrived nodes get their `empty` flags.
     fn refresh_arrived_nodes(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) {
         for &id in &arrivals.nodes {

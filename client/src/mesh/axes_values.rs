@@ -98,23 +98,48 @@ impl AxesValues {
         }
         self.now += 1;
         let (m, b) = (self.grid.m(), self.bricks);
+        let mut everything = false;
         for &id in &ids {
-            let lt = LatticeTet::from_id(&self.forest, id);
-            // the node's coefficients are at its edges' midpoints, made with step m / 2^(level+1)
+            // the node's coefficients are at its edges' midpoints, inside its tet, made with
+            // step m / 2^(level+1): one box, the tet's bounds and the reach around them
             let s = m >> (self.forest.level(id) + 1);
             let r = DEPENDENCY_REACH.saturating_mul(s);
-            for e in 0..6 {
-                let p = self.grid.point(lt.base, &lt.edge_midpoint(e));
-                let lo = p.map(|c| c.saturating_sub(r) / BRICK);
-                let hi = p.map(|c| c.saturating_add(r).min(m) / BRICK);
-                for z in lo[2]..=hi[2] {
-                    for y in lo[1]..=hi[1] {
-                        for x in lo[0]..=hi[0] {
-                            self.marked[(x + b * (y + b * z)) as usize] = self.now;
-                        }
+            let lt = LatticeTet::from_id(&self.forest, id);
+            let corners = lt.v.map(|w| self.grid.point(lt.base, &w));
+            let lo: [u32; 3] = std::array::from_fn(|a| {
+                corners
+                    .iter()
+                    .map(|p| p[a])
+                    .min()
+                    .unwrap_or(0)
+                    .saturating_sub(r)
+                    / BRICK
+            });
+            let hi: [u32; 3] = std::array::from_fn(|a| {
+                corners
+                    .iter()
+                    .map(|p| p[a])
+                    .max()
+                    .unwrap_or(0)
+                    .saturating_add(r)
+                    .min(m)
+                    / BRICK
+            });
+            if lo == [0; 3] && hi == [b - 1; 3] {
+                // (a coarse node reaches every brick: mark them once, below)
+                everything = true;
+                continue;
+            }
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        self.marked[(x + b * (y + b * z)) as usize] = self.now;
                     }
                 }
             }
+        }
+        if everything {
+            self.marked.fill(self.now);
         }
         self.pending = ids;
         self.pending.clear();
@@ -130,6 +155,11 @@ impl AxesValues {
     /// [`Self::mark_arrived`]).
     pub(super) fn any_stale(&self) -> bool {
         self.now > self.refreshed
+    }
+
+    /// Whether arrivals wait to be marked, or marked values to be recomputed.
+    pub(super) fn behind(&self) -> bool {
+        !self.pending.is_empty() || self.any_stale()
     }
 
     /// The mesh's values are current again.

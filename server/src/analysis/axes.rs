@@ -6,10 +6,15 @@
 //! [`Predictor::Axes`]: tetwave_protocol::wavelet::Predictor::Axes
 
 use super::walk::{load, store, Cell};
+use super::AnalysisError;
 use std::sync::atomic::AtomicU32;
-use tetwave_protocol::axes::{AxesError, Grid};
+use tetwave_protocol::axes::Grid;
 use tetwave_protocol::wavelet::{analyze, synthesize, Quantizer};
 use tetwave_protocol::{BaseMesh, VertexKeys};
+
+/// Largest sample magnitude the axes predictor takes: its cubic sums 18 times a value, which
+/// must stay a finite f32 (`prepare --predictor auto` takes the parent predictor above it).
+pub const AXES_MAX_MAGNITUDE: f32 = 1e36;
 
 /// Replaces `detail` and the reconstructions in `cells` with the axes predictor's; returns the
 /// max |synthesis − sample|.
@@ -20,7 +25,7 @@ pub(super) fn details(
     cells: &[Cell],
     detail: &[AtomicU32],
     quantizer: Option<Quantizer>,
-) -> Result<f64, AxesError> {
+) -> Result<f64, AnalysisError> {
     let grid = Grid::of(base, keys)?;
     let mut rec: Vec<f32> = cells.iter().map(|c| load(&c.rec)).collect();
     let mut err = 0f64;
@@ -33,8 +38,15 @@ pub(super) fn details(
         let x = synthesize(d, p);
         store(&detail[k], d);
         store(&cells[k].rec, x);
-        err = err.max((x as f64 - f as f64).abs());
+        err = if x.is_finite() && d.is_finite() {
+            err.max((x as f64 - f as f64).abs())
+        } else {
+            f64::INFINITY
+        };
         x
     });
+    if err.is_infinite() {
+        return Err(AnalysisError::AxesOverflow(AXES_MAX_MAGNITUDE));
+    }
     Ok(err)
 }

@@ -16,6 +16,8 @@
 
 mod axes;
 mod gather;
+
+pub use axes::AXES_MAX_MAGNITUDE;
 mod keys;
 mod par;
 mod samples;
@@ -123,6 +125,11 @@ pub enum AnalysisError {
          vertices lie outside the input's domain; use the parent predictor for meshes"
     )]
     AxesOutside(u64),
+    #[error(
+        "--predictor axes: the samples reach magnitudes whose cubic predictions overflow f32 \
+         (keep them below {0:e}); use --predictor parent"
+    )]
+    AxesOverflow(f32),
 }
 
 fn bar(len: u64, msg: &str, show: bool) -> ProgressBar {
