@@ -498,6 +498,41 @@ fn a_lattice_too_coarse_for_the_mesh_asks_for_more_levels() {
     assert_eq!(j["predictor"], "parent");
 }
 
+/// A `--max-error` of half the value range or more is kept, with a warning that it asks for
+/// almost nothing.
+#[test]
+fn a_bound_of_the_whole_range_warns() {
+    let d = tmp();
+    let out = d.path().join("a");
+    let r = run(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "2",
+        "--max-error",
+        "200%",
+        "--out",
+        s(&out),
+    ]);
+    assert!(r.ok, "{}", r.stderr);
+    assert!(r.stderr.contains("half the value range"), "{}", r.stderr);
+    let r = run(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "2",
+        "--max-error",
+        "1%",
+        "--out",
+        s(&d.path().join("b")),
+    ]);
+    assert!(
+        r.ok && !r.stderr.contains("half the value range"),
+        "{}",
+        r.stderr
+    );
+}
+
 /// `--predictor`: `auto` takes the axes predictor on a box6 grid, `parent` on the default box5;
 /// `axes` without box6 is refused; both predictors' stores verify.
 #[test]

@@ -140,6 +140,15 @@ pub(super) fn size_quantizer(
             if !(e.is_finite() && e > 0.0) {
                 return Err(AnalysisError::BadMaxError(e));
             }
+            let range = stats.hi as f64 - stats.lo as f64;
+            if range > 0.0 && e >= 0.5 * range {
+                tracing::warn!(
+                    max_error = e,
+                    value_range = range,
+                    "--max-error is at least half the value range: a constant at mid-range would \
+                     meet it, and most details quantize to 0"
+                );
+            }
             // the largest step whose bound (error_bound) is at most e
             let magnitude = stats.lo.abs().max(stats.hi.abs()) as f64;
             let slack = 4.0 * f32::EPSILON as f64;
