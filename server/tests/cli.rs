@@ -751,6 +751,18 @@ fn bad_options_are_refused() {
         ],
         &["levels"],
     );
+    // beyond what the analysis indexes: the message says how many levels the base takes
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--levels",
+            "10",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["--levels 10", "at most --levels 9"],
+    );
     expect_error(&["verify", s(&d.path().join("absent"))], &["manifest.json"]);
     // an empty token (an unset variable in `--token "$T"`) would serve without authentication
     expect_error(

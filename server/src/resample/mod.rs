@@ -21,7 +21,7 @@ use std::path::PathBuf;
 use tetwave_import as import;
 use tetwave_protocol::hierarchy::MAX_LEVELS;
 use tetwave_protocol::vertex::VertexKeys;
-use tetwave_protocol::BaseMesh;
+use tetwave_protocol::{BaseMesh, Forest};
 
 /// Detail nodes a hierarchy may have: the analysis codes a vertex's owner as 8 × node id + edge in
 /// a u32 (below `u32::MAX`, its "no owner"). [`resample`] refuses more before it allocates the
@@ -96,9 +96,10 @@ pub enum ResampleError {
     #[error("the finest level has {0} vertices; that is more than this build can index")]
     TooLarge(u64),
     #[error(
-        "--levels {levels}: {tets} tets in the finest level is more than the analysis can index"
+        "--levels {levels}: {tets} tets in the finest level is more than the analysis can index; \
+         this base mesh takes at most --levels {most}"
     )]
-    TooManyNodes { levels: u8, tets: u64 },
+    TooManyNodes { levels: u8, tets: u64, most: u8 },
     #[error("cannot allocate {bytes} bytes for the samples of {vertices} vertices")]
     NoMemory { vertices: u64, bytes: u64 },
 }
@@ -172,9 +173,14 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
     };
     let forest = base.forest();
     if levels > 0 && forest.nodes() > MAX_NODES {
+        let most = (0..levels)
+            .rev()
+            .find(|&l| Forest::new(forest.n_base, l).nodes() <= MAX_NODES)
+            .unwrap_or(0);
         return Err(ResampleError::TooManyNodes {
             levels,
             tets: forest.level_len(levels),
+            most,
         });
     }
     let keys = base.vertex_keys();
