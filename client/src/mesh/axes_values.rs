@@ -106,24 +106,11 @@ impl AxesValues {
             let r = DEPENDENCY_REACH.saturating_mul(s);
             let lt = LatticeTet::from_id(&self.forest, id);
             let corners = lt.v.map(|w| self.grid.point(lt.base, &w));
-            let lo: [u32; 3] = std::array::from_fn(|a| {
-                corners
-                    .iter()
-                    .map(|p| p[a])
-                    .min()
-                    .unwrap_or(0)
-                    .saturating_sub(r)
-                    / BRICK
-            });
+            let bound = |a: usize, f: fn(u32, u32) -> u32| corners.iter().map(|p| p[a]).reduce(f);
+            let lo: [u32; 3] =
+                std::array::from_fn(|a| bound(a, u32::min).unwrap_or(0).saturating_sub(r) / BRICK);
             let hi: [u32; 3] = std::array::from_fn(|a| {
-                corners
-                    .iter()
-                    .map(|p| p[a])
-                    .max()
-                    .unwrap_or(0)
-                    .saturating_add(r)
-                    .min(m)
-                    / BRICK
+                bound(a, u32::max).unwrap_or(0).saturating_add(r).min(m) / BRICK
             });
             if lo == [0; 3] && hi == [b - 1; 3] {
                 // (a coarse node reaches every brick: mark them once, below)
