@@ -108,7 +108,7 @@ pub struct PrepareOptions {
     #[arg(long)]
     pub format: Option<MeshFormat>,
     /// Replace NaN/Inf input values by this value instead of refusing the input.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub nan_as: Option<f64>,
     /// Show progress bars (on a terminal, without --json).
     #[arg(skip)]

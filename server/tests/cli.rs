@@ -384,6 +384,12 @@ fn nan_in_raw_is_refused_or_replaced() {
         &["--nan-as", "0", "--levels", "2", "--out", s(&o2), "--json"],
     ));
     assert!(j["max_abs_error"].as_f64().unwrap() <= j["max_error_bound"].as_f64().unwrap());
+    // a negative replacement needs no `=`
+    let j = prepare_json(&then(
+        &raw,
+        &["--nan-as", "-5", "--levels", "2", "--out", s(&o2), "--json"],
+    ));
+    assert_eq!(j["value_range"][0].as_f64(), Some(-5.0));
     // a replacement that is itself no finite f32 is refused up front, naming the option
     for bad in ["1e39", "inf", "NaN"] {
         expect_error(
@@ -557,13 +563,16 @@ fn predictor_choice() {
         &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
         &["--predictor axes needs --base box6"],
     );
-    // samples whose cubic predictions would overflow f32: auto takes the parent predictor, and
-    // axes is refused rather than writing infinite details
-    // (3e37 at most: the parent's sums of 6 values stay finite, the cubic's 18 do not)
-    let huge: Vec<u8> = (0..729u32)
-        .flat_map(|i| ((i % 5) as f32 * 0.75e37).to_le_bytes())
-        .collect();
-    let raw = write_raw(d.path(), "huge.raw", &huge);
+    // samples whose cubic predictions would overflow f32 (5e36 at most: the parent's sums of 6
+    // values stay finite, the cubic's 18 do not): auto takes the parent predictor, and axes is
+    // refused rather than writing infinite details; beyond 1e37 both are, before writing
+    let grid = |name: &str, top: f32| {
+        let v: Vec<u8> = (0..729u32)
+            .flat_map(|i| ((i % 5) as f32 * 0.25 * top).to_le_bytes())
+            .collect();
+        write_raw(d.path(), name, &v)
+    };
+    let raw = grid("huge.raw", 5e36);
     let head = [
         "prepare",
         s(&raw),
@@ -581,6 +590,13 @@ fn predictor_choice() {
     expect_error(
         &then(&head, &["--predictor", "axes", "--out", &out("f")]),
         &["overflow", "--predictor parent"],
+    );
+    let raw = grid("huger.raw", 3e38);
+    let mut head = head;
+    head[1] = s(&raw);
+    expect_error(
+        &then(&head, &["--out", &out("g")]),
+        &["3.00e38", "overflow", "rescale"],
     );
 }
 

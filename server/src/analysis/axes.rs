@@ -46,7 +46,8 @@ pub(super) fn details(
         x
     });
     if err.is_infinite() {
-        return Err(AnalysisError::AxesOverflow(AXES_MAX_MAGNITUDE));
+        // (samples within AXES_MAX_MAGNITUDE keep every prediction finite; this is a backstop)
+        return Err(AnalysisError::AxesOverflow(f64::INFINITY));
     }
     Ok(err)
 }

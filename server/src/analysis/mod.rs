@@ -126,11 +126,21 @@ pub enum AnalysisError {
     )]
     AxesOutside(u64),
     #[error(
-        "--predictor axes: the samples reach magnitudes whose cubic predictions overflow f32 \
-         (keep them below {0:e}); use --predictor parent"
+        "--predictor axes: the samples reach {0:.2e}, and its cubic predictions overflow f32 \
+         beyond ±{AXES_MAX_MAGNITUDE:e}; use --predictor parent (up to ±{MAX_MAGNITUDE:e}) or \
+         rescale the input"
     )]
-    AxesOverflow(f32),
+    AxesOverflow(f64),
+    #[error(
+        "the samples reach {0:.2e}: wavelet details of values beyond ±{MAX_MAGNITUDE:e} overflow \
+         f32; rescale the input"
+    )]
+    Magnitude(f64),
 }
+
+/// Largest sample magnitude the analysis takes: the parent predictor sums up to 6 values and a
+/// detail is a difference of two, which must stay finite f32s.
+pub const MAX_MAGNITUDE: f32 = 1e37;
 
 fn bar(len: u64, msg: &str, show: bool) -> ProgressBar {
     if !show {
@@ -219,6 +229,13 @@ pub fn analyze_hierarchy(
         return Err(AnalysisError::TooLarge(forest.level_len(levels - 1)));
     }
     let stats = SampleStats::of(&r.samples);
+    let magnitude = stats.lo.abs().max(stats.hi.abs());
+    if magnitude > MAX_MAGNITUDE {
+        return Err(AnalysisError::Magnitude(magnitude as f64));
+    }
+    if r.base.predictor == Predictor::Axes && magnitude > AXES_MAX_MAGNITUDE {
+        return Err(AnalysisError::AxesOverflow(magnitude as f64));
+    }
     let mut quantizer = samples::size_quantizer(precision, &r, &stats)?;
     let Resampled {
         base,
