@@ -173,8 +173,8 @@ fn main() -> ExitCode {
                     println!("{}", serde_json::to_string(&i).expect("serializes"));
                 } else {
                     println!(
-                        "{}: {} base tets, {} levels, {} tets, {} leaves, {} nodes, {} vertices — agrees with the manifest",
-                        i.dataset, i.base_tets, i.levels, i.tets_total, i.leaves, i.nodes, i.vertices
+                        "{}: {} base tets, {} levels, {} tets, {} leaves, {} nodes, {} vertices, {} predictor — agrees with the manifest",
+                        i.dataset, i.base_tets, i.levels, i.tets_total, i.leaves, i.nodes, i.vertices, i.predictor
                     );
                 }
                 ExitCode::SUCCESS

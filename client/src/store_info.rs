@@ -28,6 +28,8 @@ pub struct StoreInfo {
     pub nodes: u64,
     pub vertices: u64,
     pub empty_base_tets: u64,
+    /// `parent` or `axes` (how new vertices are predicted, from the base mesh).
+    pub predictor: &'static str,
 }
 
 /// Opens the store in `dir` and checks the manifest's counts against the protocol's.
@@ -44,6 +46,7 @@ pub fn store_info(dir: &Path) -> Result<StoreInfo, InfoError> {
         nodes: f.nodes(),
         vertices: base.vertex_keys().vertex_count(),
         empty_base_tets: base.empty.iter().filter(|&&e| e).count() as u64,
+        predictor: base.predictor.name(),
     };
     let c = &store.manifest.counts;
     for (what, manifest, computed) in [

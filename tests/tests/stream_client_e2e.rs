@@ -70,6 +70,39 @@ fn streamed_session_ends_identical_to_full_synthesis() {
     }
 }
 
+/// With the axes predictor (a box6 grid at a bounded error, what `prepare` picks there), in
+/// every order and through lost, reordered and duplicated batches: the client's values by grid
+/// point end exactly the server's; `tetwave info` names the predictor.
+#[test]
+fn axes_sessions_end_identical_to_full_synthesis() {
+    let (d, dir) = common::harmonic_store_with(4, |o| {
+        o.base = tetwave_server::resample::BaseSpec::Box6;
+        o.max_error = Some(tetwave_server::analysis::ErrorBound::OfRange(1e-3));
+    });
+    let info = tetwave_client::store_info::store_info(&dir).unwrap();
+    assert_eq!(info.predictor, "axes");
+    let values = Store::open(&dir).unwrap().synthesize_all().unwrap();
+    for order in ["level", "magnitude", "view", "random"] {
+        let srv = serve(&dir, order);
+        let s = session(
+            srv.url(),
+            &d.path().join(format!("out-{order}")),
+            Faults::default(),
+        );
+        assert_identical(&s, &values);
+    }
+    let srv = serve(&dir, "random");
+    let faults = Faults {
+        duplicate_every: Some(2),
+        reverse_groups: Some(3),
+        lose_every: Some(4),
+        ..Default::default()
+    };
+    let s = session_with(srv.url(), &d.path().join("out-faults"), faults, false);
+    assert!(s.report.duplicates > 0);
+    assert_identical(&s, &values);
+}
+
 #[test]
 fn reordered_duplicated_and_lost_batches_end_identical() {
     let (d, values, _) = store(4);

@@ -58,10 +58,19 @@ pub fn psnr_pixels(a: &[[u8; 4]], b: &[[u8; 4]]) -> f64 {
 /// A harmonic store of `levels` levels prepared by the server in a new temporary directory (kept
 /// while the returned guard lives), and its path.
 pub fn harmonic_store(levels: u8) -> (tempfile::TempDir, PathBuf) {
+    harmonic_store_with(levels, |_| {})
+}
+
+/// [`harmonic_store`] with more options set by `options`.
+pub fn harmonic_store_with(
+    levels: u8,
+    options: impl FnOnce(&mut PrepareOptions),
+) -> (tempfile::TempDir, PathBuf) {
     let d = tempfile::tempdir().unwrap();
     let store = d.path().join("s");
     let mut o = PrepareOptions::new("synthetic:harmonic", &store);
     o.levels = levels;
+    options(&mut o);
     prepare(&o).unwrap();
     (d, store)
 }
