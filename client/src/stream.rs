@@ -61,8 +61,8 @@ pub struct StreamArgs {
     #[arg(long, default_value = "0")]
     pub tol: String,
     /// Compute each frame's PSNR against the full-resolution reference for its camera (after the
-    /// stream completes).
-    #[arg(long)]
+    /// stream completes; frames must be rendered).
+    #[arg(long, conflicts_with = "no_render")]
     pub psnr: bool,
     #[arg(long, default_value = "256x256", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),

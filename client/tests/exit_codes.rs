@@ -458,3 +458,18 @@ async fn bounded_and_complete_sessions_succeed() {
         assert!(r.stderr.contains("45/45 nodes"), "{}", r.stderr);
     }
 }
+
+/// `--psnr` needs rendered frames: with `--no-render` it is refused instead of writing no PSNR.
+#[test]
+fn psnr_without_rendering_is_refused() {
+    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
+        .args(["stream", "ws://127.0.0.1:9", "--no-render", "--psnr"])
+        .output()
+        .expect("tetwave runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--psnr") && err.contains("--no-render"),
+        "{err}"
+    );
+}
