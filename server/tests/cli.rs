@@ -523,6 +523,33 @@ fn a_bound_of_the_whole_range_warns() {
     }
 }
 
+/// `--bits` on a field so small that its step would leave f32's normal range says that it keeps
+/// fewer bits than asked.
+#[test]
+fn bits_on_a_tiny_field_warn() {
+    let d = tmp();
+    let tiny: Vec<u8> = (0..27u32)
+        .flat_map(|i| ((i % 7) as f32 * 1e-35).to_le_bytes())
+        .collect();
+    let raw = write_raw(d.path(), "tiny.raw", &tiny);
+    let head = [
+        "prepare",
+        s(&raw),
+        "--dims",
+        "3,3,3",
+        "--dtype",
+        "f32",
+        "--levels",
+        "2",
+    ];
+    for (bits, warns) in [("24", true), ("8", false)] {
+        let out = d.path().join(bits);
+        let r = run(&then(&head, &["--bits", bits, "--out", s(&out)]));
+        assert!(r.ok, "{}", r.stderr);
+        assert_eq!(r.stderr.contains("coarser than"), warns, "{}", r.stderr);
+    }
+}
+
 /// `--predictor`: `auto` takes the axes predictor on a box6 grid, `parent` on the default box5;
 /// `axes` without box6 is refused; both predictors' stores verify.
 #[test]

@@ -120,7 +120,17 @@ pub(super) fn size_quantizer(
             // absolute value, each read value is within q/2): the codes ±(2^(b−1)−1) cover them
             // with q = m/(max−2)
             let step = if m > 0.0 {
-                ((m / (Quantizer::max_code(b) - 2) as f64) as f32).max(f32::MIN_POSITIVE)
+                let wanted = m / (Quantizer::max_code(b) - 2) as f64;
+                if wanted < f32::MIN_POSITIVE as f64 {
+                    tracing::warn!(
+                        max_detail = m,
+                        "--bits {b}: details this small need a step below f32's normal range; \
+                         the step is {:e} instead, coarser than {b} bits (use --max-error, or \
+                         rescale the input)",
+                        f32::MIN_POSITIVE
+                    );
+                }
+                (wanted as f32).max(f32::MIN_POSITIVE)
             } else {
                 1.0
             };
