@@ -520,6 +520,39 @@ fn view_opens_a_store_and_a_mesh_file() {
     eprintln!("store view vs offscreen: {p:.2} dB");
     assert!(p >= 40.0, "store view vs offscreen: {p:.2} dB");
 
+    // a grid store with the axes predictor (values by grid point, apart from the mesh)
+    let axes = d.path().join("axes");
+    let mut o = PrepareOptions::new("synthetic:harmonic", &axes);
+    o.levels = 3;
+    o.base = tetwave_server::resample::BaseSpec::Box6;
+    o.max_error = Some(tetwave_server::analysis::ErrorBound::OfRange(1e-3));
+    assert_eq!(prepare(&o).unwrap().predictor, "axes");
+    let shot = d.path().join("axes.png");
+    let args = [
+        axes.to_str().unwrap(),
+        "--size",
+        "128x128",
+        "--mode",
+        "complete",
+        "--frames",
+        "40",
+        "--screenshot",
+        shot.to_str().unwrap(),
+        "--json",
+    ];
+    let r = json_report(&view_under_xvfb(&args, 120));
+    assert_eq!(r["nodes"], r["nodes_total"], "{r}");
+    let reference = offscreen(
+        &axes,
+        35.0,
+        25.0,
+        (128, 128),
+        &d.path().join("axes-ref.png"),
+    );
+    let p = psnr(&png(&shot), &reference);
+    eprintln!("axes store view vs offscreen: {p:.2} dB");
+    assert!(p >= 40.0, "axes store view vs offscreen: {p:.2} dB");
+
     let mesh = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../server/tests/fixtures/cube.mesh");
     let shot = d.path().join("mesh.png");
     let out = view_under_xvfb(
