@@ -175,9 +175,33 @@ fn verify_needs_every_checksum() {
     assert!(e.to_string().contains("no checksum for blocks.bin"), "{e}");
 }
 
-/// Preparing over an existing store that fails half way (here `blocks.bin` cannot be written)
-/// leaves a directory that does not open as a store, instead of the old manifest over a mix of new
-/// and old files; a prepare that succeeds replaces the store whole.
+/// Preparing over an existing store that fails while its files are written (here
+/// `reference.f32.partial` cannot be created) leaves the old store as it was, and no partial
+/// files.
+#[test]
+fn a_failed_rewrite_keeps_the_old_store() {
+    let d = tempfile::tempdir().unwrap();
+    make_store(d.path(), 2, None);
+    let blocked = d.path().join("reference.f32.partial");
+    std::fs::create_dir(&blocked).unwrap();
+    let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
+    o.levels = 3;
+    let e = prepare(&o).expect_err("reference.f32.partial is a directory");
+    assert!(e.to_string().contains("reference.f32"), "{e}");
+    let old = Store::open(d.path()).expect("the old store is still there");
+    assert_eq!(old.manifest.levels, 2);
+    verify(d.path()).unwrap();
+    for name in ["base.bin", "blocks.bin", "block_index.bin"] {
+        assert!(!d.path().join(format!("{name}.partial")).exists(), "{name}");
+    }
+    std::fs::remove_dir(&blocked).unwrap();
+    assert_eq!(make_store(d.path(), 3, None).manifest.levels, 3);
+}
+
+/// Preparing over an existing store that fails while replacing it (here `blocks.bin` is a
+/// directory the new file cannot be renamed over) leaves a directory that does not open as a
+/// store, instead of the old manifest over a mix of new and old files; a prepare that succeeds
+/// replaces the store whole.
 #[test]
 fn a_failed_rewrite_leaves_no_store() {
     let d = tempfile::tempdir().unwrap();

@@ -3,7 +3,7 @@
 use crate::{io_err, StoreError, BLOCK, MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION};
 use std::fs::File;
 use std::io::{BufWriter, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest, LEVELSET_BAND_FILE};
@@ -37,6 +37,81 @@ impl SumWriter {
             bytes: self.bytes,
             crc32: self.hasher.finalize(),
         })
+    }
+}
+
+/// A store's files written beside the ones in place (`NAME.partial`), which they replace only
+/// once every one is written: a write that fails before then leaves the store that was there.
+/// Dropped uncommitted, it removes what it wrote.
+struct Staged<'a> {
+    dir: &'a Path,
+    written: Vec<&'static str>,
+    /// Files of an earlier store that this one does not have.
+    stale: Vec<&'static str>,
+    committed: bool,
+}
+
+impl<'a> Staged<'a> {
+    fn new(dir: &'a Path) -> Self {
+        Staged {
+            dir,
+            written: Vec::new(),
+            stale: Vec::new(),
+            committed: false,
+        }
+    }
+
+    fn partial(&self, name: &str) -> PathBuf {
+        self.dir.join(format!("{name}.partial"))
+    }
+
+    /// A writer of `name`'s new contents.
+    fn create(&mut self, name: &'static str) -> Result<SumWriter, StoreError> {
+        let w = SumWriter::create(&self.partial(name))?;
+        self.written.push(name);
+        Ok(w)
+    }
+
+    /// `name` goes at the commit (a file an earlier store had and this one does not).
+    fn remove(&mut self, name: &'static str) {
+        self.stale.push(name);
+    }
+
+    /// Replaces the store in place: its manifest goes first, then every file is renamed into
+    /// place, and the new manifest comes last, so a commit cut short leaves a directory that
+    /// does not open as a store, never an old manifest over new files.
+    fn commit(mut self, manifest: &str) -> Result<(), StoreError> {
+        let manifest_path = self.dir.join("manifest.json");
+        remove_if_there(&manifest_path)?;
+        for name in &self.written {
+            let to = self.dir.join(name);
+            std::fs::rename(self.partial(name), &to).map_err(io_err(&to))?;
+        }
+        for name in &self.stale {
+            remove_if_there(&self.dir.join(name))?;
+        }
+        let partial = self.partial("manifest.json");
+        std::fs::write(&partial, manifest).map_err(io_err(&partial))?;
+        std::fs::rename(&partial, &manifest_path).map_err(io_err(&manifest_path))?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for Staged<'_> {
+    fn drop(&mut self) {
+        if !self.committed {
+            for name in &self.written {
+                let _ = std::fs::remove_file(self.partial(name));
+            }
+        }
+    }
+}
+
+fn remove_if_there(path: &Path) -> Result<(), StoreError> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io_err(path)(e)),
+        _ => Ok(()),
     }
 }
 
@@ -80,19 +155,13 @@ pub struct StoreMeta {
     pub levelset_near: Option<NearLevelSet>,
 }
 
-/// Writes a store directory (created if needed) and returns its manifest. Over an existing store,
-/// its manifest goes first and the new one is written last (renamed into place): a write that
-/// stops half way leaves a directory that does not open as a store, never an old manifest over
-/// new files.
+/// Writes a store directory (created if needed) and returns its manifest. The files are written
+/// beside an existing store's and replace them only once all are written ([`Staged`]): a write
+/// that fails before then leaves the old store as it was; one cut short while replacing leaves a
+/// directory that does not open as a store, never an old manifest over new files.
 pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manifest, StoreError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
-    let manifest_path = dir.join("manifest.json");
-    match std::fs::remove_file(&manifest_path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(io_err(&manifest_path)(e));
-        }
-        _ => {}
-    }
+    let mut staged = Staged::new(dir);
     let forest = a.base.forest();
     let mut files = std::collections::BTreeMap::new();
     let encoding = match &a.quantizer {
@@ -104,7 +173,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     };
 
     let path = dir.join("base.bin");
-    let mut w = SumWriter::create(&path)?;
+    let mut w = staged.create("base.bin")?;
     let bytes =
         bincode::serde::encode_to_vec(a.base, bincode::config::standard()).map_err(|e| {
             StoreError::Corrupt {
@@ -130,7 +199,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     }
     let coder = BlockCoder::new(a.base, &encoding);
     let path = dir.join("blocks.bin");
-    let mut w = SumWriter::create(&path)?;
+    let mut w = staged.create("blocks.bin")?;
     let mut index = Vec::with_capacity(n.div_ceil(BLOCK as usize) + 1);
     let mut offset = 0u64;
     let mut coeffs = a.coeffs;
@@ -183,14 +252,14 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     files.insert("blocks.bin".into(), w.finish().map_err(io_err(&path))?);
 
     let path = dir.join("block_index.bin");
-    let mut w = SumWriter::create(&path)?;
+    let mut w = staged.create("block_index.bin")?;
     for o in &index {
         w.put(&o.to_le_bytes()).map_err(io_err(&path))?;
     }
     files.insert("block_index.bin".into(), w.finish().map_err(io_err(&path))?);
 
     let path = dir.join("reference.f32");
-    let mut w = SumWriter::create(&path)?;
+    let mut w = staged.create("reference.f32")?;
     for &x in a.reference {
         w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
     }
@@ -209,17 +278,14 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                     ),
                 });
             }
-            let mut w = SumWriter::create(&path)?;
+            let mut w = staged.create("levelset.f32")?;
             for &x in ls {
                 w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
             }
             files.insert("levelset.f32".into(), w.finish().map_err(io_err(&path))?);
         }
         // a level set left by an earlier store in this directory is not this store's
-        None => match std::fs::remove_file(&path) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io_err(&path)(e)),
-            _ => {}
-        },
+        None => staged.remove("levelset.f32"),
     }
 
     let path = dir.join(LEVELSET_BAND_FILE);
@@ -229,17 +295,14 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 path: path.clone(),
                 reason: e.to_string(),
             })?;
-            let mut w = SumWriter::create(&path)?;
+            let mut w = staged.create(LEVELSET_BAND_FILE)?;
             w.put(&bytes).map_err(io_err(&path))?;
             files.insert(
                 LEVELSET_BAND_FILE.into(),
                 w.finish().map_err(io_err(&path))?,
             );
         }
-        (None, None) => match std::fs::remove_file(&path) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(io_err(&path)(e)),
-            _ => {}
-        },
+        (None, None) => staged.remove(LEVELSET_BAND_FILE),
         _ => {
             return Err(StoreError::Corrupt {
                 path,
@@ -276,8 +339,6 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         files,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
-    let partial = dir.join("manifest.json.partial");
-    std::fs::write(&partial, text).map_err(io_err(&partial))?;
-    std::fs::rename(&partial, &manifest_path).map_err(io_err(&manifest_path))?;
+    staged.commit(&text)?;
     Ok(manifest)
 }
