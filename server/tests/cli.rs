@@ -312,6 +312,20 @@ fn raw_size_disagrees_with_dims() {
         ],
         &["v.raw", "does not match", "1100"],
     );
+    // dims whose product overflows u64 show the exact size asked for
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--dims",
+            "4294967295,4294967295,4294967295",
+            "--dtype",
+            "f32",
+            "--out",
+            s(&d.path().join("o")),
+        ],
+        &["316912649835696421541200789500 bytes"],
+    );
 }
 
 #[test]

@@ -44,7 +44,8 @@ pub enum RawError {
         path: PathBuf,
         dims: [usize; 3],
         dtype: RawType,
-        expected: u64,
+        /// Exact (the product of the dims can exceed u64).
+        expected: String,
         actual: u64,
     },
     #[error("--dims must be at least 2 along every axis, got {0:?}")]
@@ -84,16 +85,15 @@ impl RawGrid {
             source,
         };
         let actual = std::fs::metadata(path).map_err(io)?.len();
-        let expected = (dims[0] as u64)
-            .saturating_mul(dims[1] as u64)
-            .saturating_mul(dims[2] as u64)
-            .saturating_mul(dtype.bytes() as u64);
-        if actual != expected {
+        let expected = dims
+            .iter()
+            .try_fold(dtype.bytes() as u128, |a, &d| a.checked_mul(d as u128));
+        if expected != Some(actual as u128) {
             return Err(RawError::SizeMismatch {
                 path: path.to_path_buf(),
                 dims,
                 dtype,
-                expected,
+                expected: expected.map_or_else(|| "more than 2^128".into(), |e| e.to_string()),
                 actual,
             });
         }
