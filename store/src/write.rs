@@ -15,6 +15,8 @@ struct SumWriter {
     inner: BufWriter<File>,
     hasher: crc32fast::Hasher,
     bytes: u64,
+    /// The file written (errors name it).
+    path: PathBuf,
 }
 
 impl SumWriter {
@@ -24,15 +26,16 @@ impl SumWriter {
             inner: BufWriter::with_capacity(1 << 20, f),
             hasher: crc32fast::Hasher::new(),
             bytes: 0,
+            path: path.to_path_buf(),
         })
     }
-    fn put(&mut self, b: &[u8]) -> std::io::Result<()> {
+    fn put(&mut self, b: &[u8]) -> Result<(), StoreError> {
         self.hasher.update(b);
         self.bytes += b.len() as u64;
-        self.inner.write_all(b)
+        self.inner.write_all(b).map_err(io_err(&self.path))
     }
-    fn finish(mut self) -> std::io::Result<FileSum> {
-        self.inner.flush()?;
+    fn finish(mut self) -> Result<FileSum, StoreError> {
+        self.inner.flush().map_err(io_err(&self.path))?;
         Ok(FileSum {
             bytes: self.bytes,
             crc32: self.hasher.finalize(),
@@ -181,8 +184,8 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 reason: e.to_string(),
             }
         })?;
-    w.put(&bytes).map_err(io_err(&path))?;
-    files.insert("base.bin".into(), w.finish().map_err(io_err(&path))?);
+    w.put(&bytes)?;
+    files.insert("base.bin".into(), w.finish()?);
 
     // the nodes in blocks of BLOCK ids, each coded on its own (random access decodes one block
     // without its neighbours); the index gets each block's offset, then the file's length
@@ -240,7 +243,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         }
         index.push(offset);
         offset += block.bytes.len() as u64;
-        w.put(&block.bytes).map_err(io_err(&path))?;
+        w.put(&block.bytes)?;
     }
     index.push(offset);
     if !coeffs.is_empty() {
@@ -249,21 +252,19 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
             reason: format!("{} coefficients owned by no node", coeffs.len()),
         });
     }
-    files.insert("blocks.bin".into(), w.finish().map_err(io_err(&path))?);
+    files.insert("blocks.bin".into(), w.finish()?);
 
-    let path = dir.join("block_index.bin");
     let mut w = staged.create("block_index.bin")?;
     for o in &index {
-        w.put(&o.to_le_bytes()).map_err(io_err(&path))?;
+        w.put(&o.to_le_bytes())?;
     }
-    files.insert("block_index.bin".into(), w.finish().map_err(io_err(&path))?);
+    files.insert("block_index.bin".into(), w.finish()?);
 
-    let path = dir.join("reference.f32");
     let mut w = staged.create("reference.f32")?;
     for &x in a.reference {
-        w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
+        w.put(&x.to_le_bytes())?;
     }
-    files.insert("reference.f32".into(), w.finish().map_err(io_err(&path))?);
+    files.insert("reference.f32".into(), w.finish()?);
 
     let path = dir.join("levelset.f32");
     match &meta.levelset {
@@ -280,9 +281,9 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
             }
             let mut w = staged.create("levelset.f32")?;
             for &x in ls {
-                w.put(&x.to_le_bytes()).map_err(io_err(&path))?;
+                w.put(&x.to_le_bytes())?;
             }
-            files.insert("levelset.f32".into(), w.finish().map_err(io_err(&path))?);
+            files.insert("levelset.f32".into(), w.finish()?);
         }
         // a level set left by an earlier store in this directory is not this store's
         None => staged.remove("levelset.f32"),
@@ -296,11 +297,8 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 reason: e.to_string(),
             })?;
             let mut w = staged.create(LEVELSET_BAND_FILE)?;
-            w.put(&bytes).map_err(io_err(&path))?;
-            files.insert(
-                LEVELSET_BAND_FILE.into(),
-                w.finish().map_err(io_err(&path))?,
-            );
+            w.put(&bytes)?;
+            files.insert(LEVELSET_BAND_FILE.into(), w.finish()?);
         }
         (None, None) => staged.remove(LEVELSET_BAND_FILE),
         _ => {
