@@ -491,13 +491,13 @@ fn view_tolerance_coarsens_and_refines() {
 }
 
 /// A local store and a mesh file open too (no server), and `--frames` ends the run.
-#[test]
-fn view_opens_a_store_and_a_mesh_file() {
-    let (d, s) = store(2);
-    let shot = d.path().join("store.png");
+/// Opens `store` in the window in complete mode (128×128, 40 frames): every node arrives, and the
+/// screenshot matches the offscreen render of the same view (≥ 40 dB).
+fn view_matches_offscreen(store: &Path, dir: &Path, name: &str) {
+    let shot = dir.join(format!("{name}.png"));
     let out = view_under_xvfb(
         &[
-            s.to_str().unwrap(),
+            store.to_str().unwrap(),
             "--size",
             "128x128",
             "--mode",
@@ -515,10 +515,22 @@ fn view_opens_a_store_and_a_mesh_file() {
     assert_eq!(r["nodes"], r["nodes_total"], "{r}");
     let img = png(&shot);
     assert_eq!((img.width, img.height), (128, 128));
-    let reference = offscreen(&s, 35.0, 25.0, (128, 128), &d.path().join("ref.png"));
+    let reference = offscreen(
+        store,
+        35.0,
+        25.0,
+        (128, 128),
+        &dir.join(format!("{name}-ref.png")),
+    );
     let p = psnr(&img, &reference);
-    eprintln!("store view vs offscreen: {p:.2} dB");
-    assert!(p >= 40.0, "store view vs offscreen: {p:.2} dB");
+    eprintln!("{name} view vs offscreen: {p:.2} dB");
+    assert!(p >= 40.0, "{name} view vs offscreen: {p:.2} dB");
+}
+
+#[test]
+fn view_opens_a_store_and_a_mesh_file() {
+    let (d, s) = store(2);
+    view_matches_offscreen(&s, d.path(), "store");
 
     // a grid store with the axes predictor (values by grid point, apart from the mesh)
     let axes = d.path().join("axes");
@@ -527,31 +539,7 @@ fn view_opens_a_store_and_a_mesh_file() {
     o.base = tetwave_server::resample::BaseSpec::Box6;
     o.max_error = Some(tetwave_server::analysis::ErrorBound::OfRange(1e-3));
     assert_eq!(prepare(&o).unwrap().predictor, "axes");
-    let shot = d.path().join("axes.png");
-    let args = [
-        axes.to_str().unwrap(),
-        "--size",
-        "128x128",
-        "--mode",
-        "complete",
-        "--frames",
-        "40",
-        "--screenshot",
-        shot.to_str().unwrap(),
-        "--json",
-    ];
-    let r = json_report(&view_under_xvfb(&args, 120));
-    assert_eq!(r["nodes"], r["nodes_total"], "{r}");
-    let reference = offscreen(
-        &axes,
-        35.0,
-        25.0,
-        (128, 128),
-        &d.path().join("axes-ref.png"),
-    );
-    let p = psnr(&png(&shot), &reference);
-    eprintln!("axes store view vs offscreen: {p:.2} dB");
-    assert!(p >= 40.0, "axes store view vs offscreen: {p:.2} dB");
+    view_matches_offscreen(&axes, d.path(), "axes");
 
     let mesh = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../server/tests/fixtures/cube.mesh");
     let shot = d.path().join("mesh.png");

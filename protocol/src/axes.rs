@@ -66,8 +66,7 @@ pub struct Grid {
 impl Grid {
     /// The grid of `base`'s hierarchy (`keys` its numbering), or why it has none.
     pub fn of(base: &BaseMesh, keys: &VertexKeys) -> Result<Self, AxesError> {
-        check_base(base)?;
-        let corners = kuhn_corners(base)?;
+        let corners = checked_corners(base)?;
         let m = base.lattice().m();
         let mut paths = [(u32::MAX, [0u8; 4]); 9];
         for (t, tet) in base.tets.iter().enumerate() {
@@ -235,12 +234,17 @@ pub fn along_axis(a: Option<f32>, b: f32, c: f32, d: Option<f32>) -> f32 {
 
 /// Whether `base` can carry the axes predictor: a `box6` mesh whose grid points a `u32` counts.
 pub fn check_base(base: &BaseMesh) -> Result<(), AxesError> {
-    kuhn_corners(base)?;
+    checked_corners(base).map(|_| ())
+}
+
+/// [`kuhn_corners`] of a base that passes [`check_base`].
+fn checked_corners(base: &BaseMesh) -> Result<Vec<u8>, AxesError> {
+    let corners = kuhn_corners(base)?;
     let n = base.lattice().m() as u64 + 1;
     if n * n * n > u32::MAX as u64 {
         return Err(AxesError::TooLarge(n * n * n));
     }
-    Ok(())
+    Ok(corners)
 }
 
 /// Per base vertex its corner of the box as 3 bits (bit `a` set at the box's maximum along axis

@@ -29,9 +29,9 @@ pub enum Predictor {
     /// reads only the points every tet around the new vertex holds.
     #[default]
     Parent,
-    /// SZ3's cubic interpolation along the grid's axes, level by level ([`crate::axes`]): about a
-    /// third of the coded bits on smooth fields, but it reads vertices a selectively refined
-    /// mesh may not hold, and needs a `box6` base.
+    /// SZ3's cubic interpolation along the grid's axes, level by level ([`crate::axes`]): a
+    /// higher-order, finer stencil (smaller residuals on smooth fields), but it reads vertices a
+    /// selectively refined mesh may not hold, and needs a `box6` base.
     Axes,
 }
 

@@ -81,8 +81,8 @@ pub struct PrepareOptions {
     #[arg(long, value_parser = parse_max_error)]
     pub max_error: Option<ErrorBound>,
     /// How new vertices are predicted: `axes` (SZ3's cubic interpolation along the grid's axes,
-    /// level by level: 11–64 % fewer bytes than `parent` on the bench grids at 1e-3 of the range;
-    /// needs `--base box6` and data at every vertex), `parent` (the refined tet's parent's
+    /// level by level: fewer bytes on smooth fields, see docs/benchmarks.md; needs `--base box6`
+    /// and data at every vertex), `parent` (the refined tet's parent's
     /// quadratic: any base, meshes with an outside), or `auto`: `axes` where it applies.
     #[arg(long, value_enum, default_value_t = PredictorChoice::Auto)]
     pub predictor: PredictorChoice,

@@ -175,18 +175,30 @@ fn verify_needs_every_checksum() {
     assert!(e.to_string().contains("no checksum for blocks.bin"), "{e}");
 }
 
+/// Prepares a level-2 store in `dir`, puts a directory at `blocked` (in place of the file there,
+/// if any), and prepares level 3 over it: the error.
+fn rewrite_over_a_directory(
+    dir: &std::path::Path,
+    blocked: &std::path::Path,
+) -> tetwave_server::prepare::PrepareError {
+    make_store(dir, 2, None);
+    if blocked.exists() {
+        std::fs::remove_file(blocked).unwrap();
+    }
+    std::fs::create_dir(blocked).unwrap();
+    let mut o = PrepareOptions::new("synthetic:harmonic", dir);
+    o.levels = 3;
+    prepare(&o).expect_err("a directory where a file must go")
+}
+
 /// Preparing over an existing store that fails while its files are written (here
 /// `reference.f32.partial` cannot be created) leaves the old store as it was, and no partial
 /// files.
 #[test]
 fn a_failed_rewrite_keeps_the_old_store() {
     let d = tempfile::tempdir().unwrap();
-    make_store(d.path(), 2, None);
     let blocked = d.path().join("reference.f32.partial");
-    std::fs::create_dir(&blocked).unwrap();
-    let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
-    o.levels = 3;
-    let e = prepare(&o).expect_err("reference.f32.partial is a directory");
+    let e = rewrite_over_a_directory(d.path(), &blocked);
     assert!(e.to_string().contains("reference.f32"), "{e}");
     let old = Store::open(d.path()).expect("the old store is still there");
     assert_eq!(old.manifest.levels, 2);
@@ -205,13 +217,8 @@ fn a_failed_rewrite_keeps_the_old_store() {
 #[test]
 fn a_failed_rewrite_leaves_no_store() {
     let d = tempfile::tempdir().unwrap();
-    make_store(d.path(), 2, None);
     let coeffs = d.path().join("blocks.bin");
-    std::fs::remove_file(&coeffs).unwrap();
-    std::fs::create_dir(&coeffs).unwrap();
-    let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
-    o.levels = 3;
-    let e = prepare(&o).expect_err("blocks.bin is a directory");
+    let e = rewrite_over_a_directory(d.path(), &coeffs);
     assert!(e.to_string().contains("blocks.bin"), "{e}");
     let e = Store::open(d.path()).err().expect("no store");
     assert!(e.to_string().contains("manifest.json"), "{e}");

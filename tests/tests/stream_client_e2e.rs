@@ -55,19 +55,40 @@ fn assert_identical(s: &Streamed, values: &[f32]) {
     }
 }
 
+/// Streams `store` whole in every order (outputs under `work`): each session ends identical to
+/// `values`, with no duplicates.
+fn every_order_ends_identical(store: &Path, work: &Path, values: &[f32]) {
+    for order in ["level", "magnitude", "view", "random"] {
+        let srv = serve(store, order);
+        let s = session(
+            srv.url(),
+            &work.join(format!("out-{order}")),
+            Faults::default(),
+        );
+        assert_identical(&s, values);
+        assert_eq!(s.report.duplicates, 0, "{order}");
+    }
+}
+
+/// Streams `store` in `order` through duplicated, reversed and lost batches: the session ends
+/// identical to `values` all the same.
+fn lossy_session_ends_identical(store: &Path, order: &str, out: &Path, values: &[f32]) {
+    let srv = serve(store, order);
+    let faults = Faults {
+        duplicate_every: Some(2),
+        reverse_groups: Some(3),
+        lose_every: Some(4),
+        ..Default::default()
+    };
+    let s = session_with(srv.url(), out, faults, false);
+    assert!(s.report.duplicates > 0);
+    assert_identical(&s, values);
+}
+
 #[test]
 fn streamed_session_ends_identical_to_full_synthesis() {
     let (d, values, _) = store(3);
-    for order in ["level", "magnitude", "view", "random"] {
-        let srv = serve(&d.path().join("s"), order);
-        let s = session(
-            srv.url(),
-            &d.path().join(format!("out-{order}")),
-            Faults::default(),
-        );
-        assert_identical(&s, &values);
-        assert_eq!(s.report.duplicates, 0, "{order}");
-    }
+    every_order_ends_identical(&d.path().join("s"), d.path(), &values);
 }
 
 /// With the axes predictor (a box6 grid at a bounded error, what `prepare` picks there), in
@@ -82,40 +103,14 @@ fn axes_sessions_end_identical_to_full_synthesis() {
     let info = tetwave_client::store_info::store_info(&dir).unwrap();
     assert_eq!(info.predictor, "axes");
     let values = Store::open(&dir).unwrap().synthesize_all().unwrap();
-    for order in ["level", "magnitude", "view", "random"] {
-        let srv = serve(&dir, order);
-        let s = session(
-            srv.url(),
-            &d.path().join(format!("out-{order}")),
-            Faults::default(),
-        );
-        assert_identical(&s, &values);
-    }
-    let srv = serve(&dir, "random");
-    let faults = Faults {
-        duplicate_every: Some(2),
-        reverse_groups: Some(3),
-        lose_every: Some(4),
-        ..Default::default()
-    };
-    let s = session_with(srv.url(), &d.path().join("out-faults"), faults, false);
-    assert!(s.report.duplicates > 0);
-    assert_identical(&s, &values);
+    every_order_ends_identical(&dir, d.path(), &values);
+    lossy_session_ends_identical(&dir, "random", &d.path().join("out-faults"), &values);
 }
 
 #[test]
 fn reordered_duplicated_and_lost_batches_end_identical() {
     let (d, values, _) = store(4);
-    let srv = serve(&d.path().join("s"), "level");
-    let faults = Faults {
-        duplicate_every: Some(2),
-        reverse_groups: Some(3),
-        lose_every: Some(4),
-        ..Default::default()
-    };
-    let s = session_with(srv.url(), &d.path().join("out"), faults, false);
-    assert!(s.report.duplicates > 0);
-    assert_identical(&s, &values);
+    lossy_session_ends_identical(&d.path().join("s"), "level", &d.path().join("out"), &values);
 }
 
 #[test]

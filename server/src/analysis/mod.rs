@@ -343,6 +343,7 @@ fn walk_all(
         detail: &detail,
         outside: stats.any_outside().then_some(&stats.outside_bits[..]),
         quantizer,
+        details: base.predictor == Predictor::Parent,
     };
     let mut max_err = walk.levels(
         forest,

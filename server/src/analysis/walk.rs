@@ -50,6 +50,9 @@ pub(super) struct Walk<'a> {
     /// Bitset of the vertices outside the input's domain; `None` when there are none.
     pub(super) outside: Option<&'a [u64]>,
     pub(super) quantizer: Option<Quantizer>,
+    /// Whether the walk computes the parent predictor's details; with the axes predictor it
+    /// only settles ownership, bounds and empty children, and `axes` computes the details.
+    pub(super) details: bool,
 }
 
 impl Walk<'_> {
@@ -185,6 +188,7 @@ impl Walk<'_> {
         // within a task ids increase: mostly only a task's first reach of a vertex takes the atomic
         if code >= cell.owner.load(Ordering::Relaxed)
             || cell.owner.fetch_min(code, Ordering::Relaxed) != UNOWNED
+            || !self.details
         {
             return;
         }
