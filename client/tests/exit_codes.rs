@@ -459,7 +459,7 @@ async fn bounded_and_complete_sessions_succeed() {
     }
 }
 
-/// `--psnr` needs rendered frames: with `--no-render` it is refused instead of writing no PSNR.
+/// `--psnr` needs rendered frames: with `--no-render` it is refused (exit status 2, naming both).
 #[test]
 fn psnr_without_rendering_is_refused() {
     let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))

@@ -366,7 +366,7 @@ fn stream_says_it_clipped_a_nonconvex_store() {
     assert!(out.status.success(), "{err}");
     assert!(err.contains("clipped to the mesh's domain"), "{err}");
     // its accuracy figure compares with the whole store drawn clipped the same way: a complete
-    // lossless stream at the finest level matches it (it read 22 dB against an unclipped one)
+    // lossless stream at the finest level matches it
     let args = [
         "--cpu",
         "--psnr",
