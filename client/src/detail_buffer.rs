@@ -14,7 +14,7 @@
 
 use rustc_hash::FxHashMap;
 use tetwave_protocol::hierarchy::EDGES;
-use tetwave_protocol::node::NodeError;
+use tetwave_protocol::node::{resolve_bound, NodeError};
 use tetwave_protocol::wire::IdRange;
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId, VertexKeys};
 
@@ -78,7 +78,8 @@ impl Cell for f32 {
     }
 }
 
-/// Subtree maxima are finite ([`DetailNode::validate`]): NaN marks an absent node.
+/// Subtree maxima are finite or infinite, never NaN ([`DetailNode::validate`]): NaN marks an
+/// absent node.
 impl Cell for NodeMeta {
     const EMPTY: NodeMeta = NodeMeta {
         subtree_max_abs: f32::NAN,
@@ -334,10 +335,18 @@ impl DetailBuffer {
         self.meta.get(t)
     }
 
-    /// Max |detail| of `t`'s subtree, if `t` arrived.
+    /// Max |detail| of `t`'s subtree, if `t` arrived: its own bound, or for a finest-level node
+    /// (which arrives without one) its parent's ([`resolve_bound`]; infinite until the parent
+    /// has arrived).
     #[inline]
     pub fn subtree_max(&self, t: TetId) -> Option<f32> {
-        self.meta.get(t).map(|m| m.subtree_max_abs)
+        let own = self.meta.get(t)?.subtree_max_abs;
+        Some(resolve_bound(own, || {
+            self.forest
+                .parent(t)
+                .and_then(|p| self.meta.get(p))
+                .map(|m| m.subtree_max_abs)
+        }))
     }
 
     /// Whether child `i` of `t` is known to be empty (false while `t` has not arrived).
@@ -459,6 +468,29 @@ mod tests {
         for &k in &arr.keys {
             assert!(b.coeff(k).is_some());
         }
+    }
+
+    /// A finest-level node arrives without a bound of its own: its parent's stands in once the
+    /// parent has arrived, and until then an infinite one (full weight, never "flat").
+    #[test]
+    fn a_finest_node_takes_its_parents_bound() {
+        use tetwave_protocol::node::INHERITED_BOUND;
+        let mut b = setup();
+        let mut arr = Arrivals::default();
+        let child = DetailNode {
+            subtree_max_abs: INHERITED_BOUND,
+            ..node(3, 0b001000)
+        };
+        b.insert(&child, &mut arr).unwrap();
+        assert_eq!(b.subtree_max(3), Some(f32::INFINITY));
+        let parent = DetailNode {
+            subtree_max_abs: 0.25,
+            ..node(0, 0b111111)
+        };
+        b.insert(&parent, &mut arr).unwrap();
+        assert_eq!(b.subtree_max(3), Some(0.25));
+        assert_eq!(b.subtree_max(0), Some(0.25));
+        assert_eq!(b.subtree_max(4), None);
     }
 
     /// The ids not held, as ranges: all of them at first, then the gaps around what arrived.

@@ -16,7 +16,10 @@
 //!   for the selection's error estimate. A node that follows its sibling in the block sends one
 //!   adaptive flag when its class is the sibling's (so a group costs about one class). Lossless
 //!   stores round the bound up to a power of two (within a factor 2, the same safe side) and code
-//!   its exponent the same way ([`pow2_class`]);
+//!   its exponent the same way ([`pow2_class`]). Nodes of the finest node level (7/8 of all) send
+//!   no bound: it would cost more than their coefficients tell, and their parent's covers them
+//!   ([`crate::node::INHERITED_BOUND`]). Their codes are coded under one model of their own, with
+//!   the quantizer's code length as the limit;
 //! - **coefficients**: quantized codes by magnitude under the class `k` (none at all when `k = 0`:
 //!   a zero subtree costs only its class), each nonzero code's sign by an adaptive bit whose context
 //!   is the node's two previous nonzero signs. Lossless stores keep every bit of the
@@ -30,6 +33,7 @@
 
 use crate::entropy::{unzigzag, zigzag, Bit, Decoder, Encoder, EntropyError, Floats, UInt};
 use crate::hierarchy::Forest;
+use crate::node::INHERITED_BOUND;
 use crate::ownership::Ownership;
 use crate::store_format::Encoding;
 use crate::wavelet::Quantizer;
@@ -84,6 +88,9 @@ pub struct BlockCoder {
     total: u64,
     ownership: Ownership,
     coefficients: Coefficients,
+    /// Ids from here on are finest-level nodes, whose subtree bound is not coded
+    /// ([`INHERITED_BOUND`]); `u64::MAX` when there are none.
+    finest: u64,
 }
 
 /// Every adaptive model of one block.
@@ -95,6 +102,7 @@ struct Models {
     empty_bits: [Bit; 8],
     class: Vec<UInt>,
     same_class: Bit,
+    /// Code magnitudes, by subtree class; the last one for finest-level nodes (no class).
     magnitude: Vec<UInt>,
     /// Signs, by the node's two previous nonzero signs ([`NodeSigns`]).
     sign: [Bit; 9],
@@ -113,7 +121,7 @@ impl Models {
             empty_bits: [Bit::default(); 8],
             class: vec![UInt::default(); 16],
             same_class: Bit::default(),
-            magnitude: vec![UInt::default(); MAX_CLASS as usize + 1],
+            magnitude: vec![UInt::default(); FINEST_MAGNITUDES + 1],
             sign: [Bit::default(); 9],
             class_delta: UInt::default(),
             floats: Floats::default(),
@@ -132,6 +140,7 @@ impl BlockCoder {
                 None => Coefficients::Raw,
                 Some(q) => Coefficients::Quantized(q),
             },
+            finest: forest.checked_finest_nodes_start().unwrap_or(u64::MAX),
         }
     }
 
@@ -197,7 +206,13 @@ impl BlockCoder {
                     e.bit(b, n.empty_children >> i & 1 == 1);
                 }
             }
+            let finest = n.id >= self.finest;
             match self.coefficients {
+                Coefficients::Raw if finest => {
+                    for &c in &n.coeffs {
+                        e.float(&mut m.floats, c)?;
+                    }
+                }
                 Coefficients::Raw => {
                     let class = pow2_class(n.subtree_max_abs);
                     let same = after_sibling && class == prev_class;
@@ -210,6 +225,22 @@ impl BlockCoder {
                     prev_class = class;
                     for &c in &n.coeffs {
                         e.float(&mut m.floats, c)?;
+                    }
+                }
+                Coefficients::Quantized(q) if finest => {
+                    let bits = code_bits(q);
+                    let mut signs = NodeSigns::default();
+                    for &c in &n.coeffs {
+                        let code = q.encode(c);
+                        e.uint_within(
+                            &mut m.magnitude[FINEST_MAGNITUDES],
+                            code.unsigned_abs() as u64,
+                            bits,
+                        )?;
+                        if code != 0 {
+                            e.bit(&mut m.sign[signs.context()], code < 0);
+                        }
+                        signs.push(code);
                     }
                 }
                 Coefficients::Quantized(q) => {
@@ -310,7 +341,33 @@ impl BlockCoder {
                 0
             };
             let n_coeffs = owned.count_ones() as usize;
+            let finest = id >= self.finest;
             let (subtree_max_abs, coeffs) = match self.coefficients {
+                Coefficients::Raw if finest => {
+                    let coeffs = (0..n_coeffs)
+                        .map(|_| d.float(&mut m.floats))
+                        .collect::<Result<Vec<_>, _>>()?;
+                    (INHERITED_BOUND, coeffs)
+                }
+                Coefficients::Quantized(q) if finest => {
+                    let (bits, limit) = (code_bits(q), Quantizer::max_code(q.bits) as u64);
+                    let mut signs = NodeSigns::default();
+                    let mut coeffs = vec![0f32; n_coeffs];
+                    for c in coeffs.iter_mut() {
+                        let mag = d.uint_within(&mut m.magnitude[FINEST_MAGNITUDES], bits)?;
+                        if mag > limit {
+                            return Err(BlockError::BadNode {
+                                id,
+                                reason: format!("code {mag} exceeds the quantizer's {limit}"),
+                            });
+                        }
+                        let negative = mag != 0 && d.bit(&mut m.sign[signs.context()])?;
+                        let code = if negative { -(mag as i32) } else { mag as i32 };
+                        signs.push(code);
+                        *c = q.decode(code);
+                    }
+                    (INHERITED_BOUND, coeffs)
+                }
                 Coefficients::Raw => {
                     let same = after_sibling && d.bit(&mut m.same_class)?;
                     let class = if same {
@@ -412,6 +469,14 @@ impl NodeSigns {
     }
 }
 
+/// The magnitude model of finest-level nodes' codes (after the classes' `0..=MAX_CLASS`).
+const FINEST_MAGNITUDES: usize = MAX_CLASS as usize + 1;
+
+/// Bit length of the largest code magnitude of `q` ([`Quantizer::max_code`]).
+fn code_bits(q: Quantizer) -> u32 {
+    (q.bits as u32).saturating_sub(1)
+}
+
 /// Gap contexts: the previous gap's bit length, 0..=11 (longer gaps share the last).
 const GAP_CONTEXTS: usize = 12;
 
@@ -485,12 +550,18 @@ mod tests {
             .collect()
     }
 
-    /// The nodes as a lossless store holds them: subtree bounds rounded up to powers of two.
-    fn pow2_bounds(nodes: &[DetailNode]) -> Vec<DetailNode> {
+    /// The nodes as a lossless block carries them: subtree bounds rounded up to powers of two,
+    /// none on the finest node level.
+    fn pow2_bounds(base: &BaseMesh, nodes: &[DetailNode]) -> Vec<DetailNode> {
+        let finest = base.forest().checked_finest_nodes_start().unwrap();
         nodes
             .iter()
             .map(|n| DetailNode {
-                subtree_max_abs: pow2_bound(pow2_class(n.subtree_max_abs)),
+                subtree_max_abs: if n.id >= finest {
+                    INHERITED_BOUND
+                } else {
+                    pow2_bound(pow2_class(n.subtree_max_abs))
+                },
                 ..n.clone()
             })
             .collect()
@@ -509,9 +580,12 @@ mod tests {
         let coder = BlockCoder::new(&base, &Encoding::F32);
         let block = coder.encode(&nodes).unwrap();
         let back = coder.decode(&block).unwrap();
-        assert_eq!(back, pow2_bounds(&nodes));
+        assert_eq!(back, pow2_bounds(&base, &nodes));
         assert_eq!(bits(&back), bits(&nodes));
         for (a, b) in nodes.iter().zip(&back) {
+            if b.subtree_max_abs == INHERITED_BOUND {
+                continue;
+            }
             assert!(b.subtree_max_abs >= a.subtree_max_abs);
             assert!(b.subtree_max_abs <= 2.0 * a.subtree_max_abs);
         }
@@ -569,6 +643,12 @@ mod tests {
                 (b.id, b.owned, b.empty_children)
             );
             assert_eq!(a.coeffs, b.coeffs, "node {}", a.id);
+            // the finest level's bounds are not coded, every other level's are
+            let finest = base.forest().checked_finest_nodes_start().unwrap();
+            assert_eq!(b.subtree_max_abs == INHERITED_BOUND, a.id >= finest);
+            if a.id >= finest {
+                continue;
+            }
             assert!(b.subtree_max_abs >= a.subtree_max_abs, "node {}", a.id);
             // the class also covers the node's own codes (a residual of the quadratic
             // prediction may exceed the linear details the bound is about)
@@ -598,7 +678,10 @@ mod tests {
         nodes[3].owned = 0;
         nodes[3].coeffs.clear();
         let block = coder.encode(&nodes[..10]).unwrap();
-        assert_eq!(coder.decode(&block).unwrap(), pow2_bounds(&nodes[..10]));
+        assert_eq!(
+            coder.decode(&block).unwrap(),
+            pow2_bounds(&base, &nodes[..10])
+        );
     }
 
     #[test]
@@ -636,7 +719,7 @@ mod tests {
                 .collect();
             let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
             prop_assert_eq!(bits(&back), bits(&nodes));
-            prop_assert_eq!(back, pow2_bounds(&nodes));
+            prop_assert_eq!(back, pow2_bounds(&base, &nodes));
         }
     }
 

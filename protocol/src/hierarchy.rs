@@ -169,6 +169,14 @@ impl Forest {
         self.checked_level_start(self.levels)
     }
 
+    /// The first id of the finest node level (`levels − 1`: nodes whose children are the
+    /// hierarchy's leaves); `None` without levels or when it does not fit in a u64.
+    pub fn checked_finest_nodes_start(&self) -> Option<u64> {
+        self.levels
+            .checked_sub(1)
+            .and_then(|l| self.checked_level_start(l))
+    }
+
     /// [`Self::total_tets`] without overflow: `None` when it does not fit in a u64.
     pub fn checked_total_tets(&self) -> Option<u64> {
         self.checked_level_start(self.levels + 1)

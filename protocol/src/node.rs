@@ -18,8 +18,29 @@ pub struct DetailNode {
     /// The selection's error estimate: the largest linear detail `|f(m) − (f(u) + f(v))/2|` of a
     /// vertex created by refining this tet, its descendants, or its siblings and theirs (one
     /// value per group of 8 siblings, so a group codes as one; see [`group_siblings`]).
+    ///
+    /// A node of the finest node level (its children are the hierarchy's leaves) arrives without
+    /// one of its own: [`INHERITED_BOUND`], and its parent's bound, which covers this subtree,
+    /// stands in for it ([`resolve_bound`]). Coding it would cost more than its coefficients tell.
     pub subtree_max_abs: f32,
     pub coeffs: Vec<f32>,
+}
+
+/// The [`DetailNode::subtree_max_abs`] of a node whose bound is not coded (the finest node
+/// level, see [`crate::block`]): its parent's applies.
+pub const INHERITED_BOUND: f32 = f32::INFINITY;
+
+/// The subtree bound a selection uses for a node with bound `own`: its own, or for an
+/// [`INHERITED_BOUND`] its `parent`'s (an upper bound too: the parent's subtree holds this one).
+/// Without a parent's bound (not arrived, or a base tet) it stays infinite: full weight, the safe
+/// side of every criterion that scales by it.
+#[inline]
+pub fn resolve_bound(own: f32, parent: impl FnOnce() -> Option<f32>) -> f32 {
+    if own == INHERITED_BOUND {
+        parent().unwrap_or(INHERITED_BOUND)
+    } else {
+        own
+    }
 }
 
 /// Raises every node's subtree bound to its sibling group's largest (`bounds` by id, as
@@ -60,7 +81,8 @@ impl DetailNode {
                 want,
             });
         }
-        if !self.subtree_max_abs.is_finite() || self.coeffs.iter().any(|c| !c.is_finite()) {
+        let bound_ok = self.subtree_max_abs.is_finite() || self.subtree_max_abs == INHERITED_BOUND;
+        if !bound_ok || self.coeffs.iter().any(|c| !c.is_finite()) {
             return Err(NodeError::NonFinite { id: self.id });
         }
         Ok(())

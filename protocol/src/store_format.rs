@@ -36,7 +36,7 @@ pub const STORE_FORMAT: &str = "tetwave-store";
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
-pub const STORE_VERSION: u32 = 6;
+pub const STORE_VERSION: u32 = 7;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 
@@ -305,7 +305,16 @@ impl StoreHead {
                 nodes.last().map_or(0, |n| n.id)
             )));
         }
-        if let Some(n) = nodes.iter().find(|n| !n.subtree_max_abs.is_finite()) {
+        // every level but the finest codes a finite bound (the finest inherits its parent's)
+        let finest = self
+            .base
+            .forest()
+            .checked_finest_nodes_start()
+            .unwrap_or(u64::MAX);
+        if let Some(n) = nodes
+            .iter()
+            .find(|n| n.id < finest && !n.subtree_max_abs.is_finite())
+        {
             return Err(bad(format!(
                 "node {}: subtree max |d| {} is not finite",
                 n.id, n.subtree_max_abs

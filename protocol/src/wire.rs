@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 /// version-3 peer would misread it). 5: the blocks of store format 4 (lossless coefficients
 /// coded). 6: the base mesh and blocks of store format 5 (positions as f32
 /// where exact, modelled signs).
-pub const PROTOCOL_VERSION: u16 = 7;
+pub const PROTOCOL_VERSION: u16 = 8;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.

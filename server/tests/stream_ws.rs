@@ -8,6 +8,7 @@ mod stream_common;
 use std::collections::HashSet;
 use std::time::Duration;
 use stream_common::*;
+use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::wire::{encode, ClientMsg, IdRange, ServerMsg};
 use tetwave_protocol::{DetailNode, LatticeTet};
@@ -57,12 +58,27 @@ fn by_batch(s: &Session) -> Vec<&[DetailNode]> {
     out
 }
 
-fn min_smax(b: &[DetailNode]) -> f32 {
-    b.iter().map(|n| n.subtree_max_abs).fold(f32::MAX, f32::min)
+/// Every node's subtree bound as selection sees it: its own, or on the finest node level (which
+/// arrives without one) its parent's.
+fn selection_bounds(store: &Store) -> Vec<f32> {
+    let n = store.manifest.counts.nodes;
+    let forest = store.forest();
+    let mut b: Vec<f32> = Vec::with_capacity(n as usize);
+    for node in store.read_nodes(0, n).unwrap() {
+        let parent = forest.parent(node.id).map(|p| b[p as usize]);
+        b.push(resolve_bound(node.subtree_max_abs, || parent));
+    }
+    b
 }
 
-fn max_smax(b: &[DetailNode]) -> f32 {
-    b.iter().map(|n| n.subtree_max_abs).fold(0.0, f32::max)
+fn min_smax(b: &[DetailNode], bounds: &[f32]) -> f32 {
+    b.iter()
+        .map(|n| bounds[n.id as usize])
+        .fold(f32::MAX, f32::min)
+}
+
+fn max_smax(b: &[DetailNode], bounds: &[f32]) -> f32 {
+    b.iter().map(|n| bounds[n.id as usize]).fold(0.0, f32::max)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -70,6 +86,7 @@ async fn every_order_delivers_everything_once_and_synthesis_matches() {
     let (_d, dir) = make_store(4);
     let store = Store::open(&dir).unwrap();
     let values = store_values(&store);
+    let bounds = selection_bounds(&store);
     let (addr, _) = start(&dir, ServeConfig::default()).await;
     for order in ["level", "magnitude", "view", "random"] {
         let s = session(addr, &format!("?order={order}"), None).await;
@@ -83,7 +100,7 @@ async fn every_order_delivers_everything_once_and_synthesis_matches() {
             "magnitude" => assert!(
                 by_batch(&s)
                     .windows(2)
-                    .all(|w| min_smax(w[0]) >= max_smax(w[1])),
+                    .all(|w| min_smax(w[0], &bounds) >= max_smax(w[1], &bounds)),
                 "magnitude order: largest subtree error first"
             ),
             // a batch holds its nodes in id order (a block's order); each batch of a random
@@ -115,7 +132,7 @@ async fn every_order_delivers_everything_once_and_synthesis_matches() {
     assert_complete(&s, &store, &values);
     assert!(by_batch(&s)
         .windows(2)
-        .all(|w| min_smax(w[0]) >= max_smax(w[1])));
+        .all(|w| min_smax(w[0], &bounds) >= max_smax(w[1], &bounds)));
     assert!(s.batches.len() as u64 >= store.manifest.counts.nodes / 100);
     // an unknown order is refused before the upgrade
     let url = format!("ws://{addr}/v1/stream?order=sideways");

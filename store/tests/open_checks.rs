@@ -9,6 +9,7 @@ use std::path::Path;
 use tetwave_protocol::block::{pow2_bound, pow2_class, BlockCoder};
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::node::INHERITED_BOUND;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::store_format::STORE_VERSION;
 use tetwave_protocol::synthesis::synthesize_all;
@@ -61,11 +62,17 @@ fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<De
         levelset,
     };
     write(dir, &content, meta).unwrap();
-    // as the store codes them: lossless subtree bounds rounded up to powers of two
+    // as the store codes them: lossless subtree bounds rounded up to powers of two, none on the
+    // finest node level
+    let finest = base.forest().checked_finest_nodes_start().unwrap();
     nodes
         .into_iter()
         .map(|n| DetailNode {
-            subtree_max_abs: pow2_bound(pow2_class(n.subtree_max_abs)),
+            subtree_max_abs: if n.id >= finest {
+                INHERITED_BOUND
+            } else {
+                pow2_bound(pow2_class(n.subtree_max_abs))
+            },
             ..n
         })
         .collect()

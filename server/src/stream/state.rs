@@ -13,6 +13,7 @@ use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::block::NodeBlock;
+use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
 use tetwave_protocol::view::tet_sphere;
@@ -97,6 +98,15 @@ impl Shared {
             },
         )?;
         let forest = store.forest();
+        // finest-level nodes carry no bound of their own: their parent's (an earlier id) stands in
+        for i in 0..smax.len() {
+            let parent = || {
+                forest
+                    .parent(i as u64)
+                    .and_then(|p| smax.get(p as usize).copied())
+            };
+            smax[i] = resolve_bound(smax[i], parent);
+        }
         let nodes = store.manifest.counts.nodes;
         if nodes > u32::MAX as u64 {
             return Err(ServeError::TooLarge(nodes));
