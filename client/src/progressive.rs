@@ -10,10 +10,11 @@ use crate::session::{NodeRejected, Session};
 use glam::DVec3;
 use serde::Serialize;
 use std::time::{Duration, Instant};
+use tetwave_protocol::node::resolved_bounds;
 use tetwave_protocol::order::shuffle;
 /// The seeded mixing behind [`order_nodes`]'s random order, re-exported for the client's tests.
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::{BaseMesh, DetailNode, TetId};
+use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
 /// Order in which the detail nodes arrive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -23,19 +24,24 @@ pub enum ArrivalOrder {
     Level,
     /// Shuffled (seeded): parents often arrive after their children.
     Random,
-    /// Largest subtree max |detail| first.
+    /// Largest subtree max |detail| first (a finest-level node's is its parent's,
+    /// [`tetwave_protocol::node::resolve_bound`]).
     Magnitude,
 }
 
-/// Puts `nodes` in arrival order `order`.
-pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64) {
+/// Puts `nodes` (of a hierarchy with `forest`'s ids) in arrival order `order`.
+pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64, forest: Forest) {
     match order {
         ArrivalOrder::Level => nodes.sort_by_key(|n| n.id),
-        ArrivalOrder::Magnitude => nodes.sort_by(|a, b| {
-            b.subtree_max_abs
-                .total_cmp(&a.subtree_max_abs)
-                .then(a.id.cmp(&b.id))
-        }),
+        ArrivalOrder::Magnitude => {
+            let bounds = resolved_bounds(forest, nodes);
+            let mut keyed: Vec<(f32, DetailNode)> =
+                bounds.into_iter().zip(nodes.iter().cloned()).collect();
+            keyed.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
+            for (slot, (_, n)) in nodes.iter_mut().zip(keyed) {
+                *slot = n;
+            }
+        }
         ArrivalOrder::Random => {
             nodes.sort_by_key(|n| n.id);
             shuffle(nodes, seed);
@@ -516,7 +522,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     )?;
     let m = &store.manifest;
     let mut nodes = store.read_nodes(0, m.counts.nodes)?;
-    order_nodes(&mut nodes, args.order, args.seed);
+    order_nodes(&mut nodes, args.order, args.seed, store.forest());
     let mut tols: Vec<Option<Tolerance>> = Vec::new();
     if !args.simple_only {
         for t in &args.tol {

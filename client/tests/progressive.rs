@@ -26,7 +26,7 @@ fn cfg(tol: Option<f64>) -> RunConfig {
 fn tolerance_monotonicity() {
     // level 5: the thesis' Harmonic hierarchy size (187,245 tets); every node arrives by step 24
     let (base, mut nodes) = detail_nodes(box5(5), wave);
-    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
+    order_nodes(&mut nodes, ArrivalOrder::Level, 1, base.forest());
     let uniform = base.forest().leaves() as f64;
     let mut last = 0.0;
     for tol in [20.0, 15.0, 12.5, 10.0, 6.25] {
@@ -65,7 +65,7 @@ fn orders_and_budgets_settle() {
         ArrivalOrder::Magnitude,
     ] {
         let mut ns = nodes.clone();
-        order_nodes(&mut ns, order, 7);
+        order_nodes(&mut ns, order, 7, base.forest());
         for (ms, ops) in [(None, None), (Some(0.2), None), (None, Some(10))] {
             let c = RunConfig {
                 steps: 30,
@@ -91,7 +91,7 @@ fn chunked_merges_settle() {
         .enumerate()
     {
         let mut ns = nodes.clone();
-        order_nodes(&mut ns, order, seed as u64 + 3);
+        order_nodes(&mut ns, order, seed as u64 + 3, base.forest());
         for tol in [12.5, 8.0, 5.0] {
             for ops in [16, 64, 300] {
                 let c = RunConfig {
@@ -199,7 +199,7 @@ fn euler_edges() {
 #[test]
 fn full_scan_takes_the_same_path() {
     let (base, mut nodes) = detail_nodes(box5(4), wave);
-    order_nodes(&mut nodes, ArrivalOrder::Random, 5);
+    order_nodes(&mut nodes, ArrivalOrder::Random, 5, base.forest());
     for tol in [Some(12.5), Some(6.0), None] {
         let c = RunConfig {
             steps: 40,
@@ -274,4 +274,41 @@ fn render_probe_measures_image_error() {
         last
     );
     assert!(r.final_same == Some(true));
+}
+
+/// Magnitude order ranks a node as selection would: a finest-level node, which arrives from a
+/// block without a bound of its own, by its parent's, so it comes after its parent and never
+/// ahead of the coarse levels.
+#[test]
+fn magnitude_order_ranks_finest_nodes_by_their_parents_bound() {
+    use tetwave_protocol::node::INHERITED_BOUND;
+    let (base, nodes) = detail_nodes(box5(3), wave);
+    let forest = base.forest();
+    let finest = forest.checked_finest_nodes_start().unwrap();
+    let parent_bound = |id: u64| nodes[forest.parent(id).unwrap() as usize].subtree_max_abs;
+    let mut decoded: Vec<_> = nodes
+        .iter()
+        .map(|n| {
+            let mut n = n.clone();
+            if n.id >= finest {
+                n.subtree_max_abs = INHERITED_BOUND;
+            }
+            n
+        })
+        .collect();
+    order_nodes(&mut decoded, ArrivalOrder::Magnitude, 0, forest);
+    let rank: Vec<f32> = decoded
+        .iter()
+        .map(|n| match n.id >= finest {
+            true => parent_bound(n.id),
+            false => n.subtree_max_abs,
+        })
+        .collect();
+    assert!(rank.windows(2).all(|w| w[0] >= w[1]), "largest first");
+    let at: std::collections::HashMap<u64, usize> =
+        decoded.iter().enumerate().map(|(i, n)| (n.id, i)).collect();
+    for n in decoded.iter().filter(|n| n.id >= finest) {
+        let p = forest.parent(n.id).unwrap();
+        assert!(at[&p] < at[&n.id], "node {} before its parent", n.id);
+    }
 }

@@ -353,7 +353,7 @@ fn incremental_equals_full_scan() {
             } else {
                 ArrivalOrder::Random
             };
-            order_nodes(&mut nodes, order, s);
+            order_nodes(&mut nodes, order, s, base.forest());
             let mut p = SelectParams::new(tol, [-1.0, 1.0]);
             p.frustum = frustum;
             p.data_aware = data_aware;

@@ -433,6 +433,13 @@ impl BlockCoder {
                 id,
                 reason: err.to_string(),
             })?;
+            if !finest && !node.subtree_max_abs.is_finite() {
+                // a class beyond what the step allows (a block coded for another quantizer)
+                return Err(BlockError::BadNode {
+                    id,
+                    reason: "subtree bound overflows f32".into(),
+                });
+            }
             if node.subtree_max_abs.is_nan() || node.subtree_max_abs < 0.0 {
                 return Err(BlockError::BadNode {
                     id,
@@ -815,6 +822,47 @@ mod tests {
             "{} bytes for the ids of 100 groups",
             block.bytes.len()
         );
+    }
+
+    /// Only a level with parents goes without bounds: with one level the base tets, which have no
+    /// parent to borrow from, code theirs.
+    #[test]
+    fn one_level_codes_every_bound() {
+        let (base, nodes) = harmonic(1);
+        assert_eq!(base.forest().checked_finest_nodes_start(), None);
+        for enc in [
+            Encoding::F32,
+            Encoding::Quantized {
+                bits: 12,
+                step: 1e-3,
+            },
+        ] {
+            let coder = BlockCoder::new(&base, &enc);
+            let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
+            for (a, b) in nodes.iter().zip(&back) {
+                assert!(b.subtree_max_abs.is_finite(), "node {}", b.id);
+                assert!(b.subtree_max_abs >= a.subtree_max_abs, "node {}", b.id);
+            }
+        }
+    }
+
+    /// A class whose bound does not fit in f32 under the decoder's step (a block coded for
+    /// another quantizer) is refused, not decoded as an infinite bound on a level that codes one.
+    #[test]
+    fn a_bound_beyond_f32_is_refused() {
+        let (base, nodes) = harmonic(3);
+        let node = DetailNode {
+            coeffs: vec![0.0; nodes[0].coeffs.len()],
+            subtree_max_abs: (1u64 << 39) as f32,
+            ..nodes[0].clone()
+        };
+        let at = |step| BlockCoder::new(&base, &Encoding::Quantized { bits: 12, step });
+        let block = at(1.0).encode(std::slice::from_ref(&node)).unwrap();
+        assert!(at(1.0).decode(&block).is_ok());
+        assert!(matches!(
+            at(1e30).decode(&block),
+            Err(BlockError::BadNode { .. })
+        ));
     }
 
     #[test]

@@ -170,11 +170,14 @@ impl Forest {
     }
 
     /// The first id of the finest node level (`levels − 1`: nodes whose children are the
-    /// hierarchy's leaves); `None` without levels or when it does not fit in a u64.
+    /// hierarchy's leaves), when that level has parents (at least 2 levels; a base tet has no
+    /// parent whose bound could stand in for its own); `None` otherwise or when it does not fit
+    /// in a u64.
     pub fn checked_finest_nodes_start(&self) -> Option<u64> {
-        self.levels
-            .checked_sub(1)
-            .and_then(|l| self.checked_level_start(l))
+        if self.levels < 2 {
+            return None;
+        }
+        self.checked_level_start(self.levels - 1)
     }
 
     /// [`Self::total_tets`] without overflow: `None` when it does not fit in a u64.

@@ -1,6 +1,6 @@
 //! Detail nodes: what the server stores and streams per tet that has children.
 
-use crate::hierarchy::TetId;
+use crate::hierarchy::{Forest, TetId};
 use serde::{Deserialize, Serialize};
 
 /// The coefficients one tet owns, with the metadata the client's selection uses.
@@ -41,6 +41,21 @@ pub fn resolve_bound(own: f32, parent: impl FnOnce() -> Option<f32>) -> f32 {
     } else {
         own
     }
+}
+
+/// [`resolve_bound`] for every node of `nodes` (any order), parents looked up among `nodes`: the
+/// bounds selection and the server's orders rank by, in `nodes`' order.
+pub fn resolved_bounds(forest: Forest, nodes: &[DetailNode]) -> Vec<f32> {
+    let own: std::collections::HashMap<TetId, f32> =
+        nodes.iter().map(|n| (n.id, n.subtree_max_abs)).collect();
+    nodes
+        .iter()
+        .map(|n| {
+            resolve_bound(n.subtree_max_abs, || {
+                forest.parent(n.id).and_then(|p| own.get(&p).copied())
+            })
+        })
+        .collect()
 }
 
 /// Raises every node's subtree bound to its sibling group's largest (`bounds` by id, as

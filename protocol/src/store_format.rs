@@ -31,7 +31,8 @@ pub const BLOCK: u64 = 4096;
 /// read allocates whatever the index says.
 pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
-/// 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized codes' signs
+/// 7: no subtree bound on the finest node level (its parent's stands in), ids as runs and jumps
+/// by sibling group ([`crate::block`]); 6: the base mesh names its predictor; 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized codes' signs
 /// modelled ([`crate::block`]); 4: lossless coefficients coded (sign, exponent, significant mantissa bits) and lossless subtree
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,

@@ -15,7 +15,9 @@ use serde::{Deserialize, Serialize};
 /// store format 3. 4: the manifest carries `source_value_range` (bincode is positional: a
 /// version-3 peer would misread it). 5: the blocks of store format 4 (lossless coefficients
 /// coded). 6: the base mesh and blocks of store format 5 (positions as f32
-/// where exact, modelled signs).
+/// where exact, modelled signs). 7: the base mesh names its predictor (store format 6). 8: the
+/// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
+/// sibling group).
 pub const PROTOCOL_VERSION: u16 = 8;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;

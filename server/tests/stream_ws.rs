@@ -8,7 +8,7 @@ mod stream_common;
 use std::collections::HashSet;
 use std::time::Duration;
 use stream_common::*;
-use tetwave_protocol::node::resolve_bound;
+use tetwave_protocol::node::resolved_bounds;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::wire::{encode, ClientMsg, IdRange, ServerMsg};
 use tetwave_protocol::{DetailNode, LatticeTet};
@@ -58,17 +58,11 @@ fn by_batch(s: &Session) -> Vec<&[DetailNode]> {
     out
 }
 
-/// Every node's subtree bound as selection sees it: its own, or on the finest node level (which
-/// arrives without one) its parent's.
+/// Every node's subtree bound as selection sees it, by id: its own, or on the finest node level
+/// (which arrives without one) its parent's.
 fn selection_bounds(store: &Store) -> Vec<f32> {
-    let n = store.manifest.counts.nodes;
-    let forest = store.forest();
-    let mut b: Vec<f32> = Vec::with_capacity(n as usize);
-    for node in store.read_nodes(0, n).unwrap() {
-        let parent = forest.parent(node.id).map(|p| b[p as usize]);
-        b.push(resolve_bound(node.subtree_max_abs, || parent));
-    }
-    b
+    let nodes = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
+    resolved_bounds(store.forest(), &nodes)
 }
 
 fn min_smax(b: &[DetailNode], bounds: &[f32]) -> f32 {

@@ -8,7 +8,7 @@
 //! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it
 //!   (with `levelset_near.bin`: one without the other is refused);
 //! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
-//!   subtree bound, and the blocks together own the manifest's coefficient count.
+//!   subtree bound (the finest node level has none: its parent's stands in), and the blocks together own the manifest's coefficient count.
 //!
 //! A flipped byte inside a block usually fails to decode (or decodes to the wrong count); one that
 //! still decodes to plausible nodes is found by `verify`'s checksums.

@@ -34,8 +34,13 @@ impl SumWriter {
         self.bytes += b.len() as u64;
         self.inner.write_all(b).map_err(io_err(&self.path))
     }
+    /// Flushes and syncs the file: it is on disk before the commit renames it into place.
     fn finish(mut self) -> Result<FileSum, StoreError> {
         self.inner.flush().map_err(io_err(&self.path))?;
+        self.inner
+            .get_ref()
+            .sync_all()
+            .map_err(io_err(&self.path))?;
         Ok(FileSum {
             bytes: self.bytes,
             crc32: self.hasher.finalize(),
@@ -94,10 +99,12 @@ impl<'a> Staged<'a> {
             remove_if_there(&self.dir.join(name))?;
         }
         let partial = self.partial("manifest.json");
-        std::fs::write(&partial, manifest).map_err(io_err(&partial))?;
+        let mut w = SumWriter::create(&partial)?;
+        w.put(manifest.as_bytes())?;
+        w.finish()?;
         std::fs::rename(&partial, &manifest_path).map_err(io_err(&manifest_path))?;
         self.committed = true;
-        Ok(())
+        sync_dir(self.dir)
     }
 }
 
@@ -109,6 +116,18 @@ impl Drop for Staged<'_> {
             }
         }
     }
+}
+
+/// Makes the renames into `dir` durable (the files themselves were synced when written). Where a
+/// directory cannot be opened as a file (not Unix), the renames are left to the system.
+fn sync_dir(dir: &Path) -> Result<(), StoreError> {
+    #[cfg(unix)]
+    File::open(dir)
+        .and_then(|d| d.sync_all())
+        .map_err(io_err(dir))?;
+    #[cfg(not(unix))]
+    let _ = dir;
+    Ok(())
 }
 
 fn remove_if_there(path: &Path) -> Result<(), StoreError> {

@@ -53,9 +53,9 @@ fn server_view_order_and_client_selection_rank_nodes_alike() {
     // where the client sees a node, the server gives it the same error (its data weight is floored
     // at 10⁻³ so that flat subtrees are still sent: compare above the floor)
     let mut compared = 0;
+    let bounds = tetwave_protocol::node::resolved_bounds(store.forest(), &nodes);
     for &(id, s, c) in &visible {
-        let n = &nodes[id];
-        let w = tetwave_protocol::view::data_weight(n.subtree_max_abs, value_range, DATA_DELTA);
+        let w = tetwave_protocol::view::data_weight(bounds[id], value_range, DATA_DELTA);
         if w >= 1e-3 {
             assert!(
                 (s - c).abs() <= 1e-5 * c.abs(),

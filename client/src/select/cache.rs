@@ -15,7 +15,8 @@ pub(super) const PREFETCH: usize = 8;
 
 /// What selection keeps of one node slot (16 bytes): pure functions of the node's id (level; the
 /// bounding sphere, kept apart in `Selector::geo` since complete mode needs none), what the buffer
-/// said of it (presence, subtree max, usability: these only grow) and the status last evaluated
+/// said of it (presence and usability, which only grow; the subtree max, final once usable: a
+/// finest-level node's is infinite until its parent arrives) and the status last evaluated
 /// (reused while the epoch lasts and the slot does not change, see `Selector::eval`). The status
 /// takes spare bits of the word and its priority is computed again from the entry rather than
 /// stored, since these entries are most of the selector's memory.

@@ -64,7 +64,7 @@ pub fn probed_run(
     use tetwave_render::render_mesh::RenderMesh;
     use tetwave_render::transfer::TransferFunction;
     let (base, mut nodes) = detail_nodes(box5(levels), wave);
-    order_nodes(&mut nodes, ArrivalOrder::Level, 1);
+    order_nodes(&mut nodes, ArrivalOrder::Level, 1, base.forest());
     let values = tetwave_protocol::synthesis::synthesize_all(
         &base,
         &base.vertex_keys(),
