@@ -227,20 +227,12 @@ impl BlockCoder {
                     }
                 }
                 Coefficients::Quantized(q) if finest => {
-                    let bits = code_bits(q);
-                    let mut signs = NodeSigns::default();
-                    for &c in &n.coeffs {
-                        let code = q.encode(c);
-                        e.uint_within(
-                            &mut m.magnitude[FINEST_MAGNITUDES],
-                            code.unsigned_abs() as u64,
-                            bits,
-                        )?;
-                        if code != 0 {
-                            e.bit(&mut m.sign[signs.context()], code < 0);
-                        }
-                        signs.push(code);
-                    }
+                    encode_codes(
+                        &mut e,
+                        (&mut m.magnitude[FINEST_MAGNITUDES], &mut m.sign),
+                        n.coeffs.iter().map(|&c| q.encode(c)),
+                        code_bits(q),
+                    )?;
                 }
                 Coefficients::Quantized(q) => {
                     let codes: Vec<i32> = n.coeffs.iter().map(|&c| q.encode(c)).collect();
@@ -270,19 +262,13 @@ impl BlockCoder {
                     }
                     prev_class = class;
                     if class > 0 {
-                        let mut signs = NodeSigns::default();
-                        for &c in &codes {
-                            // a class-k magnitude has at most k bits
-                            e.uint_within(
-                                &mut m.magnitude[class as usize],
-                                c.unsigned_abs() as u64,
-                                class,
-                            )?;
-                            if c != 0 {
-                                e.bit(&mut m.sign[signs.context()], c < 0);
-                            }
-                            signs.push(c);
-                        }
+                        // a class-k magnitude has at most k bits
+                        encode_codes(
+                            &mut e,
+                            (&mut m.magnitude[class as usize], &mut m.sign),
+                            codes.iter().copied(),
+                            class,
+                        )?;
                     }
                 }
             }
@@ -347,22 +333,17 @@ impl BlockCoder {
                     (INHERITED_BOUND, coeffs)
                 }
                 Coefficients::Quantized(q) if finest => {
-                    let (bits, limit) = (code_bits(q), Quantizer::max_code(q.bits) as u64);
-                    let mut signs = NodeSigns::default();
-                    let mut coeffs = vec![0f32; n_coeffs];
-                    for c in coeffs.iter_mut() {
-                        let mag = d.uint_within(&mut m.magnitude[FINEST_MAGNITUDES], bits)?;
-                        if mag > limit {
-                            return Err(BlockError::BadNode {
-                                id,
-                                reason: format!("code {mag} exceeds the quantizer's {limit}"),
-                            });
-                        }
-                        let negative = mag != 0 && d.bit(&mut m.sign[signs.context()])?;
-                        let code = if negative { -(mag as i32) } else { mag as i32 };
-                        signs.push(code);
-                        *c = q.decode(code);
-                    }
+                    let limit = Quantizer::max_code(q.bits) as u64;
+                    let coeffs = decode_codes(
+                        &mut d,
+                        (&mut m.magnitude[FINEST_MAGNITUDES], &mut m.sign),
+                        (n_coeffs, code_bits(q), limit),
+                        q,
+                    )?
+                    .map_err(|mag| BlockError::BadNode {
+                        id,
+                        reason: format!("code {mag} exceeds the quantizer's {limit}"),
+                    })?;
                     (INHERITED_BOUND, coeffs)
                 }
                 Coefficients::Raw => {
@@ -404,20 +385,16 @@ impl BlockCoder {
                     let mut coeffs = vec![0f32; n_coeffs];
                     if class > 0 {
                         let limit = ((1u64 << class) - 1).min(Quantizer::max_code(q.bits) as u64);
-                        let mut signs = NodeSigns::default();
-                        for c in coeffs.iter_mut() {
-                            let mag = d.uint_within(&mut m.magnitude[class as usize], class)?;
-                            if mag > limit {
-                                return Err(BlockError::BadNode {
-                                    id,
-                                    reason: format!("code {mag} exceeds its class {class}"),
-                                });
-                            }
-                            let negative = mag != 0 && d.bit(&mut m.sign[signs.context()])?;
-                            let code = if negative { -(mag as i32) } else { mag as i32 };
-                            signs.push(code);
-                            *c = q.decode(code);
-                        }
+                        coeffs = decode_codes(
+                            &mut d,
+                            (&mut m.magnitude[class as usize], &mut m.sign),
+                            (n_coeffs, class, limit),
+                            q,
+                        )?
+                        .map_err(|mag| BlockError::BadNode {
+                            id,
+                            reason: format!("code {mag} exceeds its class {class}"),
+                        })?;
                     }
                     (class_bound(class, q.step), coeffs)
                 }
@@ -450,6 +427,50 @@ impl BlockCoder {
         }
         Ok(out)
     }
+}
+
+/// A node's quantized codes: each magnitude (`models.0`, at most `max_bits` bits) and, when not
+/// zero, its sign (`models.1`, by the node's previous signs, [`NodeSigns`]).
+fn encode_codes(
+    e: &mut Encoder,
+    models: (&mut UInt, &mut [Bit; 9]),
+    codes: impl Iterator<Item = i32>,
+    max_bits: u32,
+) -> Result<(), EntropyError> {
+    let (magnitude, sign) = models;
+    let mut signs = NodeSigns::default();
+    for c in codes {
+        e.uint_within(magnitude, c.unsigned_abs() as u64, max_bits)?;
+        if c != 0 {
+            e.bit(&mut sign[signs.context()], c < 0);
+        }
+        signs.push(c);
+    }
+    Ok(())
+}
+
+/// Reads what [`encode_codes`] wrote: `count` codes of at most `max_bits` bits, as coefficients of
+/// `q`; the inner error is a magnitude beyond `limit`.
+fn decode_codes(
+    d: &mut Decoder,
+    models: (&mut UInt, &mut [Bit; 9]),
+    (count, max_bits, limit): (usize, u32, u64),
+    q: Quantizer,
+) -> Result<Result<Vec<f32>, u64>, EntropyError> {
+    let (magnitude, sign) = models;
+    let mut signs = NodeSigns::default();
+    let mut out = Vec::with_capacity(count);
+    for _ in 0..count {
+        let mag = d.uint_within(magnitude, max_bits)?;
+        if mag > limit {
+            return Ok(Err(mag));
+        }
+        let negative = mag != 0 && d.bit(&mut sign[signs.context()])?;
+        let code = if negative { -(mag as i32) } else { mag as i32 };
+        signs.push(code);
+        out.push(q.decode(code));
+    }
+    Ok(Ok(out))
 }
 
 /// A node's signs so far, the context of its next one: the residuals of one refinement share the
