@@ -39,10 +39,7 @@ fn coders() -> &'static [BlockCoder; 2] {
             BlockCoder::new(&b, &Encoding::F32),
             BlockCoder::new(
                 &b,
-                &Encoding::Quantized {
-                    bits: 12,
-                    step: 0.01,
-                },
+                &Encoding::uniform(12, 0.01),
             ),
         ]
     })

@@ -169,9 +169,10 @@ impl Grid {
 
     /// Visits every vertex above the base level in the predictor's order (coarse to fine, then
     /// x, y, z passes) with its key and its prediction from `values` (by vertex key); `value`
-    /// returns the vertex's value, which `values` takes before any later prediction reads it.
+    /// returns the vertex's value, which `values` takes before any later prediction reads it;
+    /// its third argument is how many levels above the finest the vertex lies (0: the finest).
     /// Holds a key per grid point while it runs.
-    pub fn predict_all(&self, values: &mut [f32], mut value: impl FnMut(usize, f32) -> f32) {
+    pub fn predict_all(&self, values: &mut [f32], mut value: impl FnMut(usize, f32, u32) -> f32) {
         let m = self.m;
         let n = m as usize + 1;
         let mut keys = vec![0u32; n * n * n];
@@ -200,7 +201,7 @@ impl Grid {
                             let st = self.stencil_at(p, axis, s);
                             let prediction = predict_from(st, |q| values[key(q)]);
                             let k = key(p);
-                            values[k] = value(k, prediction);
+                            values[k] = value(k, prediction, s.trailing_zeros());
                             p[0] += step(0);
                         }
                         p[1] += step(1);
@@ -398,7 +399,7 @@ mod tests {
             let (mut visits, mut checked) = (0, 0);
             let mut seen = vec![false; n];
             seen[..8].fill(true);
-            g.predict_all(&mut values, |k, p| {
+            g.predict_all(&mut values, |k, p, _| {
                 visits += 1;
                 assert!(p.is_finite(), "vertex {k} read an unset point");
                 // the stencil a client reads by point is the one the pass used, and its points

@@ -89,6 +89,9 @@ pub struct BlockCoder {
     total: u64,
     ownership: Ownership,
     coefficients: Coefficients,
+    /// A quantized store's quantizer of each node level's details
+    /// ([`crate::wavelet::LevelSteps`]).
+    level_quantizers: Vec<Quantizer>,
     /// Ids from here on are finest-level nodes, whose subtree bound is not coded
     /// ([`INHERITED_BOUND`]); `u64::MAX` when there are none.
     finest: u64,
@@ -139,9 +142,28 @@ impl BlockCoder {
             ownership: Ownership::new(base),
             coefficients: match encoding.quantizer() {
                 None => Coefficients::Raw,
-                Some(q) => Coefficients::Quantized(q),
+                Some((q, _)) => Coefficients::Quantized(q),
+            },
+            level_quantizers: match encoding.quantizer() {
+                None => Vec::new(),
+                Some((q, steps)) => (0..forest.levels as u32)
+                    .map(|l| steps.at(q, forest.levels as u32 - 1 - l))
+                    .collect(),
             },
             finest: forest.checked_finest_nodes_start().unwrap_or(u64::MAX),
+        }
+    }
+
+    /// How node `id`'s coefficients are coded: a quantized store's with its level's quantizer.
+    fn coefficients_of(&self, id: TetId) -> Coefficients {
+        match self.coefficients {
+            Coefficients::Quantized(q) => Coefficients::Quantized(
+                self.level_quantizers
+                    .get(self.forest.level(id) as usize)
+                    .copied()
+                    .unwrap_or(q),
+            ),
+            raw => raw,
         }
     }
 
@@ -206,7 +228,7 @@ impl BlockCoder {
                 }
             }
             let finest = n.id >= self.finest;
-            match self.coefficients {
+            match self.coefficients_of(n.id) {
                 Coefficients::Raw if finest => {
                     for &c in &n.coeffs {
                         e.float(&mut m.floats, c)?;
@@ -325,7 +347,7 @@ impl BlockCoder {
             };
             let n_coeffs = owned.count_ones() as usize;
             let finest = id >= self.finest;
-            let (subtree_max_abs, coeffs) = match self.coefficients {
+            let (subtree_max_abs, coeffs) = match self.coefficients_of(id) {
                 Coefficients::Raw if finest => {
                     let coeffs = (0..n_coeffs)
                         .map(|_| d.float(&mut m.floats))
@@ -751,11 +773,8 @@ mod tests {
     #[test]
     fn quantized_blocks_keep_codes_and_bound_subtrees() {
         let (base, nodes) = harmonic(4);
-        let enc = Encoding::Quantized {
-            bits: 16,
-            step: 1e-3,
-        };
-        let q = enc.quantizer().unwrap();
+        let enc = Encoding::uniform(16, 1e-3);
+        let q = enc.quantizer().unwrap().0;
         let nodes = quantized(&nodes, q);
         let coder = BlockCoder::new(&base, &enc);
         // any subset, in any order
@@ -805,13 +824,7 @@ mod tests {
     fn scattered_sibling_groups_cost_little_in_ids() {
         let (base, nodes) = harmonic(4);
         let forest = base.forest();
-        let coder = BlockCoder::new(
-            &base,
-            &Encoding::Quantized {
-                bits: 12,
-                step: 1.0,
-            },
-        );
+        let coder = BlockCoder::new(&base, &Encoding::uniform(12, 1.0));
         // zero details: what is left to code is ids and near-free flags
         let zero = |n: &DetailNode| DetailNode {
             coeffs: vec![0.0; n.coeffs.len()],
@@ -845,19 +858,52 @@ mod tests {
         );
     }
 
+    /// With level steps each node level's codes are in its own step: nodes quantized level by
+    /// level come back as they were.
+    #[test]
+    fn level_steps_code_each_level_in_its_step() {
+        use crate::wavelet::LevelSteps;
+        let (base, nodes) = harmonic(4);
+        let forest = base.forest();
+        let enc = Encoding::Quantized {
+            bits: 16,
+            step: 1e-3,
+            levels: LevelSteps::AXES,
+        };
+        let (q, steps) = enc.quantizer().unwrap();
+        let at = |id: u64| steps.at(q, (forest.levels - 1 - forest.level(id)) as u32);
+        let nodes: Vec<DetailNode> = nodes
+            .iter()
+            .map(|n| DetailNode {
+                coeffs: n
+                    .coeffs
+                    .iter()
+                    .map(|&c| at(n.id).decode(at(n.id).encode(c)))
+                    .collect(),
+                ..n.clone()
+            })
+            .collect();
+        let coder = BlockCoder::new(&base, &enc);
+        let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
+        for (a, b) in nodes.iter().zip(&back) {
+            assert_eq!(a.coeffs, b.coeffs, "node {}", a.id);
+        }
+        // the base level's step, 3 levels above the finest, is 1/1.953125 of the finest's: its
+        // values are not all on the finest level's grid of steps
+        assert_eq!(at(0).step, q.step / 1.953125);
+        assert!(nodes[..6]
+            .iter()
+            .flat_map(|n| &n.coeffs)
+            .any(|c| (c / q.step).fract().abs() > 0.25));
+    }
+
     /// Only a level with parents goes without bounds: with one level the base tets, which have no
     /// parent to borrow from, code theirs.
     #[test]
     fn one_level_codes_every_bound() {
         let (base, nodes) = harmonic(1);
         assert_eq!(base.forest().checked_finest_nodes_start(), None);
-        for enc in [
-            Encoding::F32,
-            Encoding::Quantized {
-                bits: 12,
-                step: 1e-3,
-            },
-        ] {
+        for enc in [Encoding::F32, Encoding::uniform(12, 1e-3)] {
             let coder = BlockCoder::new(&base, &enc);
             let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
             for (a, b) in nodes.iter().zip(&back) {
@@ -877,7 +923,7 @@ mod tests {
             subtree_max_abs: (1u64 << 39) as f32,
             ..nodes[0].clone()
         };
-        let at = |step| BlockCoder::new(&base, &Encoding::Quantized { bits: 12, step });
+        let at = |step| BlockCoder::new(&base, &Encoding::uniform(12, step));
         let block = at(1.0).encode(std::slice::from_ref(&node)).unwrap();
         assert!(at(1.0).decode(&block).is_ok());
         assert!(matches!(
@@ -943,7 +989,7 @@ mod tests {
         #[test]
         fn decoding_any_block_is_total(count in 0u32..300, first in 0u64..400, bytes in proptest::collection::vec(any::<u8>(), 0..256), quant in any::<bool>()) {
             let (base, _) = harmonic(2);
-            let enc = if quant { Encoding::Quantized { bits: 12, step: 0.01 } } else { Encoding::F32 };
+            let enc = if quant { Encoding::uniform(12, 0.01) } else { Encoding::F32 };
             let coder = BlockCoder::new(&base, &enc);
             if let Ok(nodes) = coder.decode(&NodeBlock { count, first, bytes }) {
                 prop_assert_eq!(nodes.len(), count as usize);

@@ -18,7 +18,7 @@
 
 use crate::block::{BlockCoder, NodeBlock};
 use crate::node::DetailNode;
-use crate::wavelet::Quantizer;
+use crate::wavelet::{LevelSteps, Quantizer};
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
@@ -52,13 +52,21 @@ pub struct Counts {
     pub empty_base_tets: u64,
 }
 
-/// Coefficient encoding. Externally tagged (`"f32"` or `{"quantized": {"bits": …, "step": …}}`) so
-/// that it also travels in bincode frames, which cannot decode internally tagged enums.
+/// Coefficient encoding. Externally tagged (`"f32"` or `{"quantized": {"bits": …, "step": …,
+/// "levels": {"ratio": …, "cap": …}}}`) so that it also travels in bincode frames, which cannot
+/// decode internally tagged enums. `step` is the finest level's; `levels` says how coarser levels'
+/// steps shrink ([`LevelSteps`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Encoding {
     F32,
-    Quantized { bits: u8, step: f32 },
+    Quantized {
+        bits: u8,
+        step: f32,
+        /// One step everywhere when a manifest omits it.
+        #[serde(default)]
+        levels: LevelSteps,
+    },
 }
 
 /// Bits a quantized encoding may use (what `tetwave-server prepare --bits` accepts).
@@ -70,7 +78,7 @@ impl Encoding {
     pub fn check(&self) -> Result<(), String> {
         match *self {
             Encoding::F32 => Ok(()),
-            Encoding::Quantized { bits, step } => {
+            Encoding::Quantized { bits, step, levels } => {
                 if !QUANTIZED_BITS.contains(&bits) {
                     Err(format!(
                         "quantized bits {bits} outside {}..={}",
@@ -80,16 +88,26 @@ impl Encoding {
                 } else if !(step.is_finite() && step > 0.0) {
                     Err(format!("quantization step {step} is not a positive number"))
                 } else {
-                    Ok(())
+                    levels.check()
                 }
             }
         }
     }
 
-    pub fn quantizer(&self) -> Option<Quantizer> {
+    /// A quantized encoding with one step for every level.
+    pub fn uniform(bits: u8, step: f32) -> Self {
+        Encoding::Quantized {
+            bits,
+            step,
+            levels: LevelSteps::UNIFORM,
+        }
+    }
+
+    /// The finest level's quantizer and how coarser levels' steps shrink.
+    pub fn quantizer(&self) -> Option<(Quantizer, LevelSteps)> {
         match *self {
             Encoding::F32 => None,
-            Encoding::Quantized { bits, step } => Some(Quantizer { bits, step }),
+            Encoding::Quantized { bits, step, levels } => Some((Quantizer { bits, step }, levels)),
         }
     }
 }

@@ -104,7 +104,7 @@ pub fn synthesize_all(
     }
     if let Some(grid) = grid {
         let details = values.clone();
-        grid.predict_all(&mut values, |k, p| synthesize(details[k], p));
+        grid.predict_all(&mut values, |k, p, _| synthesize(details[k], p));
     }
     Ok(values)
 }

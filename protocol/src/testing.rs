@@ -82,7 +82,7 @@ pub fn detail_nodes(
     let axes_details = (base.predictor == crate::wavelet::Predictor::Axes).then(|| {
         let grid = crate::axes::Grid::of(&base, &keys).expect("a box6 base");
         let (mut rec, mut d) = (v.clone(), vec![0f32; n]);
-        grid.predict_all(&mut rec, |k, p| {
+        grid.predict_all(&mut rec, |k, p, _| {
             d[k] = analyze(v[k], p);
             crate::wavelet::synthesize(d[k], p)
         });

@@ -219,6 +219,75 @@ pub struct Quantizer {
     pub step: f32,
 }
 
+/// How a store's quantization step shrinks toward the coarse levels: the details of vertices
+/// `above` levels above the finest are quantized with `step / min(ratio^above, cap)`. Coarse
+/// vertices are few, and a finer step there makes every prediction that reads them closer, so the
+/// many fine residuals shrink (SZ3's successors, QoZ and HPEZ, tune the same two numbers). The
+/// finest level keeps `step`, so the error bound, half of it, holds everywhere.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LevelSteps {
+    pub ratio: f32,
+    pub cap: f32,
+}
+
+impl LevelSteps {
+    /// One step for every level.
+    pub const UNIFORM: LevelSteps = LevelSteps {
+        ratio: 1.0,
+        cap: 1.0,
+    };
+    /// What `prepare --max-error` takes for the axes predictor (docs/benchmarks.md, "Level
+    /// steps").
+    pub const AXES: LevelSteps = LevelSteps {
+        ratio: 1.25,
+        cap: 2.0,
+    };
+    /// Largest `ratio` and `cap` a store may name (codes grow by up to `cap` on coarse levels).
+    pub const MAX: f32 = 16.0;
+
+    /// The divisor of the step `above` levels above the finest: `min(ratio^above, cap)`, by
+    /// repeated f32 products, so that every reader computes the same bits.
+    pub fn divisor(&self, above: u32) -> f32 {
+        let mut f = 1f32;
+        for _ in 0..above {
+            f *= self.ratio;
+            if f >= self.cap {
+                return self.cap;
+            }
+        }
+        f
+    }
+
+    /// `quantizer` for the details `above` levels above the finest.
+    pub fn at(&self, quantizer: Quantizer, above: u32) -> Quantizer {
+        Quantizer {
+            step: quantizer.step / self.divisor(above),
+            ..quantizer
+        }
+    }
+
+    /// Whether the two numbers are ones a reader accepts: finite, from 1 to [`Self::MAX`].
+    pub fn check(&self) -> Result<(), String> {
+        let ok = |x: f32| (1.0..=Self::MAX).contains(&x);
+        if ok(self.ratio) && ok(self.cap) {
+            Ok(())
+        } else {
+            Err(format!(
+                "level steps: ratio {} and cap {} must lie in 1..={}",
+                self.ratio,
+                self.cap,
+                Self::MAX
+            ))
+        }
+    }
+}
+
+impl Default for LevelSteps {
+    fn default() -> Self {
+        Self::UNIFORM
+    }
+}
+
 impl Quantizer {
     /// Largest code magnitude for `bits`.
     pub fn max_code(bits: u8) -> i32 {
@@ -323,6 +392,27 @@ mod tests {
         let a = predict_at_centre(mids, corners);
         mids.reverse();
         assert_eq!(a.to_bits(), predict_at_centre(mids, corners).to_bits());
+    }
+
+    /// Steps shrink by the ratio per level up to the cap, the same bits on every reader; a
+    /// ratio or cap below 1 (coarser steps above the finest level would break the bound) or
+    /// beyond the limit is refused.
+    #[test]
+    fn level_steps_shrink_toward_coarse_levels() {
+        let s = LevelSteps::AXES;
+        let d: Vec<f32> = (0..6).map(|k| s.divisor(k)).collect();
+        assert_eq!(d, [1.0, 1.25, 1.5625, 1.953125, 2.0, 2.0]);
+        assert_eq!(LevelSteps::UNIFORM.divisor(9), 1.0);
+        let q = Quantizer {
+            bits: 12,
+            step: 0.5,
+        };
+        assert_eq!(s.at(q, 0), q);
+        assert_eq!(s.at(q, 4).step, 0.25);
+        assert!(s.check().is_ok() && LevelSteps::UNIFORM.check().is_ok());
+        for (ratio, cap) in [(0.5, 2.0), (1.25, 0.9), (f32::NAN, 2.0), (1.25, 17.0)] {
+            assert!(LevelSteps { ratio, cap }.check().is_err(), "{ratio} {cap}");
+        }
     }
 
     #[test]

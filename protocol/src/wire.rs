@@ -269,13 +269,7 @@ mod tests {
         };
         assert_eq!(decode_server(&encode(&n).unwrap()).unwrap(), n);
         // the manifest (with both encodings) travels in bincode too
-        for encoding in [
-            Encoding::F32,
-            Encoding::Quantized {
-                bits: 12,
-                step: 0.25,
-            },
-        ] {
+        for encoding in [Encoding::F32, Encoding::uniform(12, 0.25)] {
             let m = ServerMsg::Manifest(Box::new(Manifest {
                 format: "tetwave-store".into(),
                 version: 1,

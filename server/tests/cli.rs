@@ -600,6 +600,30 @@ fn predictor_choice() {
         let r = run(&["verify", store]);
         assert!(r.ok, "verify {store}: {}", r.stderr);
     }
+    // a bound with the axes predictor takes finer steps on the coarse levels; the parent
+    // predictor and a chosen code width keep one step
+    let levels = |store: &str| {
+        let m: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(std::path::Path::new(store).join("manifest.json")).unwrap(),
+        )
+        .unwrap();
+        let l = &m["encoding"]["quantized"]["levels"];
+        (l["ratio"].as_f64().unwrap(), l["cap"].as_f64().unwrap())
+    };
+    assert_eq!(levels(&a), (1.25, 2.0));
+    assert_eq!(levels(&b), (1.0, 1.0));
+    assert_eq!(levels(&c), (1.0, 1.0));
+    let e = out("e");
+    let bits = [
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "3",
+        "--bits",
+        "12",
+    ];
+    prepare_json(&then(&bits, &["--base", "box6", "--out", &e, "--json"]));
+    assert_eq!(levels(&e), (1.0, 1.0));
     expect_error(
         &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
         &["--predictor axes needs --base box6"],

@@ -110,7 +110,7 @@ fn truncated_store_files_are_refused() {
 }
 
 /// A manifest whose quantized encoding the decoders cannot read (0 or more than 24 bits, a step
-/// that is not a positive number) is refused when the store opens, with the reason, instead of
+/// that is not a positive number, level steps that would grow toward coarse levels) is refused when the store opens, with the reason, instead of
 /// panicking later in a read (0 bits made a zero-width chunk, 40 bits a 5-byte code).
 #[test]
 fn unreadable_encodings_are_refused() {
@@ -130,6 +130,10 @@ fn unreadable_encodings_are_refused() {
         (
             serde_json::json!({"quantized": {"bits": 12, "step": -1.0}}),
             "step -1 is not",
+        ),
+        (
+            serde_json::json!({"quantized": {"bits": 12, "step": 0.001, "levels": {"ratio": 0.5, "cap": 2.0}}}),
+            "ratio 0.5 and cap 2 must lie in 1..=16",
         ),
     ] {
         let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest, LEVELSET_BAND_FILE};
-use tetwave_protocol::wavelet::Quantizer;
+use tetwave_protocol::wavelet::{LevelSteps, Quantizer};
 use tetwave_protocol::{BaseMesh, DetailNode};
 
 /// Writes files while computing their checksums.
@@ -149,7 +149,8 @@ pub struct StoreContent<'a> {
     pub subtree_max_abs: &'a [f32],
     /// Owned details in node order, then edge order (dequantized when quantized).
     pub coeffs: &'a [f32],
-    pub quantizer: Option<Quantizer>,
+    /// The finest level's quantizer, when quantized, and how coarser levels' steps shrink.
+    pub quantizer: Option<(Quantizer, LevelSteps)>,
     /// The sampled value of every vertex: what `verify` compares synthesis with.
     pub reference: &'a [f32],
     /// Inside samples' range.
@@ -186,11 +187,12 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     let mut staged = Staged::new(dir);
     let forest = a.base.forest();
     let mut files = std::collections::BTreeMap::new();
-    let encoding = match &a.quantizer {
+    let encoding = match a.quantizer {
         None => Encoding::F32,
-        Some(q) => Encoding::Quantized {
+        Some((q, levels)) => Encoding::Quantized {
             bits: q.bits,
             step: q.step,
+            levels,
         },
     };
 

@@ -9,7 +9,7 @@ use super::walk::{load, store, Cell};
 use super::AnalysisError;
 use std::sync::atomic::AtomicU32;
 use tetwave_protocol::axes::Grid;
-use tetwave_protocol::wavelet::{analyze, synthesize, Quantizer};
+use tetwave_protocol::wavelet::{analyze, synthesize, LevelSteps, Quantizer};
 use tetwave_protocol::{BaseMesh, VertexKeys};
 
 /// Largest sample magnitude the axes predictor takes: its cubic sums 18 times a value, which
@@ -24,16 +24,19 @@ pub(super) fn details(
     reference: &[AtomicU32],
     cells: &[Cell],
     detail: &[AtomicU32],
-    quantizer: Option<Quantizer>,
+    quantizer: Option<(Quantizer, LevelSteps)>,
 ) -> Result<f64, AnalysisError> {
     let grid = Grid::of(base, keys)?;
     let mut rec: Vec<f32> = cells.iter().map(|c| load(&c.rec)).collect();
     let mut err = 0f64;
-    grid.predict_all(&mut rec, |k, p| {
+    grid.predict_all(&mut rec, |k, p, above| {
         let f = load(&reference[k]);
         let d = match quantizer {
             None => analyze(f, p),
-            Some(q) => q.decode(q.encode(f - p)),
+            Some((q, steps)) => {
+                let q = steps.at(q, above);
+                q.decode(q.encode(f - p))
+            }
         };
         let x = synthesize(d, p);
         store(&detail[k], d);

@@ -30,7 +30,7 @@ use samples::SampleStats;
 use std::sync::atomic::{AtomicU32, Ordering};
 use tetwave_protocol::store_format::QUANTIZED_BITS;
 use tetwave_protocol::vertex::VertexKeys;
-use tetwave_protocol::wavelet::{Predictor, Quantizer};
+use tetwave_protocol::wavelet::{LevelSteps, Predictor, Quantizer};
 use tetwave_protocol::BaseMesh;
 use walk::{load, Cell, Walk, UNOWNED};
 
@@ -46,7 +46,11 @@ pub struct Analysis {
     pub subtree_max_abs: Vec<f32>,
     /// Owned details in node order, then edge order (dequantized when quantized).
     pub coeffs: Vec<f32>,
+    /// The finest level's quantizer (its step makes the bound).
     pub quantizer: Option<Quantizer>,
+    /// How coarser levels' steps shrink ([`LevelSteps::UNIFORM`] unless quantized to a bound with
+    /// the axes predictor).
+    pub level_steps: LevelSteps,
     /// The sampled value of every vertex (outside vertices filled by the outside rule): what
     /// synthesis is compared against.
     pub reference: Vec<f32>,
@@ -67,7 +71,7 @@ impl Analysis {
             empty_children: &self.empty_children,
             subtree_max_abs: &self.subtree_max_abs,
             coeffs: &self.coeffs,
-            quantizer: self.quantizer,
+            quantizer: self.quantizer.map(|q| (q, self.level_steps)),
             reference: &self.reference,
             value_range: self.value_range,
             max_abs_error: self.max_abs_error,
@@ -236,7 +240,13 @@ pub fn analyze_hierarchy(
     if r.base.predictor == Predictor::Axes && magnitude > AXES_MAX_MAGNITUDE {
         return Err(AnalysisError::AxesOverflow(magnitude as f64));
     }
-    let mut quantizer = samples::size_quantizer(precision, &r, &stats)?;
+    // a bound with the axes predictor: finer steps on the coarse levels (LevelSteps); the parent
+    // predictor's walk and `--bits` keep one step (a width the user chose must hold every code)
+    let level_steps = match precision {
+        Precision::MaxError(_) if r.base.predictor == Predictor::Axes => LevelSteps::AXES,
+        _ => LevelSteps::UNIFORM,
+    };
+    let mut quantizer = samples::size_quantizer(precision, &r, &stats, level_steps.cap)?;
     let Resampled {
         base,
         keys,
@@ -253,7 +263,15 @@ pub fn analyze_hierarchy(
     // either way a code may be clamped. Then the walk is run again, wider.
     let spare = (quantizer.is_some() && (stats.any_outside() || axes))
         .then(|| (base.clone(), samples.clone()));
-    let mut a = walk_all(base, &keys, samples, &stats, quantizer, progress)?;
+    let mut a = walk_all(
+        base,
+        &keys,
+        samples,
+        &stats,
+        quantizer,
+        level_steps,
+        progress,
+    )?;
     let Some((base, samples)) = spare else {
         return Ok(a);
     };
@@ -297,6 +315,7 @@ pub fn analyze_hierarchy(
             samples.clone(),
             &stats,
             quantizer,
+            level_steps,
             progress,
         )?;
     }
@@ -310,6 +329,7 @@ fn walk_all(
     samples: Vec<f32>,
     stats: &SampleStats,
     quantizer: Option<Quantizer>,
+    level_steps: LevelSteps,
     progress: bool,
 ) -> Result<Analysis, AnalysisError> {
     let forest = base.forest();
@@ -342,9 +362,12 @@ fn walk_all(
         cells: &cells,
         detail: &detail,
         outside: stats.any_outside().then_some(&stats.outside_bits[..]),
+        // the parent predictor's walk quantizes every level alike (`analyze` gives it uniform
+        // steps)
         quantizer,
         details: base.predictor == Predictor::Parent,
     };
+    debug_assert!(base.predictor == Predictor::Axes || level_steps == LevelSteps::UNIFORM);
     let mut max_err = walk.levels(
         forest,
         keys,
@@ -353,7 +376,8 @@ fn walk_all(
         progress,
     );
     if base.predictor == Predictor::Axes {
-        max_err = axes::details(&base, keys, &reference, &cells, &detail, quantizer)?;
+        let q = quantizer.map(|q| (q, level_steps));
+        max_err = axes::details(&base, keys, &reference, &cells, &detail, q)?;
     }
     let (owned, coeffs) = gather::owned_coefficients(&cells, &detail, nodes, nv);
     drop(detail);
@@ -383,6 +407,7 @@ fn walk_all(
         subtree_max_abs,
         coeffs,
         quantizer,
+        level_steps,
         reference,
         value_range: (lo, hi),
         max_abs_error: max_err,

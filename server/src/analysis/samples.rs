@@ -110,6 +110,7 @@ pub(super) fn size_quantizer(
     precision: Precision,
     r: &Resampled,
     stats: &SampleStats,
+    level_cap: f32,
 ) -> Result<Option<Quantizer>, AnalysisError> {
     let forest = r.base.forest();
     match precision {
@@ -176,8 +177,9 @@ pub(super) fn size_quantizer(
                 });
             }
             let m = max_open_detail(forest, r);
-            // codes must reach the largest closed-loop detail, m + q (see `Bits`)
-            let need = ((m + q as f64) / q as f64).ceil() + 1.0;
+            // codes must reach the largest closed-loop detail, m + q (see `Bits`), on the coarse
+            // levels in steps up to `level_cap` times finer
+            let need = (((m + q as f64) / q as f64).ceil() + 1.0) * level_cap as f64;
             let bits = QUANTIZED_BITS
                 .clone()
                 .find(|&b| Quantizer::max_code(b) as f64 >= need)
