@@ -416,6 +416,10 @@ impl BlockDecoder {
     fn decode(&mut self, m: ServerMsg) -> Result<Delivery, StreamError> {
         Ok(match m {
             ServerMsg::Manifest(m) => {
+                // the block decoder assumes an encoding it can read (bits, steps)
+                m.encoding
+                    .check()
+                    .map_err(|e| StreamError::Protocol(format!("manifest: {e}")))?;
                 self.manifest = Some(m.clone());
                 Delivery::Manifest(m)
             }
@@ -1006,4 +1010,42 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         mesh,
         levelset,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tetwave_protocol::shapes::box5;
+    use tetwave_protocol::store_format::Encoding;
+    use tetwave_protocol::testing::{manifest_for, unsampled_base};
+    use tetwave_protocol::wavelet::LevelSteps;
+
+    /// A manifest whose encoding the block decoder cannot read (a server of another build, a
+    /// hostile one) is a protocol error, before any block is decoded with it.
+    #[test]
+    fn a_manifest_with_an_unreadable_encoding_is_refused() {
+        let base = unsampled_base(2, box5([0.0; 3], [1.0; 3]));
+        for (encoding, ok) in [
+            (Encoding::uniform(12, 0.01), true),
+            (Encoding::uniform(40, 0.01), false),
+            (
+                Encoding::Quantized {
+                    bits: 12,
+                    step: 0.01,
+                    levels: LevelSteps {
+                        ratio: 0.5,
+                        cap: 2.0,
+                    },
+                },
+                false,
+            ),
+        ] {
+            let m = Manifest {
+                encoding,
+                ..manifest_for(&base)
+            };
+            let got = BlockDecoder::default().decode(ServerMsg::Manifest(Box::new(m)));
+            assert_eq!(got.is_ok(), ok, "{:?}", got.err());
+        }
+    }
 }

@@ -30,16 +30,26 @@ fn base() -> BaseMesh {
     }
 }
 
-/// The block coders the checks decode with: lossless and 12-bit quantized.
-fn coders() -> &'static [BlockCoder; 2] {
-    static C: OnceLock<[BlockCoder; 2]> = OnceLock::new();
+/// The block coders the checks decode with: lossless, 12-bit quantized, and 12-bit with the
+/// steepest level steps a manifest may name.
+fn coders() -> &'static [BlockCoder; 3] {
+    static C: OnceLock<[BlockCoder; 3]> = OnceLock::new();
     C.get_or_init(|| {
         let b = base();
+        let steep = tetwave_protocol::wavelet::LevelSteps {
+            ratio: 16.0,
+            cap: 16.0,
+        };
         [
             BlockCoder::new(&b, &Encoding::F32),
+            BlockCoder::new(&b, &Encoding::uniform(12, 0.01)),
             BlockCoder::new(
                 &b,
-                &Encoding::uniform(12, 0.01),
+                &Encoding::Quantized {
+                    bits: 12,
+                    step: 0.01,
+                    levels: steep,
+                },
             ),
         ]
     })

@@ -624,6 +624,27 @@ fn predictor_choice() {
     ];
     prepare_json(&then(&bits, &["--base", "box6", "--out", &e, "--json"]));
     assert_eq!(levels(&e), (1.0, 1.0));
+    // one and two levels: every level's step agrees between analysis and the block coder
+    for l in ["1", "2"] {
+        let s = out(&format!("levels{l}"));
+        let j = prepare_json(&[
+            "prepare",
+            "synthetic:harmonic",
+            "--levels",
+            l,
+            "--base",
+            "box6",
+            "--max-error",
+            "0.1%",
+            "--out",
+            &s,
+            "--json",
+        ]);
+        assert_eq!(j["predictor"], "axes");
+        assert_eq!(levels(&s), (1.25, 2.0));
+        let r = run(&["verify", &s]);
+        assert!(r.ok, "verify {s}: {}", r.stderr);
+    }
     expect_error(
         &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
         &["--predictor axes needs --base box6"],

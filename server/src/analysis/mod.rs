@@ -246,7 +246,17 @@ pub fn analyze_hierarchy(
         Precision::MaxError(_) if r.base.predictor == Predictor::Axes => LevelSteps::AXES,
         _ => LevelSteps::UNIFORM,
     };
-    let mut quantizer = samples::size_quantizer(precision, &r, &stats, level_steps.cap)?;
+    // (details so wide that the finer coarse steps would need more than 24-bit codes keep one step)
+    let (mut quantizer, level_steps) =
+        match samples::size_quantizer(precision, &r, &stats, level_steps.cap) {
+            Err(AnalysisError::MaxErrorNeedsTooManyBits { .. })
+                if level_steps != LevelSteps::UNIFORM =>
+            {
+                let q = samples::size_quantizer(precision, &r, &stats, 1.0)?;
+                (q, LevelSteps::UNIFORM)
+            }
+            q => (q?, level_steps),
+        };
     let Resampled {
         base,
         keys,
