@@ -34,13 +34,12 @@ pub fn order_nodes(nodes: &mut [DetailNode], order: ArrivalOrder, seed: u64, for
     match order {
         ArrivalOrder::Level => nodes.sort_by_key(|n| n.id),
         ArrivalOrder::Magnitude => {
-            let bounds = resolved_bounds(forest, nodes);
-            let mut keyed: Vec<(f32, DetailNode)> =
-                bounds.into_iter().zip(nodes.iter().cloned()).collect();
-            keyed.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
-            for (slot, (_, n)) in nodes.iter_mut().zip(keyed) {
-                *slot = n;
-            }
+            let bound: std::collections::HashMap<TetId, f32> = nodes
+                .iter()
+                .map(|n| n.id)
+                .zip(resolved_bounds(forest, nodes))
+                .collect();
+            nodes.sort_by(|a, b| bound[&b.id].total_cmp(&bound[&a.id]).then(a.id.cmp(&b.id)));
         }
         ArrivalOrder::Random => {
             nodes.sort_by_key(|n| n.id);

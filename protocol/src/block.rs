@@ -12,7 +12,8 @@
 //! - **empty children**: an adaptive flag, then the 8 bits where any child is empty;
 //! - **subtree bound** (`subtree_max_abs`, one value for a group of siblings, see
 //!   [`DetailNode::subtree_max_abs`]): for quantized stores a class `k`, the smallest with
-//!   `(2^k − 1) · step` (the node level's step, [`crate::wavelet::LevelSteps`]) at least the bound and at least the node's own code magnitudes; the
+//!   `(2^k − 1) · step` (the node level's step, [`crate::wavelet::LevelSteps`]) at least the
+//!   bound and at least the node's own code magnitudes; the
 //!   decoded bound is `(2^k − 1) · step`, an upper bound within a factor 2, which is the safe side
 //!   for the selection's error estimate. A node that follows its sibling in the block sends one
 //!   adaptive flag when its class is the sibling's (so a group costs about one class). Lossless
@@ -73,6 +74,7 @@ pub enum BlockError {
     Coding(#[from] EntropyError),
 }
 
+/// How one node's coefficients are coded ([`BlockCoder::coefficients_of`]).
 #[derive(Debug, Clone, Copy)]
 enum Coefficients {
     /// f32 bits as stored.
@@ -88,10 +90,9 @@ pub struct BlockCoder {
     /// base mesh is refused anyway, and no id arithmetic may overflow).
     total: u64,
     ownership: Ownership,
-    coefficients: Coefficients,
-    /// A quantized store's quantizer of each node level's details
-    /// ([`crate::wavelet::LevelSteps`]).
-    level_quantizers: Vec<Quantizer>,
+    /// A quantized store's quantizers, indexed by levels above the finest
+    /// ([`crate::wavelet::LevelSteps::quantizers`]); `None`: lossless.
+    quantizers: Option<Vec<Quantizer>>,
     /// Ids from here on are finest-level nodes, whose subtree bound is not coded
     /// ([`INHERITED_BOUND`]); `u64::MAX` when there are none.
     finest: u64,
@@ -140,30 +141,22 @@ impl BlockCoder {
             forest,
             total: forest.checked_nodes().unwrap_or(0),
             ownership: Ownership::new(base),
-            coefficients: match encoding.quantizer() {
-                None => Coefficients::Raw,
-                Some((q, _)) => Coefficients::Quantized(q),
-            },
-            level_quantizers: match encoding.quantizer() {
-                None => Vec::new(),
-                Some((q, steps)) => (0..forest.levels as u32)
-                    .map(|l| steps.at(q, forest.levels as u32 - 1 - l))
-                    .collect(),
-            },
+            quantizers: encoding
+                .quantizer()
+                .map(|(q, steps)| steps.quantizers(q, forest.levels)),
             finest: forest.checked_finest_nodes_start().unwrap_or(u64::MAX),
         }
     }
 
-    /// How node `id`'s coefficients are coded: a quantized store's with its level's quantizer.
+    /// How node `id` (an id within the hierarchy: callers check it) has its coefficients coded:
+    /// a quantized store's with its level's quantizer.
     fn coefficients_of(&self, id: TetId) -> Coefficients {
-        match self.coefficients {
-            Coefficients::Quantized(q) => Coefficients::Quantized(
-                self.level_quantizers
-                    .get(self.forest.level(id) as usize)
-                    .copied()
-                    .unwrap_or(q),
-            ),
-            raw => raw,
+        match &self.quantizers {
+            None => Coefficients::Raw,
+            Some(qs) => {
+                let above = self.forest.levels - 1 - self.forest.level(id);
+                Coefficients::Quantized(qs[above as usize])
+            }
         }
     }
 
@@ -567,6 +560,16 @@ impl Ids {
         (forest.child_index(p) == Some(7)) as usize
     }
 
+    /// The model of the next jump: in groups or in ids, by the previous jump's length.
+    fn jump_model(&mut self, starts: bool) -> &mut UInt {
+        let models = if starts {
+            &mut self.groups
+        } else {
+            &mut self.gap
+        };
+        &mut models[self.ctx]
+    }
+
     /// The first sibling group a jump from `p` to a group start may land in: the one after `p`'s
     /// (the first group when `p` is a base tet).
     fn first_group_after(forest: Forest, p: TetId) -> u64 {
@@ -595,12 +598,7 @@ impl Ids {
         } else {
             id - p - 2
         };
-        let model = if starts {
-            &mut self.groups
-        } else {
-            &mut self.gap
-        };
-        e.uint(&mut model[self.ctx], jump)?;
+        e.uint(self.jump_model(starts), jump)?;
         self.ctx = gap_context(jump);
         Ok(())
     }
@@ -616,12 +614,7 @@ impl Ids {
             return Ok(p.checked_add(1));
         }
         let starts = d.bit(&mut self.group_start)?;
-        let model = if starts {
-            &mut self.groups
-        } else {
-            &mut self.gap
-        };
-        let jump = d.uint(&mut model[self.ctx])?;
+        let jump = d.uint(self.jump_model(starts))?;
         self.ctx = gap_context(jump);
         Ok(if starts {
             Self::first_group_after(forest, p)
@@ -689,12 +682,17 @@ mod tests {
         })
     }
 
-    /// The nodes as a quantized store holds them: codes times the step.
-    fn quantized(nodes: &[DetailNode], q: Quantizer) -> Vec<DetailNode> {
+    /// The nodes as a quantized store holds them: codes times the step of node `id`'s quantizer
+    /// `q(id)`.
+    fn quantized(nodes: &[DetailNode], q: impl Fn(TetId) -> Quantizer) -> Vec<DetailNode> {
         nodes
             .iter()
             .map(|n| DetailNode {
-                coeffs: n.coeffs.iter().map(|&c| q.decode(q.encode(c))).collect(),
+                coeffs: n
+                    .coeffs
+                    .iter()
+                    .map(|&c| q(n.id).decode(q(n.id).encode(c)))
+                    .collect(),
                 ..n.clone()
             })
             .collect()
@@ -775,7 +773,7 @@ mod tests {
         let (base, nodes) = harmonic(4);
         let enc = Encoding::uniform(16, 1e-3);
         let q = enc.quantizer().unwrap().0;
-        let nodes = quantized(&nodes, q);
+        let nodes = quantized(&nodes, |_| q);
         let coder = BlockCoder::new(&base, &enc);
         // any subset, in any order
         let mut some: Vec<DetailNode> = nodes.iter().step_by(3).cloned().collect();
@@ -840,17 +838,9 @@ mod tests {
             group += 1 + (k * 7919) % 3;
         }
         let block = coder.encode(&some).unwrap();
-        assert_eq!(coder.decode(&block).unwrap().len(), some.len());
-        assert_eq!(
-            coder
-                .decode(&block)
-                .unwrap()
-                .iter()
-                .map(|n| n.id)
-                .collect::<Vec<_>>(),
-            some.iter().map(|n| n.id).collect::<Vec<_>>()
-        );
-        // under 4 bits a group (a gap per node cost 6.4 bits a group here)
+        let ids = |ns: &[DetailNode]| ns.iter().map(|n| n.id).collect::<Vec<_>>();
+        assert_eq!(ids(&coder.decode(&block).unwrap()), ids(&some));
+        // under 4 bits a group
         assert!(
             block.bytes.len() < 50,
             "{} bytes for the ids of 100 groups",
@@ -872,17 +862,7 @@ mod tests {
         };
         let (q, steps) = enc.quantizer().unwrap();
         let at = |id: u64| steps.at(q, (forest.levels - 1 - forest.level(id)) as u32);
-        let nodes: Vec<DetailNode> = nodes
-            .iter()
-            .map(|n| DetailNode {
-                coeffs: n
-                    .coeffs
-                    .iter()
-                    .map(|&c| at(n.id).decode(at(n.id).encode(c)))
-                    .collect(),
-                ..n.clone()
-            })
-            .collect();
+        let nodes = quantized(&nodes, at);
         let coder = BlockCoder::new(&base, &enc);
         let back = coder.decode(&coder.encode(&nodes).unwrap()).unwrap();
         for (a, b) in nodes.iter().zip(&back) {

@@ -32,8 +32,9 @@ pub const BLOCK: u64 = 4096;
 pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
 /// 7: no subtree bound on the finest node level (its parent's stands in), ids as runs and jumps
-/// by sibling group ([`crate::block`]); 6: the base mesh names its predictor; 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized codes' signs
-/// modelled ([`crate::block`]); 4: lossless coefficients coded (sign, exponent, significant mantissa bits) and lossless subtree
+/// by sibling group ([`crate::block`]), level steps ([`LevelSteps`]); 6: the base mesh names its
+/// predictor; 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized
+/// codes' signs modelled ([`crate::block`]); 4: lossless coefficients coded (sign, exponent, significant mantissa bits) and lossless subtree
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
@@ -322,21 +323,6 @@ impl StoreHead {
                 "decodes to nodes {}..={}, not the block's ids",
                 nodes.first().map_or(0, |n| n.id),
                 nodes.last().map_or(0, |n| n.id)
-            )));
-        }
-        // every level but the finest codes a finite bound (the finest inherits its parent's)
-        let finest = self
-            .base
-            .forest()
-            .checked_finest_nodes_start()
-            .unwrap_or(u64::MAX);
-        if let Some(n) = nodes
-            .iter()
-            .find(|n| n.id < finest && !n.subtree_max_abs.is_finite())
-        {
-            return Err(bad(format!(
-                "node {}: subtree max |d| {} is not finite",
-                n.id, n.subtree_max_abs
             )));
         }
         Ok(nodes)

@@ -266,6 +266,12 @@ impl LevelSteps {
         }
     }
 
+    /// [`Self::at`] for every level of a hierarchy of `levels`, indexed by `above` (`0` the
+    /// finest): what coders look up per vertex or node.
+    pub fn quantizers(&self, quantizer: Quantizer, levels: u8) -> Vec<Quantizer> {
+        (0..levels as u32).map(|a| self.at(quantizer, a)).collect()
+    }
+
     /// Whether the two numbers are ones a reader accepts: finite, from 1 to [`Self::MAX`].
     pub fn check(&self) -> Result<(), String> {
         let ok = |x: f32| (1.0..=Self::MAX).contains(&x);

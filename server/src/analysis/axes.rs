@@ -29,12 +29,13 @@ pub(super) fn details(
     let grid = Grid::of(base, keys)?;
     let mut rec: Vec<f32> = cells.iter().map(|c| load(&c.rec)).collect();
     let mut err = 0f64;
+    let levels = quantizer.map(|(q, steps)| steps.quantizers(q, base.levels));
     grid.predict_all(&mut rec, |k, p, above| {
         let f = load(&reference[k]);
-        let d = match quantizer {
+        let d = match &levels {
             None => analyze(f, p),
-            Some((q, steps)) => {
-                let q = steps.at(q, above);
+            Some(qs) => {
+                let q = qs[above as usize];
                 q.decode(q.encode(f - p))
             }
         };

@@ -240,23 +240,10 @@ pub fn analyze_hierarchy(
     if r.base.predictor == Predictor::Axes && magnitude > AXES_MAX_MAGNITUDE {
         return Err(AnalysisError::AxesOverflow(magnitude as f64));
     }
-    // a bound with the axes predictor: finer steps on the coarse levels (LevelSteps); the parent
-    // predictor's walk and `--bits` keep one step (a width the user chose must hold every code)
-    let level_steps = match precision {
-        Precision::MaxError(_) if r.base.predictor == Predictor::Axes => LevelSteps::AXES,
-        _ => LevelSteps::UNIFORM,
+    let (mut quantizer, level_steps) = match samples::size_quantizer(precision, &r, &stats)? {
+        Some((q, steps)) => (Some(q), steps),
+        None => (None, LevelSteps::UNIFORM),
     };
-    // (details so wide that the finer coarse steps would need more than 24-bit codes keep one step)
-    let (mut quantizer, level_steps) =
-        match samples::size_quantizer(precision, &r, &stats, level_steps.cap) {
-            Err(AnalysisError::MaxErrorNeedsTooManyBits { .. })
-                if level_steps != LevelSteps::UNIFORM =>
-            {
-                let q = samples::size_quantizer(precision, &r, &stats, 1.0)?;
-                (q, LevelSteps::UNIFORM)
-            }
-            q => (q?, level_steps),
-        };
     let Resampled {
         base,
         keys,

@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use std::sync::atomic::AtomicU32;
 use tetwave_protocol::hierarchy::{BEY_SPLIT, EDGES};
 use tetwave_protocol::store_format::QUANTIZED_BITS;
-use tetwave_protocol::wavelet::{predict_split, Quantizer};
+use tetwave_protocol::wavelet::{predict_split, LevelSteps, Predictor, Quantizer};
 use tetwave_protocol::Forest;
 
 /// The inside samples' range and the outside vertices (NaN samples).
@@ -99,19 +99,22 @@ impl SampleStats {
     }
 }
 
-/// The quantizer for `precision` (none: lossless).
+/// The finest level's quantizer for `precision` and how coarser levels' steps shrink (none:
+/// lossless).
 ///
-/// With `Bits(b)` the step is sized so that the codes cover every closed-loop detail. With
-/// `MaxError(E)` the step is chosen first: closed-loop quantization leaves each vertex with its own
-/// detail's rounding error only (the prediction uses reconstructed values), at most `step / 2`, so
-/// `step = 2 E` less the f32 rounding the analysis allows for ([`error_bound`]); the code width is
-/// then the narrowest in 8..=24 bits that covers every detail.
+/// With `Bits(b)` the step is sized so that the codes cover every closed-loop detail, one step for
+/// every level (the width the user chose must hold every code). With `MaxError(E)` the step is
+/// chosen first: closed-loop quantization leaves each vertex with its own detail's rounding error
+/// only (the prediction uses reconstructed values), at most `step / 2`, so `step = 2 E` less the
+/// f32 rounding the analysis allows for ([`error_bound`]); with the axes predictor the coarser
+/// levels take [`LevelSteps::AXES`] (one step when their codes would need more than 24 bits; the
+/// parent predictor's walk quantizes every level alike); the code width is then the narrowest in
+/// 8..=24 bits that covers every detail.
 pub(super) fn size_quantizer(
     precision: Precision,
     r: &Resampled,
     stats: &SampleStats,
-    level_cap: f32,
-) -> Result<Option<Quantizer>, AnalysisError> {
+) -> Result<Option<(Quantizer, LevelSteps)>, AnalysisError> {
     let forest = r.base.forest();
     match precision {
         Precision::Lossless => Ok(None),
@@ -135,7 +138,7 @@ pub(super) fn size_quantizer(
             } else {
                 1.0
             };
-            Ok(Some(Quantizer { bits: b, step }))
+            Ok(Some((Quantizer { bits: b, step }, LevelSteps::UNIFORM)))
         }
         Precision::MaxError(bound) => {
             let e = match bound {
@@ -178,16 +181,24 @@ pub(super) fn size_quantizer(
             }
             let m = max_open_detail(forest, r);
             // codes must reach the largest closed-loop detail, m + q (see `Bits`), on the coarse
-            // levels in steps up to `level_cap` times finer
-            let need = (((m + q as f64) / q as f64).ceil() + 1.0) * level_cap as f64;
-            let bits = QUANTIZED_BITS
-                .clone()
-                .find(|&b| Quantizer::max_code(b) as f64 >= need)
+            // levels in steps up to the cap times finer
+            let need = ((m + q as f64) / q as f64).ceil() + 1.0;
+            let width = |steps: LevelSteps| {
+                let need = need * steps.cap as f64;
+                QUANTIZED_BITS
+                    .clone()
+                    .find(|&b| Quantizer::max_code(b) as f64 >= need)
+                    .map(|bits| (Quantizer { bits, step: q }, steps))
+            };
+            let finer = (r.base.predictor == Predictor::Axes).then_some(LevelSteps::AXES);
+            finer
+                .and_then(width)
+                .or_else(|| width(LevelSteps::UNIFORM))
+                .map(Some)
                 .ok_or(AnalysisError::MaxErrorNeedsTooManyBits {
                     bound: e,
                     detail: m,
-                })?;
-            Ok(Some(Quantizer { bits, step: q }))
+                })
         }
     }
 }
