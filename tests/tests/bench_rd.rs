@@ -1,6 +1,6 @@
 //! `scripts/bench-rd --quick` end to end: 9³ grids of both fields at one bound, prepared, verified
 //! and streamed by the workspace's binaries, next to zfp and SZ3 from PyPI, and the image part (a
-//! 64×64 default view). Checks the table has a row per codec with finite figures within the bound
+//! 64×64 default view, streams and SZ3 at two bounds). Checks the table has a row per codec with finite figures within the bound
 //! and the charts were drawn. Needs the binaries `tetwave-server` and `tetwave` beside this test's
 //! target directory (`cargo test --workspace` builds them), python3 and PyPI (the script installs
 //! numpy, zfpy, pysz, scikit-fem and matplotlib into `.venv`): fails, never skips, without them.
@@ -93,18 +93,39 @@ fn quick_run_measures_every_codec() {
         }
     }
 
-    // the image part: frames as bytes arrive, and the SZ3 point
+    // the image part: one stream per image bound (frames as bytes arrive), SZ3 at each, and the
+    // two points read off them
     let image = &json["image"];
-    let frames = image["frames"].as_array().unwrap();
-    assert!(frames.len() >= 2, "{image}");
-    let last = frames.last().unwrap();
-    assert!(last["image_psnr_db"].as_f64().unwrap() > 20.0, "{image}");
-    assert!(image["sz3"]["image_psnr_db"].as_f64().unwrap() > 20.0);
-    let bytes: Vec<u64> = frames
-        .iter()
-        .map(|f| f["bytes_received"].as_u64().unwrap())
-        .collect();
-    assert!(bytes.windows(2).all(|w| w[0] <= w[1]), "{bytes:?}");
+    let streams = image["streams"].as_array().unwrap();
+    let sz3 = image["sz3"].as_array().unwrap();
+    assert_eq!(streams.len(), 2, "{image}");
+    assert_eq!(sz3.len(), 2, "{image}");
+    let mut all = Vec::new();
+    for s in streams {
+        let frames = s["frames"].as_array().unwrap();
+        assert!(frames.len() >= 2, "{s}");
+        assert!(frames.last().unwrap()["image_psnr_db"].as_f64().unwrap() > 20.0, "{s}");
+        let bytes: Vec<u64> = frames
+            .iter()
+            .map(|f| f["bytes_received"].as_u64().unwrap())
+            .collect();
+        assert!(bytes.windows(2).all(|w| w[0] <= w[1]), "{bytes:?}");
+        all.extend(frames.iter().map(|f| {
+            (
+                f["bytes_received"].as_u64().unwrap(),
+                f["image_psnr_db"].as_f64().unwrap(),
+            )
+        }));
+    }
+    for z in sz3 {
+        assert!(z["image_psnr_db"].as_f64().unwrap() > 20.0, "{z}");
+    }
+    // the read-off points are the cheapest frames over every stream that pass each bar
+    let target = sz3[0]["image_psnr_db"].as_f64().unwrap();
+    for (key, bar) in [("reaches_sz3", target), ("usable_30db", 30.0)] {
+        let cheapest = all.iter().filter(|f| f.1 >= bar).map(|f| f.0).min();
+        assert_eq!(image[key]["bytes_received"].as_u64(), cheapest, "{key}: {image}");
+    }
     for name in [
         "rd-harmonic-l3.svg",
         "rd-fem-l3.svg",
