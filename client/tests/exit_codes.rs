@@ -401,11 +401,12 @@ async fn a_hierarchy_over_the_budget_is_refused_and_end_is_bounded() {
     assert!(r.secs < 30.0, "{} s", r.secs);
 }
 
-/// The manifest and the base mesh must agree on the hierarchy.
+/// The manifest and the base mesh must agree on the hierarchy (the session's manifest derives
+/// its node count from its base tets and levels).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_base_mesh_that_disagrees_with_the_manifest_is_refused() {
     let (mut m, base, _) = dataset(2);
-    m.counts.nodes += 1;
+    m.base_tets += 1;
     let srv = fake(1, move |_, mut ws| {
         let (m, base) = (m.clone(), base.clone());
         async move {

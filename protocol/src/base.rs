@@ -7,12 +7,16 @@ use serde::{Deserialize, Serialize};
 
 /// Base mesh as stored and sent: positions, tets (vertex order is part of the contract), the scalar at
 /// the base vertices, and which base tets lie entirely outside the input domain.
+///
+/// Serialized ([`geometry`]) with its geometry as a named box when it is exactly one
+/// ([`crate::shapes::box5`] or [`crate::shapes::box6`] of its first and last corners: two points
+/// instead of eight and the tets), else as its points and tets; points as f32 when every
+/// coordinate is one exactly (a box's corners, a grid's bounds), else as f64. Never a rounded
+/// position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(into = "geometry::Wire", try_from = "geometry::Wire")]
 pub struct BaseMesh {
     pub levels: u8,
-    /// Serialized as f32 when every coordinate is one exactly (a box's corners, a grid's
-    /// bounds), else as f64: half the bytes of a typical base mesh, never a rounded position.
-    #[serde(with = "positions")]
     pub positions: Vec<[f64; 3]>,
     pub tets: Vec<[u32; 4]>,
     pub values: Vec<f32>,
@@ -165,33 +169,121 @@ pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 
         / 6.0
 }
 
-/// Base positions on the wire and in `base.bin`: f32 when that loses nothing.
-mod positions {
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+/// Points as serialized (base meshes, the session's manifest): as f32 when every coordinate is
+/// one exactly, else as f64, so never rounded.
+#[derive(Serialize, Deserialize)]
+pub(crate) enum Points {
+    F32(Vec<[f32; 3]>),
+    F64(Vec<[f64; 3]>),
+}
 
-    #[derive(Serialize, Deserialize)]
-    enum Coords {
-        F32(Vec<[f32; 3]>),
-        F64(Vec<[f64; 3]>),
-    }
-
-    pub fn serialize<S: Serializer>(p: &[[f64; 3]], s: S) -> Result<S::Ok, S::Error> {
+impl Points {
+    pub(crate) fn new(p: &[[f64; 3]]) -> Points {
+        // NaN (which validation refuses) round-trips as f32 too
         let exact = p
             .iter()
             .flatten()
             .all(|&x| x as f32 as f64 == x || x.is_nan());
         if exact {
-            Coords::F32(p.iter().map(|c| c.map(|x| x as f32)).collect()).serialize(s)
+            Points::F32(p.iter().map(|c| c.map(|x| x as f32)).collect())
         } else {
-            Coords::F64(p.to_vec()).serialize(s)
+            Points::F64(p.to_vec())
         }
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<[f64; 3]>, D::Error> {
-        Ok(match Coords::deserialize(d)? {
-            Coords::F32(v) => v.into_iter().map(|c| c.map(f64::from)).collect(),
-            Coords::F64(v) => v,
-        })
+    pub(crate) fn into_f64(self) -> Vec<[f64; 3]> {
+        match self {
+            Points::F32(v) => v.into_iter().map(|c| c.map(f64::from)).collect(),
+            Points::F64(v) => v,
+        }
+    }
+
+    /// Two points as a box's `lo` and `hi`; `None` for any other count.
+    pub(crate) fn into_box(self) -> Option<([f64; 3], [f64; 3])> {
+        match self.into_f64()[..] {
+            [lo, hi] => Some((lo, hi)),
+            _ => None,
+        }
+    }
+}
+
+/// The serialized form of a [`BaseMesh`].
+mod geometry {
+    use super::{BaseMesh, Points};
+    use crate::shapes::{box5, box6, PointsAndTets};
+    use crate::wavelet::Predictor;
+    use serde::{Deserialize, Serialize};
+
+    #[derive(Serialize, Deserialize)]
+    enum Geometry {
+        /// [`box5`] of the two corners.
+        Box5(Points),
+        /// [`box6`] of the two corners.
+        Box6(Points),
+        Mesh {
+            points: Points,
+            tets: Vec<[u32; 4]>,
+        },
+    }
+
+    #[derive(Serialize, Deserialize)]
+    pub struct Wire {
+        levels: u8,
+        geometry: Geometry,
+        values: Vec<f32>,
+        empty: Vec<bool>,
+        predictor: Predictor,
+    }
+
+    impl From<BaseMesh> for Wire {
+        fn from(b: BaseMesh) -> Wire {
+            let named = |shape: fn([f64; 3], [f64; 3]) -> PointsAndTets| {
+                let (lo, hi) = (*b.positions.first()?, *b.positions.last()?);
+                let (p, t) = shape(lo, hi);
+                (p == b.positions && t == b.tets).then(|| Points::new(&[lo, hi]))
+            };
+            let geometry = if let Some(corners) = named(box6) {
+                Geometry::Box6(corners)
+            } else if let Some(corners) = named(box5) {
+                Geometry::Box5(corners)
+            } else {
+                Geometry::Mesh {
+                    points: Points::new(&b.positions),
+                    tets: b.tets,
+                }
+            };
+            Wire {
+                levels: b.levels,
+                geometry,
+                values: b.values,
+                empty: b.empty,
+                predictor: b.predictor,
+            }
+        }
+    }
+
+    impl TryFrom<Wire> for BaseMesh {
+        type Error = String;
+
+        fn try_from(w: Wire) -> Result<BaseMesh, String> {
+            let corners = |c: Points| {
+                c.into_box()
+                    .ok_or_else(|| "a named box needs two corners".to_string())
+            };
+            let (positions, tets) = match w.geometry {
+                Geometry::Box5(c) => corners(c).map(|(lo, hi)| box5(lo, hi))?,
+                Geometry::Box6(c) => corners(c).map(|(lo, hi)| box6(lo, hi))?,
+                Geometry::Mesh { points, tets } => (points.into_f64(), tets),
+            };
+            Ok(BaseMesh {
+                levels: w.levels,
+                positions,
+                tets,
+                values: w.values,
+                empty: w.empty,
+                predictor: w.predictor,
+            })
+        }
     }
 }
 
@@ -206,17 +298,23 @@ mod tests {
         (back, bytes.len())
     }
 
-    #[test]
-    fn positions_go_as_f32_only_when_that_is_exact() {
-        let (positions, tets) = crate::shapes::box6([0.0; 3], [2.5, 1.0, 0.75]);
-        let exact = BaseMesh {
+    fn mesh(positions: Vec<[f64; 3]>, tets: Vec<[u32; 4]>) -> BaseMesh {
+        BaseMesh {
             levels: 2,
             values: vec![0.5; positions.len()],
             empty: vec![false; tets.len()],
             predictor: Default::default(),
             positions,
             tets,
-        };
+        }
+    }
+
+    #[test]
+    fn positions_go_as_f32_only_when_that_is_exact() {
+        // a box6 with one corner moved is no named box: its points and tets are written
+        let (mut positions, tets) = crate::shapes::box6([0.0; 3], [2.5, 1.0, 0.75]);
+        positions[3] = [2.0, 1.0, 0.0];
+        let exact = mesh(positions, tets);
         let (back, small) = round_trip(&exact);
         assert_eq!(back, exact);
         // 0.1 is no f32: every coordinate must come back bit for bit, in f64
@@ -230,5 +328,51 @@ mod tests {
             8 * 3 * 4,
             "f64 costs 4 more bytes per coordinate"
         );
+    }
+
+    #[test]
+    fn a_named_box_goes_as_its_two_corners() {
+        type Shape = fn([f64; 3], [f64; 3]) -> crate::shapes::PointsAndTets;
+        for shape in [crate::shapes::box5 as Shape, crate::shapes::box6] {
+            for (lo, hi) in [
+                ([0.0; 3], [30.0; 3]),
+                ([-0.1, 0.0, 1e-300], [0.7, 2.0, 3.0]),
+            ] {
+                let (positions, tets) = shape(lo, hi);
+                let b = mesh(positions, tets);
+                let (back, len) = round_trip(&b);
+                assert_eq!(back, b, "every position and tet bit for bit");
+                // levels, 2 tags, 2 corners (f32 or f64), 8 values, the empty flags, predictor
+                assert!(
+                    len <= 1 + 2 + 1 + 2 * 24 + 1 + 32 + 1 + 6 + 1,
+                    "{len} bytes"
+                );
+                // the same points with the tets in another order are another mesh
+                let mut other = b.clone();
+                other.tets.swap(0, 1);
+                let (back, longer) = round_trip(&other);
+                assert_eq!(back, other);
+                assert!(longer > len + 90, "{longer} against {len}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_named_box_of_other_than_two_corners_is_an_error() {
+        for corners in [1u8, 3] {
+            // levels 1, geometry Box6 (variant 1), points F32 (variant 0) of `corners` points
+            let mut bytes = vec![1u8, 1, 0, corners];
+            bytes.extend(std::iter::repeat_n(0u8, 12 * corners as usize));
+            // 8 values, 6 empty flags, the predictor
+            bytes.push(8);
+            bytes.extend([0u8; 32]);
+            bytes.push(6);
+            bytes.extend([0u8; 6]);
+            bytes.push(0);
+            let got: Result<(BaseMesh, usize), _> =
+                bincode::serde::decode_from_slice(&bytes, bincode::config::standard());
+            let err = got.expect_err("refused").to_string();
+            assert!(err.contains("two corners"), "{err}");
+        }
     }
 }

@@ -31,6 +31,7 @@ pub const BLOCK: u64 = 4096;
 /// read allocates whatever the index says.
 pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
+/// 8: a base mesh that is a named box is written as its two corners ([`crate::BaseMesh`]);
 /// 7: no subtree bound on the finest node level (its parent's stands in), ids as runs and jumps
 /// by sibling group ([`crate::block`]), level steps ([`LevelSteps`]); 6: the base mesh names its
 /// predictor; 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized
@@ -38,7 +39,7 @@ pub const STORE_FORMAT: &str = "tetwave-store";
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
-pub const STORE_VERSION: u32 = 7;
+pub const STORE_VERSION: u32 = 8;
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 

@@ -11,14 +11,17 @@ use crate::store_format::Manifest;
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
+mod manifest;
+
 /// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes). 3: the blocks of
 /// store format 3. 4: the manifest carries `source_value_range` (bincode is positional: a
 /// version-3 peer would misread it). 5: the blocks of store format 4 (lossless coefficients
 /// coded). 6: the base mesh and blocks of store format 5 (positions as f32
 /// where exact, modelled signs). 7: the base mesh names its predictor (store format 6). 8: the
 /// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
-/// sibling group).
-pub const PROTOCOL_VERSION: u16 = 8;
+/// sibling group). 9: the session's manifest in its own form ([`manifest`]), the base mesh as
+/// store format 8 writes it (a named box as its two corners).
+pub const PROTOCOL_VERSION: u16 = 9;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -64,7 +67,8 @@ pub enum ClientMsg {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ServerMsg {
-    Manifest(Box<Manifest>),
+    /// The store's manifest, as much of it as a client needs ([`manifest`]).
+    Manifest(#[serde(with = "manifest")] Box<Manifest>),
     Base(Box<BaseMesh>),
     /// Detail nodes as one coded block ([`crate::block`]; decode with the
     /// [`crate::block::BlockCoder`] of the manifest and base mesh); `seq` increases by one per batch
@@ -268,13 +272,13 @@ mod tests {
             },
         };
         assert_eq!(decode_server(&encode(&n).unwrap()).unwrap(), n);
-        // the manifest (with both encodings) travels in bincode too
+        // the manifest (with both encodings) travels in bincode too, in the session's form
         for encoding in [Encoding::F32, Encoding::uniform(12, 0.25)] {
-            let m = ServerMsg::Manifest(Box::new(Manifest {
+            let mut m = Manifest {
                 format: "tetwave-store".into(),
-                version: 1,
+                version: crate::store_format::STORE_VERSION,
                 dataset: "d".into(),
-                source: "s".into(),
+                source: String::new(),
                 bounds: [[0.0; 3], [1.0; 3]],
                 base: "box5".into(),
                 base_tets: 5,
@@ -295,8 +299,13 @@ mod tests {
                 max_error_bound: 1e-6,
                 max_abs_error: 0.0,
                 files: Default::default(),
-            }));
-            assert_eq!(decode_server(&encode(&m).unwrap()).unwrap(), m);
+            };
+            let sent = ServerMsg::Manifest(Box::new(m.clone()));
+            assert_eq!(decode_server(&encode(&sent).unwrap()).unwrap(), sent);
+            // what the session leaves out (manifest::tests covers the rest)
+            m.source = "input.vtu".into();
+            let got = decode_server(&encode(&ServerMsg::Manifest(Box::new(m))).unwrap()).unwrap();
+            assert_eq!(got, sent);
         }
     }
 

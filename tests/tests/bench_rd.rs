@@ -104,7 +104,10 @@ fn quick_run_measures_every_codec() {
     for s in streams {
         let frames = s["frames"].as_array().unwrap();
         assert!(frames.len() >= 2, "{s}");
-        assert!(frames.last().unwrap()["image_psnr_db"].as_f64().unwrap() > 20.0, "{s}");
+        assert!(
+            frames.last().unwrap()["image_psnr_db"].as_f64().unwrap() > 20.0,
+            "{s}"
+        );
         let bytes: Vec<u64> = frames
             .iter()
             .map(|f| f["bytes_received"].as_u64().unwrap())
@@ -124,7 +127,11 @@ fn quick_run_measures_every_codec() {
     let target = sz3[0]["image_psnr_db"].as_f64().unwrap();
     for (key, bar) in [("reaches_sz3", target), ("usable_30db", 30.0)] {
         let cheapest = all.iter().filter(|f| f.1 >= bar).map(|f| f.0).min();
-        assert_eq!(image[key]["bytes_received"].as_u64(), cheapest, "{key}: {image}");
+        assert_eq!(
+            image[key]["bytes_received"].as_u64(),
+            cheapest,
+            "{key}: {image}"
+        );
     }
     for name in [
         "rd-harmonic-l3.svg",
