@@ -6,8 +6,8 @@ scikit-fem and matplotlib into the checkout's venv .venv); by hand:
 
   .venv/bin/python scripts/bench-rd.py --bin-dir target/release [--levels 5,6]
       [--fields harmonic,fem] [--bounds 1e-2,1e-3,1e-4] [--out out/bench-rd]
-      [--image-level 5] [--image-size 256x256] [--image-bounds 1e-3,1.5e-3,2e-3] [--no-image]
-      [--quick]
+      [--image-level 5] [--image-size 256x256] [--image-bounds 1e-3,1.5e-3,2e-3]
+      [--image-preview 10%|none] [--no-image] [--quick]
 
 For every field and level L, one (2^L+1)^3 grid of f32 samples, written as a raw grid and prepared
 with `--base box6 --levels L`, so that the semi-regular mesh's vertices are exactly the grid
@@ -40,7 +40,9 @@ Image part (field harmonic, level --image-level, the default view: azimuth 35, e
 distance 1.6 x the diagonal, fov 40), at every bound of --image-bounds (the first is the reference
 bound, 1e-3): the reference image is the CPU integrator's image of the original samples (a
 lossless store of the grid, `tetwave render --reference`); our curves are `tetwave stream`
-(view-dependent order, GPU frames as it arrives) against bytes received, one per bound; SZ3's
+(view-dependent order, GPU frames as it arrives) against bytes received, one per bound, and one
+more per bound for the store prepared with `--preview` at --image-preview (10 %: a coarse copy
+of the coarse levels that a new session gets first); SZ3's
 points are its file sizes with the GPU image of the SZ3-decoded grid (prepared lossless, rendered
 with `tetwave render`), one per bound. Image PSNR is over RGB in 8-bit units, as tetwave's. The
 summary reads two points off the curves: the first frame, over every bound's stream, at or above
@@ -389,7 +391,7 @@ def sz3_row(arr, e, value_range):
 # ----------------------------------------------------------------------------------------- tetwave
 
 
-def prepare(bindir, raw, n, spacing, levels, store, max_error=None, predictor="parent"):
+def prepare(bindir, raw, n, spacing, levels, store, max_error=None, predictor="parent", preview=None):
     cmd = [
         os.path.join(bindir, "tetwave-server"),
         "prepare",
@@ -412,6 +414,8 @@ def prepare(bindir, raw, n, spacing, levels, store, max_error=None, predictor="p
     ]
     if max_error is not None:
         cmd += ["--max-error", repr(float(max_error))]
+    if preview is not None:
+        cmd += ["--preview", preview]
     return json.loads(run(cmd, f"prepare {store}").stdout)
 
 
@@ -456,6 +460,8 @@ def main():
     ap.add_argument("--image-size", default="256x256")
     ap.add_argument("--image-bounds", default="1e-3,1.5e-3,2e-3",
                     help="fractions of the value range; the first is the reference bound of SZ3's image")
+    ap.add_argument("--image-preview", default="10%",
+                    help="each image store is also streamed with a preview at this bound (prepare --preview); 'none': without only")
     ap.add_argument("--image-per-frame", type=int, default=0, help="nodes per frame (0: about 1/16 of them)")
     ap.add_argument("--image-max-batch", type=int, default=0,
                     help="the server's --max-batch for the image run (0: its default); smaller batches place the curve "
@@ -545,7 +551,7 @@ def main():
     print(md)
     rd_charts(rows, out)
     if image:
-        series = [(f"tetwave stream at {st['bound']} (view order, as it arrives)",
+        series = [(f"tetwave at {st['bound']}{', preview ' + st['preview'] if st.get('preview') else ''} (view order)",
                    [(fr["bytes_received"], fr["image_psnr_db"], None) for fr in st["frames"]]) for st in image["streams"]]
         series.append(("SZ3: whole file, then render",
                        sorted((z["bytes"], z["image_psnr_db"], z["bound"]) for z in image["sz3"])))
@@ -588,22 +594,27 @@ def image_part(args, bindir, work):
     nodes = 6 * ((8**L) - 1) // 7
     per = args.image_per_frame or max(1, nodes // 16)
     streams, sz3s = [], []
+    previews = [None] if args.image_preview == "none" else [None, args.image_preview]
     for b in bounds:
         e = float(b) * vr
-        # ours: stream the bounded store in view order, a GPU frame as nodes arrive
-        store = os.path.join(d, f"tetwave-{b}")
-        prep = prepare(bindir, raw, n, spacing, L, store, e, args.predictor)
-        sdir = os.path.join(d, f"stream-{b}")
-        st = stream(bindir, store, "view", sdir,
-                    ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0"],
-                    ["--max-batch", str(args.image_max_batch)] if args.image_max_batch else [])
-        frames = []
-        for fr in st["frames"]:
-            img = read_png(os.path.join(sdir, f"frame_{fr['frame']:04d}.png"))
-            frames.append({"frame": fr["frame"], "bytes_received": fr["bytes_received"], "nodes": fr["nodes"],
-                           "image_psnr_db": image_psnr(img, ref)})
-        streams.append({"bound": b, "store_bytes": prep["bytes"], "stream_wire_bytes": st["wire_bytes_down"],
-                        "stream_message_bytes": st["message_bytes"], "frames": frames})
+        for pv in previews:
+            # ours: stream the bounded store in view order, a GPU frame as nodes arrive
+            tag = b if pv is None else f"{b}-preview"
+            store = os.path.join(d, f"tetwave-{tag}")
+            prep = prepare(bindir, raw, n, spacing, L, store, e, args.predictor, pv)
+            sdir = os.path.join(d, f"stream-{tag}")
+            st = stream(bindir, store, "view", sdir,
+                        ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0"],
+                        ["--max-batch", str(args.image_max_batch)] if args.image_max_batch else [])
+            frames = []
+            for fr in st["frames"]:
+                img = read_png(os.path.join(sdir, f"frame_{fr['frame']:04d}.png"))
+                frames.append({"frame": fr["frame"], "bytes_received": fr["bytes_received"], "nodes": fr["nodes"],
+                               "image_psnr_db": image_psnr(img, ref)})
+            streams.append({"bound": b, "preview": pv, "store_bytes": prep["bytes"],
+                            "preview_bytes": prep.get("preview_bytes", 0),
+                            "stream_wire_bytes": st["wire_bytes_down"],
+                            "stream_message_bytes": st["message_bytes"], "frames": frames})
         # SZ3 at the same bound: decode, prepare the decoded grid lossless, render the same view
         c, dec = sz3(arr, e)
         sraw = os.path.join(d, f"sz3-{b}-decoded.raw")
@@ -618,12 +629,12 @@ def image_part(args, bindir, work):
 
     def first(pred):
         """The frame with the fewest bytes, over every stream, that satisfies `pred`."""
-        hits = [(fr["bytes_received"], s["bound"], fr) for s in streams for fr in s["frames"] if pred(fr)]
+        hits = [(fr["bytes_received"], s, fr) for s in streams for fr in s["frames"] if pred(fr)]
         if not hits:
             return None
-        b, bound, fr = min(hits, key=lambda h: h[0])
-        return {"bound": bound, "frame": fr["frame"], "bytes_received": b, "image_psnr_db": fr["image_psnr_db"],
-                "of_sz3_bytes": b / target["bytes"]}
+        b, st, fr = min(hits, key=lambda h: h[0])
+        return {"bound": st["bound"], "preview": st["preview"], "frame": fr["frame"], "bytes_received": b,
+                "image_psnr_db": fr["image_psnr_db"], "of_sz3_bytes": b / target["bytes"]}
 
     return {
         "field": "harmonic",
@@ -643,13 +654,18 @@ def image_part(args, bindir, work):
     }
 
 
+def with_preview(point):
+    return f" with a {point['preview']} preview" if point.get("preview") else ""
+
+
 def image_tables(image):
     """The image part's tables and its two read-off points, as markdown lines."""
     t = image["sz3"][0]
     out = ["", f"Image PSNR, default view, {image['field']} {image['grid']}, {image['size']} (against the CPU reference "
            f"image of the original samples; the GPU image of the original: {image['original_gpu_image_psnr_db']:.2f} dB):", ""]
     for s in image["streams"]:
-        out += [f"tetwave stream prepared at {s['bound']} × range (store {fmt_bytes(s['store_bytes'])} B):", "",
+        pv = f", preview at {s['preview']} ({fmt_bytes(s['preview_bytes'])} B)" if s.get("preview") else ""
+        out += [f"tetwave stream prepared at {s['bound']} × range (store {fmt_bytes(s['store_bytes'])} B{pv}):", "",
                 "| frame | nodes | bytes received | image PSNR (dB) |", "|---|---|---|---|"]
         for fr in s["frames"]:
             out.append(f"| {fr['frame']} | {fr['nodes']:,} | {fmt_bytes(fr['bytes_received'])} | {fr['image_psnr_db']:.2f} |")
@@ -660,11 +676,11 @@ def image_tables(image):
     out.append("")
     r, u = image["reaches_sz3"], image["usable_30db"]
     out.append(f"- SZ3 at {t['bound']} × range: {t['image_psnr_db']:.2f} dB from {fmt_bytes(t['bytes'])} B. "
-               + (f"tetwave reaches it first with the stream prepared at {r['bound']} × range: {r['image_psnr_db']:.2f} dB "
-                  f"after {fmt_bytes(r['bytes_received'])} B, {r['of_sz3_bytes']:.2f}× SZ3's file."
+               + (f"tetwave reaches it first with the stream prepared at {r['bound']} × range{with_preview(r)}: "
+                  f"{r['image_psnr_db']:.2f} dB after {fmt_bytes(r['bytes_received'])} B, {r['of_sz3_bytes']:.2f}× SZ3's file."
                   if r else "No tetwave stream reaches it."))
     out.append(f"- 30 dB: " + (f"first after {fmt_bytes(u['bytes_received'])} B ({u['image_psnr_db']:.2f} dB, stream at "
-                                f"{u['bound']} × range), {100 * u['of_sz3_bytes']:.1f} % of SZ3's file at {t['bound']}."
+                                f"{u['bound']} × range{with_preview(u)}), {100 * u['of_sz3_bytes']:.1f} % of SZ3's file at {t['bound']}."
                                 if u else "no frame reaches it."))
     return out
 

@@ -11,6 +11,13 @@
 //!
 //! A node whose parent has not arrived yet is *pending*: it is kept, and becomes *usable*
 //! ([`DetailBuffer::is_usable`]) once all its ancestors are present.
+//!
+//! A *preview* node ([`DetailBuffer::insert_preview`]: a coarse copy from the store's preview) is
+//! held like any other until the store's own node with its id arrives and replaces it: its
+//! coefficients are overwritten (and reported as arrivals, so values are recomputed) and its
+//! metadata too. Preview nodes count as present for usability, but not as held:
+//! [`DetailBuffer::missing_ranges`] lists them and [`DetailBuffer::nodes_held`] leaves them out,
+//! so a session is complete only with every node of the store's own.
 
 use rustc_hash::FxHashMap;
 use tetwave_protocol::hierarchy::EDGES;
@@ -34,6 +41,8 @@ pub enum BufferError {
     Invalid(#[from] NodeError),
     #[error("node {id} claims vertex {key}, which another node already owns")]
     OwnedTwice { id: TetId, key: u64 },
+    #[error("node {id} owns edges {got:#08b}, its preview owned {preview:#08b}")]
+    NotItsPreview { id: TetId, got: u8, preview: u8 },
 }
 
 /// What one [`DetailBuffer::insert`] did.
@@ -43,6 +52,8 @@ pub enum Inserted {
     New,
     /// The id was already held; the node was ignored.
     Duplicate,
+    /// The store's node replaced the preview node held for its id.
+    Replaced,
 }
 
 /// What arrived since the mesh last looked: vertex keys that got a coefficient and node ids that got
@@ -51,12 +62,15 @@ pub enum Inserted {
 pub struct Arrivals {
     pub keys: Vec<u64>,
     pub nodes: Vec<TetId>,
+    /// Of `nodes`, those whose preview was replaced: their metadata changed, not only appeared.
+    pub replaced: Vec<TetId>,
 }
 
 impl Arrivals {
     pub fn clear(&mut self) {
         self.keys.clear();
         self.nodes.clear();
+        self.replaced.clear();
     }
     pub fn is_empty(&self) -> bool {
         self.keys.is_empty() && self.nodes.is_empty()
@@ -142,10 +156,12 @@ impl<V: Cell> IdTable<V> {
         self.get(k).is_some()
     }
 
-    /// Sets absent key `k` to `v` (not [`Cell::EMPTY`]).
+    /// Sets key `k` to `v` (not [`Cell::EMPTY`]), present or not.
     fn insert(&mut self, k: u64, v: V) {
-        debug_assert!(!v.is_empty() && !self.contains_key(k));
-        self.len += 1;
+        debug_assert!(!v.is_empty());
+        if !self.contains_key(k) {
+            self.len += 1;
+        }
         if k >= DENSE_KEYS {
             self.sparse.insert(k, v);
             return;
@@ -200,6 +216,10 @@ pub struct DetailBuffer {
     keys: VertexKeys,
     coeffs: IdTable<f32>,
     meta: IdTable<NodeMeta>,
+    /// Ids held as preview nodes (replaced by the store's own when they arrive).
+    previews: rustc_hash::FxHashSet<TetId>,
+    /// Nodes inserted or replaced so far: what a cache of presence compares against.
+    generation: u64,
     duplicates: u64,
     pending: u64,
 }
@@ -211,6 +231,8 @@ impl DetailBuffer {
             keys,
             coeffs: IdTable::new(),
             meta: IdTable::new(),
+            previews: Default::default(),
+            generation: 0,
             duplicates: 0,
             pending: 0,
         }
@@ -236,6 +258,9 @@ impl DetailBuffer {
             return Err(BufferError::OutOfRange { id: node.id, nodes });
         }
         node.validate()?;
+        if self.previews.contains(&node.id) {
+            return self.replace_preview(node, arrivals);
+        }
         if self.meta.contains_key(node.id) {
             self.duplicates += 1;
             return Ok(Inserted::Duplicate);
@@ -261,6 +286,7 @@ impl DetailBuffer {
             arrivals.keys.push(key);
         }
         arrivals.nodes.push(node.id);
+        self.generation += 1;
         self.meta.insert(
             node.id,
             NodeMeta {
@@ -284,7 +310,74 @@ impl DetailBuffer {
         Ok(Inserted::New)
     }
 
-    /// Whether node `t` has arrived.
+    /// Holds preview node `node` until the store's own arrives ([`Self::insert`] replaces it);
+    /// ignored (a duplicate) when the id is already held, as a preview or as the store's node.
+    pub fn insert_preview(
+        &mut self,
+        node: &DetailNode,
+        arrivals: &mut Arrivals,
+    ) -> Result<Inserted, BufferError> {
+        if node.id < self.forest.nodes() && self.meta.contains_key(node.id) {
+            self.duplicates += 1;
+            return Ok(Inserted::Duplicate);
+        }
+        let got = self.insert(node, arrivals)?;
+        if got == Inserted::New {
+            self.previews.insert(node.id);
+        }
+        Ok(got)
+    }
+
+    /// The store's node `node` replaces the preview held for its id: same owned edges, so the
+    /// same vertex keys, whose coefficients change.
+    fn replace_preview(
+        &mut self,
+        node: &DetailNode,
+        arrivals: &mut Arrivals,
+    ) -> Result<Inserted, BufferError> {
+        let held = self.meta.get(node.id).expect("a preview is held");
+        if held.owned != node.owned {
+            return Err(BufferError::NotItsPreview {
+                id: node.id,
+                got: node.owned,
+                preview: held.owned,
+            });
+        }
+        let tet = LatticeTet::from_id(&self.forest, node.id);
+        for e in 0..EDGES.len() {
+            if let Some(d) = node.coeff(e) {
+                let key = self.keys.key(tet.base, &tet.edge_midpoint(e));
+                self.coeffs.insert(key, d);
+                arrivals.keys.push(key);
+            }
+        }
+        self.meta.insert(
+            node.id,
+            NodeMeta {
+                subtree_max_abs: node.subtree_max_abs,
+                empty_children: node.empty_children,
+                owned: node.owned,
+            },
+        );
+        arrivals.nodes.push(node.id);
+        arrivals.replaced.push(node.id);
+        self.generation += 1;
+        self.previews.remove(&node.id);
+        Ok(Inserted::Replaced)
+    }
+
+    /// How many nodes were inserted or replaced so far: presence, usability or a node's metadata
+    /// may have changed since a reader saw another value.
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Preview nodes held (not yet replaced by the store's own).
+    pub fn previews_held(&self) -> u64 {
+        self.previews.len() as u64
+    }
+
+    /// Whether node `t` has arrived (as the store's node or a preview of it).
     #[inline]
     pub fn is_present(&self, t: TetId) -> bool {
         self.meta.contains_key(t)
@@ -296,8 +389,8 @@ impl DetailBuffer {
     pub fn missing_ranges(&self) -> impl Iterator<Item = IdRange> + '_ {
         let nodes = self.forest.nodes();
         let mut next = 0u64;
-        // every id held is below `nodes` (insert refuses the others)
-        let mut held = self.meta.keys();
+        // every id held is below `nodes` (insert refuses the others); a preview is missing still
+        let mut held = self.meta.keys().filter(|id| !self.previews.contains(id));
         std::iter::from_fn(move || loop {
             if next >= nodes {
                 return None;
@@ -363,9 +456,9 @@ impl DetailBuffer {
         self.coeffs.get(key)
     }
 
-    /// Nodes held (pending ones included).
+    /// The store's nodes held (pending ones included; previews not).
     pub fn nodes_held(&self) -> u64 {
-        self.meta.len() as u64
+        (self.meta.len() - self.previews.len()) as u64
     }
 
     /// Nodes held whose parent has not arrived.
@@ -491,6 +584,64 @@ mod tests {
         assert_eq!(b.subtree_max(3), Some(0.25));
         assert_eq!(b.subtree_max(0), Some(0.25));
         assert_eq!(b.subtree_max(4), None);
+    }
+
+    /// A preview node is present and usable but not held; the store's node replaces it (its
+    /// coefficients and bound change, reported as arrivals), once; a preview after the store's
+    /// node is ignored; a store's node owning other edges than its preview is refused.
+    #[test]
+    fn a_preview_is_held_until_the_stores_node_replaces_it() {
+        let mut b = setup();
+        let mut arr = Arrivals::default();
+        let r = |from, to| IdRange { from, to };
+        let coarse = DetailNode {
+            coeffs: vec![0.0; 6],
+            subtree_max_abs: 2.0,
+            ..node(0, 0b111111)
+        };
+        assert_eq!(b.insert_preview(&coarse, &mut arr), Ok(Inserted::New));
+        assert!(b.is_present(0) && b.is_usable(0));
+        assert_eq!((b.nodes_held(), b.previews_held()), (0, 1));
+        assert_eq!(b.missing_ranges().collect::<Vec<_>>(), [r(0, 9)]);
+        assert_eq!(b.subtree_max(0), Some(2.0));
+        let key = arr.keys[0];
+        assert_eq!(b.coeff(key), Some(0.0));
+        // a preview again, and a child's: the same rules as the store's nodes
+        assert_eq!(b.insert_preview(&coarse, &mut arr), Ok(Inserted::Duplicate));
+        assert_eq!(
+            b.insert_preview(&node(3, 0b001000), &mut arr),
+            Ok(Inserted::New)
+        );
+        assert_eq!(b.nodes_pending(), 0);
+
+        // another mask: refused, nothing changes
+        let generation = b.generation();
+        assert!(matches!(
+            b.insert(&node(0, 0b011111), &mut arr),
+            Err(BufferError::NotItsPreview { id: 0, .. })
+        ));
+        assert_eq!((b.generation(), b.coeff(key)), (generation, Some(0.0)));
+
+        arr.clear();
+        assert_eq!(
+            b.insert(&node(0, 0b111111), &mut arr),
+            Ok(Inserted::Replaced)
+        );
+        assert_eq!((arr.keys.len(), arr.nodes.as_slice()), (6, &[0][..]));
+        assert_eq!(arr.replaced, [0]);
+        assert_eq!(b.coeff(key), Some(0.5));
+        assert_eq!(b.subtree_max(0), Some(1.0));
+        assert_eq!(b.coeffs_held(), 7);
+        assert_eq!((b.nodes_held(), b.previews_held()), (1, 1));
+        assert!(b.generation() > generation);
+        assert_eq!(b.missing_ranges().collect::<Vec<_>>(), [r(1, 9)]);
+        // held now: the store's node again and a late preview are duplicates
+        assert_eq!(
+            b.insert(&node(0, 0b111111), &mut arr),
+            Ok(Inserted::Duplicate)
+        );
+        assert_eq!(b.insert_preview(&coarse, &mut arr), Ok(Inserted::Duplicate));
+        assert_eq!(b.coeff(key), Some(0.5));
     }
 
     /// The ids not held, as ranges: all of them at first, then the gaps around what arrived.

@@ -41,6 +41,10 @@ pub(crate) enum Step {
         nodes: Vec<DetailNode>,
         duplicates: usize,
     },
+    /// Preview nodes were held (this many).
+    Preview {
+        nodes: usize,
+    },
     /// The stream ended: everything is held ([`Ingest::ended`]) or what is missing was asked for.
     End,
 }
@@ -149,6 +153,13 @@ impl Ingest {
                     nodes,
                     duplicates: done.duplicates,
                 }
+            }
+            Delivery::Preview { nodes, .. } => {
+                let s = session
+                    .as_mut()
+                    .ok_or_else(|| StreamError::Protocol("preview before the base mesh".into()))?;
+                s.insert_preview(&nodes)?;
+                Step::Preview { nodes: nodes.len() }
             }
             Delivery::End => {
                 // re-request whatever was lost on the way (bounded rounds); the missing ids are

@@ -23,10 +23,10 @@ pub struct NodeRejected {
     pub source: BufferError,
 }
 
-/// What one [`Session::insert`] did.
+/// What one [`Session::insert`] (or [`Session::insert_preview`]) did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Inserts {
-    /// Nodes not held before.
+    /// Nodes not held before (a store's node that replaced its preview included).
     pub new: usize,
     /// Nodes already held (ignored).
     pub duplicates: usize,
@@ -70,12 +70,29 @@ impl Session {
         &mut self,
         nodes: impl IntoIterator<Item = &'a DetailNode>,
     ) -> Result<Inserts, NodeRejected> {
+        self.take(nodes, DetailBuffer::insert)
+    }
+
+    /// Takes preview nodes ([`DetailBuffer::insert_preview`]) as [`Self::insert`] takes the
+    /// store's.
+    pub fn insert_preview<'a>(
+        &mut self,
+        nodes: impl IntoIterator<Item = &'a DetailNode>,
+    ) -> Result<Inserts, NodeRejected> {
+        self.take(nodes, DetailBuffer::insert_preview)
+    }
+
+    fn take<'a>(
+        &mut self,
+        nodes: impl IntoIterator<Item = &'a DetailNode>,
+        insert: fn(&mut DetailBuffer, &DetailNode, &mut Arrivals) -> Result<Inserted, BufferError>,
+    ) -> Result<Inserts, NodeRejected> {
         self.arrivals.clear();
         let mut done = Inserts::default();
         let mut rejected = None;
         for n in nodes {
-            match self.buf.insert(n, &mut self.arrivals) {
-                Ok(Inserted::New) => done.new += 1,
+            match insert(&mut self.buf, n, &mut self.arrivals) {
+                Ok(Inserted::New | Inserted::Replaced) => done.new += 1,
                 Ok(Inserted::Duplicate) => done.duplicates += 1,
                 Err(source) => {
                     rejected = Some(NodeRejected { id: n.id, source });
@@ -85,6 +102,10 @@ impl Session {
         }
         if !self.arrivals.is_empty() {
             self.mesh.apply_arrivals(&self.buf, &self.arrivals);
+            if !self.arrivals.replaced.is_empty() {
+                self.sel
+                    .notify_replaced(&self.mesh, &self.arrivals.replaced);
+            }
             self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
         }
         match rejected {

@@ -244,6 +244,8 @@ pub struct StreamReport {
     pub frames: Vec<FrameRecord>,
     pub nodes_total: u64,
     pub nodes_received: u64,
+    /// Preview nodes received (held until the store's own replaced them).
+    pub previews_received: u64,
     pub duplicates: u64,
     pub bytes_received: u64,
     pub reconnects: u64,
@@ -395,6 +397,11 @@ pub(crate) enum Delivery {
         seq: u64,
         nodes: Vec<DetailNode>,
     },
+    /// Preview nodes, held until the store's own replace them.
+    Preview {
+        seq: u64,
+        nodes: Vec<DetailNode>,
+    },
     /// The near band of the domain's level set (`/v1/levelset`), fetched once a manifest lists
     /// one (drawn meshes are clipped to it from then on), or why it could not be had.
     LevelSet(Result<Box<NearLevelSet>, String>),
@@ -409,7 +416,8 @@ pub(crate) enum Delivery {
 #[derive(Default)]
 struct BlockDecoder {
     manifest: Option<Box<Manifest>>,
-    coder: Option<(Box<BaseMesh>, BlockCoder)>,
+    /// The base mesh, its coder, and the preview's coder when the manifest names a preview.
+    coder: Option<(Box<BaseMesh>, BlockCoder, Option<BlockCoder>)>,
 }
 
 impl BlockDecoder {
@@ -420,22 +428,28 @@ impl BlockDecoder {
                 m.encoding
                     .check()
                     .map_err(|e| StreamError::Protocol(format!("manifest: {e}")))?;
+                if let Some(p) = &m.preview {
+                    p.encoding
+                        .check()
+                        .map_err(|e| StreamError::Protocol(format!("manifest: preview: {e}")))?;
+                }
                 self.manifest = Some(m.clone());
                 Delivery::Manifest(m)
             }
             ServerMsg::Base(b) => {
                 // a resumed connection sends the same base again: keep its coder
-                if self.coder.as_ref().is_none_or(|(held, _)| **held != *b) {
+                if self.coder.as_ref().is_none_or(|(held, ..)| **held != *b) {
                     let m = self
                         .manifest
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-                    self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding)));
+                    let preview = m.preview.as_ref().map(|p| BlockCoder::new(&b, &p.encoding));
+                    self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding), preview));
                 }
                 Delivery::Base(b)
             }
             ServerMsg::Nodes { seq, block } => {
-                let (_, coder) = self
+                let (_, coder, _) = self
                     .coder
                     .as_ref()
                     .ok_or_else(|| StreamError::Protocol("nodes before the base mesh".into()))?;
@@ -443,6 +457,23 @@ impl BlockDecoder {
                     .decode(&block)
                     .map_err(|e| StreamError::BadFrame(format!("batch {seq}: {e}")))?;
                 Delivery::Nodes { seq, nodes }
+            }
+            ServerMsg::Preview { seq, block } => {
+                let coder = match &self.coder {
+                    None => {
+                        return Err(StreamError::Protocol("preview before the base mesh".into()))
+                    }
+                    Some((_, _, None)) => {
+                        return Err(StreamError::Protocol(
+                            "a preview the manifest does not describe".into(),
+                        ))
+                    }
+                    Some((_, _, Some(c))) => c,
+                };
+                let nodes = coder
+                    .decode(&block)
+                    .map_err(|e| StreamError::BadFrame(format!("preview batch {seq}: {e}")))?;
+                Delivery::Preview { seq, nodes }
             }
             ServerMsg::End { .. } => Delivery::End,
             ServerMsg::Error { code, message } => Delivery::Error { code, message },
@@ -621,7 +652,9 @@ pub(crate) async fn network(
                         // is the backpressure
                         for m in deliver {
                             let ack = match &m.0 {
-                                Delivery::Nodes { seq, .. } => Some(*seq),
+                                Delivery::Nodes { seq, .. } | Delivery::Preview { seq, .. } => {
+                                    Some(*seq)
+                                }
                                 _ => None,
                             };
                             if tx.send(m).await.is_err() {
@@ -749,6 +782,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut cams = Vec::new();
     let mut images = Vec::new();
     let mut duplicates = 0u64;
+    let mut previews_received = 0u64;
     let mut first_frame_ms = None;
     // wire bytes of the messages the client has applied (what its frames show)
     let mut bytes_applied = 0u64;
@@ -837,6 +871,11 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     if args.psnr {
                         received_nodes.extend(nodes);
                     }
+                }
+                // (frames count them as nodes applied; progress counts the store's only)
+                Ok(Step::Preview { nodes }) => {
+                    applied += nodes;
+                    previews_received += nodes as u64;
                 }
                 Ok(_) => {}
                 // before the base mesh there are no frames to keep
@@ -996,6 +1035,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         frames,
         nodes_total,
         nodes_received,
+        previews_received,
         duplicates,
         bytes_received: net.bytes.load(Ordering::Relaxed),
         reconnects: net.reconnects.load(Ordering::Relaxed),

@@ -75,7 +75,7 @@ pub fn check(data: &[u8]) {
             once,
             "server round trip is idempotent"
         );
-        if let ServerMsg::Nodes { block, .. } = &m {
+        if let ServerMsg::Nodes { block, .. } | ServerMsg::Preview { block, .. } = &m {
             check_block(block);
         }
     }

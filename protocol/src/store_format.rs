@@ -145,6 +145,27 @@ pub struct Manifest {
     /// Max |synthesis − sample| measured when the store was written.
     pub max_abs_error: f64,
     pub files: std::collections::BTreeMap<String, FileSum>,
+    /// A coarse copy of the coarse levels' nodes (`preview.bin`), which a server sends a new
+    /// session first so that a thin link shows a whole volume early; `None` without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preview: Option<Preview>,
+}
+
+/// The store file holding the preview's nodes ([`Preview`]).
+pub const PREVIEW_FILE: &str = "preview.bin";
+
+/// What `preview.bin` holds: nodes `0..level_start(levels)` (the node levels below `levels`) of
+/// a second closed-loop analysis of the same samples at the coarse bound `max_error_bound`,
+/// coded with `encoding` in blocks of [`BLOCK`] nodes (bincode `Vec<NodeBlock>`). Their owned
+/// masks and empty children are the store's; their subtree bounds cover the store's details. A
+/// client holds a preview node until the store's own arrives and replaces it: values from
+/// preview nodes are within about `max_error_bound` of the samples, those from the store's
+/// nodes alone within the store's bound.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Preview {
+    pub encoding: Encoding,
+    pub levels: u8,
+    pub max_error_bound: f64,
 }
 
 /// The store file holding a level set's near band ([`crate::levelset::NearLevelSet`]), which

@@ -58,6 +58,7 @@ pub fn manifest_for(base: &BaseMesh) -> crate::store_format::Manifest {
         max_error_bound: 1e-6,
         max_abs_error: 0.0,
         files: Default::default(),
+        preview: None,
     }
 }
 

@@ -85,6 +85,14 @@ pub enum ServerMsg {
         code: u16,
         message: String,
     },
+    /// Preview nodes ([`crate::store_format::Preview`]) as one coded block (decode with the
+    /// [`crate::block::BlockCoder`] of the preview's encoding and the base mesh). A new session
+    /// may get some before its `Nodes`; the store's own node replaces each later. `seq` counts
+    /// with the `Nodes` batches'.
+    Preview {
+        seq: u64,
+        block: NodeBlock,
+    },
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -216,7 +224,9 @@ pub fn decode_client(frame: &[u8]) -> Result<ClientMsg, WireError> {
 pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
     let msg: ServerMsg = decode(frame)?;
     match &msg {
-        ServerMsg::Nodes { block, .. } if block.count > MAX_BLOCK_NODES => {
+        ServerMsg::Nodes { block, .. } | ServerMsg::Preview { block, .. }
+            if block.count > MAX_BLOCK_NODES =>
+        {
             return Err(WireError::Invalid(format!(
                 "block of {} nodes (limit {MAX_BLOCK_NODES})",
                 block.count
@@ -299,6 +309,7 @@ mod tests {
                 max_error_bound: 1e-6,
                 max_abs_error: 0.0,
                 files: Default::default(),
+                preview: None,
             };
             let sent = ServerMsg::Manifest(Box::new(m.clone()));
             assert_eq!(decode_server(&encode(&sent).unwrap()).unwrap(), sent);

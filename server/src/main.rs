@@ -97,6 +97,11 @@ enum Cmd {
         /// Most un-acknowledged batches in flight per connection.
         #[arg(long, default_value_t = 8)]
         window: u64,
+        /// For a store prepared with `--preview`: a new session first gets preview nodes worth at
+        /// most this share of the store's nodes' bytes (0 sends none; 1, the default, in
+        /// practice all of the preview).
+        #[arg(long, default_value_t = 1.0)]
+        preview_share: f64,
         /// Worker threads (default: the number of cores).
         #[arg(long)]
         threads: Option<usize>,
@@ -199,6 +204,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             batch,
             max_batch,
             window,
+            preview_share,
             threads,
             verify,
         } => {
@@ -211,6 +217,9 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             }
             if !(1..=1024).contains(&window) {
                 return Err(format!("--window {window} outside 1..=1024").into());
+            }
+            if !(0.0..=1.0).contains(&preview_share) {
+                return Err(format!("--preview-share {preview_share} outside 0..=1").into());
             }
             if token.as_deref() == Some("") {
                 // an unset variable in `--token "$T"` must not serve without authentication
@@ -251,6 +260,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 batch,
                 max_batch,
                 window,
+                preview_share,
                 idle_timeout: secs("idle-timeout", idle_timeout)?,
                 limits,
                 origins: tetwave_server::stream::OriginPolicy {

@@ -1,5 +1,6 @@
 //! `prepare` and `verify`: resample → analysis → store, and the store's round-trip check.
 
+use crate::analysis::Analysis;
 use crate::analysis::{
     analyze_hierarchy, AnalysisError, ErrorBound, Precision, AXES_MAX_MAGNITUDE,
 };
@@ -9,13 +10,13 @@ use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{
     self, BoundaryDistance, CleanError, CleanReport, ImportOptions, Locator,
 };
-use crate::resample::{resample, BaseSpec, ResampleError, Source};
+use crate::resample::{resample, BaseSpec, ResampleError, Resampled, Source};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
 use tetwave_protocol::wavelet::Predictor;
-use tetwave_store::{self as store, Store, StoreError, StoreMeta};
+use tetwave_store::{self as store, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
@@ -80,6 +81,12 @@ pub struct PrepareOptions {
     /// Lossless f32 when absent.
     #[arg(long, value_parser = parse_max_error)]
     pub max_error: Option<ErrorBound>,
+    /// Also write a preview: the coarse levels analysed a second time within this error (`E`, or
+    /// `E%` of the value range, e.g. `10%`), which `serve` sends a new session first, so that a
+    /// thin link shows the whole volume coarsely after a few hundred bytes (docs/benchmarks.md).
+    /// Costs a second analysis. Needs at least 2 levels.
+    #[arg(long, value_parser = parse_max_error)]
+    pub preview: Option<ErrorBound>,
     /// How new vertices are predicted: `axes` (SZ3's cubic interpolation along the grid's axes,
     /// level by level: fewer bytes on smooth fields, see docs/benchmarks.md; needs `--base box6`
     /// and data at every vertex), `parent` (the refined tet's parent's
@@ -124,6 +131,7 @@ impl PrepareOptions {
             base: BaseSpec::Box5,
             bits: None,
             max_error: None,
+            preview: None,
             predictor: PredictorChoice::Auto,
             dims: None,
             dtype: "u8".into(),
@@ -154,6 +162,9 @@ pub struct Summary {
     pub bytes: u64,
     /// Bytes of the verification reference (`reference.f32`, not streamed).
     pub reference_bytes: u64,
+    /// Bytes of the preview (`preview.bin`, `--preview`; a server sends part of it to new
+    /// sessions; not counted in `bytes`).
+    pub preview_bytes: u64,
     /// Bytes of the domain's level set (`levelset.f32`, not streamed; 0 when the input has no
     /// outside).
     pub levelset_bytes: u64,
@@ -352,7 +363,26 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
             ))
         }
     };
+    if o.preview.is_some() && o.levels < 2 {
+        return Err(PrepareError::Usage(
+            "--preview needs at least 2 levels (it covers the coarse ones)".into(),
+        ));
+    }
+    let preview_input = o.preview.map(|_| Resampled {
+        base: r.base.clone(),
+        keys: r.keys.clone(),
+        samples: r.samples.clone(),
+        outside: r.outside,
+    });
     let a = analyze_hierarchy(r, precision, o.progress)?;
+    let preview = match (o.preview, preview_input) {
+        (Some(e), Some(r)) => {
+            tracing::info!("analysing the preview");
+            let p = analyze_hierarchy(r, Precision::MaxError(e), o.progress)?;
+            Some(preview_nodes(&a, &p)?)
+        }
+        _ => None,
+    };
     let base_name = match &o.base {
         BaseSpec::Box5 => "box5".to_string(),
         BaseSpec::Box6 => "box6".to_string(),
@@ -366,12 +396,13 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         source_value_range: source_range,
         levelset,
         levelset_near,
+        preview,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
     let bytes = m
         .files
         .iter()
-        .filter(|(k, _)| !matches!(k.as_str(), "reference.f32" | "levelset.f32"))
+        .filter(|(k, _)| !matches!(k.as_str(), "reference.f32" | "levelset.f32" | PREVIEW_FILE))
         .map(|(_, f)| f.bytes)
         .sum();
     Ok(Summary {
@@ -387,6 +418,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         coefficients: m.counts.coefficients,
         bytes,
         reference_bytes: m.files.get("reference.f32").map(|f| f.bytes).unwrap_or(0),
+        preview_bytes: m.files.get(PREVIEW_FILE).map(|f| f.bytes).unwrap_or(0),
         levelset_bytes: m.files.get("levelset.f32").map(|f| f.bytes).unwrap_or(0),
         levelset_near_bytes: m
             .files
@@ -478,6 +510,54 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
     }
     out.try_into()
         .map_err(|_| "expected three numbers".to_string())
+}
+
+/// Most nodes a preview holds (it is decoded whole when a server opens the store).
+const MAX_PREVIEW_NODES: u64 = 1 << 20;
+
+/// The preview of store analysis `a` from the coarse analysis `p` of the same samples: the
+/// nodes of every node level but the finest (fewer while they would exceed
+/// [`MAX_PREVIEW_NODES`]), with `p`'s coefficients and `a`'s masks and subtree bounds (what the
+/// store's own nodes will bring: selection reads them).
+fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareError> {
+    let forest = a.base.forest();
+    if a.base
+        .values
+        .iter()
+        .map(|v| v.to_bits())
+        .ne(p.base.values.iter().map(|v| v.to_bits()))
+    {
+        return Err(PrepareError::Usage(
+            "the preview's analysis reconstructs other base values than the store's".into(),
+        ));
+    }
+    let levels = (1..forest.levels)
+        .rev()
+        .find(|&k| forest.level_start(k) <= MAX_PREVIEW_NODES)
+        .unwrap_or(1);
+    let count = forest.level_start(levels) as usize;
+    let mut nodes = p.content().nodes(count).map_err(PrepareError::Usage)?;
+    for (i, n) in nodes.iter_mut().enumerate() {
+        if n.owned != a.owned[i] || n.empty_children != a.empty_children[i] {
+            return Err(PrepareError::Usage(format!(
+                "the preview's node {i} owns other vertices than the store's"
+            )));
+        }
+        n.subtree_max_abs = a.subtree_max_abs[i];
+    }
+    let q = p
+        .quantizer
+        .ok_or_else(|| PrepareError::Usage("the preview's analysis is not quantized".into()))?;
+    Ok(PreviewNodes {
+        nodes,
+        encoding: store::Encoding::Quantized {
+            bits: q.bits,
+            step: q.step,
+            levels: p.level_steps,
+        },
+        levels,
+        max_error_bound: p.error_bound,
+    })
 }
 
 fn parse_max_error(s: &str) -> Result<ErrorBound, String> {

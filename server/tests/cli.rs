@@ -856,3 +856,67 @@ fn bad_options_are_refused() {
         &["--token is empty"],
     );
 }
+
+/// `--preview E`: a second analysis of the coarse levels within `E`, written as `preview.bin` and
+/// described in the manifest (every node level but the finest); `verify` still checks the
+/// store's own bound. Without enough levels, or with a bad bound, an error says why.
+#[test]
+fn a_preview_is_written_beside_the_store() {
+    let d = tmp();
+    let out = d.path().join("p");
+    let j = prepare_json(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--levels",
+        "3",
+        "--base",
+        "box6",
+        "--max-error",
+        "0.1%",
+        "--preview",
+        "10%",
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    let bytes = j["preview_bytes"].as_u64().unwrap();
+    assert!(bytes > 0 && bytes < j["bytes"].as_u64().unwrap(), "{j}");
+    let m: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["preview"]["levels"], 2, "{m}");
+    assert_eq!(m["files"]["preview.bin"]["bytes"].as_u64(), Some(bytes));
+    let bound = m["preview"]["max_error_bound"].as_f64().unwrap();
+    let range = j["value_range"][1].as_f64().unwrap() - j["value_range"][0].as_f64().unwrap();
+    assert!(
+        bound > 0.09 * range && bound < 0.11 * range,
+        "{bound} of {range}"
+    );
+    let r = run(&["verify", s(&out)]);
+    assert!(r.ok, "{}", r.stderr);
+
+    let one = d.path().join("one");
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--levels",
+            "1",
+            "--preview",
+            "10%",
+            "--out",
+            s(&one),
+        ],
+        &["--preview", "2 levels"],
+    );
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--preview",
+            "0%",
+            "--out",
+            s(&one),
+        ],
+        &["--preview"],
+    );
+}

@@ -25,8 +25,8 @@
 
 use std::path::{Path, PathBuf};
 pub use tetwave_protocol::store_format::{
-    Counts, Encoding, FileSum, FormatError, Manifest, StoreFiles, StoreHead, BLOCK,
-    LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION,
+    Counts, Encoding, FileSum, FormatError, Manifest, Preview, StoreFiles, StoreHead, BLOCK,
+    LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
 };
 
 mod check;
@@ -34,14 +34,14 @@ mod read;
 mod write;
 
 pub use read::{OpenOptions, Store};
-pub use write::{write, StoreContent, StoreMeta};
+pub use write::{write, PreviewNodes, StoreContent, StoreMeta};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
 pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin", "reference.f32"];
 
 /// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
 /// with their size and CRC-32 like the others.
-pub const OPTIONAL_STORE_FILES: [&str; 2] = ["levelset.f32", LEVELSET_BAND_FILE];
+pub const OPTIONAL_STORE_FILES: [&str; 3] = ["levelset.f32", LEVELSET_BAND_FILE, PREVIEW_FILE];
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

@@ -5,10 +5,11 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
+use tetwave_protocol::block::NodeBlock;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{
     FormatError, Manifest, StoreFiles, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
-    STORE_FORMAT, STORE_VERSION,
+    MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
 };
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
@@ -31,6 +32,8 @@ pub struct Store {
     pub dir: PathBuf,
     pub manifest: Manifest,
     pub base: BaseMesh,
+    /// The preview's nodes (`preview.bin`, [`Manifest::preview`]), decoded and checked at open.
+    pub preview: Option<Vec<DetailNode>>,
     head: StoreHead,
     files: DirFiles,
 }
@@ -157,13 +160,15 @@ impl Store {
                 },
             )?;
         crate::check::structure(dir, &head, &mut visit)?;
-        let store = Store {
+        let mut store = Store {
             dir: dir.to_path_buf(),
             manifest: head.manifest.clone(),
             base: head.base.clone(),
+            preview: None,
             head,
             files: DirFiles(dir.to_path_buf()),
         };
+        store.preview = store.read_preview()?;
         if options.verify_checksums {
             store.check_sums()?;
         }
@@ -172,6 +177,75 @@ impl Store {
 
     pub fn forest(&self) -> Forest {
         self.base.forest()
+    }
+
+    /// Decodes `preview.bin` when the manifest describes a preview, checking that it holds
+    /// exactly the nodes of the node levels it names, with the store's masks.
+    fn read_preview(&self) -> Result<Option<Vec<DetailNode>>, StoreError> {
+        let path = self.dir.join(PREVIEW_FILE);
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: path.clone(),
+            reason,
+        };
+        let listed = self.manifest.files.get(PREVIEW_FILE);
+        let Some(p) = &self.manifest.preview else {
+            return match listed {
+                Some(_) => Err(corrupt(
+                    "listed, but the manifest describes no preview".into(),
+                )),
+                None => Ok(None),
+            };
+        };
+        let Some(sum) = listed else {
+            return Err(corrupt(
+                "the manifest describes a preview but lists no file".into(),
+            ));
+        };
+        p.encoding
+            .check()
+            .map_err(|e| corrupt(format!("manifest.json: preview: {e}")))?;
+        let forest = self.forest();
+        let count = forest
+            .checked_level_start(p.levels)
+            .filter(|_| (1..=forest.levels).contains(&p.levels))
+            .ok_or_else(|| {
+                corrupt(format!(
+                    "preview of {} levels in {}",
+                    p.levels, forest.levels
+                ))
+            })?;
+        // at most a full block's limit per block of nodes, as blocks.bin
+        let limit = count.div_ceil(BLOCK) * MAX_BLOCK_BYTES;
+        if sum.bytes > limit {
+            return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
+        }
+        let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+        let cfg = bincode::config::standard().with_limit::<{ 1 << 30 }>();
+        let (blocks, used): (Vec<NodeBlock>, usize) =
+            bincode::serde::decode_from_slice(&bytes, cfg).map_err(|e| corrupt(e.to_string()))?;
+        if used != bytes.len() {
+            return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
+        }
+        let coder = BlockCoder::new(&self.base, &p.encoding);
+        let mut nodes = Vec::with_capacity(count as usize);
+        for b in &blocks {
+            nodes.extend(coder.decode(b).map_err(|e| corrupt(e.to_string()))?);
+            if nodes.len() as u64 > count {
+                break;
+            }
+        }
+        let own = self.read_nodes(0, count.min(self.manifest.counts.nodes))?;
+        if nodes.len() != own.len()
+            || nodes.iter().zip(&own).any(|(a, b)| {
+                a.id != b.id || a.owned != b.owned || a.empty_children != b.empty_children
+            })
+        {
+            return Err(corrupt(format!(
+                "its {} nodes are not the store's first {count} (ids, owned and empty masks)",
+                nodes.len()
+            )));
+        }
+        Ok(Some(nodes))
     }
 
     /// Codes and decodes this store's blocks (its base mesh and encoding): what a server sends is

@@ -6,7 +6,9 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::NearLevelSet;
-use tetwave_protocol::store_format::{Counts, Encoding, FileSum, Manifest, LEVELSET_BAND_FILE};
+use tetwave_protocol::store_format::{
+    Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, PREVIEW_FILE,
+};
 use tetwave_protocol::wavelet::{LevelSteps, Quantizer};
 use tetwave_protocol::{BaseMesh, DetailNode};
 
@@ -161,6 +163,53 @@ pub struct StoreContent<'a> {
     pub error_bound: f64,
 }
 
+impl StoreContent<'_> {
+    /// Nodes `0..end` as detail nodes, or why the content cannot give them.
+    pub fn nodes(&self, end: usize) -> Result<Vec<DetailNode>, String> {
+        if end > self.owned.len()
+            || self.empty_children.len() != self.owned.len()
+            || self.subtree_max_abs.len() != self.owned.len()
+        {
+            return Err(format!(
+                "{end} nodes asked of {} owned masks, {} empty-children masks and {} subtree \
+                 maxima",
+                self.owned.len(),
+                self.empty_children.len(),
+                self.subtree_max_abs.len()
+            ));
+        }
+        let mut coeffs = self.coeffs;
+        (0..end)
+            .map(|i| {
+                let k = self.owned[i].count_ones() as usize;
+                if coeffs.len() < k {
+                    return Err(format!(
+                        "node {i}: owns {k} coefficients, {} are left",
+                        coeffs.len()
+                    ));
+                }
+                let (mine, rest) = coeffs.split_at(k);
+                coeffs = rest;
+                Ok(DetailNode {
+                    id: i as u64,
+                    owned: self.owned[i],
+                    empty_children: self.empty_children[i],
+                    subtree_max_abs: self.subtree_max_abs[i],
+                    coeffs: mine.to_vec(),
+                })
+            })
+            .collect()
+    }
+}
+
+/// A store's preview ([`Preview`]): nodes `0..level_start(levels)` of a coarse analysis.
+pub struct PreviewNodes {
+    pub nodes: Vec<DetailNode>,
+    pub encoding: Encoding,
+    pub levels: u8,
+    pub max_error_bound: f64,
+}
+
 /// What [`write`] needs besides the content.
 pub struct StoreMeta {
     pub dataset: String,
@@ -176,6 +225,8 @@ pub struct StoreMeta {
     /// The level set's near band (what streaming clients clip with), written coded as
     /// `levelset_near.bin`; present exactly when `levelset` is.
     pub levelset_near: Option<NearLevelSet>,
+    /// Written as `preview.bin` when given.
+    pub preview: Option<PreviewNodes>,
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. The files are written
@@ -330,6 +381,49 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         }
     }
 
+    let path = dir.join(PREVIEW_FILE);
+    let preview = match &meta.preview {
+        Some(p) => {
+            let corrupt = |reason: String| StoreError::Corrupt {
+                path: path.clone(),
+                reason,
+            };
+            let want = forest
+                .checked_level_start(p.levels)
+                .filter(|_| (1..=forest.levels).contains(&p.levels));
+            if want != Some(p.nodes.len() as u64)
+                || p.nodes.iter().enumerate().any(|(i, n)| n.id != i as u64)
+            {
+                return Err(corrupt(format!(
+                    "{} preview nodes for the node levels below {} of {}",
+                    p.nodes.len(),
+                    p.levels,
+                    forest.levels
+                )));
+            }
+            let coder = BlockCoder::new(a.base, &p.encoding);
+            let blocks = p
+                .nodes
+                .chunks(BLOCK as usize)
+                .map(|c| coder.encode(c).map_err(|e| corrupt(e.to_string())))
+                .collect::<Result<Vec<_>, _>>()?;
+            let bytes = bincode::serde::encode_to_vec(&blocks, bincode::config::standard())
+                .map_err(|e| corrupt(e.to_string()))?;
+            let mut w = staged.create(PREVIEW_FILE)?;
+            w.put(&bytes)?;
+            files.insert(PREVIEW_FILE.into(), w.finish()?);
+            Some(Preview {
+                encoding: p.encoding.clone(),
+                levels: p.levels,
+                max_error_bound: p.max_error_bound,
+            })
+        }
+        None => {
+            staged.remove(PREVIEW_FILE);
+            None
+        }
+    };
+
     let (lo, hi) = a.base.bounds();
     let manifest = Manifest {
         format: STORE_FORMAT.into(),
@@ -356,6 +450,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         max_error_bound: a.error_bound,
         max_abs_error: a.max_abs_error,
         files,
+        preview,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
     staged.commit(&text)?;

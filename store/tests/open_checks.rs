@@ -2,8 +2,8 @@
 //! a flipped byte in `base.bin` (its checksum is always checked), a block index entry that would
 //! make a huge read, an index that goes down, a flipped byte inside `blocks.bin`, a block that
 //! decodes to other ids or to another coefficient count, a truncated `blocks.bin`, a store of the
-//! previous version. The other files' checksums are checked on request
-//! ([`OpenOptions::verify_checksums`]).
+//! previous version, a preview that is not the store's coarse nodes. The other files' checksums
+//! are checked on request ([`OpenOptions::verify_checksums`]).
 
 use std::path::Path;
 use tetwave_protocol::block::{pow2_bound, pow2_class, BlockCoder};
@@ -16,8 +16,8 @@ use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::DetailNode;
 use tetwave_store::{
-    write, Encoding, OpenOptions, Store, StoreContent, StoreError, StoreMeta, BLOCK,
-    MAX_BLOCK_BYTES,
+    write, Encoding, OpenOptions, PreviewNodes, Store, StoreContent, StoreError, StoreMeta, BLOCK,
+    MAX_BLOCK_BYTES, PREVIEW_FILE,
 };
 
 /// Writes a `box5` store of `levels` levels of the unit-cube harmonic field into `dir`; returns
@@ -28,6 +28,36 @@ fn make_store(dir: &Path, levels: u8) -> Vec<DetailNode> {
 
 /// [`make_store`] with a level set (`levelset.f32`) and a source value range when `levelset`.
 fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<DetailNode> {
+    make_store_full(dir, levels, levelset, None)
+}
+
+/// The preview [`make_store_full`] writes with `preview_step`: the nodes of every node level but
+/// the finest, their coefficients quantized with that step.
+fn preview_of(nodes: &[DetailNode], levels: u8, step: f32) -> PreviewNodes {
+    let encoding = Encoding::uniform(16, step);
+    let (q, _) = encoding.quantizer().unwrap();
+    let count = tetwave_protocol::Forest::new(5, levels).level_start(levels - 1) as usize;
+    PreviewNodes {
+        nodes: nodes[..count]
+            .iter()
+            .map(|n| DetailNode {
+                coeffs: n.coeffs.iter().map(|&c| q.decode(q.encode(c))).collect(),
+                ..n.clone()
+            })
+            .collect(),
+        encoding,
+        levels: levels - 1,
+        max_error_bound: step as f64,
+    }
+}
+
+/// [`make_store_with`], with a preview ([`preview_of`]) when `preview_step` is given.
+fn make_store_full(
+    dir: &Path,
+    levels: u8,
+    levelset: Option<Vec<f32>>,
+    preview_step: Option<f32>,
+) -> Vec<DetailNode> {
     let base = unsampled_base(levels, box5([0.0; 3], [1.0; 3]));
     let (base, nodes) = detail_nodes(base, |p| harmonic_unit(p) as f32);
     let reference = synthesize_all(&base, &base.vertex_keys(), nodes.iter().cloned()).unwrap();
@@ -60,6 +90,7 @@ fn make_store_with(dir: &Path, levels: u8, levelset: Option<Vec<f32>>) -> Vec<De
             NearLevelSet::new(1e-3, band.map(|(k, v)| (k as u64, *v))).unwrap()
         }),
         levelset,
+        preview: preview_step.map(|step| preview_of(&nodes, levels, step)),
     };
     write(dir, &content, meta).unwrap();
     // as the store codes them: lossless subtree bounds rounded up to powers of two, none on the
@@ -431,4 +462,85 @@ fn checksums_are_checked_at_open_on_request() {
         msg.contains("blocks.bin") && msg.contains("checksum"),
         "{msg}"
     );
+}
+
+/// A store with a preview opens with it: the preview's nodes, coded at its coarse step, with the
+/// store's masks; a store without one has none.
+#[test]
+fn a_preview_reads_back_with_the_stores_masks() {
+    let d = tempfile::tempdir().unwrap();
+    let step = 0.05;
+    let nodes = make_store_full(d.path(), 4, None, Some(step));
+    let (_, raw) = detail_nodes(unsampled_base(4, box5([0.0; 3], [1.0; 3])), |p| {
+        harmonic_unit(p) as f32
+    });
+    let s = Store::open(d.path()).unwrap();
+    let p = s.manifest.preview.clone().expect("described");
+    assert_eq!(p.levels, 3);
+    assert!(s.manifest.files.contains_key(PREVIEW_FILE));
+    let got = s.preview.as_ref().expect("read");
+    assert_eq!(got.len() as u64, s.forest().level_start(3));
+    for ((g, n), r) in got.iter().zip(&nodes).zip(&raw) {
+        assert_eq!(
+            (g.id, g.owned, g.empty_children),
+            (n.id, n.owned, n.empty_children)
+        );
+        for (a, b) in g.coeffs.iter().zip(&n.coeffs) {
+            assert!(
+                (a - b).abs() <= step / 2.0 + 1e-6,
+                "node {}: {a} for {b}",
+                g.id
+            );
+        }
+        // the bound covers the store's details (a class of the coarse step)
+        assert!(g.subtree_max_abs >= r.subtree_max_abs, "node {}", g.id);
+    }
+    // written again without one, the file goes
+    make_store(d.path(), 4);
+    let s = Store::open(d.path()).unwrap();
+    assert!(s.preview.is_none() && s.manifest.preview.is_none());
+    assert!(!d.path().join(PREVIEW_FILE).exists());
+}
+
+/// A preview that is not the store's coarse nodes, one that is damaged, and a preview file the
+/// manifest does not describe (or the other way round) are refused, naming `preview.bin`.
+#[test]
+fn a_preview_that_does_not_fit_its_store_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let nodes = make_store_full(d.path(), 4, None, Some(0.05));
+    let (dir, ppath) = (d.path(), d.path().join(PREVIEW_FILE));
+    let good = std::fs::read(&ppath).unwrap();
+
+    // another node's empty children: not the store's masks
+    let mut other = preview_of(&nodes, 4, 0.05);
+    other.nodes[7].empty_children ^= 0b1000_0000;
+    let base = unsampled_base(4, box5([0.0; 3], [1.0; 3]));
+    let blocks: Vec<_> = other
+        .nodes
+        .chunks(BLOCK as usize)
+        .map(|c| BlockCoder::new(&base, &other.encoding).encode(c).unwrap())
+        .collect();
+    let bytes = bincode::serde::encode_to_vec(&blocks, bincode::config::standard()).unwrap();
+    std::fs::write(&ppath, &bytes).unwrap();
+    resize_in_manifest(dir, PREVIEW_FILE);
+    refused(dir, PREVIEW_FILE, &["store's first", "masks"]);
+
+    // cut short
+    std::fs::write(&ppath, &good[..good.len() - 3]).unwrap();
+    resize_in_manifest(dir, PREVIEW_FILE);
+    refused(dir, PREVIEW_FILE, &[]);
+
+    // described, not listed; listed, not described
+    std::fs::write(&ppath, &good).unwrap();
+    resize_in_manifest(dir, PREVIEW_FILE);
+    let mpath = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    m["files"].as_object_mut().unwrap().remove(PREVIEW_FILE);
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(dir, PREVIEW_FILE, &["lists no file"]);
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    m.as_object_mut().unwrap().remove("preview");
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(dir, PREVIEW_FILE, &["describes no preview"]);
 }

@@ -1,6 +1,6 @@
 //! `scripts/bench-rd --quick` end to end: 9³ grids of both fields at one bound, prepared, verified
 //! and streamed by the workspace's binaries, next to zfp and SZ3 from PyPI, and the image part (a
-//! 64×64 default view, streams and SZ3 at two bounds). Checks the table has a row per codec with finite figures within the bound
+//! 64×64 default view, streams without and with a preview, and SZ3, at two bounds). Checks the table has a row per codec with finite figures within the bound
 //! and the charts were drawn. Needs the binaries `tetwave-server` and `tetwave` beside this test's
 //! target directory (`cargo test --workspace` builds them), python3 and PyPI (the script installs
 //! numpy, zfpy, pysz, scikit-fem and matplotlib into `.venv`): fails, never skips, without them.
@@ -98,7 +98,12 @@ fn quick_run_measures_every_codec() {
     let image = &json["image"];
     let streams = image["streams"].as_array().unwrap();
     let sz3 = image["sz3"].as_array().unwrap();
-    assert_eq!(streams.len(), 2, "{image}");
+    // each bound without and with a preview
+    assert_eq!(streams.len(), 4, "{image}");
+    for (i, s) in streams.iter().enumerate() {
+        assert_eq!(s["preview"].as_str(), [None, Some("10%")][i % 2], "{s}");
+        assert_eq!(s["preview_bytes"].as_u64().unwrap() > 0, i % 2 == 1, "{s}");
+    }
     assert_eq!(sz3.len(), 2, "{image}");
     let mut all = Vec::new();
     for s in streams {

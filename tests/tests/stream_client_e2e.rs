@@ -107,6 +107,51 @@ fn axes_sessions_end_identical_to_full_synthesis() {
     lossy_session_ends_identical(&dir, "random", &d.path().join("out-faults"), &values);
 }
 
+/// A store with a preview (a box6 grid with the axes predictor, a box5 mesh with the parent
+/// predictor): a new session gets the whole preview first and the store's nodes replace it, so
+/// every order, a session through lost, reordered and duplicated batches, and one cut and resumed
+/// (which gets no preview again) end exactly at the store's values.
+#[test]
+fn sessions_with_a_preview_end_identical_to_full_synthesis() {
+    use tetwave_server::analysis::ErrorBound;
+    for box6 in [true, false] {
+        let (d, dir) = common::harmonic_store_with(4, |o| {
+            if box6 {
+                o.base = tetwave_server::resample::BaseSpec::Box6;
+            }
+            o.max_error = Some(ErrorBound::OfRange(1e-3));
+            o.preview = Some(ErrorBound::OfRange(0.1));
+        });
+        let s = Store::open(&dir).unwrap();
+        let previews = s.preview.as_ref().expect("a preview").len() as u64;
+        assert_eq!(previews, s.forest().level_start(3));
+        let values = s.synthesize_all().unwrap();
+        for order in ["level", "view", "random"] {
+            let srv = serve(&dir, order);
+            let out = d.path().join(format!("out-{order}"));
+            let got = session(srv.url(), &out, Faults::default());
+            assert_eq!(got.report.previews_received, previews, "{order}");
+            assert_eq!(got.report.duplicates, 0, "{order}");
+            assert_identical(&got, &values);
+        }
+        lossy_session_ends_identical(&dir, "view", &d.path().join("lossy"), &values);
+        let srv = serve(&dir, "view");
+        let cut = session_with(
+            srv.url(),
+            &d.path().join("cut"),
+            Faults {
+                drop_after_batches: Some(2),
+                ..Default::default()
+            },
+            false,
+        );
+        assert!(cut.report.reconnects >= 1);
+        assert_eq!(cut.report.previews_received, previews);
+        assert_eq!(cut.report.duplicates, 0);
+        assert_identical(&cut, &values);
+    }
+}
+
 #[test]
 fn reordered_duplicated_and_lost_batches_end_identical() {
     let (d, values, _) = store(4);

@@ -15,8 +15,9 @@ pub(super) const PREFETCH: usize = 8;
 
 /// What selection keeps of one node slot (16 bytes): pure functions of the node's id (level; the
 /// bounding sphere, kept apart in `Selector::geo` since complete mode needs none), what the buffer
-/// said of it (presence and usability, which only grow; the subtree max, final once usable: a
-/// finest-level node's is infinite until its parent arrives) and the status last evaluated
+/// said of it (presence and usability, which only grow; the subtree max, final once usable but
+/// for a preview's, which `Selector::notify_replaced` drops with the entry: a finest-level
+/// node's is infinite until its parent arrives) and the status last evaluated
 /// (reused while the epoch lasts and the slot does not change, see `Selector::eval`). The status
 /// takes spare bits of the word and its priority is computed again from the entry rather than
 /// stored, since these entries are most of the selector's memory.
@@ -24,7 +25,7 @@ pub(super) const PREFETCH: usize = 8;
 pub(super) struct SlotEntry {
     /// The node the entry describes, as [`info_tag`] names it; 0: none.
     tag: u32,
-    /// [`DetailBuffer::nodes_held`] (low 32 bits) when presence and usability were looked up.
+    /// [`DetailBuffer::generation`] (low 32 bits) when presence and usability were looked up.
     checked: u32,
     smax: f32,
     /// From the low bits: the status's [`Kind`] (2 bits), the node's [`Facts`] (3 bits), its
@@ -168,7 +169,7 @@ impl Selector {
         }
         // the finest level has no detail nodes: nothing to look up (such leaves are never split)
         if !e.facts().contains(Facts::USABLE) && e.level() < forest.levels {
-            let held = buf.nodes_held() as u32;
+            let held = buf.generation() as u32;
             if e.checked != held {
                 e.checked = held;
                 if let Some(m) = buf.subtree_max(n.id) {
@@ -264,6 +265,13 @@ impl Selector {
     pub(super) fn forget(&mut self, slot: u32) {
         if (slot as usize) < self.info.len() {
             self.info[slot as usize].forget();
+        }
+    }
+
+    /// Forgets all that slot `slot`'s entry knows (its node's metadata changed).
+    pub(super) fn reset(&mut self, slot: u32) {
+        if (slot as usize) < self.info.len() {
+            self.info[slot as usize] = NO_ENTRY;
         }
     }
 

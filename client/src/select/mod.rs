@@ -372,6 +372,22 @@ impl Selector {
         }
     }
 
+    /// Nodes `ids` replaced their previews (`Arrivals::replaced`): their subtree bounds, and the
+    /// ones their finest-level children inherit, may have changed, so what the selector
+    /// remembers of their subtrees is dropped. Call it before [`Self::notify_arrived`] with the
+    /// same arrivals.
+    pub fn notify_replaced(&mut self, mesh: &AdaptiveMesh, ids: &[TetId]) {
+        let mut slots = Vec::new();
+        for &id in ids {
+            if let Some(s) = mesh.slot_of(id) {
+                mesh.subtree_slots(s, &mut slots);
+            }
+        }
+        for s in slots {
+            self.reset(s);
+        }
+    }
+
     /// How many times a node's criteria were evaluated (cached statuses not counted) since this
     /// selector was made: a measure of selection work that does not depend on the machine's load.
     pub fn evaluations(&self) -> u64 {

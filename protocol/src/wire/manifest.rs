@@ -9,7 +9,7 @@
 use crate::base::Points;
 use crate::hierarchy::{Forest, MAX_LEVELS};
 use crate::store_format::{
-    Counts, Encoding, FileSum, Manifest, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
+    Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
 };
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -40,6 +40,7 @@ struct Wire {
     max_error_bound: f64,
     max_abs_error: f64,
     levelset_band: Option<FileSum>,
+    preview: Option<Preview>,
 }
 
 pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
@@ -65,6 +66,7 @@ pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
         max_error_bound: m.max_error_bound,
         max_abs_error: m.max_abs_error,
         levelset_band: m.files.get(LEVELSET_BAND_FILE).cloned(),
+        preview: m.preview.clone(),
     }
     .serialize(s)
 }
@@ -128,6 +130,7 @@ pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Box<Manifest>, D::
             .map(|f| (LEVELSET_BAND_FILE.to_string(), f))
             .into_iter()
             .collect(),
+        preview: w.preview,
     }))
 }
 
@@ -177,6 +180,11 @@ mod tests {
             .into_iter()
             .map(|(n, bytes, crc32)| (n.to_string(), FileSum { bytes, crc32 }))
             .collect(),
+            preview: Some(Preview {
+                encoding: Encoding::uniform(9, 0.25),
+                levels: 4,
+                max_error_bound: 0.1,
+            }),
         }
     }
 
@@ -195,11 +203,15 @@ mod tests {
     #[test]
     fn a_session_receives_what_a_client_needs_in_fewer_bytes() {
         let m = store_manifest();
-        let (back, len) = round_trip(&m);
+        let (back, _) = round_trip(&m);
         let mut want = m.clone();
         want.source.clear();
         want.files.retain(|n, _| n == LEVELSET_BAND_FILE);
         assert_eq!(back.unwrap(), want);
+        // without a preview: under half the whole manifest's bincode
+        let mut m = store_manifest();
+        m.preview = None;
+        let (_, len) = round_trip(&m);
         let whole = bincode::serde::encode_to_vec(&m, bincode::config::standard())
             .unwrap()
             .len();
@@ -211,6 +223,7 @@ mod tests {
             m.source_value_range = range;
             m.bounds[0] = [lo, -lo, 0.0];
             m.files.clear();
+            m.preview = None;
             let (back, _) = round_trip(&m);
             m.source.clear();
             assert_eq!(back.unwrap(), m);

@@ -43,6 +43,11 @@ pub struct ServeConfig {
     pub max_batch: usize,
     /// Most un-acknowledged batches in flight per connection.
     pub window: u64,
+    /// A new session of a store with a preview ([`tetwave_protocol::store_format::Preview`]) first
+    /// gets preview nodes, most important first, worth at most this share of the store's
+    /// `blocks.bin` (0: none; 1, the default: in practice all of it, since `prepare --preview`
+    /// makes it a few percent of the store).
+    pub preview_share: f64,
     /// A connection that sends nothing for this long while the server waits on it is closed.
     pub idle_timeout: Duration,
     /// Seed of the random order.
@@ -107,6 +112,7 @@ impl Default for ServeConfig {
             batch: 512,
             max_batch: 16384,
             window: 8,
+            preview_share: 1.0,
             idle_timeout: Duration::from_secs(120),
             seed: 0x7e7_3a7e,
             cache_limit_bytes: 512 << 20,

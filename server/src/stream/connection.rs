@@ -4,6 +4,7 @@
 use super::admission::PeerBudgets;
 use super::auth::same;
 use super::config::Order;
+use super::preview::PreviewPhase;
 use super::schedule::{Schedule, MAX_QUEUED_WANTS};
 use super::state::Shared;
 use axum::body::Bytes;
@@ -246,12 +247,13 @@ async fn stream_to(
     send(sink, s.manifest_frame.clone()).await?;
     send(sink, s.base_frame.clone()).await?;
 
-    // 4. nodes
+    // 4. nodes (a new session's preview first)
     let sched_s = s.clone();
-    let mut sched = tokio::task::spawn_blocking(move || {
+    let (mut sched, mut preview) = tokio::task::spawn_blocking(move || {
+        let preview = PreviewPhase::new(&sched_s, order, have.is_empty());
         let mut sc = Schedule::new(&sched_s, order);
         sc.have(&have);
-        sc
+        (sc, preview)
     })
     .await
     .map_err(|e| ConnError::Socket(e.to_string()))?;
@@ -281,6 +283,21 @@ async fn stream_to(
             }
         }
         let can_send = next_seq - acked < window;
+        if let (Some(p), true) = (preview.as_mut(), can_send) {
+            match p.next_frame(s, next_seq, batch) {
+                Err(m) => return Ok(Closing::internal(m)),
+                Ok(Some((frame, _))) => {
+                    send(sink, Bytes::from(frame)).await?;
+                    next_seq += 1;
+                    batch = (batch * 2).min(max_batch);
+                    continue;
+                }
+                Ok(None) => {
+                    preview = None;
+                    batch = first_batch;
+                }
+            }
+        }
         if !pending.is_empty() || (sched.has_work() && can_send) {
             let heavy = pending.iter().map(ranges_of).sum::<usize>() > BLOCKING_RANGES;
             let wants = pending.iter().any(|m| matches!(m, ClientMsg::Want(_)));
@@ -289,7 +306,8 @@ async fn stream_to(
                 batch = first_batch;
             }
             let msgs = std::mem::take(&mut pending);
-            let send_now = can_send;
+            // (while the preview lasts, control messages are applied and nodes wait)
+            let send_now = can_send && preview.is_none();
             let step = move |mut sc: Schedule, s2: &Shared, seq: u64| {
                 let applied = apply(&mut sc, msgs);
                 let frame = (applied && send_now && sc.has_work()).then(|| {

@@ -13,7 +13,8 @@
 //! **Stream.** The client sends `Hello` first (version must match; with a token configured it must
 //! carry it, else `Error { code: 401 }` and close). The server answers `Manifest`, `Base`, then
 //! `Nodes` batches (`seq` 0, 1, 2, …) in the configured [`Order`], skipping what `Hello.have` covers,
-//! then `End { nodes_sent }`. Client messages are read concurrently: `View` re-prioritises what is not
+//! then `End { nodes_sent }`. A new session (empty `have`) of a store with a preview first gets
+//! `Preview` batches (numbered with the others) within [`ServeConfig::preview_share`]. Client messages are read concurrently: `View` re-prioritises what is not
 //! sent yet (view order), `Want` queues ranges to (re)send ahead of the order (followed by another
 //! `End`), `Cancel` drops ranges, `Ack { seq }` acknowledges every batch up to `seq`.
 //!
@@ -24,7 +25,8 @@
 //!
 //! One concern per file: `config` (order, parameters), `error`, `state` (what connections share),
 //! `routes` (the axum application and HTTP handlers), `auth` (the token), `schedule` (what a
-//! connection sends next) and `connection` (one WebSocket stream). Dependencies point one way:
+//! connection sends next), `preview` (a new session's coarse preview) and `connection` (one
+//! WebSocket stream). Dependencies point one way:
 //! routes → connection → schedule → state → config; `render_service` knows nothing of this module.
 
 mod admission;
@@ -34,6 +36,7 @@ mod config;
 mod connection;
 mod error;
 mod origin;
+mod preview;
 mod routes;
 mod schedule;
 mod state;

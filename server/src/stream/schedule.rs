@@ -388,6 +388,18 @@ impl ViewPriority {
     }
 }
 
+/// View-order priorities of nodes `ids` for the default view (a new session's order until its
+/// first `View`).
+pub(super) fn view_priority_of(s: &Shared, ids: std::ops::Range<TetId>) -> Vec<f32> {
+    let g = s.geometry();
+    let p = ViewPriority::new(&default_view(&s.store.base), s.store.manifest.value_range);
+    ids.map(|u| {
+        let u = u as usize;
+        p.eval(g.centre[u], g.radius[u], s.smax[u])
+    })
+    .collect()
+}
+
 impl Shared {
     /// Every node's view-order priority for `view` (larger is sent first): what
     /// [`Order::View`](super::Order::View) ranks by.

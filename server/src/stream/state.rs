@@ -12,7 +12,7 @@ use glam::DVec3;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Mutex, OnceLock};
-use tetwave_protocol::block::NodeBlock;
+use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
@@ -46,6 +46,9 @@ pub struct Shared {
     recent: Mutex<VecDeque<(u64, Arc<Vec<DetailNode>>)>>,
     /// `subtree_max_abs` of every node.
     pub(super) smax: Vec<f32>,
+    /// The store's preview and its coder, when it has one and new sessions get some of it
+    /// ([`ServeConfig::preview_share`]).
+    pub(super) preview: Option<PreviewNodes>,
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
@@ -63,6 +66,15 @@ pub struct Shared {
     pub(super) render_run: tokio::sync::Mutex<()>,
 }
 
+/// A store's preview as connections send it.
+pub(super) struct PreviewNodes {
+    /// Nodes `0..nodes.len()`, in id order.
+    pub(super) nodes: Vec<DetailNode>,
+    pub(super) coder: BlockCoder,
+    /// Most bytes of preview blocks one session gets.
+    pub(super) budget: u64,
+}
+
 /// Decoded store blocks kept when the store is not cached whole: batches of neighbouring
 /// connections and consecutive batches of one connection often touch the same blocks, and a
 /// decoded block of [`BLOCK`] nodes takes a few hundred kilobytes.
@@ -78,7 +90,7 @@ impl Shared {
         let mut smax: Vec<f32> = Vec::new();
         let mut cache: Option<Vec<DetailNode>> = Some(Vec::new());
         let mut est = 0u64;
-        let store = Store::open_visiting(
+        let mut store = Store::open_visiting(
             dir,
             OpenOptions {
                 verify_checksums: config.verify_checksums,
@@ -132,6 +144,20 @@ impl Shared {
             "store {} opened for serving",
             dir.display()
         );
+        let budget = store
+            .manifest
+            .files
+            .get("blocks.bin")
+            .map_or(0, |f| f.bytes) as f64
+            * config.preview_share;
+        let preview = match (store.preview.take(), &store.manifest.preview) {
+            (Some(nodes), Some(p)) if budget >= 1.0 => Some(PreviewNodes {
+                nodes,
+                coder: BlockCoder::new(&store.base, &p.encoding),
+                budget: budget as u64,
+            }),
+            _ => None,
+        };
         let render = RenderService::new(dir);
         let admission = Admission::new(config.limits.clone());
         Ok(Arc::new(Shared {
@@ -146,6 +172,7 @@ impl Shared {
             cache,
             recent: Mutex::new(VecDeque::with_capacity(BLOCK_CACHE)),
             smax,
+            preview,
             magnitude_perm: OnceLock::new(),
             random_perm: OnceLock::new(),
             geometry: OnceLock::new(),
