@@ -476,9 +476,11 @@ impl DetailBuffer {
         self.duplicates
     }
 
-    /// Bytes held by the two tables (pages, directories and capacities).
+    /// Bytes held by the two tables (pages, directories and capacities) and the preview ids.
     pub fn bytes_held(&self) -> usize {
-        self.coeffs.bytes() + self.meta.bytes()
+        self.coeffs.bytes()
+            + self.meta.bytes()
+            + self.previews.capacity() * (std::mem::size_of::<TetId>() + 1)
     }
 }
 

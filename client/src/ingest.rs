@@ -41,9 +41,10 @@ pub(crate) enum Step {
         nodes: Vec<DetailNode>,
         duplicates: usize,
     },
-    /// Preview nodes were held (this many).
+    /// A preview batch of `nodes` nodes was taken, `new` of them not held before.
     Preview {
         nodes: usize,
+        new: usize,
     },
     /// The stream ended: everything is held ([`Ingest::ended`]) or what is missing was asked for.
     End,
@@ -158,8 +159,11 @@ impl Ingest {
                 let s = session
                     .as_mut()
                     .ok_or_else(|| StreamError::Protocol("preview before the base mesh".into()))?;
-                s.insert_preview(&nodes)?;
-                Step::Preview { nodes: nodes.len() }
+                let done = s.insert_preview(&nodes)?;
+                Step::Preview {
+                    nodes: nodes.len(),
+                    new: done.new,
+                }
             }
             Delivery::End => {
                 // re-request whatever was lost on the way (bounded rounds); the missing ids are

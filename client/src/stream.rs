@@ -244,7 +244,8 @@ pub struct StreamReport {
     pub frames: Vec<FrameRecord>,
     pub nodes_total: u64,
     pub nodes_received: u64,
-    /// Preview nodes received (held until the store's own replaced them).
+    /// Preview nodes held (each until the store's own replaced it; a preview sent again after a
+    /// reconnection is not counted twice).
     pub previews_received: u64,
     pub duplicates: u64,
     pub bytes_received: u64,
@@ -433,6 +434,14 @@ impl BlockDecoder {
                         .check()
                         .map_err(|e| StreamError::Protocol(format!("manifest: preview: {e}")))?;
                 }
+                // a server restarted with another store version: its coders, not the old ones
+                if self
+                    .manifest
+                    .as_ref()
+                    .is_some_and(|old| old.encoding != m.encoding || old.preview != m.preview)
+                {
+                    self.coder = None;
+                }
                 self.manifest = Some(m.clone());
                 Delivery::Manifest(m)
             }
@@ -473,6 +482,18 @@ impl BlockDecoder {
                 let nodes = coder
                     .decode(&block)
                     .map_err(|e| StreamError::BadFrame(format!("preview batch {seq}: {e}")))?;
+                // only the preview's levels (the manifest checked them against the hierarchy)
+                let (levels, base) = match (&self.manifest, &self.coder) {
+                    (Some(m), Some((b, ..))) => (m.preview.as_ref().map_or(0, |p| p.levels), b),
+                    _ => unreachable!("a preview coder comes with its manifest and base"),
+                };
+                let end = base.forest().level_start(levels);
+                if let Some(n) = nodes.iter().find(|n| n.id >= end) {
+                    return Err(StreamError::BadFrame(format!(
+                        "preview batch {seq}: node {} is beyond the preview's {levels} levels",
+                        n.id
+                    )));
+                }
                 Delivery::Preview { seq, nodes }
             }
             ServerMsg::End { .. } => Delivery::End,
@@ -873,9 +894,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                     }
                 }
                 // (frames count them as nodes applied; progress counts the store's only)
-                Ok(Step::Preview { nodes }) => {
+                Ok(Step::Preview { nodes, new }) => {
                     applied += nodes;
-                    previews_received += nodes as u64;
+                    previews_received += new as u64;
                 }
                 Ok(_) => {}
                 // before the base mesh there are no frames to keep

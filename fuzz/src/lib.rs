@@ -1,8 +1,8 @@
 //! What the fuzz targets check, shared by the libFuzzer target and the stable "smoke" runner:
 //! the wire decoders are total (an error value, never a panic, for any bytes), and a frame that
 //! decodes re-encodes to a frame that decodes to the same bytes again (idempotent round trip); a
-//! `Nodes` frame's block decodes (with the coders of a small hierarchy, lossless and quantized) to
-//! valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes; every
+//! `Nodes` or `Preview` frame's block decodes (with the coders of a small hierarchy, lossless and
+//! quantized) to valid nodes or to an error, never a panic, and what decodes re-codes to the same nodes; every
 //! input is also fed to the block decoder directly as a block's coded bytes, and to the level-set
 //! band decoder (`/v1/levelset`), whose results re-code to themselves.
 
@@ -164,6 +164,58 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
                 .encode(&[node(0, 0b111111), node(9, 0b000101), node(300, 0)])
                 .expect("valid nodes"),
         },
+        ServerMsg::Preview {
+            seq: 0,
+            block: coders()[1]
+                .encode(&[node(0, 0b111111), node(5, 0b000101)])
+                .expect("valid nodes"),
+        },
+        // the session's manifest form, with a preview and a level-set band
+        ServerMsg::Manifest(Box::new({
+            use tetwave_protocol::store_format::{
+                Counts, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
+            };
+            let f = tetwave_protocol::Forest::new(5, 3);
+            Manifest {
+                format: STORE_FORMAT.into(),
+                version: STORE_VERSION,
+                dataset: "d".into(),
+                source: String::new(),
+                bounds: [[0.0; 3], [30.0, 30.0, 0.1]],
+                base: "box5".into(),
+                base_tets: 5,
+                base_vertices: 8,
+                levels: 3,
+                value_range: [-1.0, 2.0],
+                source_value_range: Some([-1.0, 2.5]),
+                counts: Counts {
+                    tets_total: f.total_tets(),
+                    leaves: f.leaves(),
+                    nodes: f.nodes(),
+                    vertices: 729,
+                    coefficients: 721,
+                    outside_vertices: 0,
+                    empty_base_tets: 0,
+                },
+                encoding: Encoding::uniform(12, 0.01),
+                max_error_bound: 0.005,
+                max_abs_error: 0.004,
+                files: [(
+                    LEVELSET_BAND_FILE.to_string(),
+                    FileSum {
+                        bytes: 1234,
+                        crc32: 5678,
+                    },
+                )]
+                .into_iter()
+                .collect(),
+                preview: Some(Preview {
+                    encoding: Encoding::uniform(8, 0.5),
+                    levels: 2,
+                    max_error_bound: 0.25,
+                }),
+            }
+        })),
         ServerMsg::End { nodes_sent: 1234 },
         ServerMsg::Error {
             code: 401,

@@ -156,16 +156,53 @@ pub const PREVIEW_FILE: &str = "preview.bin";
 
 /// What `preview.bin` holds: nodes `0..level_start(levels)` (the node levels below `levels`) of
 /// a second closed-loop analysis of the same samples at the coarse bound `max_error_bound`,
-/// coded with `encoding` in blocks of [`BLOCK`] nodes (bincode `Vec<NodeBlock>`). Their owned
-/// masks and empty children are the store's; their subtree bounds cover the store's details. A
-/// client holds a preview node until the store's own arrives and replaces it: values from
-/// preview nodes are within about `max_error_bound` of the samples, those from the store's
-/// nodes alone within the store's bound.
+/// coded with `encoding` in blocks of [`BLOCK`] nodes (each a bincode `NodeBlock`, one after the
+/// other). Their owned masks and empty children are the store's, and their subtree bounds the
+/// store's rounded up to a class of the preview's step. A client holds a preview node until the
+/// store's own arrives and replaces it: values from preview nodes alone are within
+/// `max_error_bound` of the samples, those from a mix of both approximate (a store node's detail
+/// was computed against the store's values of its stencil, not the preview's), and those from
+/// the store's nodes alone within the store's bound.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Preview {
     pub encoding: Encoding,
     pub levels: u8,
     pub max_error_bound: f64,
+}
+
+/// Most nodes a preview may hold: a reader decodes it whole.
+pub const MAX_PREVIEW_NODES: u64 = 1 << 20;
+
+impl Preview {
+    /// Checks a preview described for a hierarchy of `levels` levels of `n_base` base tets: some
+    /// node levels but not all (`1 ≤ levels < hierarchy levels`), at most [`MAX_PREVIEW_NODES`]
+    /// nodes, a readable encoding and a finite bound. Returns its node count.
+    pub fn check_for(&self, n_base: u64, levels: u8) -> Result<u64, String> {
+        self.check(levels)?;
+        crate::Forest { n_base, levels }
+            .checked_level_start(self.levels)
+            .filter(|&n| n <= MAX_PREVIEW_NODES)
+            .ok_or_else(|| {
+                format!(
+                    "a preview of {} levels of {n_base} base tets holds more than {MAX_PREVIEW_NODES} nodes",
+                    self.levels
+                )
+            })
+    }
+
+    /// [`Self::check_for`] without the node count (a base mesh not known yet).
+    pub fn check(&self, levels: u8) -> Result<(), String> {
+        if !(1..levels).contains(&self.levels) {
+            return Err(format!(
+                "a preview of {} node levels in a hierarchy of {levels}",
+                self.levels
+            ));
+        }
+        if !(self.max_error_bound.is_finite() && self.max_error_bound >= 0.0) {
+            return Err(format!("preview bound {}", self.max_error_bound));
+        }
+        self.encoding.check().map_err(|e| format!("preview: {e}"))
+    }
 }
 
 /// The store file holding a level set's near band ([`crate::levelset::NearLevelSet`]), which

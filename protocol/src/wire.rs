@@ -19,8 +19,9 @@ mod manifest;
 /// coded). 6: the base mesh and blocks of store format 5 (positions as f32
 /// where exact, modelled signs). 7: the base mesh names its predictor (store format 6). 8: the
 /// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
-/// sibling group). 9: the session's manifest in its own form ([`manifest`]), the base mesh as
-/// store format 8 writes it (a named box as its two corners).
+/// sibling group). 9: the session's manifest in its own form ([`manifest`], with the store's
+/// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
+/// `Preview` batches.
 pub const PROTOCOL_VERSION: u16 = 9;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;

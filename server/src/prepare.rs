@@ -15,6 +15,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
+use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
 use tetwave_store::{self as store, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE};
 
@@ -512,13 +513,11 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
         .map_err(|_| "expected three numbers".to_string())
 }
 
-/// Most nodes a preview holds (it is decoded whole when a server opens the store).
-const MAX_PREVIEW_NODES: u64 = 1 << 20;
-
 /// The preview of store analysis `a` from the coarse analysis `p` of the same samples: the
 /// nodes of every node level but the finest (fewer while they would exceed
 /// [`MAX_PREVIEW_NODES`]), with `p`'s coefficients and `a`'s masks and subtree bounds (what the
-/// store's own nodes will bring: selection reads them).
+/// store's own nodes will bring: selection reads them; coded with the preview's coarse step, a
+/// bound is rounded up to a class of that step).
 fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareError> {
     let forest = a.base.forest();
     if a.base
@@ -534,7 +533,12 @@ fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareErro
     let levels = (1..forest.levels)
         .rev()
         .find(|&k| forest.level_start(k) <= MAX_PREVIEW_NODES)
-        .unwrap_or(1);
+        .ok_or_else(|| {
+            PrepareError::Usage(format!(
+                "--preview: the base mesh's {} tets alone exceed a preview's {MAX_PREVIEW_NODES} nodes",
+                forest.n_base
+            ))
+        })?;
     let count = forest.level_start(levels) as usize;
     let mut nodes = p.content().nodes(count).map_err(PrepareError::Usage)?;
     for (i, n) in nodes.iter_mut().enumerate() {

@@ -180,7 +180,7 @@ impl Store {
     }
 
     /// Decodes `preview.bin` when the manifest describes a preview, checking that it holds
-    /// exactly the nodes of the node levels it names, with the store's masks.
+    /// exactly the nodes of the node levels it names, block by block, with the store's masks.
     fn read_preview(&self) -> Result<Option<Vec<DetailNode>>, StoreError> {
         let path = self.dir.join(PREVIEW_FILE);
         let corrupt = |reason: String| StoreError::Corrupt {
@@ -201,40 +201,41 @@ impl Store {
                 "the manifest describes a preview but lists no file".into(),
             ));
         };
-        p.encoding
-            .check()
-            .map_err(|e| corrupt(format!("manifest.json: preview: {e}")))?;
-        let forest = self.forest();
-        let count = forest
-            .checked_level_start(p.levels)
-            .filter(|_| (1..=forest.levels).contains(&p.levels))
-            .ok_or_else(|| {
-                corrupt(format!(
-                    "preview of {} levels in {}",
-                    p.levels, forest.levels
-                ))
-            })?;
+        let count = p
+            .check_for(self.manifest.base_tets, self.manifest.levels)
+            .map_err(|e| corrupt(format!("manifest.json: {e}")))?;
         // at most a full block's limit per block of nodes, as blocks.bin
-        let limit = count.div_ceil(BLOCK) * MAX_BLOCK_BYTES;
+        let nblocks = count.div_ceil(BLOCK);
+        let limit = nblocks * MAX_BLOCK_BYTES;
         if sum.bytes > limit {
             return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
         }
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
-        let cfg = bincode::config::standard().with_limit::<{ 1 << 30 }>();
-        let (blocks, used): (Vec<NodeBlock>, usize) =
-            bincode::serde::decode_from_slice(&bytes, cfg).map_err(|e| corrupt(e.to_string()))?;
-        if used != bytes.len() {
-            return Err(corrupt(format!("{} trailing bytes", bytes.len() - used)));
-        }
         let coder = BlockCoder::new(&self.base, &p.encoding);
-        let mut nodes = Vec::with_capacity(count as usize);
-        for b in &blocks {
-            nodes.extend(coder.decode(b).map_err(|e| corrupt(e.to_string()))?);
-            if nodes.len() as u64 > count {
-                break;
+        let cfg = bincode::config::standard().with_limit::<{ MAX_BLOCK_BYTES as usize + 64 }>();
+        let mut nodes = Vec::new();
+        let mut rest = &bytes[..];
+        for b in 0..nblocks {
+            let (first, want) = (b * BLOCK, BLOCK.min(count - b * BLOCK));
+            let (block, used): (NodeBlock, usize) = bincode::serde::decode_from_slice(rest, cfg)
+                .map_err(|e| corrupt(format!("block {b}: {e}")))?;
+            rest = &rest[used..];
+            if block.first != first || block.count as u64 != want {
+                return Err(corrupt(format!(
+                    "block {b} holds {} nodes from {}, not {want} from {first}",
+                    block.count, block.first
+                )));
             }
+            nodes.extend(
+                coder
+                    .decode(&block)
+                    .map_err(|e| corrupt(format!("block {b}: {e}")))?,
+            );
         }
-        let own = self.read_nodes(0, count.min(self.manifest.counts.nodes))?;
+        if !rest.is_empty() {
+            return Err(corrupt(format!("{} trailing bytes", rest.len())));
+        }
+        let own = self.read_nodes(0, count)?;
         if nodes.len() != own.len()
             || nodes.iter().zip(&own).any(|(a, b)| {
                 a.id != b.id || a.owned != b.owned || a.empty_children != b.empty_children

@@ -388,10 +388,15 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 path: path.clone(),
                 reason,
             };
-            let want = forest
-                .checked_level_start(p.levels)
-                .filter(|_| (1..=forest.levels).contains(&p.levels));
-            if want != Some(p.nodes.len() as u64)
+            let described = Preview {
+                encoding: p.encoding.clone(),
+                levels: p.levels,
+                max_error_bound: p.max_error_bound,
+            };
+            let want = described
+                .check_for(forest.n_base, forest.levels)
+                .map_err(|e| corrupt(e.to_string()))?;
+            if want != p.nodes.len() as u64
                 || p.nodes.iter().enumerate().any(|(i, n)| n.id != i as u64)
             {
                 return Err(corrupt(format!(
@@ -401,22 +406,17 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                     forest.levels
                 )));
             }
+            // the blocks one after the other, each a bincode NodeBlock
             let coder = BlockCoder::new(a.base, &p.encoding);
-            let blocks = p
-                .nodes
-                .chunks(BLOCK as usize)
-                .map(|c| coder.encode(c).map_err(|e| corrupt(e.to_string())))
-                .collect::<Result<Vec<_>, _>>()?;
-            let bytes = bincode::serde::encode_to_vec(&blocks, bincode::config::standard())
-                .map_err(|e| corrupt(e.to_string()))?;
             let mut w = staged.create(PREVIEW_FILE)?;
-            w.put(&bytes)?;
+            for c in p.nodes.chunks(BLOCK as usize) {
+                let block = coder.encode(c).map_err(|e| corrupt(e.to_string()))?;
+                let bytes = bincode::serde::encode_to_vec(&block, bincode::config::standard())
+                    .map_err(|e| corrupt(e.to_string()))?;
+                w.put(&bytes)?;
+            }
             files.insert(PREVIEW_FILE.into(), w.finish()?);
-            Some(Preview {
-                encoding: p.encoding.clone(),
-                levels: p.levels,
-                max_error_bound: p.max_error_bound,
-            })
+            Some(described)
         }
         None => {
             staged.remove(PREVIEW_FILE);

@@ -515,12 +515,14 @@ fn a_preview_that_does_not_fit_its_store_is_refused() {
     let mut other = preview_of(&nodes, 4, 0.05);
     other.nodes[7].empty_children ^= 0b1000_0000;
     let base = unsampled_base(4, box5([0.0; 3], [1.0; 3]));
-    let blocks: Vec<_> = other
+    let bytes: Vec<u8> = other
         .nodes
         .chunks(BLOCK as usize)
-        .map(|c| BlockCoder::new(&base, &other.encoding).encode(c).unwrap())
+        .flat_map(|c| {
+            let block = BlockCoder::new(&base, &other.encoding).encode(c).unwrap();
+            bincode::serde::encode_to_vec(&block, bincode::config::standard()).unwrap()
+        })
         .collect();
-    let bytes = bincode::serde::encode_to_vec(&blocks, bincode::config::standard()).unwrap();
     std::fs::write(&ppath, &bytes).unwrap();
     resize_in_manifest(dir, PREVIEW_FILE);
     refused(dir, PREVIEW_FILE, &["store's first", "masks"]);
@@ -543,4 +545,16 @@ fn a_preview_that_does_not_fit_its_store_is_refused() {
     m.as_object_mut().unwrap().remove("preview");
     std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
     refused(dir, PREVIEW_FILE, &["describes no preview"]);
+
+    // every node level, and a trailing block
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    m["preview"]["levels"] = 4.into();
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(dir, PREVIEW_FILE, &["4 node levels in a hierarchy of 4"]);
+    std::fs::write(&mpath, &text).unwrap();
+    let mut more = good.clone();
+    more.extend_from_slice(&good[..good.len().min(40)]);
+    std::fs::write(&ppath, &more).unwrap();
+    resize_in_manifest(dir, PREVIEW_FILE);
+    refused(dir, PREVIEW_FILE, &["trailing"]);
 }

@@ -268,10 +268,18 @@ impl Selector {
         }
     }
 
-    /// Forgets all that slot `slot`'s entry knows (its node's metadata changed).
-    pub(super) fn reset(&mut self, slot: u32) {
-        if (slot as usize) < self.info.len() {
-            self.info[slot as usize] = NO_ENTRY;
+    /// Forgets all that any entry knows of nodes `ids` (their metadata changed), whichever slot
+    /// holds it, live or free: one pass over the entries. `wide`: the forest's ids do not fit the
+    /// tags, whose entries are filled again at every use anyway.
+    pub(super) fn reset_nodes(&mut self, ids: &rustc_hash::FxHashSet<TetId>, wide: bool) {
+        if wide {
+            return;
+        }
+        let tags: rustc_hash::FxHashSet<u32> = ids.iter().map(|&id| info_tag(id, false)).collect();
+        for s in 0..self.info.len() {
+            if tags.contains(&self.info[s].tag) {
+                self.info[s] = NO_ENTRY;
+            }
         }
     }
 

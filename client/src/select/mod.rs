@@ -373,18 +373,32 @@ impl Selector {
     }
 
     /// Nodes `ids` replaced their previews (`Arrivals::replaced`): their subtree bounds, and the
-    /// ones their finest-level children inherit, may have changed, so what the selector
-    /// remembers of their subtrees is dropped. Call it before [`Self::notify_arrived`] with the
-    /// same arrivals.
+    /// ones their finest-level children inherit, may have changed. Every entry that remembers one
+    /// of those nodes or their children is dropped, in a live slot or a free one a later split
+    /// would reuse, and the live ones (with the nodes' parents, whose merges read them) are looked
+    /// at again. Their usability did not change: pass [`Self::notify_arrived`] only the other
+    /// arrivals.
     pub fn notify_replaced(&mut self, mesh: &AdaptiveMesh, ids: &[TetId]) {
-        let mut slots = Vec::new();
+        if ids.is_empty() {
+            return;
+        }
+        let forest = mesh.forest();
+        let mut affected: rustc_hash::FxHashSet<TetId> = Default::default();
         for &id in ids {
-            if let Some(s) = mesh.slot_of(id) {
-                mesh.subtree_slots(s, &mut slots);
+            affected.insert(id);
+            if forest.level(id) < forest.levels {
+                affected.extend((0..8).map(|i| forest.child(id, i)));
             }
         }
-        for s in slots {
-            self.reset(s);
+        self.reset_nodes(&affected, forest.total_tets() > u32::MAX as u64);
+        self.dirty = true;
+        self.converged = false;
+        let parents = ids.iter().filter_map(|&id| forest.parent(id));
+        for id in affected.iter().copied().chain(parents) {
+            if let Some(s) = mesh.slot_of(id) {
+                self.todo.push(s as u32);
+                self.forget(s as u32);
+            }
         }
     }
 

@@ -381,7 +381,7 @@ impl Data {
                 Step::Started => self.session_started(),
                 Step::LevelSet => self.changed = true,
                 Step::Nodes { nodes, .. } => applied += nodes.len(),
-                Step::Preview { nodes } => applied += nodes,
+                Step::Preview { nodes, .. } => applied += nodes,
                 Step::End | Step::Nothing => {}
             }
         }

@@ -93,6 +93,10 @@ pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Box<Manifest>, D::
         })
     };
     let (nodes, tets_total) = (count(w.levels)?, count(w.levels + 1)?);
+    if let Some(p) = &w.preview {
+        p.check(w.levels)
+            .map_err(|e| D::Error::custom(format!("manifest: {e}")))?;
+    }
     let bounds = match Points::into_f64(w.bounds)[..] {
         [lo, hi] => [lo, hi],
         _ => return Err(D::Error::custom("manifest: bounds need two corners")),

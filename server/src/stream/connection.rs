@@ -283,19 +283,27 @@ async fn stream_to(
             }
         }
         let can_send = next_seq - acked < window;
-        if let (Some(p), true) = (preview.as_mut(), can_send) {
-            match p.next_frame(s, next_seq, batch) {
+        // the preview first (control messages that came meanwhile are applied below first)
+        let preview_due = can_send && pending.is_empty();
+        if let Some(p) = preview.take_if(|_| preview_due) {
+            let (s2, seq) = (s.clone(), next_seq);
+            let (p, frame) = tokio::task::spawn_blocking(move || {
+                let mut p = p;
+                let f = p.next_frame(&s2, seq, batch);
+                (p, f)
+            })
+            .await
+            .map_err(|e| ConnError::Socket(e.to_string()))?;
+            match frame {
                 Err(m) => return Ok(Closing::internal(m)),
-                Ok(Some((frame, _))) => {
+                Ok(Some(frame)) => {
+                    preview = Some(p);
                     send(sink, Bytes::from(frame)).await?;
                     next_seq += 1;
                     batch = (batch * 2).min(max_batch);
                     continue;
                 }
-                Ok(None) => {
-                    preview = None;
-                    batch = first_batch;
-                }
+                Ok(None) => batch = first_batch,
             }
         }
         if !pending.is_empty() || (sched.has_work() && can_send) {
@@ -361,7 +369,7 @@ async fn stream_to(
             }
             continue;
         }
-        if !sched.has_work() && end_due {
+        if !sched.has_work() && end_due && preview.is_none() {
             let f = encode(&ServerMsg::End { nodes_sent }).unwrap_or_default();
             send(sink, Bytes::from(f)).await?;
             end_due = false;

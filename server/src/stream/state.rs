@@ -73,6 +73,9 @@ pub(super) struct PreviewNodes {
     pub(super) coder: BlockCoder,
     /// Most bytes of preview blocks one session gets.
     pub(super) budget: u64,
+    /// Sending orders: increasing id, and for view order (made at the first such session).
+    pub(super) id_order: Arc<Vec<TetId>>,
+    pub(super) view_order: OnceLock<Arc<Vec<TetId>>>,
 }
 
 /// Decoded store blocks kept when the store is not cached whole: batches of neighbouring
@@ -152,6 +155,8 @@ impl Shared {
             * config.preview_share;
         let preview = match (store.preview.take(), &store.manifest.preview) {
             (Some(nodes), Some(p)) if budget >= 1.0 => Some(PreviewNodes {
+                id_order: Arc::new((0..nodes.len() as TetId).collect()),
+                view_order: OnceLock::new(),
                 nodes,
                 coder: BlockCoder::new(&store.base, &p.encoding),
                 budget: budget as u64,
