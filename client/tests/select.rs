@@ -439,6 +439,90 @@ fn incremental_equals_full_scan() {
     );
 }
 
+/// Previews first, then the store's nodes replacing them in random order (their bounds tighter,
+/// their coefficients other), with data-aware selection and a moving camera, so that subtrees are
+/// split, merged and split again around replacements: the incremental selector reaches the
+/// reference's mesh after every frame, and both end with every leaf's value the same.
+#[test]
+fn incremental_equals_full_scan_through_previews() {
+    use tetwave_client::progressive::{order_nodes, ArrivalOrder};
+    use tetwave_protocol::DetailNode;
+    let (base, all_nodes) = detail_nodes(box5(4), wave);
+    let preview_end = base.forest().level_start(3);
+    let previews: Vec<DetailNode> = all_nodes[..preview_end as usize]
+        .iter()
+        .map(|n| DetailNode {
+            coeffs: n.coeffs.iter().map(|c| (c * 4.0).round() / 4.0).collect(),
+            subtree_max_abs: 3.0 * n.subtree_max_abs + 0.1,
+            ..n.clone()
+        })
+        .collect();
+    let mut frames = 0;
+    for seed in 0..4u64 {
+        let mut s = splitmix(seed * 17 + 3);
+        let mut nodes = all_nodes.clone();
+        order_nodes(&mut nodes, ArrivalOrder::Random, s, base.forest());
+        let mut p = SelectParams::new(Tolerance::PercentOfHeight(8.0), [-1.0, 1.0]);
+        p.data_aware = Some(0.3);
+        p.interactive = Budget::UNLIMITED;
+        p.progressive = Budget::UNLIMITED;
+        let mut inc = Session::with_selector(base.clone(), Selector::new(p.clone())).unwrap();
+        let mut full = Session::with_selector(base.clone(), Selector::full_scan(p)).unwrap();
+        for x in [&mut inc, &mut full] {
+            x.insert_preview(&previews).unwrap();
+        }
+        let (mut az, mut dist) = (0.0f64, 40.0f64);
+        let mut next = 0;
+        for step in 0..40 {
+            if step >= 6 && next < nodes.len() && step % 2 == 0 {
+                let end = (next + 200).min(nodes.len());
+                for x in [&mut inc, &mut full] {
+                    x.insert(&nodes[next..end]).unwrap();
+                }
+                next = end;
+            }
+            // turns, and zooms out and in: merges, then splits again over the same slots
+            if unit(&mut s) < 0.5 {
+                az += 20.0 * unit(&mut s);
+            } else {
+                dist = if dist < 60.0 {
+                    90.0
+                } else {
+                    25.0 + 10.0 * unit(&mut s)
+                };
+            }
+            let c = Camera::orbit(DVec3::splat(15.0), dist, az, 10.0, 45.0, 256, 192);
+            let sa = inc.converge(&c, Mode::Progressive).unwrap();
+            let sb = full.converge(&c, Mode::Progressive).unwrap();
+            assert!(sa.converged && sb.converged);
+            assert_eq!(
+                sorted_leaves(inc.mesh()),
+                sorted_leaves(full.mesh()),
+                "seed {seed}, step {step}"
+            );
+            frames += 1;
+        }
+        assert!(inc.is_complete(), "seed {seed}: {:?}", inc.progress());
+        assert_eq!(inc.buffer().previews_held(), 0);
+        let c = Camera::orbit(DVec3::splat(15.0), 25.0, az, 10.0, 45.0, 256, 192);
+        inc.converge(&c, Mode::Complete).unwrap();
+        full.converge(&c, Mode::Complete).unwrap();
+        let values = |x: &Session| {
+            let m = x.mesh();
+            let mut v: Vec<(u64, u32)> = (0..m.vertex_count())
+                .filter_map(|k| {
+                    m.slot_of_key(k as u64)
+                        .map(|s| (k as u64, m.vertex_value(s).to_bits()))
+                })
+                .collect();
+            v.sort_unstable();
+            v
+        };
+        assert_eq!(values(&inc), values(&full), "seed {seed}");
+    }
+    assert_eq!(frames, 4 * 40);
+}
+
 /// A selector that follows a mesh changed behind its back (refinements it did not ask for) still
 /// reaches the reference mesh.
 #[test]
