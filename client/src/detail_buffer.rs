@@ -77,6 +77,17 @@ impl Arrivals {
     }
 }
 
+impl NodeMeta {
+    /// What the buffer keeps of `node` besides its coefficients.
+    fn of(node: &DetailNode) -> Self {
+        NodeMeta {
+            subtree_max_abs: node.subtree_max_abs,
+            empty_children: node.empty_children,
+            owned: node.owned,
+        }
+    }
+}
+
 /// A value an [`IdTable`] can hold, with a bit pattern that means "absent".
 trait Cell: Copy {
     const EMPTY: Self;
@@ -287,14 +298,7 @@ impl DetailBuffer {
         }
         arrivals.nodes.push(node.id);
         self.generation += 1;
-        self.meta.insert(
-            node.id,
-            NodeMeta {
-                subtree_max_abs: node.subtree_max_abs,
-                empty_children: node.empty_children,
-                owned: node.owned,
-            },
-        );
+        self.meta.insert(node.id, NodeMeta::of(node));
         // pending bookkeeping: this node waits for its parent; its children stop waiting for it
         if let Some(p) = self.forest.parent(node.id) {
             if !self.meta.contains_key(p) {
@@ -351,14 +355,7 @@ impl DetailBuffer {
                 arrivals.keys.push(key);
             }
         }
-        self.meta.insert(
-            node.id,
-            NodeMeta {
-                subtree_max_abs: node.subtree_max_abs,
-                empty_children: node.empty_children,
-                owned: node.owned,
-            },
-        );
+        self.meta.insert(node.id, NodeMeta::of(node));
         arrivals.nodes.push(node.id);
         arrivals.replaced.push(node.id);
         self.generation += 1;
