@@ -452,7 +452,10 @@ impl BlockDecoder {
                         .manifest
                         .as_ref()
                         .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-                    let preview = m.preview.as_ref().map(|p| BlockCoder::new(&b, &p.encoding));
+                    let preview = m
+                        .preview
+                        .as_ref()
+                        .map(|p| BlockCoder::for_preview(&b, &p.encoding));
                     self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding), preview));
                 }
                 Delivery::Base(b)

@@ -32,8 +32,8 @@ fn base() -> BaseMesh {
 
 /// The block coders the checks decode with: lossless, 12-bit quantized, and 12-bit with the
 /// steepest level steps a manifest may name.
-fn coders() -> &'static [BlockCoder; 3] {
-    static C: OnceLock<[BlockCoder; 3]> = OnceLock::new();
+fn coders() -> &'static [BlockCoder; 4] {
+    static C: OnceLock<[BlockCoder; 4]> = OnceLock::new();
     C.get_or_init(|| {
         let b = base();
         let steep = tetwave_protocol::wavelet::LevelSteps {
@@ -51,6 +51,8 @@ fn coders() -> &'static [BlockCoder; 3] {
                     levels: steep,
                 },
             ),
+            // a preview's: no subtree bound on any node
+            BlockCoder::for_preview(&b, &Encoding::uniform(8, 0.5)),
         ]
     })
 }
@@ -166,7 +168,7 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
         },
         ServerMsg::Preview {
             seq: 0,
-            block: coders()[1]
+            block: coders()[3]
                 .encode(&[node(0, 0b111111), node(5, 0b000101)])
                 .expect("valid nodes"),
         },

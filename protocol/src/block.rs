@@ -148,6 +148,17 @@ impl BlockCoder {
         }
     }
 
+    /// The coder of a store's preview ([`crate::store_format::Preview`], with its encoding): no
+    /// node codes a subtree bound, as on the finest node level (a preview node's decodes as
+    /// [`INHERITED_BOUND`]; the store's own node brings the bound), and every node's codes take
+    /// that level's magnitude model.
+    pub fn for_preview(base: &BaseMesh, encoding: &Encoding) -> Self {
+        BlockCoder {
+            finest: 0,
+            ..Self::new(base, encoding)
+        }
+    }
+
     /// How node `id` (an id within the hierarchy: callers check it) has its coefficients coded:
     /// a quantized store's with its level's quantizer.
     fn coefficients_of(&self, id: TetId) -> Coefficients {

@@ -157,8 +157,9 @@ pub const PREVIEW_FILE: &str = "preview.bin";
 /// What `preview.bin` holds: nodes `0..level_start(levels)` (the node levels below `levels`) of
 /// a second closed-loop analysis of the same samples at the coarse bound `max_error_bound`,
 /// coded with `encoding` in blocks of [`BLOCK`] nodes (each a bincode `NodeBlock`, one after the
-/// other). Their owned masks and empty children are the store's, and their subtree bounds the
-/// store's rounded up to a class of the preview's step. A client holds a preview node until the
+/// other, by [`crate::block::BlockCoder::for_preview`]: no subtree bounds, which decode as
+/// inherited). Their owned masks and empty children are the store's. A client holds a preview
+/// node until the
 /// store's own arrives and replaces it: values from preview nodes alone are within
 /// `max_error_bound` of the samples, those from a mix of both approximate (a store node's detail
 /// was computed against the store's values of its stencil, not the preview's), and those from

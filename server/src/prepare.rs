@@ -515,9 +515,8 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
 
 /// The preview of store analysis `a` from the coarse analysis `p` of the same samples: the
 /// nodes of every node level but the finest (fewer while they would exceed
-/// [`MAX_PREVIEW_NODES`]), with `p`'s coefficients and `a`'s masks and subtree bounds (what the
-/// store's own nodes will bring: selection reads them; coded with the preview's coarse step, a
-/// bound is rounded up to a class of that step).
+/// [`MAX_PREVIEW_NODES`]), with `p`'s coefficients, checked to have `a`'s masks (the preview's
+/// coder sends no subtree bounds: the store's own nodes bring theirs).
 fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareError> {
     let forest = a.base.forest();
     if a.base
@@ -540,14 +539,13 @@ fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareErro
             ))
         })?;
     let count = forest.level_start(levels) as usize;
-    let mut nodes = p.content().nodes(count).map_err(PrepareError::Usage)?;
-    for (i, n) in nodes.iter_mut().enumerate() {
+    let nodes = p.content().nodes(count).map_err(PrepareError::Usage)?;
+    for (i, n) in nodes.iter().enumerate() {
         if n.owned != a.owned[i] || n.empty_children != a.empty_children[i] {
             return Err(PrepareError::Usage(format!(
                 "the preview's node {i} owns other vertices than the store's"
             )));
         }
-        n.subtree_max_abs = a.subtree_max_abs[i];
     }
     let q = p
         .quantizer

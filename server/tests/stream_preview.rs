@@ -93,7 +93,7 @@ async fn session_of(
     assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
     let coder = BlockCoder::new(&store.base, &store.manifest.encoding);
     let p = store.manifest.preview.as_ref().unwrap();
-    let preview = BlockCoder::new(&store.base, &p.encoding);
+    let preview = BlockCoder::for_preview(&store.base, &p.encoding);
     let r = receive(&mut ws, &coder, &preview).await;
     let _ = ws.close(None).await;
     (r, manifest)

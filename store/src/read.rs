@@ -211,7 +211,7 @@ impl Store {
             return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
         }
         let bytes = std::fs::read(&path).map_err(io_err(&path))?;
-        let coder = BlockCoder::new(&self.base, &p.encoding);
+        let coder = BlockCoder::for_preview(&self.base, &p.encoding);
         let cfg = bincode::config::standard().with_limit::<{ MAX_BLOCK_BYTES as usize + 64 }>();
         let mut nodes = Vec::new();
         let mut rest = &bytes[..];

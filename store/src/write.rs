@@ -407,7 +407,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 )));
             }
             // the blocks one after the other, each a bincode NodeBlock
-            let coder = BlockCoder::new(a.base, &p.encoding);
+            let coder = BlockCoder::for_preview(a.base, &p.encoding);
             let mut w = staged.create(PREVIEW_FILE)?;
             for c in p.nodes.chunks(BLOCK as usize) {
                 let block = coder.encode(c).map_err(|e| corrupt(e.to_string()))?;

@@ -158,7 +158,7 @@ impl Shared {
                 id_order: Arc::new((0..nodes.len() as TetId).collect()),
                 view_order: OnceLock::new(),
                 nodes,
-                coder: BlockCoder::new(&store.base, &p.encoding),
+                coder: BlockCoder::for_preview(&store.base, &p.encoding),
                 budget: budget as u64,
             }),
             _ => None,
