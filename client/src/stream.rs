@@ -244,9 +244,10 @@ pub struct StreamReport {
     pub frames: Vec<FrameRecord>,
     pub nodes_total: u64,
     pub nodes_received: u64,
-    /// Preview nodes held (each until the store's own replaced it; a preview sent again after a
-    /// reconnection is not counted twice).
+    /// Preview nodes held (each until the store's own replaced it).
     pub previews_received: u64,
+    /// Preview nodes received again, or after the store's own (ignored).
+    pub preview_duplicates: u64,
     pub duplicates: u64,
     pub bytes_received: u64,
     pub reconnects: u64,
@@ -318,7 +319,7 @@ pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
 /// Test hook: a transport fault injected into the network task.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Faults {
-    /// Drop the connection once, after this many node batches.
+    /// Drop the connection once, after this many node batches (preview batches count too).
     pub drop_after_batches: Option<u64>,
     /// Deliver every k-th node batch twice.
     pub duplicate_every: Option<u64>,
@@ -526,6 +527,10 @@ pub(crate) async fn network(
     } = policy;
     // consecutive connection attempts that brought no new node (a failed connect counts too)
     let mut failures = 0u32;
+    // preview nodes were handed to the session (a reconnection says so in `Hello`), in how many
+    // batches
+    let mut previewed = false;
+    let mut previews_delivered = 0u64;
     let mut dropped = false;
     let mut batches = 0u64;
     let mut held_back: Vec<(Delivery, u64)> = Vec::new();
@@ -580,6 +585,7 @@ pub(crate) async fn network(
             version: PROTOCOL_VERSION,
             token: token.clone(),
             have,
+            previewed,
         };
         let frame = encode(&hello).map_err(|e| StreamError::Protocol(e.to_string()))?;
         let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
@@ -676,7 +682,11 @@ pub(crate) async fn network(
                         // is the backpressure
                         for m in deliver {
                             let ack = match &m.0 {
-                                Delivery::Nodes { seq, .. } | Delivery::Preview { seq, .. } => {
+                                Delivery::Nodes { seq, .. } => Some(*seq),
+                                Delivery::Preview { seq, .. } => {
+                                    // a reconnection asks for no preview again
+                                    previewed = true;
+                                    previews_delivered += 1;
                                     Some(*seq)
                                 }
                                 _ => None,
@@ -692,7 +702,8 @@ pub(crate) async fn network(
                                 }
                             }
                         }
-                        if !dropped && faults.drop_after_batches.is_some_and(|n| batches >= n) {
+                        let delivered = batches + previews_delivered;
+                        if !dropped && faults.drop_after_batches.is_some_and(|n| delivered >= n) {
                             dropped = true;
                             drop(ws);
                             break "dropped (test fault)".to_string();
@@ -807,6 +818,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut images = Vec::new();
     let mut duplicates = 0u64;
     let mut previews_received = 0u64;
+    let mut preview_duplicates = 0u64;
     let mut first_frame_ms = None;
     // wire bytes of the messages the client has applied (what its frames show)
     let mut bytes_applied = 0u64;
@@ -900,6 +912,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 Ok(Step::Preview { nodes, new }) => {
                     applied += nodes;
                     previews_received += new as u64;
+                    preview_duplicates += (nodes - new) as u64;
                 }
                 Ok(_) => {}
                 // before the base mesh there are no frames to keep
@@ -1060,6 +1073,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         nodes_total,
         nodes_received,
         previews_received,
+        preview_duplicates,
         duplicates,
         bytes_received: net.bytes.load(Ordering::Relaxed),
         reconnects: net.reconnects.load(Ordering::Relaxed),

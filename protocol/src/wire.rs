@@ -21,7 +21,7 @@ mod manifest;
 /// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
 /// sibling group). 9: the session's manifest in its own form ([`manifest`], with the store's
 /// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
-/// `Preview` batches.
+/// `Preview` batches, `Hello.previewed`.
 pub const PROTOCOL_VERSION: u16 = 9;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
@@ -50,11 +50,14 @@ pub struct ViewParams {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ClientMsg {
-    /// First message. `have`: node ranges the client already holds (resume after a drop).
+    /// First message. `have`: node ranges the client already holds (resume after a drop);
+    /// `previewed`: it holds preview nodes (a connection dropped before the store's nodes came):
+    /// no preview again.
     Hello {
         version: u16,
         token: Option<String>,
         have: Vec<IdRange>,
+        previewed: bool,
     },
     /// The camera moved: the server re-prioritises what it has not sent yet.
     View(ViewParams),
@@ -252,6 +255,7 @@ mod tests {
             version: PROTOCOL_VERSION,
             token: Some("t".into()),
             have: vec![IdRange { from: 0, to: 5 }],
+            previewed: true,
         }
     }
 

@@ -1,7 +1,7 @@
 //! A new session of a store with a preview: `Preview` batches first (numbered with the `Nodes`
 //! batches, acknowledged like them), within the configured share of the store's bytes, most
-//! important first; then every node of the store's own, once. A resumed session and a server
-//! configured with no share get none. Every wait is bounded.
+//! important first; then every node of the store's own, once. A resumed session, one that says
+//! it holds previews, and a server configured with no share get none. Every wait is bounded.
 
 mod stream_common;
 
@@ -154,6 +154,23 @@ async fn the_share_bounds_the_preview_and_a_resumed_session_gets_none() {
     let (r, _) = session_of(addr, &store, vec![IdRange { from: 0, to: 1 }]).await;
     assert!(r.previews.is_empty());
     assert_eq!(r.end, store.manifest.counts.nodes - 1);
+    // holding previews only (cut during the preview): none again, every node
+    let mut ws = connect(addr, "").await;
+    let mut h = hello(None, vec![]);
+    if let ClientMsg::Hello { previewed, .. } = &mut h {
+        *previewed = true;
+    }
+    send(&mut ws, &h).await;
+    expect_opening(&mut ws).await;
+    let p = store.manifest.preview.as_ref().unwrap();
+    let r = receive(
+        &mut ws,
+        &BlockCoder::new(&store.base, &store.manifest.encoding),
+        &BlockCoder::for_preview(&store.base, &p.encoding),
+    )
+    .await;
+    assert!(r.previews.is_empty());
+    assert_eq!(r.end, store.manifest.counts.nodes);
 
     // a server told to send none
     let config = ServeConfig {

@@ -132,23 +132,29 @@ fn sessions_with_a_preview_end_identical_to_full_synthesis() {
             let got = session(srv.url(), &out, Faults::default());
             assert_eq!(got.report.previews_received, previews, "{order}");
             assert_eq!(got.report.duplicates, 0, "{order}");
+            assert_eq!(got.report.preview_duplicates, 0, "{order}");
             assert_identical(&got, &values);
         }
         lossy_session_ends_identical(&dir, "view", &d.path().join("lossy"), &values);
+        // cut right after the preview (one batch here), and after the next batch: the
+        // reconnection says it holds previews and gets none again
         let srv = serve(&dir, "view");
-        let cut = session_with(
-            srv.url(),
-            &d.path().join("cut"),
-            Faults {
-                drop_after_batches: Some(2),
-                ..Default::default()
-            },
-            false,
-        );
-        assert!(cut.report.reconnects >= 1);
-        assert_eq!(cut.report.previews_received, previews);
-        assert_eq!(cut.report.duplicates, 0);
-        assert_identical(&cut, &values);
+        for after in [1, 2] {
+            let cut = session_with(
+                srv.url(),
+                &d.path().join(format!("cut-{after}")),
+                Faults {
+                    drop_after_batches: Some(after),
+                    ..Default::default()
+                },
+                false,
+            );
+            assert!(cut.report.reconnects >= 1);
+            assert_eq!(cut.report.previews_received, previews);
+            assert_eq!(cut.report.duplicates, 0);
+            assert_identical(&cut, &values);
+            assert_eq!(cut.report.preview_duplicates, 0, "after {after}");
+        }
     }
 }
 

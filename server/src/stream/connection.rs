@@ -185,11 +185,12 @@ async fn stream_to(
         Ok(None) => return Ok(Closing::normal()),
         Ok(Some(m)) => m,
     };
-    let have = match first {
+    let (have, previewed) = match first {
         Incoming::Msg(ClientMsg::Hello {
             version,
             token,
             have,
+            previewed,
         }) => {
             if version != PROTOCOL_VERSION {
                 let m = format!("protocol version {version}, server speaks {PROTOCOL_VERSION}");
@@ -203,7 +204,7 @@ async fn stream_to(
                     return Ok(Closing::client(401, "missing or wrong token".into()));
                 }
             }
-            have
+            (have, previewed)
         }
         Incoming::Msg(_) => {
             return Ok(Closing::client(
@@ -250,7 +251,7 @@ async fn stream_to(
     // 4. nodes (a new session's preview first)
     let sched_s = s.clone();
     let (mut sched, mut preview) = tokio::task::spawn_blocking(move || {
-        let preview = PreviewPhase::new(&sched_s, order, have.is_empty());
+        let preview = PreviewPhase::new(&sched_s, order, have.is_empty() && !previewed);
         let mut sc = Schedule::new(&sched_s, order);
         sc.have(&have);
         (sc, preview)
