@@ -449,16 +449,23 @@ fn incremental_equals_full_scan_through_previews() {
     use tetwave_protocol::DetailNode;
     let (base, all_nodes) = detail_nodes(box5(4), wave);
     let preview_end = base.forest().level_start(3);
-    let previews: Vec<DetailNode> = all_nodes[..preview_end as usize]
-        .iter()
-        .map(|n| DetailNode {
-            coeffs: n.coeffs.iter().map(|c| (c * 4.0).round() / 4.0).collect(),
-            subtree_max_abs: 3.0 * n.subtree_max_abs + 0.1,
-            ..n.clone()
-        })
-        .collect();
+    // previews with a looser bound than the store's, and (as `BlockCoder::for_preview` decodes
+    // them) with none: inherited, so infinite under a preview parent
+    let previews = |bound: fn(f32) -> f32| -> Vec<DetailNode> {
+        all_nodes[..preview_end as usize]
+            .iter()
+            .map(|n| DetailNode {
+                coeffs: n.coeffs.iter().map(|c| (c * 4.0).round() / 4.0).collect(),
+                subtree_max_abs: bound(n.subtree_max_abs),
+                ..n.clone()
+            })
+            .collect()
+    };
+    let loose: fn(f32) -> f32 = |b| 3.0 * b + 0.1;
+    let inherited: fn(f32) -> f32 = |_| tetwave_protocol::node::INHERITED_BOUND;
     let mut frames = 0;
-    for seed in 0..4u64 {
+    for (seed, bound) in (0..4u64).zip([loose, inherited, loose, inherited]) {
+        let previews = previews(bound);
         let mut s = splitmix(seed * 17 + 3);
         let mut nodes = all_nodes.clone();
         order_nodes(&mut nodes, ArrivalOrder::Random, s, base.forest());
