@@ -321,7 +321,8 @@ impl DetailBuffer {
         node: &DetailNode,
         arrivals: &mut Arrivals,
     ) -> Result<Inserted, BufferError> {
-        if node.id < self.forest.nodes() && self.meta.contains_key(node.id) {
+        // (an id beyond the hierarchy is held by no one: `insert` refuses it)
+        if self.meta.contains_key(node.id) {
             self.duplicates += 1;
             return Ok(Inserted::Duplicate);
         }

@@ -146,20 +146,14 @@ impl Ingest {
                 Step::LevelSet
             }
             Delivery::Nodes { nodes, .. } => {
-                let s = session
-                    .as_mut()
-                    .ok_or_else(|| StreamError::Protocol("nodes before the base mesh".into()))?;
-                let done = s.insert(&nodes)?;
+                let done = started(session, "nodes")?.insert(&nodes)?;
                 Step::Nodes {
                     nodes,
                     duplicates: done.duplicates,
                 }
             }
             Delivery::Preview { nodes, .. } => {
-                let s = session
-                    .as_mut()
-                    .ok_or_else(|| StreamError::Protocol("preview before the base mesh".into()))?;
-                let done = s.insert_preview(&nodes)?;
+                let done = started(session, "preview")?.insert_preview(&nodes)?;
                 Step::Preview {
                     nodes: nodes.len(),
                     new: done.new,
@@ -191,6 +185,16 @@ impl Ingest {
             Delivery::Error { code, message } => return Err(StreamError::Server { code, message }),
         })
     }
+}
+
+/// The session, which `what` (nodes, a preview) needs: an error before the base mesh.
+fn started<'s>(
+    session: &'s mut Option<Session>,
+    what: &str,
+) -> Result<&'s mut Session, StreamError> {
+    session
+        .as_mut()
+        .ok_or_else(|| StreamError::Protocol(format!("{what} before the base mesh")))
 }
 
 #[cfg(test)]

@@ -102,11 +102,21 @@ impl Session {
         }
         if !self.arrivals.is_empty() {
             self.mesh.apply_arrivals(&self.buf, &self.arrivals);
-            if !self.arrivals.replaced.is_empty() {
+            if self.arrivals.replaced.is_empty() {
+                self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
+            } else {
+                // a replaced node was usable already, its subtree too: only its metadata changed
+                // (notify_replaced), so only the others' subtrees are walked
+                let replaced: rustc_hash::FxHashSet<TetId> =
+                    self.arrivals.replaced.iter().copied().collect();
+                let fresh: Vec<TetId> = (self.arrivals.nodes.iter())
+                    .filter(|id| !replaced.contains(id))
+                    .copied()
+                    .collect();
                 self.sel
                     .notify_replaced(&self.mesh, &self.arrivals.replaced);
+                self.sel.notify_arrived(&self.mesh, &fresh);
             }
-            self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
         }
         match rejected {
             Some(r) => Err(r),

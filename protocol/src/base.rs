@@ -241,14 +241,9 @@ mod geometry {
                 let (lo, hi) = (*b.positions.first()?, *b.positions.last()?);
                 let (p, t) = shape(lo, hi);
                 // bit for bit: -0.0 == 0.0, but a box of zeros would decode other signs
-                let same = |a: &[[f64; 3]], b: &[[f64; 3]]| {
-                    a.len() == b.len()
-                        && a.iter()
-                            .flatten()
-                            .map(|x| x.to_bits())
-                            .eq(b.iter().flatten().map(|x| x.to_bits()))
-                };
-                (same(&p, &b.positions) && t == b.tets).then(|| Points::new(&[lo, hi]))
+                let bits =
+                    |a: &[[f64; 3]]| a.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+                (bits(&p) == bits(&b.positions) && t == b.tets).then(|| Points::new(&[lo, hi]))
             };
             let geometry = if let Some(corners) = named(box6) {
                 Geometry::Box6(corners)

@@ -96,6 +96,19 @@ impl Encoding {
         }
     }
 
+    /// The encoding of details quantized with `quantizer` (the finest level's, and how coarser
+    /// levels' steps shrink), or lossless f32 without one.
+    pub fn of(quantizer: Option<(Quantizer, LevelSteps)>) -> Self {
+        match quantizer {
+            None => Encoding::F32,
+            Some((q, levels)) => Encoding::Quantized {
+                bits: q.bits,
+                step: q.step,
+                levels,
+            },
+        }
+    }
+
     /// A quantized encoding with one step for every level.
     pub fn uniform(bits: u8, step: f32) -> Self {
         Encoding::Quantized {
@@ -159,8 +172,7 @@ pub const PREVIEW_FILE: &str = "preview.bin";
 /// coded with `encoding` in blocks of [`BLOCK`] nodes (each a bincode `NodeBlock`, one after the
 /// other, by [`crate::block::BlockCoder::for_preview`]: no subtree bounds, which decode as
 /// inherited). Their owned masks and empty children are the store's. A client holds a preview
-/// node until the
-/// store's own arrives and replaces it: values from preview nodes alone are within
+/// node until the store's own arrives and replaces it: values from preview nodes alone are within
 /// `max_error_bound` of the samples, those from a mix of both approximate (a store node's detail
 /// was computed against the store's values of its stencil, not the preview's), and those from
 /// the store's nodes alone within the store's bound.

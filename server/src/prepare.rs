@@ -10,14 +10,16 @@ use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{
     self, BoundaryDistance, CleanError, CleanReport, ImportOptions, Locator,
 };
-use crate::resample::{resample, BaseSpec, ResampleError, Resampled, Source};
+use crate::resample::{resample, BaseSpec, ResampleError, Source};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
 use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
-use tetwave_store::{self as store, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE};
+use tetwave_store::{
+    self as store, Preview, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE,
+};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PrepareError {
@@ -369,12 +371,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
             "--preview needs at least 2 levels (it covers the coarse ones)".into(),
         ));
     }
-    let preview_input = o.preview.map(|_| Resampled {
-        base: r.base.clone(),
-        keys: r.keys.clone(),
-        samples: r.samples.clone(),
-        outside: r.outside,
-    });
+    let preview_input = o.preview.map(|_| r.clone());
     let a = analyze_hierarchy(r, precision, o.progress)?;
     let preview = match (o.preview, preview_input) {
         (Some(e), Some(r)) => {
@@ -547,18 +544,13 @@ fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareErro
             )));
         }
     }
-    let q = p
-        .quantizer
-        .ok_or_else(|| PrepareError::Usage("the preview's analysis is not quantized".into()))?;
     Ok(PreviewNodes {
-        nodes,
-        encoding: store::Encoding::Quantized {
-            bits: q.bits,
-            step: q.step,
-            levels: p.level_steps,
+        preview: Preview {
+            encoding: store::Encoding::of(p.content().quantizer),
+            levels,
+            max_error_bound: p.error_bound,
         },
-        levels,
-        max_error_bound: p.error_bound,
+        nodes,
     })
 }
 

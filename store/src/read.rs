@@ -159,16 +159,39 @@ impl Store {
                     },
                 },
             )?;
-        crate::check::structure(dir, &head, &mut visit)?;
-        let mut store = Store {
+        let preview = read_preview(dir, &head)?;
+        // the structure pass decodes every block once: the preview's masks are compared there
+        let mut differs = None;
+        crate::check::structure(dir, &head, &mut |part: Vec<DetailNode>| {
+            if let (Some(p), None) = (&preview, differs) {
+                differs = part
+                    .iter()
+                    .take_while(|n| (n.id as usize) < p.len())
+                    .find(|n| {
+                        let q = &p[n.id as usize];
+                        (q.owned, q.empty_children) != (n.owned, n.empty_children)
+                    })
+                    .map(|n| n.id);
+            }
+            visit(part)
+        })?;
+        if let Some(id) = differs {
+            return Err(StoreError::Corrupt {
+                path: dir.join(PREVIEW_FILE),
+                reason: format!(
+                    "its node {id} has other owned or empty masks than the store's: not the \
+                     store's first nodes"
+                ),
+            });
+        }
+        let store = Store {
             dir: dir.to_path_buf(),
             manifest: head.manifest.clone(),
             base: head.base.clone(),
-            preview: None,
+            preview,
             head,
             files: DirFiles(dir.to_path_buf()),
         };
-        store.preview = store.read_preview()?;
         if options.verify_checksums {
             store.check_sums()?;
         }
@@ -177,76 +200,6 @@ impl Store {
 
     pub fn forest(&self) -> Forest {
         self.base.forest()
-    }
-
-    /// Decodes `preview.bin` when the manifest describes a preview, checking that it holds
-    /// exactly the nodes of the node levels it names, block by block, with the store's masks.
-    fn read_preview(&self) -> Result<Option<Vec<DetailNode>>, StoreError> {
-        let path = self.dir.join(PREVIEW_FILE);
-        let corrupt = |reason: String| StoreError::Corrupt {
-            path: path.clone(),
-            reason,
-        };
-        let listed = self.manifest.files.get(PREVIEW_FILE);
-        let Some(p) = &self.manifest.preview else {
-            return match listed {
-                Some(_) => Err(corrupt(
-                    "listed, but the manifest describes no preview".into(),
-                )),
-                None => Ok(None),
-            };
-        };
-        let Some(sum) = listed else {
-            return Err(corrupt(
-                "the manifest describes a preview but lists no file".into(),
-            ));
-        };
-        let count = p
-            .check_for(self.manifest.base_tets, self.manifest.levels)
-            .map_err(|e| corrupt(format!("manifest.json: {e}")))?;
-        // at most a full block's limit per block of nodes, as blocks.bin
-        let nblocks = count.div_ceil(BLOCK);
-        let limit = nblocks * MAX_BLOCK_BYTES;
-        if sum.bytes > limit {
-            return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
-        }
-        let bytes = std::fs::read(&path).map_err(io_err(&path))?;
-        let coder = BlockCoder::for_preview(&self.base, &p.encoding);
-        let cfg = bincode::config::standard().with_limit::<{ MAX_BLOCK_BYTES as usize + 64 }>();
-        let mut nodes = Vec::new();
-        let mut rest = &bytes[..];
-        for b in 0..nblocks {
-            let (first, want) = (b * BLOCK, BLOCK.min(count - b * BLOCK));
-            let (block, used): (NodeBlock, usize) = bincode::serde::decode_from_slice(rest, cfg)
-                .map_err(|e| corrupt(format!("block {b}: {e}")))?;
-            rest = &rest[used..];
-            if block.first != first || block.count as u64 != want {
-                return Err(corrupt(format!(
-                    "block {b} holds {} nodes from {}, not {want} from {first}",
-                    block.count, block.first
-                )));
-            }
-            nodes.extend(
-                coder
-                    .decode(&block)
-                    .map_err(|e| corrupt(format!("block {b}: {e}")))?,
-            );
-        }
-        if !rest.is_empty() {
-            return Err(corrupt(format!("{} trailing bytes", rest.len())));
-        }
-        let own = self.read_nodes(0, count)?;
-        if nodes.len() != own.len()
-            || nodes.iter().zip(&own).any(|(a, b)| {
-                a.id != b.id || a.owned != b.owned || a.empty_children != b.empty_children
-            })
-        {
-            return Err(corrupt(format!(
-                "its {} nodes are not the store's first {count} (ids, owned and empty masks)",
-                nodes.len()
-            )));
-        }
-        Ok(Some(nodes))
     }
 
     /// Codes and decodes this store's blocks (its base mesh and encoding): what a server sends is
@@ -403,4 +356,71 @@ impl Store {
             source,
         })
     }
+}
+
+/// Decodes `preview.bin` when the manifest describes a preview, checking that it holds exactly
+/// the nodes of the node levels it names, block by block (their masks against the store's are
+/// compared by the structure pass).
+fn read_preview(dir: &Path, head: &StoreHead) -> Result<Option<Vec<DetailNode>>, StoreError> {
+    let (manifest, base) = (&head.manifest, &head.base);
+    let path = dir.join(PREVIEW_FILE);
+    let corrupt = |reason: String| StoreError::Corrupt {
+        path: path.clone(),
+        reason,
+    };
+    let listed = manifest.files.get(PREVIEW_FILE);
+    let Some(p) = &manifest.preview else {
+        return match listed {
+            Some(_) => Err(corrupt(
+                "listed, but the manifest describes no preview".into(),
+            )),
+            None => Ok(None),
+        };
+    };
+    let Some(sum) = listed else {
+        return Err(corrupt(
+            "the manifest describes a preview but lists no file".into(),
+        ));
+    };
+    let count = p
+        .check_for(manifest.base_tets, manifest.levels)
+        .map_err(|e| corrupt(format!("manifest.json: {e}")))?;
+    // at most a full block's limit per block of nodes, as blocks.bin
+    let nblocks = count.div_ceil(BLOCK);
+    let limit = nblocks * MAX_BLOCK_BYTES;
+    if sum.bytes > limit {
+        return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
+    }
+    let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+    let coder = BlockCoder::for_preview(base, &p.encoding);
+    let cfg = bincode::config::standard().with_limit::<{ MAX_BLOCK_BYTES as usize + 64 }>();
+    let mut nodes = Vec::new();
+    let mut rest = &bytes[..];
+    for b in 0..nblocks {
+        let (first, want) = (b * BLOCK, BLOCK.min(count - b * BLOCK));
+        let (block, used): (NodeBlock, usize) = bincode::serde::decode_from_slice(rest, cfg)
+            .map_err(|e| corrupt(format!("block {b}: {e}")))?;
+        rest = &rest[used..];
+        if block.first != first || block.count as u64 != want {
+            return Err(corrupt(format!(
+                "block {b} holds {} nodes from {}, not {want} from {first}",
+                block.count, block.first
+            )));
+        }
+        nodes.extend(
+            coder
+                .decode(&block)
+                .map_err(|e| corrupt(format!("block {b}: {e}")))?,
+        );
+    }
+    if !rest.is_empty() {
+        return Err(corrupt(format!("{} trailing bytes", rest.len())));
+    }
+    if let Some((i, n)) = nodes.iter().enumerate().find(|(i, n)| n.id != *i as u64) {
+        return Err(corrupt(format!(
+            "node {} where the store's first {count} ids need {i}",
+            n.id
+        )));
+    }
+    Ok(Some(nodes))
 }

@@ -163,51 +163,77 @@ pub struct StoreContent<'a> {
     pub error_bound: f64,
 }
 
-impl StoreContent<'_> {
-    /// Nodes `0..end` as detail nodes, or why the content cannot give them.
-    pub fn nodes(&self, end: usize) -> Result<Vec<DetailNode>, String> {
-        if end > self.owned.len()
-            || self.empty_children.len() != self.owned.len()
-            || self.subtree_max_abs.len() != self.owned.len()
-        {
+impl<'a> StoreContent<'a> {
+    /// The nodes in id order, each with its share of the coefficients; the caller checks that
+    /// the masks and bounds come one per node ([`Self::check_lengths`]).
+    fn node_cursor(&self) -> NodeCursor<'_, 'a> {
+        NodeCursor {
+            content: self,
+            next: 0,
+            coeffs: self.coeffs,
+        }
+    }
+
+    /// One owned mask, empty-children mask and subtree max per node, or why not.
+    fn check_lengths(&self) -> Result<(), String> {
+        let n = self.owned.len();
+        if self.empty_children.len() != n || self.subtree_max_abs.len() != n {
             return Err(format!(
-                "{end} nodes asked of {} owned masks, {} empty-children masks and {} subtree \
-                 maxima",
-                self.owned.len(),
+                "{n} owned masks, {} empty-children masks and {} subtree maxima",
                 self.empty_children.len(),
                 self.subtree_max_abs.len()
             ));
         }
-        let mut coeffs = self.coeffs;
-        (0..end)
-            .map(|i| {
-                let k = self.owned[i].count_ones() as usize;
-                if coeffs.len() < k {
-                    return Err(format!(
-                        "node {i}: owns {k} coefficients, {} are left",
-                        coeffs.len()
-                    ));
-                }
-                let (mine, rest) = coeffs.split_at(k);
-                coeffs = rest;
-                Ok(DetailNode {
-                    id: i as u64,
-                    owned: self.owned[i],
-                    empty_children: self.empty_children[i],
-                    subtree_max_abs: self.subtree_max_abs[i],
-                    coeffs: mine.to_vec(),
-                })
-            })
-            .collect()
+        Ok(())
+    }
+
+    /// Nodes `0..end` as detail nodes, or why the content cannot give them.
+    pub fn nodes(&self, end: usize) -> Result<Vec<DetailNode>, String> {
+        self.check_lengths()?;
+        if end > self.owned.len() {
+            return Err(format!("{end} nodes asked of {}", self.owned.len()));
+        }
+        let mut c = self.node_cursor();
+        (0..end).map(|_| c.next_node()).collect()
     }
 }
 
-/// A store's preview ([`Preview`]): nodes `0..level_start(levels)` of a coarse analysis.
+/// Walks a [`StoreContent`]'s nodes, handing each its coefficients.
+struct NodeCursor<'c, 'a> {
+    content: &'c StoreContent<'a>,
+    next: usize,
+    /// The coefficients not handed out yet.
+    coeffs: &'a [f32],
+}
+
+impl NodeCursor<'_, '_> {
+    /// The next node (there must be one).
+    fn next_node(&mut self) -> Result<DetailNode, String> {
+        let (a, i) = (self.content, self.next);
+        let k = a.owned[i].count_ones() as usize;
+        if self.coeffs.len() < k {
+            return Err(format!(
+                "node {i}: owns {k} coefficients, {} are left",
+                self.coeffs.len()
+            ));
+        }
+        let (mine, rest) = self.coeffs.split_at(k);
+        self.coeffs = rest;
+        self.next += 1;
+        Ok(DetailNode {
+            id: i as u64,
+            owned: a.owned[i],
+            empty_children: a.empty_children[i],
+            subtree_max_abs: a.subtree_max_abs[i],
+            coeffs: mine.to_vec(),
+        })
+    }
+}
+
+/// A store's preview: what the manifest says of it, and its nodes `0..level_start(levels)`.
 pub struct PreviewNodes {
+    pub preview: Preview,
     pub nodes: Vec<DetailNode>,
-    pub encoding: Encoding,
-    pub levels: u8,
-    pub max_error_bound: f64,
 }
 
 /// What [`write`] needs besides the content.
@@ -238,14 +264,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     let mut staged = Staged::new(dir);
     let forest = a.base.forest();
     let mut files = std::collections::BTreeMap::new();
-    let encoding = match a.quantizer {
-        None => Encoding::F32,
-        Some((q, levels)) => Encoding::Quantized {
-            bits: q.bits,
-            step: q.step,
-            levels,
-        },
-    };
+    let encoding = Encoding::of(a.quantizer);
 
     let path = dir.join("base.bin");
     let mut w = staged.create("base.bin")?;
@@ -262,43 +281,25 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     // the nodes in blocks of BLOCK ids, each coded on its own (random access decodes one block
     // without its neighbours); the index gets each block's offset, then the file's length
     let n = a.owned.len();
-    if a.empty_children.len() != n || a.subtree_max_abs.len() != n {
-        return Err(StoreError::Corrupt {
-            path: dir.join("blocks.bin"),
-            reason: format!(
-                "{n} owned masks, {} empty-children masks and {} subtree maxima",
-                a.empty_children.len(),
-                a.subtree_max_abs.len()
-            ),
-        });
-    }
+    a.check_lengths().map_err(|reason| StoreError::Corrupt {
+        path: dir.join("blocks.bin"),
+        reason,
+    })?;
     let coder = BlockCoder::new(a.base, &encoding);
     let path = dir.join("blocks.bin");
     let mut w = staged.create("blocks.bin")?;
     let mut index = Vec::with_capacity(n.div_ceil(BLOCK as usize) + 1);
     let mut offset = 0u64;
-    let mut coeffs = a.coeffs;
+    let mut cursor = a.node_cursor();
     let mut nodes = Vec::with_capacity(BLOCK as usize);
     for start in (0..n).step_by(BLOCK as usize) {
         let end = (start + BLOCK as usize).min(n);
         nodes.clear();
-        for i in start..end {
-            let k = a.owned[i].count_ones() as usize;
-            if coeffs.len() < k {
-                return Err(StoreError::Corrupt {
-                    path: path.clone(),
-                    reason: format!("node {i}: owns {k} coefficients, {} are left", coeffs.len()),
-                });
-            }
-            let (mine, rest) = coeffs.split_at(k);
-            coeffs = rest;
-            nodes.push(DetailNode {
-                id: i as u64,
-                owned: a.owned[i],
-                empty_children: a.empty_children[i],
-                subtree_max_abs: a.subtree_max_abs[i],
-                coeffs: mine.to_vec(),
-            });
+        for _ in start..end {
+            nodes.push(cursor.next_node().map_err(|reason| StoreError::Corrupt {
+                path: path.clone(),
+                reason,
+            })?);
         }
         let block = coder.encode(&nodes).map_err(|e| StoreError::Corrupt {
             path: path.clone(),
@@ -318,6 +319,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         w.put(&block.bytes)?;
     }
     index.push(offset);
+    let coeffs = cursor.coeffs;
     if !coeffs.is_empty() {
         return Err(StoreError::Corrupt {
             path: path.clone(),
@@ -388,12 +390,8 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 path: path.clone(),
                 reason,
             };
-            let described = Preview {
-                encoding: p.encoding.clone(),
-                levels: p.levels,
-                max_error_bound: p.max_error_bound,
-            };
-            let want = described
+            let want = p
+                .preview
                 .check_for(forest.n_base, forest.levels)
                 .map_err(|e| corrupt(e.to_string()))?;
             if want != p.nodes.len() as u64
@@ -402,12 +400,12 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 return Err(corrupt(format!(
                     "{} preview nodes for the node levels below {} of {}",
                     p.nodes.len(),
-                    p.levels,
+                    p.preview.levels,
                     forest.levels
                 )));
             }
             // the blocks one after the other, each a bincode NodeBlock
-            let coder = BlockCoder::for_preview(a.base, &p.encoding);
+            let coder = BlockCoder::for_preview(a.base, &p.preview.encoding);
             let mut w = staged.create(PREVIEW_FILE)?;
             for c in p.nodes.chunks(BLOCK as usize) {
                 let block = coder.encode(c).map_err(|e| corrupt(e.to_string()))?;
@@ -416,7 +414,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 w.put(&bytes)?;
             }
             files.insert(PREVIEW_FILE.into(), w.finish()?);
-            Some(described)
+            Some(p.preview.clone())
         }
         None => {
             staged.remove(PREVIEW_FILE);

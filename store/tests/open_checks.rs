@@ -16,8 +16,8 @@ use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::testing::{detail_nodes, unsampled_base};
 use tetwave_protocol::DetailNode;
 use tetwave_store::{
-    write, Encoding, OpenOptions, PreviewNodes, Store, StoreContent, StoreError, StoreMeta, BLOCK,
-    MAX_BLOCK_BYTES, PREVIEW_FILE,
+    write, Encoding, OpenOptions, Preview, PreviewNodes, Store, StoreContent, StoreError,
+    StoreMeta, BLOCK, MAX_BLOCK_BYTES, PREVIEW_FILE,
 };
 
 /// Writes a `box5` store of `levels` levels of the unit-cube harmonic field into `dir`; returns
@@ -45,9 +45,11 @@ fn preview_of(nodes: &[DetailNode], levels: u8, step: f32) -> PreviewNodes {
                 ..n.clone()
             })
             .collect(),
-        encoding,
-        levels: levels - 1,
-        max_error_bound: step as f64,
+        preview: Preview {
+            encoding,
+            levels: levels - 1,
+            max_error_bound: step as f64,
+        },
     }
 }
 
@@ -520,7 +522,7 @@ fn a_preview_that_does_not_fit_its_store_is_refused() {
         .nodes
         .chunks(BLOCK as usize)
         .flat_map(|c| {
-            let block = BlockCoder::for_preview(&base, &other.encoding)
+            let block = BlockCoder::for_preview(&base, &other.preview.encoding)
                 .encode(c)
                 .unwrap();
             bincode::serde::encode_to_vec(&block, bincode::config::standard()).unwrap()

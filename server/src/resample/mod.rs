@@ -105,6 +105,7 @@ pub enum ResampleError {
 }
 
 /// The semi-regular mesh's samples.
+#[derive(Clone)]
 pub struct Resampled {
     /// Base mesh; `values` holds the samples at its vertices (outside ones filled by analysis) and
     /// `empty` is filled by analysis.

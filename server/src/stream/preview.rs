@@ -5,7 +5,6 @@
 //! complete stream still ends exactly at the store's values.
 
 use super::config::Order;
-use super::schedule::view_priority_of;
 use super::state::Shared;
 use std::sync::Arc;
 use tetwave_protocol::wire::{encode, ServerMsg};
@@ -16,8 +15,11 @@ const MIN_BATCH: usize = 64;
 
 /// What one connection still has to send of the preview.
 pub(super) struct PreviewPhase {
-    /// Preview node ids in sending order (shared by every connection of the order).
-    ids: Arc<Vec<TetId>>,
+    /// Preview node ids in sending order (shared by every connection of the order); `None`:
+    /// increasing id.
+    order: Option<Arc<Vec<TetId>>>,
+    /// Preview nodes in all.
+    len: usize,
     /// The next one to send.
     next: usize,
     /// Bytes of preview blocks sent so far.
@@ -29,13 +31,11 @@ impl PreviewPhase {
     /// when there is nothing to send.
     pub(super) fn new(s: &Shared, order: Order, fresh: bool) -> Option<Self> {
         let p = s.preview.as_ref().filter(|_| fresh)?;
-        let ids = if order == Order::View {
-            p.view_order.get_or_init(|| Arc::new(view_order(s))).clone()
-        } else {
-            p.id_order.clone()
-        };
-        (!ids.is_empty()).then_some(PreviewPhase {
-            ids,
+        let order = (order == Order::View)
+            .then(|| p.view_order.get_or_init(|| Arc::new(view_order(s))).clone());
+        (!p.nodes.is_empty()).then_some(PreviewPhase {
+            order,
+            len: p.nodes.len(),
             next: 0,
             sent: 0,
         })
@@ -52,10 +52,16 @@ impl PreviewPhase {
         let Some(p) = s.preview.as_ref() else {
             return Ok(None);
         };
-        let mut k = batch.min(self.ids.len() - self.next);
+        let mut k = batch.min(self.len - self.next);
         while k > 0 {
-            let take = &self.ids[self.next..self.next + k];
-            let nodes: Vec<_> = take.iter().map(|&i| p.nodes[i as usize].clone()).collect();
+            let take = self.next..self.next + k;
+            let nodes: Vec<_> = match &self.order {
+                Some(o) => o[take]
+                    .iter()
+                    .map(|&i| p.nodes[i as usize].clone())
+                    .collect(),
+                None => p.nodes[take].to_vec(),
+            };
             let block = p.coder.encode(&nodes).map_err(|e| e.to_string())?;
             let frame = encode(&ServerMsg::Preview { seq, block }).map_err(|e| e.to_string())?;
             if self.sent + frame.len() as u64 <= p.budget {
@@ -68,7 +74,7 @@ impl PreviewPhase {
             }
             k /= 2;
         }
-        self.next = self.ids.len();
+        self.next = self.len;
         Ok(None)
     }
 }
@@ -80,7 +86,7 @@ fn view_order(s: &Shared) -> Vec<TetId> {
         return Vec::new();
     };
     let n = p.nodes.len() as TetId;
-    let pri = view_priority_of(s, 0..n);
+    let pri = s.view_priorities_of(&s.default_view(), 0..n);
     let forest = s.forest();
     // a sibling group by its parent (the base tets: one group); a parent precedes its children,
     // so groups are below n + 1

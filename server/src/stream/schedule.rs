@@ -388,27 +388,31 @@ impl ViewPriority {
     }
 }
 
-/// View-order priorities of nodes `ids` for the default view (a new session's order until its
-/// first `View`).
-pub(super) fn view_priority_of(s: &Shared, ids: std::ops::Range<TetId>) -> Vec<f32> {
-    let g = s.geometry();
-    let p = ViewPriority::new(&default_view(&s.store.base), s.store.manifest.value_range);
-    ids.map(|u| {
-        let u = u as usize;
-        p.eval(g.centre[u], g.radius[u], s.smax[u])
-    })
-    .collect()
-}
-
 impl Shared {
     /// Every node's view-order priority for `view` (larger is sent first): what
     /// [`Order::View`](super::Order::View) ranks by.
     pub fn view_priorities(&self, view: &ViewParams) -> Vec<f32> {
+        self.view_priorities_of(view, 0..self.nodes)
+    }
+
+    /// [`Self::view_priorities`] of nodes `ids`.
+    pub(super) fn view_priorities_of(
+        &self,
+        view: &ViewParams,
+        ids: std::ops::Range<TetId>,
+    ) -> Vec<f32> {
         let g = self.geometry();
         let p = ViewPriority::new(view, self.store.manifest.value_range);
-        (0..self.nodes as usize)
-            .map(|u| p.eval(g.centre[u], g.radius[u], self.smax[u]))
-            .collect()
+        ids.map(|u| {
+            let u = u as usize;
+            p.eval(g.centre[u], g.radius[u], self.smax[u])
+        })
+        .collect()
+    }
+
+    /// The camera view order follows until a session's first `View`.
+    pub(super) fn default_view(&self) -> ViewParams {
+        default_view(&self.store.base)
     }
 }
 

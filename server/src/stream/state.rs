@@ -48,7 +48,7 @@ pub struct Shared {
     pub(super) smax: Vec<f32>,
     /// The store's preview and its coder, when it has one and new sessions get some of it
     /// ([`ServeConfig::preview_share`]).
-    pub(super) preview: Option<PreviewNodes>,
+    pub(super) preview: Option<ServedPreview>,
     magnitude_perm: OnceLock<Arc<Vec<TetId>>>,
     random_perm: OnceLock<Arc<Vec<TetId>>>,
     geometry: OnceLock<Arc<Geometry>>,
@@ -67,14 +67,14 @@ pub struct Shared {
 }
 
 /// A store's preview as connections send it.
-pub(super) struct PreviewNodes {
+pub(super) struct ServedPreview {
     /// Nodes `0..nodes.len()`, in id order.
     pub(super) nodes: Vec<DetailNode>,
     pub(super) coder: BlockCoder,
     /// Most bytes of preview blocks one session gets.
     pub(super) budget: u64,
-    /// Sending orders: increasing id, and for view order (made at the first such session).
-    pub(super) id_order: Arc<Vec<TetId>>,
+    /// The sending order for view order (made at the first such session; the others send by
+    /// increasing id).
     pub(super) view_order: OnceLock<Arc<Vec<TetId>>>,
 }
 
@@ -154,8 +154,7 @@ impl Shared {
             .map_or(0, |f| f.bytes) as f64
             * config.preview_share;
         let preview = match (store.preview.take(), &store.manifest.preview) {
-            (Some(nodes), Some(p)) if budget >= 1.0 => Some(PreviewNodes {
-                id_order: Arc::new((0..nodes.len() as TetId).collect()),
+            (Some(nodes), Some(p)) if budget >= 1.0 => Some(ServedPreview {
                 view_order: OnceLock::new(),
                 nodes,
                 coder: BlockCoder::for_preview(&store.base, &p.encoding),
