@@ -6,7 +6,7 @@ scikit-fem and matplotlib into the checkout's venv .venv); by hand:
 
   .venv/bin/python scripts/bench-rd.py --bin-dir target/release [--levels 5,6]
       [--fields harmonic,fem] [--bounds 1e-2,1e-3,1e-4] [--out out/bench-rd]
-      [--image-level 5] [--image-size 256x256] [--image-bounds 1e-3,1.5e-3,2e-3]
+      [--image-level 5] [--image-field harmonic|fem] [--image-size 256x256] [--image-bounds 1e-3,1.5e-3,2e-3]
       [--image-preview 10%|none] [--no-image] [--quick]
 
 For every field and level L, one (2^L+1)^3 grid of f32 samples, written as a raw grid and prepared
@@ -36,7 +36,7 @@ For every bound b (a fraction of the samples' value range R; absolute bound E = 
 
 max error and PSNR = 20 log10(R / RMS error) measured against the f32 samples.
 
-Image part (field harmonic, level --image-level, the default view: azimuth 35, elevation 25,
+Image part (field --image-field, harmonic by default; level --image-level, the default view: azimuth 35, elevation 25,
 distance 1.6 x the diagonal, fov 40), at every bound of --image-bounds (the first is the reference
 bound, 1e-3): the reference image is the CPU integrator's image of the original samples (a
 lossless store of the grid, `tetwave render --reference`); our curves are `tetwave stream`
@@ -457,6 +457,7 @@ def main():
     ap.add_argument("--bounds", default="1e-2,1e-3,1e-4", help="fractions of the value range")
     ap.add_argument("--fem-cells", type=int, default=12, help="hexes per side of the FEM mesh")
     ap.add_argument("--image-level", type=int, default=5)
+    ap.add_argument("--image-field", default="harmonic", choices=("harmonic", "fem"))
     ap.add_argument("--image-size", default="256x256")
     ap.add_argument("--image-bounds", default="1e-3,1.5e-3,2e-3",
                     help="fractions of the value range; the first is the reference bound of SZ3's image")
@@ -569,9 +570,13 @@ def main():
 def image_part(args, bindir, work):
     L = args.image_level
     n = (1 << L) + 1
-    arr, spacing = harmonic_grid(L)
+    field = args.image_field
+    if field == "harmonic":
+        arr, spacing = harmonic_grid(L)
+    else:
+        arr, spacing, _ = fem_grid(L, args.fem_cells)
     vr = float(arr.max()) - float(arr.min())
-    raw = os.path.join(work, f"image-harmonic-l{L}.raw")
+    raw = os.path.join(work, f"image-{field}-l{L}.raw")
     write_raw(arr, raw)
     size = args.image_size
     tw = os.path.join(bindir, "tetwave")
@@ -580,7 +585,7 @@ def image_part(args, bindir, work):
         fail("--image-bounds names no bound")
     d = os.path.join(work, "image")
     os.makedirs(d, exist_ok=True)
-    print(f"bench-rd: image part, harmonic {n}^3, bounds {', '.join(bounds)} x range, {size}", file=sys.stderr)
+    print(f"bench-rd: image part, {field} {n}^3, bounds {', '.join(bounds)} x range, {size}", file=sys.stderr)
     # reference: the CPU integrator on the original samples (a lossless store of the grid)
     lossless = os.path.join(d, "original")
     prepare(bindir, raw, n, spacing, L, lossless)
@@ -637,7 +642,7 @@ def image_part(args, bindir, work):
                 "image_psnr_db": fr["image_psnr_db"], "of_sz3_bytes": b / target["bytes"]}
 
     return {
-        "field": "harmonic",
+        "field": field,
         "grid": f"{n}^3",
         "level": L,
         "value_range": vr,

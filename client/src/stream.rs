@@ -527,9 +527,9 @@ pub(crate) async fn network(
     } = policy;
     // consecutive connection attempts that brought no new node (a failed connect counts too)
     let mut failures = 0u32;
-    // preview nodes were handed to the session (a reconnection says so in `Hello`), in how many
+    // preview nodes handed to the session (a reconnection names them in `Hello`), in how many
     // batches
-    let mut previewed = false;
+    let mut previewed: BTreeSet<TetId> = BTreeSet::new();
     let mut previews_delivered = 0u64;
     let mut dropped = false;
     let mut batches = 0u64;
@@ -559,6 +559,8 @@ pub(crate) async fn network(
         // ranges, and whatever a shortened list leaves out comes again (a duplicate, ignored)
         let mut have = ranges_of(&net.received.lock().expect("lock"));
         have.truncate(MAX_RANGES);
+        let mut held_previews = ranges_of(&previewed);
+        held_previews.truncate(MAX_RANGES);
         let conn = tokio::time::timeout(
             Duration::from_secs(5),
             tokio_tungstenite::connect_async_with_config(url.as_str(), Some(ws_config()), false),
@@ -585,7 +587,7 @@ pub(crate) async fn network(
             version: PROTOCOL_VERSION,
             token: token.clone(),
             have,
-            previewed,
+            previewed: held_previews,
         };
         let frame = encode(&hello).map_err(|e| StreamError::Protocol(e.to_string()))?;
         let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
@@ -683,9 +685,9 @@ pub(crate) async fn network(
                         for m in deliver {
                             let ack = match &m.0 {
                                 Delivery::Nodes { seq, .. } => Some(*seq),
-                                Delivery::Preview { seq, .. } => {
-                                    // a reconnection asks for no preview again
-                                    previewed = true;
+                                Delivery::Preview { seq, nodes } => {
+                                    // a reconnection asks for the rest of the preview only
+                                    previewed.extend(nodes.iter().map(|n| n.id));
                                     previews_delivered += 1;
                                     Some(*seq)
                                 }

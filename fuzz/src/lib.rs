@@ -134,13 +134,13 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
             version: PROTOCOL_VERSION,
             token: Some("token".into()),
             have: vec![IdRange { from: 0, to: 10 }, IdRange { from: 20, to: 25 }],
-            previewed: true,
+            previewed: vec![IdRange { from: 0, to: 3 }],
         },
         ClientMsg::Hello {
             version: PROTOCOL_VERSION,
             token: None,
             have: vec![],
-            previewed: false,
+            previewed: vec![],
         },
         ClientMsg::View(ViewParams {
             eye: [3.0, 2.0, 1.0],

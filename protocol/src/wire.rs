@@ -21,8 +21,9 @@ mod manifest;
 /// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
 /// sibling group). 9: the session's manifest in its own form ([`manifest`], with the store's
 /// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
-/// `Preview` batches, `Hello.previewed`.
-pub const PROTOCOL_VERSION: u16 = 9;
+/// `Preview` batches, `Hello.previewed`. 10: `Hello.previewed` names the preview nodes held (a
+/// cut preview resumes where it stopped).
+pub const PROTOCOL_VERSION: u16 = 10;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -51,13 +52,13 @@ pub struct ViewParams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ClientMsg {
     /// First message. `have`: node ranges the client already holds (resume after a drop);
-    /// `previewed`: it holds preview nodes (a connection dropped before the store's nodes came):
-    /// no preview again.
+    /// `previewed`: the preview nodes it holds (a connection dropped before the store's nodes
+    /// came): the preview resumes without them.
     Hello {
         version: u16,
         token: Option<String>,
         have: Vec<IdRange>,
-        previewed: bool,
+        previewed: Vec<IdRange>,
     },
     /// The camera moved: the server re-prioritises what it has not sent yet.
     View(ViewParams),
@@ -196,7 +197,12 @@ fn check_ranges(r: &[IdRange]) -> Result<(), WireError> {
 pub fn decode_client(frame: &[u8]) -> Result<ClientMsg, WireError> {
     let msg: ClientMsg = decode(frame)?;
     match &msg {
-        ClientMsg::Hello { have, .. } => check_ranges(have)?,
+        ClientMsg::Hello {
+            have, previewed, ..
+        } => {
+            check_ranges(have)?;
+            check_ranges(previewed)?
+        }
         ClientMsg::Want(r) | ClientMsg::Cancel(r) => check_ranges(r)?,
         ClientMsg::View(v) => {
             let finite = v
@@ -255,7 +261,7 @@ mod tests {
             version: PROTOCOL_VERSION,
             token: Some("t".into()),
             have: vec![IdRange { from: 0, to: 5 }],
-            previewed: true,
+            previewed: vec![IdRange { from: 5, to: 9 }],
         }
     }
 

@@ -1,7 +1,8 @@
 //! A new session of a store with a preview: `Preview` batches first (numbered with the `Nodes`
-//! batches, acknowledged like them), within the configured share of the store's bytes, most
-//! important first; then every node of the store's own, once. A resumed session, one that says
-//! it holds previews, and a server configured with no share get none. Every wait is bounded.
+//! batches, acknowledged like them), within the configured share of the store's bytes, coarse
+//! levels first and whole, the finest in batches that about double what was sent; then every
+//! node of the store's own, once. A resumed session and a server configured with no share get
+//! no preview; a session that says it holds preview nodes gets only the others. Every wait is bounded.
 
 mod stream_common;
 
@@ -34,6 +35,8 @@ fn preview_store() -> (tempfile::TempDir, std::path::PathBuf) {
 struct Received {
     previews: Vec<DetailNode>,
     preview_bytes: u64,
+    /// Each preview frame's bytes.
+    preview_frames: Vec<u64>,
     nodes: Vec<DetailNode>,
     end: u64,
 }
@@ -44,6 +47,7 @@ async fn receive(ws: &mut Ws, coder: &BlockCoder, preview: &BlockCoder) -> Recei
     let mut r = Received {
         previews: Vec::new(),
         preview_bytes: 0,
+        preview_frames: Vec::new(),
         nodes: Vec::new(),
         end: 0,
     };
@@ -70,6 +74,7 @@ async fn receive(ws: &mut Ws, coder: &BlockCoder, preview: &BlockCoder) -> Recei
                 })
                 .unwrap();
                 r.preview_bytes += frame.len() as u64;
+                r.preview_frames.push(frame.len() as u64);
                 r.previews.extend(preview.decode(&block).unwrap());
             }
             ServerMsg::Nodes { block, .. } => r.nodes.extend(coder.decode(&block).unwrap()),
@@ -120,15 +125,35 @@ async fn a_new_session_gets_the_preview_first_then_every_node() {
         // then every node of the store's own, once
         let ids: HashSet<u64> = r.nodes.iter().map(|x| x.id).collect();
         assert_eq!((ids.len() as u64, r.nodes.len() as u64, r.end), (n, n, n));
+        let sent: Vec<u64> = r.previews.iter().map(|x| x.id).collect();
         if order == Order::Level {
-            let sent: Vec<u64> = r.previews.iter().map(|x| x.id).collect();
             assert!(sent.windows(2).all(|w| w[0] < w[1]), "level order: by id");
+        }
+        // coarse to fine, the coarse levels whole in the first frame
+        let forest = store.forest();
+        let levels: Vec<u8> = sent.iter().map(|&i| forest.level(i)).collect();
+        assert!(
+            levels.windows(2).all(|w| w[0] <= w[1]),
+            "{order:?}: {levels:?}"
+        );
+        let finest = manifest.preview.as_ref().unwrap().levels - 1;
+        let coarse = forest.level_start(finest) as usize;
+        let mut first: Vec<u64> = sent[..coarse].to_vec();
+        first.sort_unstable();
+        assert_eq!(first, (0..coarse as u64).collect::<Vec<_>>(), "{order:?}");
+        // then batches that about double what was sent (a few, not one per level's group)
+        let f = &r.preview_frames;
+        assert!(f.len() >= 3, "{order:?}: {f:?}");
+        let mut before = f[0];
+        for &b in &f[1..f.len() - 1] {
+            assert!(b <= 2 * before && 2 * b >= before, "{order:?}: {f:?}");
+            before += b;
         }
     }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_share_bounds_the_preview_and_a_resumed_session_gets_none() {
+async fn the_share_bounds_the_preview_and_a_resumed_one_gets_only_what_it_lacks() {
     let (_d, dir) = preview_store();
     let store = Store::open(&dir).unwrap();
     let blocks = store.manifest.files["blocks.bin"].bytes;
@@ -154,23 +179,40 @@ async fn the_share_bounds_the_preview_and_a_resumed_session_gets_none() {
     let (r, _) = session_of(addr, &store, vec![IdRange { from: 0, to: 1 }]).await;
     assert!(r.previews.is_empty());
     assert_eq!(r.end, store.manifest.counts.nodes - 1);
-    // holding previews only (cut during the preview): none again, every node
-    let mut ws = connect(addr, "").await;
-    let mut h = hello(None, vec![]);
-    if let ClientMsg::Hello { previewed, .. } = &mut h {
-        *previewed = true;
+    // holding preview nodes only (cut during the preview): the rest of the preview, then every
+    // node; holding all of it: no preview (a server with the whole preview to give)
+    let config = ServeConfig {
+        order: Order::View,
+        ..ServeConfig::default()
+    };
+    let (addr, _) = start(&dir, config).await;
+    let all = store.preview.as_ref().unwrap().len() as u64;
+    for held in [
+        vec![IdRange { from: 0, to: 7 }, IdRange { from: 20, to: 90 }],
+        vec![IdRange { from: 0, to: all }],
+    ] {
+        let mut ws = connect(addr, "").await;
+        let mut h = hello(None, vec![]);
+        if let ClientMsg::Hello { previewed, .. } = &mut h {
+            *previewed = held.clone();
+        }
+        send(&mut ws, &h).await;
+        expect_opening(&mut ws).await;
+        let p = store.manifest.preview.as_ref().unwrap();
+        let r = receive(
+            &mut ws,
+            &BlockCoder::new(&store.base, &store.manifest.encoding),
+            &BlockCoder::for_preview(&store.base, &p.encoding),
+        )
+        .await;
+        let mut got: Vec<u64> = r.previews.iter().map(|x| x.id).collect();
+        got.sort_unstable();
+        let rest: Vec<u64> = (0..all)
+            .filter(|&i| !held.iter().any(|r| (r.from..r.to).contains(&i)))
+            .collect();
+        assert_eq!(got, rest);
+        assert_eq!(r.end, store.manifest.counts.nodes);
     }
-    send(&mut ws, &h).await;
-    expect_opening(&mut ws).await;
-    let p = store.manifest.preview.as_ref().unwrap();
-    let r = receive(
-        &mut ws,
-        &BlockCoder::new(&store.base, &store.manifest.encoding),
-        &BlockCoder::for_preview(&store.base, &p.encoding),
-    )
-    .await;
-    assert!(r.previews.is_empty());
-    assert_eq!(r.end, store.manifest.counts.nodes);
 
     // a server told to send none
     let config = ServeConfig {

@@ -449,7 +449,7 @@ async fn malformed_client_input() {
             version: 999,
             token: None,
             have: vec![],
-            previewed: false,
+            previewed: vec![],
         },
     )
     .await;

@@ -136,10 +136,10 @@ fn sessions_with_a_preview_end_identical_to_full_synthesis() {
             assert_identical(&got, &values);
         }
         lossy_session_ends_identical(&dir, "view", &d.path().join("lossy"), &values);
-        // cut right after the preview (one batch here), and after the next batch: the
-        // reconnection says it holds previews and gets none again
+        // cut during the preview (after its first and second batches of three) and after it:
+        // the reconnection names the preview nodes it holds and gets only the others
         let srv = serve(&dir, "view");
-        for after in [1, 2] {
+        for after in [1, 2, 4] {
             let cut = session_with(
                 srv.url(),
                 &d.path().join(format!("cut-{after}")),

@@ -251,7 +251,7 @@ async fn stream_to(
     // 4. nodes (a new session's preview first)
     let sched_s = s.clone();
     let (mut sched, mut preview) = tokio::task::spawn_blocking(move || {
-        let preview = PreviewPhase::new(&sched_s, order, have.is_empty() && !previewed);
+        let preview = PreviewPhase::new(&sched_s, order, &have, &previewed);
         let mut sc = Schedule::new(&sched_s, order);
         sc.have(&have);
         (sc, preview)
@@ -290,7 +290,7 @@ async fn stream_to(
             let (s2, seq) = (s.clone(), next_seq);
             let (p, frame) = tokio::task::spawn_blocking(move || {
                 let mut p = p;
-                let f = p.next_frame(&s2, seq, batch);
+                let f = p.next_frame(&s2, seq, max_batch);
                 (p, f)
             })
             .await
@@ -301,10 +301,9 @@ async fn stream_to(
                     preview = Some(p);
                     send(sink, Bytes::from(frame)).await?;
                     next_seq += 1;
-                    batch = (batch * 2).min(max_batch);
                     continue;
                 }
-                Ok(None) => batch = first_batch,
+                Ok(None) => {}
             }
         }
         if !pending.is_empty() || (sched.has_work() && can_send) {

@@ -13,8 +13,9 @@
 //! **Stream.** The client sends `Hello` first (version must match; with a token configured it must
 //! carry it, else `Error { code: 401 }` and close). The server answers `Manifest`, `Base`, then
 //! `Nodes` batches (`seq` 0, 1, 2, …) in the configured [`Order`], skipping what `Hello.have` covers,
-//! then `End { nodes_sent }`. A new session (empty `have`, `previewed` false) of a store with a preview first gets
-//! `Preview` batches (numbered with the others) within [`ServeConfig::preview_share`]. Client messages are read concurrently: `View` re-prioritises what is not
+//! then `End { nodes_sent }`. A session with an empty `have` of a store with a preview first gets
+//! `Preview` batches (numbered with the others) of the preview nodes that `Hello.previewed` does
+//! not name, within [`ServeConfig::preview_share`] (see `preview`). Client messages are read concurrently: `View` re-prioritises what is not
 //! sent yet (view order), `Want` queues ranges to (re)send ahead of the order (followed by another
 //! `End`), `Cancel` drops ranges, `Ack { seq }` acknowledges every batch up to `seq`.
 //!

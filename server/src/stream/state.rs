@@ -76,6 +76,8 @@ pub(super) struct ServedPreview {
     /// The sending order for view order (made at the first such session; the others send by
     /// increasing id).
     pub(super) view_order: OnceLock<Arc<Vec<TetId>>>,
+    /// Estimated bytes per node by level, for sizing batches (made at the first session).
+    pub(super) level_costs: OnceLock<Vec<f64>>,
 }
 
 /// Decoded store blocks kept when the store is not cached whole: batches of neighbouring
@@ -156,6 +158,7 @@ impl Shared {
         let preview = match (store.preview.take(), &store.manifest.preview) {
             (Some(nodes), Some(p)) if budget >= 1.0 => Some(ServedPreview {
                 view_order: OnceLock::new(),
+                level_costs: OnceLock::new(),
                 nodes,
                 coder: BlockCoder::for_preview(&store.base, &p.encoding),
                 budget: budget as u64,

@@ -185,7 +185,7 @@ pub fn hello(token: Option<&str>, have: Vec<IdRange>) -> ClientMsg {
         version: PROTOCOL_VERSION,
         token: token.map(String::from),
         have,
-        previewed: false,
+        previewed: vec![],
     }
 }
 
