@@ -237,7 +237,7 @@ async fn stream_to(
         budgets: &s.budgets,
         ip: peer.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |p| p.ip()),
     };
-    if !budget.charge(1 + have.len()) {
+    if !budget.charge(1 + have.len() + previewed.len()) {
         return Ok(Closing::client(
             429,
             "this address's control messages exceed its budget".into(),
