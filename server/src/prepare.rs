@@ -87,7 +87,7 @@ pub struct PrepareOptions {
     /// Also write a preview: the coarse levels analysed a second time within this error (`E`, or
     /// `E%` of the value range, e.g. `10%`), which `serve` sends a new session first, so that a
     /// thin link shows the whole volume coarsely after a few hundred bytes (docs/benchmarks.md).
-    /// Costs a second analysis. Needs at least 2 levels.
+    /// Costs a second analysis. Needs at least 2 levels and a bound coarser than the store's.
     #[arg(long, value_parser = parse_max_error)]
     pub preview: Option<ErrorBound>,
     /// How new vertices are predicted: `axes` (SZ3's cubic interpolation along the grid's axes,
@@ -515,6 +515,13 @@ fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {
 /// [`MAX_PREVIEW_NODES`]), with `p`'s coefficients, checked to have `a`'s masks (the preview's
 /// coder sends no subtree bounds: the store's own nodes bring theirs).
 fn preview_nodes(a: &Analysis, p: &Analysis) -> Result<PreviewNodes, PrepareError> {
+    if p.error_bound <= a.error_bound {
+        return Err(PrepareError::Usage(format!(
+            "--preview: its bound {:e} is no coarser than the store's {:e}; a preview is a coarse \
+             copy sent before the store's own nodes (give a larger bound, e.g. 10%)",
+            p.error_bound, a.error_bound
+        )));
+    }
     let forest = a.base.forest();
     if a.base
         .values

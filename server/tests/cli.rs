@@ -919,4 +919,22 @@ fn a_preview_is_written_beside_the_store() {
         ],
         &["--preview"],
     );
+    // a preview no coarser than the store is refused, and no store is written
+    let fine = d.path().join("fine");
+    expect_error(
+        &[
+            "prepare",
+            "synthetic:harmonic",
+            "--levels",
+            "3",
+            "--max-error",
+            "1%",
+            "--preview",
+            "0.5%",
+            "--out",
+            s(&fine),
+        ],
+        &["--preview", "no coarser"],
+    );
+    assert!(!fine.join("manifest.json").exists());
 }
