@@ -29,7 +29,8 @@ pub(super) struct PreviewPhase {
     len: usize,
     /// The next one to send.
     next: usize,
-    /// Bytes of preview blocks sent so far.
+    /// Bytes of preview blocks sent so far (on a resumed preview, first the estimated bytes of
+    /// what the client holds: they count against the budget, and batches go on doubling).
     sent: u64,
 }
 
@@ -46,9 +47,9 @@ impl PreviewPhase {
         let p = s.preview.as_ref().filter(|_| have.is_empty())?;
         let mut order = (order == Order::View)
             .then(|| p.view_order.get_or_init(|| Arc::new(view_order(s))).clone());
+        let mut sent = 0;
         if !previewed.is_empty() {
-            let mut held = previewed.to_vec();
-            held.sort_unstable_by_key(|r| r.from);
+            let held = merged(previewed);
             let held = |id: TetId| {
                 let i = held.partition_point(|r| r.from <= id);
                 i > 0 && id < held[i - 1].to
@@ -59,13 +60,20 @@ impl PreviewPhase {
                 None => (0..all).filter(|&i| !held(i)).collect(),
             };
             order = Some(Arc::new(rest));
+            let forest = s.forest();
+            let costs = p.level_costs.get_or_init(|| level_costs(p, forest));
+            let bytes: f64 = (0..all)
+                .filter(|&i| held(i))
+                .map(|i| costs[forest.level(i) as usize])
+                .sum();
+            sent = bytes as u64;
         }
         let len = order.as_ref().map_or(p.nodes.len(), |o| o.len());
         (len > 0).then_some(PreviewPhase {
             order,
             len,
             next: 0,
-            sent: 0,
+            sent,
         })
     }
 
@@ -83,7 +91,7 @@ impl PreviewPhase {
         };
         let mut k = self.batch_nodes(s, p).min(max_nodes.max(1));
         // the first batch is whole levels; a later one aims at the bytes sent so far
-        let target = (self.next > 0).then_some(self.sent);
+        let target = (self.sent > 0).then_some(self.sent);
         let mut resized = 0;
         while k > 0 {
             let take = self.next..self.next + k;
@@ -126,7 +134,7 @@ impl PreviewPhase {
             Some(o) => o[i],
             None => i as TetId,
         };
-        if self.next == 0 {
+        if self.sent == 0 {
             let finest = forest.level(id(self.len - 1));
             let coarse = (0..self.len).take_while(|&i| forest.level(id(i)) < finest);
             let k = coarse.count();
@@ -144,6 +152,20 @@ impl PreviewPhase {
         }
         k
     }
+}
+
+/// `ranges` sorted and merged (a client's may overlap).
+fn merged(ranges: &[IdRange]) -> Vec<IdRange> {
+    let mut r = ranges.to_vec();
+    r.sort_unstable_by_key(|x| x.from);
+    let mut out: Vec<IdRange> = Vec::with_capacity(r.len());
+    for x in r {
+        match out.last_mut() {
+            Some(last) if x.from <= last.to => last.to = last.to.max(x.to),
+            _ => out.push(x),
+        }
+    }
+    out
 }
 
 /// Estimated bytes a preview node costs, by level: its level's nodes coded alone as one block,
