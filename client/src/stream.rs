@@ -26,8 +26,8 @@ use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{
-    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, MAX_FRAME_BYTES, MAX_RANGES,
-    PROTOCOL_VERSION,
+    decode_server, encode, ClientMsg, IdRange, ServerMsg, SessionStart, ViewParams,
+    MAX_FRAME_BYTES, MAX_RANGES, PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode, TetId};
 use tetwave_render::gpu::pt::PtRenderer;
@@ -423,44 +423,53 @@ struct BlockDecoder {
 }
 
 impl BlockDecoder {
-    fn decode(&mut self, m: ServerMsg) -> Result<Delivery, StreamError> {
-        Ok(match m {
-            ServerMsg::Manifest(m) => {
-                // the block decoder assumes an encoding it can read (bits, steps)
-                m.encoding
-                    .check()
-                    .map_err(|e| StreamError::Protocol(format!("manifest: {e}")))?;
-                if let Some(p) = &m.preview {
-                    p.encoding
-                        .check()
-                        .map_err(|e| StreamError::Protocol(format!("manifest: preview: {e}")))?;
-                }
-                // a server restarted with another store version: its coders, not the old ones
-                if self
-                    .manifest
-                    .as_ref()
-                    .is_some_and(|old| old.encoding != m.encoding || old.preview != m.preview)
-                {
-                    self.coder = None;
-                }
-                self.manifest = Some(m.clone());
-                Delivery::Manifest(m)
+    fn manifest(&mut self, m: Box<Manifest>) -> Result<Delivery, StreamError> {
+        // the block decoder assumes an encoding it can read (bits, steps)
+        m.encoding
+            .check()
+            .map_err(|e| StreamError::Protocol(format!("manifest: {e}")))?;
+        if let Some(p) = &m.preview {
+            p.encoding
+                .check()
+                .map_err(|e| StreamError::Protocol(format!("manifest: preview: {e}")))?;
+        }
+        // a server restarted with another store version: its coders, not the old ones
+        if self
+            .manifest
+            .as_ref()
+            .is_some_and(|old| old.encoding != m.encoding || old.preview != m.preview)
+        {
+            self.coder = None;
+        }
+        self.manifest = Some(m.clone());
+        Ok(Delivery::Manifest(m))
+    }
+
+    fn base(&mut self, b: Box<BaseMesh>) -> Result<Delivery, StreamError> {
+        // a resumed connection sends the same base again: keep its coder
+        if self.coder.as_ref().is_none_or(|(held, ..)| **held != *b) {
+            let m = self
+                .manifest
+                .as_ref()
+                .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
+            let preview = m
+                .preview
+                .as_ref()
+                .map(|p| BlockCoder::for_preview(&b, &p.encoding));
+            self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding), preview));
+        }
+        Ok(Delivery::Base(b))
+    }
+
+    /// What `m` delivers: a `Start`, the manifest then the base mesh; anything else, one.
+    fn decode(&mut self, m: ServerMsg) -> Result<Vec<Delivery>, StreamError> {
+        Ok(vec![match m {
+            ServerMsg::Start(st) => {
+                let SessionStart { manifest, base } = *st;
+                let m = self.manifest(Box::new(manifest))?;
+                return Ok(vec![m, self.base(Box::new(base))?]);
             }
-            ServerMsg::Base(b) => {
-                // a resumed connection sends the same base again: keep its coder
-                if self.coder.as_ref().is_none_or(|(held, ..)| **held != *b) {
-                    let m = self
-                        .manifest
-                        .as_ref()
-                        .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-                    let preview = m
-                        .preview
-                        .as_ref()
-                        .map(|p| BlockCoder::for_preview(&b, &p.encoding));
-                    self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding), preview));
-                }
-                Delivery::Base(b)
-            }
+            ServerMsg::Base(b) => self.base(b)?,
             ServerMsg::Nodes { seq, block } => {
                 let (_, coder, _) = self
                     .coder
@@ -502,7 +511,7 @@ impl BlockDecoder {
             }
             ServerMsg::End { .. } => Delivery::End,
             ServerMsg::Error { code, message } => Delivery::Error { code, message },
-        })
+        }])
     }
 }
 
@@ -609,10 +618,14 @@ pub(crate) async fn network(
                         let Message::Binary(bytes) = msg else { continue };
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
-                        let m = blocks.decode(m)?;
+                        let ms = blocks.decode(m)?;
                         let ask = matches!(levelset.load(Ordering::Acquire), LEVELSET_IDLE | LEVELSET_FAILED)
                             && levelset_attempts < LEVELSET_ATTEMPTS;
-                        if let (Delivery::Base(base), true) = (&m, ask) {
+                        let base = ms.iter().find_map(|d| match d {
+                            Delivery::Base(b) => Some(b),
+                            _ => None,
+                        });
+                        if let (Some(base), true) = (base, ask) {
                             levelset_attempts += 1;
                             if let Some(man) = blocks.manifest.as_deref().filter(|m| m.has_levelset_band()) {
                                 // beside the stream, so the nodes do not wait for it; only for a
@@ -648,8 +661,10 @@ pub(crate) async fn network(
                                 }
                             }
                         }
-                        let mut deliver = vec![(m, bytes.len() as u64)];
-                        if let (Delivery::Nodes { nodes, .. }, _) = &deliver[0] {
+                        // the frame's bytes go with its first delivery
+                        let mut deliver: Vec<(Delivery, u64)> =
+                            ms.into_iter().zip(std::iter::once(bytes.len() as u64).chain(std::iter::repeat(0))).collect();
+                        if let [(Delivery::Nodes { nodes, .. }, _)] = &deliver[..] {
                             batches += 1;
                             if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
                                 deliver.clear();
@@ -1124,7 +1139,10 @@ mod tests {
                 encoding,
                 ..manifest_for(&base)
             };
-            let got = BlockDecoder::default().decode(ServerMsg::Manifest(Box::new(m)));
+            let got = BlockDecoder::default().decode(ServerMsg::Start(Box::new(SessionStart {
+                manifest: m,
+                base: base.clone(),
+            })));
             assert_eq!(got.is_ok(), ok, "{:?}", got.err());
         }
     }

@@ -19,7 +19,7 @@ use tetwave_protocol::shapes::box5;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::testing::{detail_nodes, manifest_for, unsampled_base};
 use tetwave_protocol::wire::{
-    decode_client, encode, ClientMsg, IdRange, ServerMsg, MAX_FRAME_BYTES,
+    decode_client, encode, ClientMsg, IdRange, ServerMsg, SessionStart, MAX_FRAME_BYTES,
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tokio::io::AsyncWriteExt;
@@ -109,8 +109,11 @@ async fn send(ws: &mut Ws, m: &ServerMsg) {
 /// Reads the client's Hello and sends the manifest and the base mesh.
 async fn open(ws: &mut Ws, m: &Manifest, base: &BaseMesh) {
     assert!(matches!(recv(ws).await, Some(ClientMsg::Hello { .. })));
-    send(ws, &ServerMsg::Manifest(Box::new(m.clone()))).await;
-    send(ws, &ServerMsg::Base(Box::new(base.clone()))).await;
+    let start = SessionStart {
+        manifest: m.clone(),
+        base: base.clone(),
+    };
+    send(ws, &ServerMsg::Start(Box::new(start))).await;
 }
 
 /// Keeps the connection open, reading (and dropping) what the client sends, until it leaves.

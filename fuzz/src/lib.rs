@@ -12,8 +12,8 @@ use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::shapes::box5;
 use tetwave_protocol::store_format::Encoding;
 use tetwave_protocol::wire::{
-    decode_client, decode_server, encode, frame_len, ClientMsg, IdRange, ServerMsg, ViewParams,
-    PROTOCOL_VERSION,
+    decode_client, decode_server, encode, frame_len, ClientMsg, IdRange, ServerMsg, SessionStart,
+    ViewParams, PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
 
@@ -174,70 +174,33 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
                 .encode(&[node(0, 0b111111), node(5, 0b000101)])
                 .expect("valid nodes"),
         },
-        // the session's manifest form, with a preview and a level-set band
-        ServerMsg::Manifest(Box::new({
-            use tetwave_protocol::store_format::{
-                Counts, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
-            };
-            let f = tetwave_protocol::Forest::new(5, 3);
-            Manifest {
-                format: STORE_FORMAT.into(),
-                version: STORE_VERSION,
-                dataset: "d".into(),
-                source: String::new(),
-                bounds: [[0.0; 3], [30.0, 30.0, 0.1]],
-                base: "box5".into(),
-                base_tets: 5,
-                base_vertices: 8,
-                levels: 3,
-                value_range: [-1.0, 2.0],
-                source_value_range: Some([-1.0, 2.5]),
-                counts: Counts {
-                    tets_total: f.total_tets(),
-                    leaves: f.leaves(),
-                    nodes: f.nodes(),
-                    vertices: 729,
-                    coefficients: 721,
-                    outside_vertices: 0,
-                    empty_base_tets: 0,
-                },
-                encoding: Encoding::uniform(12, 0.01),
-                max_error_bound: 0.005,
-                max_abs_error: 0.004,
-                files: [(
-                    LEVELSET_BAND_FILE.to_string(),
-                    FileSum {
-                        bytes: 1234,
-                        crc32: 5678,
-                    },
-                )]
-                .into_iter()
-                .collect(),
-                preview: Some(Preview {
-                    encoding: Encoding::uniform(8, 0.5),
-                    levels: 2,
-                    max_error_bound: 0.25,
-                }),
-            }
+        // the session's start: the manifest's form, with a preview and a level-set band, and its
+        // base mesh as the manifest's named box (short) and as another mesh (whole)
+        ServerMsg::Start(Box::new(SessionStart {
+            base: {
+                let [lo, hi] = session_manifest().bounds;
+                let (positions, tets) = tetwave_protocol::shapes::box5(lo, hi);
+                tetwave_protocol::BaseMesh {
+                    levels: 3,
+                    values: vec![0.5; positions.len()],
+                    empty: vec![false; tets.len()],
+                    predictor: Default::default(),
+                    positions,
+                    tets,
+                }
+            },
+            manifest: session_manifest(),
+        })),
+        ServerMsg::Start(Box::new(SessionStart {
+            base: one_tet(),
+            manifest: session_manifest(),
         })),
         ServerMsg::End { nodes_sent: 1234 },
         ServerMsg::Error {
             code: 401,
             message: "missing or wrong token".into(),
         },
-        ServerMsg::Base(Box::new(tetwave_protocol::BaseMesh {
-            levels: 1,
-            positions: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [0.0, 1.0, 0.0],
-                [0.0, 0.0, 1.0],
-            ],
-            tets: vec![[0, 1, 2, 3]],
-            values: vec![0.0, 1.0, 2.0, 3.0],
-            empty: vec![false],
-            predictor: Default::default(),
-        })),
+        ServerMsg::Base(Box::new(one_tet())),
         // a box6 base with the axes predictor (its validation checks the Kuhn structure)
         ServerMsg::Base(Box::new({
             let (positions, tets) = tetwave_protocol::shapes::box6([0.0; 3], [1.0; 3]);
@@ -256,4 +219,68 @@ pub fn seed_frames() -> Vec<Vec<u8>> {
         .map(|m| encode(m).unwrap())
         .chain(server.iter().map(|m| encode(m).unwrap()))
         .collect()
+}
+
+/// A session's manifest (with a preview and a level-set band) for seeds.
+fn session_manifest() -> tetwave_protocol::store_format::Manifest {
+    use tetwave_protocol::store_format::{
+        Counts, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
+    };
+    let f = tetwave_protocol::Forest::new(5, 3);
+    Manifest {
+        format: STORE_FORMAT.into(),
+        version: STORE_VERSION,
+        dataset: "d".into(),
+        source: String::new(),
+        bounds: [[0.0; 3], [30.0, 30.0, 0.1]],
+        base: "box5".into(),
+        base_tets: 5,
+        base_vertices: 8,
+        levels: 3,
+        value_range: [-1.0, 2.0],
+        source_value_range: Some([-1.0, 2.5]),
+        counts: Counts {
+            tets_total: f.total_tets(),
+            leaves: f.leaves(),
+            nodes: f.nodes(),
+            vertices: 729,
+            coefficients: 721,
+            outside_vertices: 0,
+            empty_base_tets: 0,
+        },
+        encoding: Encoding::uniform(12, 0.01),
+        max_error_bound: 0.005,
+        max_abs_error: 0.004,
+        files: [(
+            LEVELSET_BAND_FILE.to_string(),
+            FileSum {
+                bytes: 1234,
+                crc32: 5678,
+            },
+        )]
+        .into_iter()
+        .collect(),
+        preview: Some(Preview {
+            encoding: Encoding::uniform(8, 0.5),
+            levels: 2,
+            max_error_bound: 0.25,
+        }),
+    }
+}
+
+/// A base mesh of one tet for seeds.
+fn one_tet() -> tetwave_protocol::BaseMesh {
+    tetwave_protocol::BaseMesh {
+        levels: 1,
+        positions: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+        ],
+        tets: vec![[0, 1, 2, 3]],
+        values: vec![0.0, 1.0, 2.0, 3.0],
+        empty: vec![false],
+        predictor: Default::default(),
+    }
 }

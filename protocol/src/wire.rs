@@ -7,11 +7,12 @@
 //! carries exactly one frame.
 
 use crate::block::{NodeBlock, MAX_BLOCK_NODES};
-use crate::store_format::Manifest;
 use crate::{BaseMesh, TetId};
 use serde::{Deserialize, Serialize};
 
 mod manifest;
+mod start;
+pub use start::SessionStart;
 
 /// 2: `Nodes` carries a coded [`NodeBlock`] (version 1 sent f32 detail nodes). 3: the blocks of
 /// store format 3. 4: the manifest carries `source_value_range` (bincode is positional: a
@@ -22,7 +23,8 @@ mod manifest;
 /// sibling group). 9: the session's manifest in its own form ([`manifest`], with the store's
 /// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
 /// `Preview` batches, `Hello.previewed`. 10: `Hello.previewed` names the preview nodes held (a
-/// cut preview resumes where it stopped).
+/// cut preview resumes where it stopped); the session starts with one `Start` frame, the manifest
+/// and the base mesh, a named box's corners once ([`start`]).
 pub const PROTOCOL_VERSION: u16 = 10;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
@@ -72,8 +74,10 @@ pub enum ClientMsg {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ServerMsg {
-    /// The store's manifest, as much of it as a client needs ([`manifest`]).
-    Manifest(#[serde(with = "manifest")] Box<Manifest>),
+    /// A session's first message: the store's manifest, as much of it as a client needs
+    /// ([`manifest`]), and the base mesh ([`start`]).
+    Start(#[serde(with = "start")] Box<SessionStart>),
+    /// The base mesh alone (`GET /v1/base`).
     Base(Box<BaseMesh>),
     /// Detail nodes as one coded block ([`crate::block`]; decode with the
     /// [`crate::block::BlockCoder`] of the manifest and base mesh); `seq` increases by one per batch
@@ -245,6 +249,10 @@ pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
         ServerMsg::Base(b) => b
             .validate()
             .map_err(|e| WireError::Invalid(e.to_string()))?,
+        ServerMsg::Start(st) => st
+            .base
+            .validate()
+            .map_err(|e| WireError::Invalid(e.to_string()))?,
         _ => {}
     }
     Ok(msg)
@@ -253,7 +261,7 @@ pub fn decode_server(frame: &[u8]) -> Result<ServerMsg, WireError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store_format::{Counts, Encoding};
+    use crate::store_format::{Counts, Encoding, Manifest};
     use proptest::prelude::*;
 
     fn hello() -> ClientMsg {
@@ -322,11 +330,26 @@ mod tests {
                 files: Default::default(),
                 preview: None,
             };
-            let sent = ServerMsg::Manifest(Box::new(m.clone()));
+            let (positions, tets) = crate::shapes::box5([0.0; 3], [1.0; 3]);
+            let base = BaseMesh {
+                levels: 2,
+                values: vec![0.5; positions.len()],
+                empty: vec![false; tets.len()],
+                positions,
+                tets,
+                predictor: crate::wavelet::Predictor::Parent,
+            };
+            let start = |manifest: &Manifest| {
+                ServerMsg::Start(Box::new(SessionStart {
+                    manifest: manifest.clone(),
+                    base: base.clone(),
+                }))
+            };
+            let sent = start(&m);
             assert_eq!(decode_server(&encode(&sent).unwrap()).unwrap(), sent);
-            // what the session leaves out (manifest::tests covers the rest)
+            // what the session leaves out (manifest::tests and start::tests cover the rest)
             m.source = "input.vtu".into();
-            let got = decode_server(&encode(&ServerMsg::Manifest(Box::new(m))).unwrap()).unwrap();
+            let got = decode_server(&encode(&start(&m)).unwrap()).unwrap();
             assert_eq!(got, sent);
         }
     }

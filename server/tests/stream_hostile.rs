@@ -231,7 +231,7 @@ async fn foreign_origins_and_hosts_are_refused() {
         .await
         .expect("same origin streams");
     send(&mut ws, &hello(None, vec![])).await;
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Manifest(_))));
+    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Start(_))));
     for path in ["/healthz", "/v1/manifest", "/"] {
         let r = get_from(ATTACKER, addr, path, &[("Host", "evil.example")]).await;
         assert_eq!(r.status, 403, "{path} with a foreign Host");

@@ -92,10 +92,9 @@ async fn session_of(
     let mut ws = connect(addr, "").await;
     send(&mut ws, &hello(None, have)).await;
     let manifest = match recv(&mut ws).await {
-        Some(ServerMsg::Manifest(m)) => *m,
-        other => panic!("expected the manifest, got {other:?}"),
+        Some(ServerMsg::Start(st)) => st.manifest,
+        other => panic!("expected the session's start, got {other:?}"),
     };
-    assert!(matches!(recv(&mut ws).await, Some(ServerMsg::Base(_))));
     let coder = BlockCoder::new(&store.base, &store.manifest.encoding);
     let p = store.manifest.preview.as_ref().unwrap();
     let preview = BlockCoder::for_preview(&store.base, &p.encoding);

@@ -1,4 +1,4 @@
-//! The manifest as a session sends it ([`super::ServerMsg::Manifest`]): what a client needs, in
+//! The manifest as a session sends it (in [`super::ServerMsg::Start`]): what a client needs, in
 //! fewer bytes than the store's whole manifest. Left out, because a client can derive or does not
 //! need them: the format and version (the protocol version implies the store's), the counts that
 //! follow from the base tets and levels (all tets, leaves, nodes), the source file's name and every

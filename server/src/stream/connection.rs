@@ -244,9 +244,8 @@ async fn stream_to(
         ));
     }
 
-    // 3. manifest, base
-    send(sink, s.manifest_frame.clone()).await?;
-    send(sink, s.base_frame.clone()).await?;
+    // 3. manifest and base mesh
+    send(sink, s.start_frame.clone()).await?;
 
     // 4. nodes (a new session's preview first)
     let sched_s = s.clone();

@@ -11,7 +11,7 @@
 //! | `GET /`                    | a small page showing fallback images ([`crate::render_service`])  |
 //!
 //! **Stream.** The client sends `Hello` first (version must match; with a token configured it must
-//! carry it, else `Error { code: 401 }` and close). The server answers `Manifest`, `Base`, then
+//! carry it, else `Error { code: 401 }` and close). The server answers `Start` (manifest and base mesh), then
 //! `Nodes` batches (`seq` 0, 1, 2, …) in the configured [`Order`], skipping what `Hello.have` covers,
 //! then `End { nodes_sent }`. A session with an empty `have` of a store with a preview first gets
 //! `Preview` batches (numbered with the others) of the preview nodes that `Hello.previewed` does

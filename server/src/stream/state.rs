@@ -17,7 +17,7 @@ use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
 use tetwave_protocol::view::tet_sphere;
-use tetwave_protocol::wire::{encode, ServerMsg};
+use tetwave_protocol::wire::{encode, ServerMsg, SessionStart};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
 use tetwave_store::Manifest;
 use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
@@ -36,7 +36,9 @@ pub struct Shared {
     forest: Forest,
     pub(super) nodes: u64,
     pub(super) manifest_json: Bytes,
-    pub(super) manifest_frame: Bytes,
+    /// A session's first frame: `ServerMsg::Start`.
+    pub(super) start_frame: Bytes,
+    /// `GET /v1/base`'s frame: `ServerMsg::Base`.
     pub(super) base_frame: Bytes,
     /// The coded near band of the domain's level set (`/v1/levelset`), when the store has one.
     pub(super) levelset_near: Option<Bytes>,
@@ -132,9 +134,12 @@ impl Shared {
         let manifest_json = Bytes::from(
             serde_json::to_vec_pretty(&served).map_err(|e| ServeError::Encode(e.to_string()))?,
         );
-        let manifest_frame = Bytes::from(
-            encode(&ServerMsg::Manifest(Box::new(served)))
-                .map_err(|e| ServeError::Encode(e.to_string()))?,
+        let start_frame = Bytes::from(
+            encode(&ServerMsg::Start(Box::new(SessionStart {
+                manifest: served,
+                base: store.base.clone(),
+            })))
+            .map_err(|e| ServeError::Encode(e.to_string()))?,
         );
         let base_frame = Bytes::from(
             encode(&ServerMsg::Base(Box::new(store.base.clone())))
@@ -173,7 +178,7 @@ impl Shared {
             forest,
             nodes,
             manifest_json,
-            manifest_frame,
+            start_frame,
             base_frame,
             levelset_near,
             cache,

@@ -10,7 +10,8 @@ use std::sync::Arc;
 use std::time::Duration;
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::wire::{
-    decode_server, encode, ClientMsg, IdRange, ServerMsg, ViewParams, PROTOCOL_VERSION,
+    decode_server, encode, ClientMsg, IdRange, ServerMsg, SessionStart, ViewParams,
+    PROTOCOL_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_server::prepare::{prepare, PrepareOptions};
@@ -189,10 +190,9 @@ pub fn hello(token: Option<&str>, have: Vec<IdRange>) -> ClientMsg {
     }
 }
 
-/// Takes a session's opening after `Hello`: the manifest, then the base mesh.
+/// Takes a session's opening after `Hello`: `Start`, the manifest and the base mesh.
 pub async fn expect_opening(ws: &mut Ws) {
-    assert!(matches!(recv(ws).await, Some(ServerMsg::Manifest(_))));
-    assert!(matches!(recv(ws).await, Some(ServerMsg::Base(_))));
+    assert!(matches!(recv(ws).await, Some(ServerMsg::Start(_))));
 }
 
 /// A stream opened with `Hello` (no token, no `have`), past the manifest and base mesh.
@@ -234,15 +234,11 @@ pub struct Session {
     pub batches: Vec<usize>,
 }
 
-/// Receives `Manifest`, `Base`, then batches (acking each) until `End`.
+/// Receives `Start`, then batches (acking each) until `End`.
 pub async fn receive_all(ws: &mut Ws) -> Session {
-    let manifest = match recv(ws).await {
-        Some(ServerMsg::Manifest(m)) => *m,
-        other => panic!("expected the manifest, got {other:?}"),
-    };
-    let base = match recv(ws).await {
-        Some(ServerMsg::Base(b)) => *b,
-        other => panic!("expected the base mesh, got {other:?}"),
+    let SessionStart { manifest, base } = match recv(ws).await {
+        Some(ServerMsg::Start(st)) => *st,
+        other => panic!("expected the session's start, got {other:?}"),
     };
     let coder = BlockCoder::new(&base, &manifest.encoding);
     let (nodes, end_nodes_sent, batches) = receive_nodes(ws, &coder).await;
