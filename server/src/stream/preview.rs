@@ -11,6 +11,7 @@
 //! what the client holds about doubles with every frame it draws.
 
 use super::config::Order;
+use super::schedule::merged;
 use super::state::{ServedPreview, Shared};
 use std::sync::Arc;
 use tetwave_protocol::wire::{encode, IdRange, ServerMsg};
@@ -49,12 +50,12 @@ impl PreviewPhase {
             .then(|| p.view_order.get_or_init(|| Arc::new(view_order(s))).clone());
         let mut sent = 0;
         if !previewed.is_empty() {
-            let held = merged(previewed);
-            let held = |id: TetId| {
-                let i = held.partition_point(|r| r.from <= id);
-                i > 0 && id < held[i - 1].to
-            };
             let all = p.nodes.len() as TetId;
+            let ranges = merged(previewed, all);
+            let held = |id: TetId| {
+                let i = ranges.partition_point(|r| r.0 <= id);
+                i > 0 && id < ranges[i - 1].1
+            };
             let rest: Vec<TetId> = match &order {
                 Some(o) => o.iter().copied().filter(|&i| !held(i)).collect(),
                 None => (0..all).filter(|&i| !held(i)).collect(),
@@ -62,8 +63,9 @@ impl PreviewPhase {
             order = Some(Arc::new(rest));
             let forest = s.forest();
             let costs = p.level_costs.get_or_init(|| level_costs(p, forest));
-            let bytes: f64 = (0..all)
-                .filter(|&i| held(i))
+            let bytes: f64 = ranges
+                .iter()
+                .flat_map(|&(a, b)| a..b)
                 .map(|i| costs[forest.level(i) as usize])
                 .sum();
             sent = bytes as u64;
@@ -152,20 +154,6 @@ impl PreviewPhase {
         }
         k
     }
-}
-
-/// `ranges` sorted and merged (a client's may overlap).
-fn merged(ranges: &[IdRange]) -> Vec<IdRange> {
-    let mut r = ranges.to_vec();
-    r.sort_unstable_by_key(|x| x.from);
-    let mut out: Vec<IdRange> = Vec::with_capacity(r.len());
-    for x in r {
-        match out.last_mut() {
-            Some(last) if x.from <= last.to => last.to = last.to.max(x.to),
-            _ => out.push(x),
-        }
-    }
-    out
 }
 
 /// Estimated bytes a preview node costs, by level: its level's nodes coded alone as one block,

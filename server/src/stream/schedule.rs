@@ -104,7 +104,7 @@ impl RangeSet {
 
 /// A message's ranges clipped to `0..n`, sorted and merged: at most `ranges.len()` disjoint ranges,
 /// `O(r log r)` whatever the ranges cover.
-fn merged(ranges: &[IdRange], n: u64) -> Vec<(u64, u64)> {
+pub(super) fn merged(ranges: &[IdRange], n: u64) -> Vec<(u64, u64)> {
     let mut v: Vec<(u64, u64)> = ranges
         .iter()
         .map(|r| (r.from.min(n), r.to.min(n)))
