@@ -381,6 +381,12 @@ impl DetailBuffer {
         self.meta.contains_key(t)
     }
 
+    /// Whether node `t` is held as a preview (not yet replaced by the store's own).
+    #[inline]
+    pub fn is_preview(&self, t: TetId) -> bool {
+        self.previews.contains(&t)
+    }
+
     /// The ids of the hierarchy's nodes not held, as ascending disjoint ranges. The walk takes time
     /// in the nodes held (and their pages), never in the hierarchy's size: a hierarchy of a
     /// billion nodes with none held is one range.

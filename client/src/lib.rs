@@ -16,6 +16,7 @@ pub mod render_cli;
 pub mod render_probe;
 mod seg_vec;
 pub mod select;
+pub mod select_args;
 pub mod session;
 pub mod store_info;
 pub mod stream;

@@ -101,7 +101,8 @@ impl Session {
             }
         }
         if !self.arrivals.is_empty() {
-            self.mesh.apply_arrivals(&self.buf, &self.arrivals);
+            let recomputed = self.mesh.apply_arrivals(&self.buf, &self.arrivals);
+            self.values_changed(recomputed);
             if self.arrivals.replaced.is_empty() {
                 self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
             } else {
@@ -127,14 +128,34 @@ impl Session {
     /// One frame of selective refinement for `cam`, within the selector's budget for `mode`
     /// (first bringing vertex values up to the nodes held, where arrivals defer that).
     pub fn frame(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
-        self.mesh.refresh_values(&self.buf);
+        let recomputed = self.mesh.refresh_values(&self.buf);
+        self.values_changed(recomputed);
         self.sel.frame(&mut self.mesh, &self.buf, cam, mode)
     }
 
     /// Refines until the selector is satisfied for `cam`, whatever the budget.
     pub fn converge(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
-        self.mesh.refresh_values(&self.buf);
+        let recomputed = self.mesh.refresh_values(&self.buf);
+        self.values_changed(recomputed);
         self.sel.converge(&mut self.mesh, &self.buf, cam, mode)
+    }
+
+    /// `recomputed` present vertex values were brought up to the coefficients held: the image
+    /// criterion reads vertex values, so its statuses are looked at again (the other criteria
+    /// read none).
+    fn values_changed(&mut self, recomputed: usize) {
+        if recomputed > 0 && self.sel.params.image.is_some() {
+            self.sel.notify_arrivals();
+        }
+    }
+
+    /// Replaces the selector's parameters (criterion, budget, transfer function's sensitivity);
+    /// the next frame looks at the whole mesh again when they changed.
+    pub fn set_params(&mut self, params: SelectParams) {
+        if self.sel.params != params {
+            self.sel.params = params;
+            self.sel.notify_arrivals();
+        }
     }
 
     /// Changes the selector's tolerance; the next frame looks at the whole mesh again.
@@ -148,6 +169,22 @@ impl Session {
     /// Whether the last frame left nothing to do for its camera and the nodes held.
     pub fn is_converged(&self) -> bool {
         self.sel.is_converged()
+    }
+
+    /// Whether the mesh is final for the last frame's camera whatever arrives next: the selector
+    /// converged and every leaf it could still split holds its store node (not a preview), whose
+    /// subtree bound told the criterion that the image needs nothing below it. Later arrivals
+    /// may still correct vertex values in place (by at most the missing details). One pass over
+    /// the mesh's nodes.
+    pub fn view_complete(&self) -> bool {
+        if !self.sel.is_converged() {
+            return false;
+        }
+        let mut ok = true;
+        self.mesh.for_each_splittable_leaf(|id| {
+            ok &= self.buf.is_present(id) && !self.buf.is_preview(id);
+        });
+        ok
     }
 
     /// The selector's parameters (tolerance, budgets).

@@ -100,6 +100,17 @@ pub struct StreamArgs {
     /// arrived and is refined (51 B per leaf tet measured, 7 leaves per node).
     #[arg(long, default_value_t = DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_nodes: u64,
+    /// Stop at the first frame whose mesh is final for its camera: converged, every leaf that
+    /// could still be split holding its node (`view_complete` in the frames), without waiting
+    /// for the rest of the stream (at most `--frames`).
+    #[arg(long, conflicts_with = "until_complete")]
+    pub until_converged: bool,
+    /// Draw the last frame's mesh to this PNG after the session: on the GPU, or with the CPU
+    /// reference under `--cpu` or `--no-render`.
+    #[arg(long)]
+    pub final_png: Option<PathBuf>,
+    #[command(flatten)]
+    pub select: crate::select_args::SelectionArgs,
 }
 
 /// `--max-nodes`' default: see [`StreamArgs::max_nodes`].
@@ -131,6 +142,9 @@ impl StreamArgs {
             per_frame: 0,
             retries: 5,
             max_nodes: DEFAULT_MAX_NODES,
+            until_converged: false,
+            final_png: None,
+            select: Default::default(),
         }
     }
 }
@@ -231,6 +245,14 @@ pub struct FrameRecord {
     pub bytes_received: u64,
     pub nodes: u64,
     pub tets: u64,
+    /// Leaves of the red tree (what `--max-tets` bounds).
+    pub leaves: u64,
+    /// The selector has nothing left to do for this frame's camera and the nodes held.
+    pub converged: bool,
+    /// The mesh is final for this frame's camera ([`Session::view_complete`]).
+    pub view_complete: bool,
+    /// The leaf budget (`--max-tets`) refused a split the criterion wanted.
+    pub budget_bound: bool,
     pub refine_ms: f64,
     pub render_ms: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -842,6 +864,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut last_view: Option<ViewParams> = None;
     let wait_base = Duration::from_secs(10);
     let mut frame = 0u32;
+    let mut last_cam: Option<Camera> = None;
     // a failure past the base mesh: the frames so far are written, then the session fails
     let mut failure: Option<StreamError> = None;
     let mut net_done = false;
@@ -909,8 +932,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             got_any = true;
             bytes_applied += nbytes;
             let start = |b: BaseMesh, m: &Manifest| {
-                let params =
+                let mut params =
                     SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
+                args.select
+                    .apply(&mut params, &tf, m.display_value_range(), &b);
                 Session::new(b, params)
                     .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
             };
@@ -977,7 +1002,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             (Some(_), true) => Mode::Interactive,
             (Some(_), false) => Mode::Progressive,
         };
-        session
+        let fst = session
             .frame(&cam, mode)
             .map_err(|e| StreamError::Protocol(e.to_string()))?;
         let refine_ms = tr.elapsed().as_secs_f64() * 1e3;
@@ -1006,11 +1031,17 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         if first_frame_ms.is_none() {
             first_frame_ms = Some(t0.elapsed().as_secs_f64() * 1e3);
         }
+        let view_complete = fst.converged && session.view_complete();
+        last_cam = Some(cam);
         frames.push(FrameRecord {
             frame,
             bytes_received: bytes_applied,
             nodes: session.progress().0,
             tets: tets as u64,
+            leaves: session.mesh().leaf_count() as u64,
+            converged: fst.converged,
+            view_complete,
+            budget_bound: fst.budget_bound,
             refine_ms,
             render_ms,
             psnr_db: None,
@@ -1021,6 +1052,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             images.push(img);
         }
         frame += 1;
+        if args.until_converged && view_complete && !ingest.levelset_pending() {
+            break;
+        }
         if args.until_complete
             && ingest.ended()
             && session.is_converged()
@@ -1030,6 +1064,22 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         }
     }
     drop(out_tx);
+    if let (Some(path), Some(session), Some(cam), Some(m)) =
+        (&args.final_png, &state, last_cam, ingest.manifest())
+    {
+        let rm = session.leaf_mesh(m.display_value_range());
+        let img = match &gpu {
+            Some((ctx, r)) => {
+                let data = r.upload(ctx, &rm)?;
+                r.render(ctx, &data, &cam, &tf)?.0
+            }
+            None => render_reference(&rm, &cam, &tf),
+        };
+        img.save_png(path).map_err(|e| StreamError::Output {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
+    }
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     // (a base mesh of 0 levels has no nodes: it is complete as soon as it is there)
     let complete = state.is_some() && nodes_received == nodes_total;

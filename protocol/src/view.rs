@@ -249,6 +249,115 @@ pub fn data_weight(smax: f32, value_range: [f32; 2], delta: f32) -> f64 {
     (smax as f64 / (delta.max(1e-30) as f64 * range)).min(1.0)
 }
 
+/// How fast a transfer function's output changes with the scalar, bin by bin over the normalized
+/// scalar `[0, 1]`: in each bin, the largest `max_channel |d(c·τ)/ds| + |dτ/ds|` (colour `c`,
+/// extinction `τ` per unit length of the TF's length unit). Outside `[0, 1]` a transfer function is
+/// clamped, so it changes nothing there. Built by the renderer from a transfer function; the
+/// criteria only read it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sensitivity {
+    bins: Vec<f32>,
+}
+
+impl Sensitivity {
+    /// From per-bin maxima over `[0, 1]` (at least one bin; negative or NaN entries count as 0).
+    pub fn from_bins(bins: Vec<f32>) -> Self {
+        let mut bins: Vec<f32> = bins
+            .into_iter()
+            .map(|b| if b.is_nan() { 0.0 } else { b.max(0.0) })
+            .collect();
+        if bins.is_empty() {
+            bins.push(0.0);
+        }
+        Sensitivity { bins }
+    }
+
+    /// The same sensitivity `g` everywhere in `[0, 1]` (tests; a TF one knows nothing of).
+    pub fn uniform(g: f32) -> Self {
+        Self::from_bins(vec![g])
+    }
+
+    /// The largest sensitivity over normalized scalars `[s0, s1]` (0 where that misses `[0, 1]`).
+    #[inline]
+    pub fn max_over(&self, s0: f64, s1: f64) -> f64 {
+        let n = self.bins.len();
+        if s1 < 0.0 || s0 > 1.0 || s0.is_nan() || s1.is_nan() || s1 < s0 {
+            return 0.0;
+        }
+        let bin = |s: f64| ((s.clamp(0.0, 1.0) * n as f64) as usize).min(n - 1);
+        self.bins[bin(s0)..=bin(s1)]
+            .iter()
+            .fold(0.0f32, |a, &b| a.max(b)) as f64
+    }
+
+    /// The largest sensitivity anywhere.
+    pub fn max(&self) -> f64 {
+        self.max_over(0.0, 1.0)
+    }
+}
+
+/// [`ImageCriterion::eps`]'s default: the worst-case colour change of one ray segment counted as
+/// a full error. The worst case ([`ImageCriterion::weight`]) takes the largest slope of the transfer
+/// function and the largest detail of a subtree everywhere, so the images it selects differ from
+/// the all-leaves image far less (docs/benchmarks.md, "Scale").
+pub const DEFAULT_IMAGE_EPS: f64 = 0.5;
+
+/// Bins of the transfer function's [`Sensitivity`] table both sides build.
+pub const SENSITIVITY_BINS: usize = 256;
+
+/// The bound on how far the full-resolution field can still move inside a level-`l` tet whose
+/// subtree's details are at most `smax`, `levels_below = L − l` levels above the finest:
+/// `(L − l) · smax + e / 3`. Each level below adds at most `smax` (its details, interpolated
+/// linearly), and `e` — the largest deviation of the tet's level-`l` corners from the midpoint
+/// value of the parent edge each halves — estimates what the predictor adds beyond linear
+/// interpolation: on a smooth field that shrinks 4× a level, `e/4 + e/16 + … = e/3` (exact for
+/// a quadratic field). A base tet has no such corners: `e` is infinite.
+#[inline]
+pub fn image_bound(levels_below: u8, smax: f32, curvature: f64) -> f64 {
+    levels_below as f64 * smax as f64 + curvature / 3.0
+}
+
+/// The image criterion's weight: how much of a pixel's colour a node's subtree can still change,
+/// relative to `eps`, capped at 1 (see [`ImageCriterion::weight`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageCriterion {
+    /// The transfer function's sensitivity over the normalized scalar.
+    pub sens: Sensitivity,
+    /// The scalar range the transfer function spans (`[0, 1]` normalized).
+    pub value_range: [f32; 2],
+    /// The transfer function's unit of length (world units; the bounding-box diagonal).
+    pub length_unit: f64,
+    /// Colour change (0–1 per channel) of one segment that counts as a full error.
+    pub eps: f64,
+}
+
+impl ImageCriterion {
+    /// The image weight of a tet of diameter `diam` whose vertex values span `[vmin, vmax]` and
+    /// whose refinement can move the field by at most `bound` anywhere inside it:
+    /// `min(1, ΔI / eps)` with `ΔI = diam / length_unit · bound / range · G`, `G` the largest
+    /// [`Sensitivity`] over `[vmin − bound, vmax + bound]`. `ΔI` is the first-order change of the
+    /// colour and opacity of a ray segment through the tet (at most `diam` long) when the scalar
+    /// along it moves by `bound`. 0 when nothing can change (a zero bound, or a transfer function
+    /// flat over every value the subtree can take); 1 for an unknown (infinite) bound where the
+    /// transfer function changes at all.
+    #[inline]
+    pub fn weight(&self, vmin: f32, vmax: f32, bound: f64, diam: f64) -> f64 {
+        if bound.is_nan() || bound <= 0.0 {
+            return 0.0;
+        }
+        let [lo, hi] = self.value_range;
+        let range = ((hi - lo) as f64).max(1e-30);
+        if !bound.is_finite() {
+            return if self.sens.max() > 0.0 { 1.0 } else { 0.0 };
+        }
+        let s0 = (vmin as f64 - bound - lo as f64) / range;
+        let s1 = (vmax as f64 + bound - lo as f64) / range;
+        let g = self.sens.max_over(s0, s1);
+        let di = diam / self.length_unit.max(1e-30) * bound / range * g;
+        (di / self.eps.max(1e-30)).min(1.0)
+    }
+}
+
 /// Bounding sphere of a tet with vertices `p`: the centroid rounded to `f32`, and the distance from
 /// it to the farthest vertex rounded up to `f32` (so that the client caches it in 16 bytes, exactly).
 /// A node's size in the criterion is this sphere's diameter.
@@ -295,6 +404,39 @@ pub fn f32_down(x: f64) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The image weight: 0 with nothing to change (zero bound, flat TF over the values), grows
+    /// with the bound, the size and the TF's slope, and is capped at 1.
+    #[test]
+    fn image_weight_follows_bound_size_and_tf() {
+        let mut bins = vec![0.0f32; 10];
+        bins[8] = 4.0; // the TF changes only over s in [0.8, 0.9)
+        let c = ImageCriterion {
+            sens: Sensitivity::from_bins(bins),
+            value_range: [0.0, 1.0],
+            length_unit: 1.0,
+            eps: 0.01,
+        };
+        assert_eq!(c.weight(0.1, 0.2, 0.0, 1.0), 0.0);
+        assert_eq!(
+            c.weight(0.1, 0.2, 0.05, 1.0),
+            0.0,
+            "flat TF over [0.05, 0.25]"
+        );
+        let w = c.weight(0.8, 0.85, 0.001, 0.1);
+        assert!((w - 0.1 * 0.001 * 4.0 / 0.01).abs() < 1e-12, "{w}");
+        assert!(c.weight(0.8, 0.85, 0.002, 0.1) > w);
+        assert!(c.weight(0.8, 0.85, 0.001, 0.2) > w);
+        assert_eq!(c.weight(0.8, 0.85, 1.0, 1.0), 1.0);
+        assert_eq!(c.weight(0.1, 0.2, f64::INFINITY, 1.0), 1.0);
+        let flat = ImageCriterion {
+            sens: Sensitivity::uniform(0.0),
+            ..c
+        };
+        assert_eq!(flat.weight(0.1, 0.2, f64::INFINITY, 1.0), 0.0);
+        assert_eq!(Sensitivity::uniform(2.0).max_over(1.5, 2.0), 0.0);
+        assert_eq!(Sensitivity::uniform(2.0).max_over(-1.0, 0.0), 2.0);
+    }
 
     /// The projection maps each pixel's ray back onto that pixel's centre.
     #[test]

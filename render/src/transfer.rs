@@ -8,6 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use tetwave_protocol::view::Sensitivity;
 
 /// One control point.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -163,6 +164,48 @@ impl TransferFunction {
         (last.rgb.map(|c| c as f64), last.extinction as f64)
     }
 
+    /// The sensitivity the image criterion reads ([`Sensitivity`]), over `bins` equal bins of the
+    /// normalized scalar: per bin, the largest `max_channel |d(c·τ)/ds| + |dτ/ds|` of the pieces
+    /// that overlap it (exact: on a linear piece that derivative is linear, so its largest value
+    /// over a bin is at one of the bin's ends). A jump (two points at one `s`) counts as 10³⁰.
+    pub fn sensitivity(&self, bins: usize) -> Sensitivity {
+        let bins = bins.max(1);
+        let mut out = vec![0.0f32; bins];
+        for w in self.points.windows(2) {
+            let (a, b) = (&w[0], &w[1]);
+            let (sa, sb) = (a.s as f64, b.s as f64);
+            let span = sb - sa;
+            let jump = a.extinction != b.extinction
+                || (a.rgb != b.rgb && (a.extinction > 0.0 || b.extinction > 0.0));
+            let first = ((sa.clamp(0.0, 1.0) * bins as f64) as usize).min(bins - 1);
+            let last = ((sb.clamp(0.0, 1.0) * bins as f64) as usize).min(bins - 1);
+            if span <= 0.0 {
+                if jump {
+                    out[first] = out[first].max(1e30);
+                }
+                continue;
+            }
+            let dt = (b.extinction - a.extinction) as f64 / span;
+            let slope = |s: f64| {
+                let t = ((s - sa) / span).clamp(0.0, 1.0);
+                let tau = a.extinction as f64 + (b.extinction - a.extinction) as f64 * t;
+                let mut m = 0.0f64;
+                for ch in 0..3 {
+                    let c = a.rgb[ch] as f64 + (b.rgb[ch] - a.rgb[ch]) as f64 * t;
+                    let dc = (b.rgb[ch] - a.rgb[ch]) as f64 / span;
+                    m = m.max((dc * tau + c * dt).abs());
+                }
+                m + dt.abs()
+            };
+            for (k, o) in out.iter_mut().enumerate().take(last + 1).skip(first) {
+                let lo = (k as f64 / bins as f64).max(sa);
+                let hi = ((k + 1) as f64 / bins as f64).min(sb);
+                *o = o.max(slope(lo).max(slope(hi)) as f32);
+            }
+        }
+        Sensitivity::from_bins(out)
+    }
+
     /// Largest extinction (per diagonal).
     pub fn max_extinction(&self) -> f64 {
         self.points
@@ -228,6 +271,39 @@ pub fn integrate_segment_converged(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every preset's sensitivity bounds its finite differences bin by bin, and is 0 where the
+    /// preset is flat.
+    #[test]
+    fn sensitivity_bounds_finite_differences() {
+        for name in PRESETS.split(", ") {
+            let tf = TransferFunction::preset(name).unwrap();
+            let sens = tf.sensitivity(32);
+            let f = |s: f64| {
+                let (c, t) = tf.eval(s);
+                (c.map(|c| c * t), t)
+            };
+            for i in 0..3200 {
+                let (s0, s1) = (i as f64 / 3200.0, (i + 1) as f64 / 3200.0);
+                let ((c0, t0), (c1, t1)) = (f(s0), f(s1));
+                let h = s1 - s0;
+                let dc = (0..3)
+                    .map(|k| (c1[k] - c0[k]).abs() / h)
+                    .fold(0.0, f64::max);
+                let g = dc + (t1 - t0).abs() / h;
+                let bound = sens.max_over(s0, s1);
+                assert!(
+                    g <= bound * (1.0 + 1e-6) + 1e-9,
+                    "{name} at {s0}: {g} > {bound}"
+                );
+            }
+        }
+        let flat = TransferFunction {
+            name: "flat".into(),
+            points: vec![p(0.0, [1.0, 0.0, 0.0], 2.0), p(1.0, [1.0, 0.0, 0.0], 2.0)],
+        };
+        assert_eq!(flat.sensitivity(8).max(), 0.0);
+    }
 
     #[test]
     fn presets_are_valid() {

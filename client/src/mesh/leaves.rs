@@ -33,6 +33,20 @@ impl AdaptiveMesh {
         (all, drawable)
     }
 
+    /// Calls `f` with the id of every red leaf that is not empty and not at the finest level (a
+    /// leaf the selector could still split).
+    pub fn for_each_splittable_leaf(&self, mut f: impl FnMut(TetId)) {
+        let levels = self.forest.levels;
+        for n in self.nodes.iter() {
+            if n.alive() && n.is_leaf() && !n.flags.contains(NodeFlags::EMPTY) {
+                let id = n.id();
+                if self.forest.level(id) < levels {
+                    f(id);
+                }
+            }
+        }
+    }
+
     /// Calls `f` with every tet of the leaf mesh (red leaves and green pieces), positively oriented.
     pub fn for_each_leaf_tet(&self, mut f: impl FnMut(LeafTet)) {
         for (slot, n) in self.nodes.iter().enumerate() {

@@ -210,9 +210,27 @@ impl Selector {
             {
                 continue;
             }
+            if let Some(max) = self.params.max_tets {
+                // the red split adds 7 leaves; its closure may add more (domino splits), which
+                // is undone below if it goes over
+                if mesh.leaf_count() + 7 > max {
+                    self.refuse_splits();
+                    break;
+                }
+            }
             *ops += 1;
             let t = Instant::now();
             mesh.refine(id, cx.buf)?;
+            if self
+                .params
+                .max_tets
+                .is_some_and(|max| mesh.leaf_count() > max)
+            {
+                mesh.coarsen(id, cx.buf)?;
+                st.op_time += t.elapsed();
+                self.refuse_splits();
+                break;
+            }
             st.op_time += t.elapsed();
             st.splits += 1;
             self.sweep_changes += 1;
@@ -227,6 +245,16 @@ impl Selector {
             }
         }
         Ok(())
+    }
+}
+
+impl Selector {
+    /// The leaf budget ([`super::SelectParams::max_tets`]) refuses the split candidates left:
+    /// they are dropped for this sweep (a later sweep finds them again, and they are split once
+    /// merges have made room), and the frame reports that the budget binds.
+    fn refuse_splits(&mut self) {
+        self.budget_bound = true;
+        self.splits.clear();
     }
 }
 

@@ -206,6 +206,18 @@ impl Selector {
         (c.as_dvec3(), r as f64)
     }
 
+    /// Keeps the image weight just computed for `slot`, which [`Self::cached_status`] reads while
+    /// the status lasts (the image weight reads vertex values, which the cache does not hold).
+    #[inline]
+    pub(super) fn keep_weight(&mut self, slot: usize, fac: f64) {
+        if self.params.image.is_some() {
+            if slot >= self.wt.len() {
+                self.wt.resize(slot + 1, 1.0);
+            }
+            self.wt[slot] = fac as f32;
+        }
+    }
+
     /// Records the status just evaluated for `slot` (see [`Self::eval`]).
     #[inline]
     pub(super) fn remember(&mut self, slot: usize, st: Status) {
@@ -250,8 +262,12 @@ impl Selector {
                 "a split or merge status has its sphere"
             );
             let (c, r) = self.geo[slot];
-            let smax = e.facts().contains(Facts::PRESENT).then_some(e.smax);
-            self.weighted_error(cx.view, c.as_dvec3(), r as f64, smax).0
+            let fac = if self.params.image.is_some() {
+                self.wt[slot] as f64
+            } else {
+                self.weight(e.facts().contains(Facts::PRESENT).then_some(e.smax))
+            };
+            cx.view.error_px(c.as_dvec3(), 2.0 * r as f64) * fac
         };
         if kind == Kind::Split {
             Status::Split(prio)

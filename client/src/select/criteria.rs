@@ -5,7 +5,7 @@ use super::{CoarsenRef, FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
 use glam::{DVec3, Vec3};
-use tetwave_protocol::view::{data_weight, tet_sphere, View};
+use tetwave_protocol::view::{data_weight, image_bound, tet_sphere, ImageCriterion, View};
 use tetwave_protocol::TetId;
 
 /// The facts of one node the criteria read ([`Selector::info_of`] gives them from its cache entry).
@@ -101,39 +101,47 @@ impl Selector {
         view: &View,
         n: &RedNode,
     ) -> Option<f64> {
-        let (c, r) = bounding_sphere(mesh, &mesh.node_verts(n.slot as usize));
-        self.sphere_error(view, c, r, buf.subtree_max(n.id))
+        let slot = n.slot as usize;
+        let (c, r) = bounding_sphere(mesh, &mesh.node_verts(slot));
+        let level = mesh.forest().level(n.id);
+        let fac = self.node_weight(mesh, slot, level, buf.subtree_max(n.id), r);
+        self.sphere_error(view, c, r, fac)
     }
 
-    /// [`Self::error`] of a node with bounding sphere `(c, r)` and subtree max `smax`.
+    /// [`Self::error`] of a node with bounding sphere `(c, r)` and weight `fac`.
     #[inline]
-    fn sphere_error(&self, view: &View, c: DVec3, r: f64, smax: Option<f32>) -> Option<f64> {
+    fn sphere_error(&self, view: &View, c: DVec3, r: f64, fac: f64) -> Option<f64> {
         if self.params.frustum && !view.sphere_visible(c, r) {
             return None;
         }
-        Some(self.weighted_error(view, c, r, smax).0)
-    }
-
-    /// Screen-space error of a sphere times its data weight (the frustum aside), and that weight
-    /// (1 unless data-aware with a known subtree max).
-    #[inline]
-    pub(super) fn weighted_error(
-        &self,
-        view: &View,
-        c: DVec3,
-        r: f64,
-        smax: Option<f32>,
-    ) -> (f64, f64) {
-        let fac = self.weight(smax);
-        (view.error_px(c, 2.0 * r) * fac, fac)
+        Some(view.error_px(c, 2.0 * r) * fac)
     }
 
     /// The data weight of a node with subtree max `smax` (1 unless data-aware with one).
     #[inline]
-    fn weight(&self, smax: Option<f32>) -> f64 {
+    pub(super) fn weight(&self, smax: Option<f32>) -> f64 {
         match (self.params.data_aware, smax) {
             (Some(delta), Some(m)) => data_weight(m, self.params.value_range, delta),
             _ => 1.0,
+        }
+    }
+
+    /// The weight of the node in `slot` (at `level`, subtree max `smax`, bounding radius `r`):
+    /// with the image criterion ([`SelectParams::image`]) its [`image_weight`], otherwise
+    /// [`Self::weight`]. A node whose subtree max is unknown (not held) weighs 1.
+    #[inline]
+    pub(super) fn node_weight(
+        &self,
+        mesh: &AdaptiveMesh,
+        slot: usize,
+        level: u8,
+        smax: Option<f32>,
+        r: f64,
+    ) -> f64 {
+        match (&self.params.image, smax) {
+            (Some(img), Some(m)) => image_weight(img, mesh, slot, level, m, r),
+            (Some(_), None) => 1.0,
+            (None, _) => self.weight(smax),
         }
     }
 
@@ -206,8 +214,9 @@ impl Selector {
             return (Some((levels - i.level) as f64), i);
         }
         let (c, r) = self.sphere_of(mesh, slot);
+        let fac = self.node_weight(mesh, slot, i.level, Some(i.smax), r);
         let e = self
-            .sphere_error(cx.view, c, r, Some(i.smax))
+            .sphere_error(cx.view, c, r, fac)
             .filter(|&e| e > cx.view.tol_px);
         (e, i)
     }
@@ -273,7 +282,8 @@ impl Selector {
         let x = cx.view.plane_offsets(c);
         let visible = !self.params.frustum || View::offsets_visible(&x, r);
         let d = (c - cx.view.eye).length();
-        let fac = self.weight(Some(i.smax));
+        let fac = self.node_weight(mesh, slot, i.level, Some(i.smax), r);
+        self.keep_weight(slot, fac);
         let e = cx.view.error_px_at(d, 2.0 * r) * fac;
         let err = e > cx.view.tol_px;
         let status = if n.leaf {
@@ -337,7 +347,9 @@ impl Selector {
         }
         let smax = i.present.then_some(i.smax);
         let (c, r) = self.sphere_of(mesh, slot);
-        Status::Merge(self.sphere_error(cx.view, c, r, smax).unwrap_or(OUTSIDE))
+        let fac = self.node_weight(mesh, slot, i.level, smax, r);
+        self.keep_weight(slot, fac);
+        Status::Merge(self.sphere_error(cx.view, c, r, fac).unwrap_or(OUTSIDE))
     }
 
     /// The status of hierarchy tet `id` (not in the red tree: [`Status::Keep`]) and its slot;
@@ -365,4 +377,42 @@ impl Selector {
             None => (Status::Keep, u32::MAX),
         }
     }
+}
+
+/// The image criterion's weight of the node in `slot` ([`ImageCriterion::weight`] of the
+/// [`image_bound`] over its vertex values, rounded to `f32` so that a weight kept in the cache is
+/// the weight computed again). The curvature term reads the node's level-`l` corners and the ends
+/// of the parent edges they halve.
+pub(super) fn image_weight(
+    img: &ImageCriterion,
+    mesh: &AdaptiveMesh,
+    slot: usize,
+    level: u8,
+    smax: f32,
+    r: f64,
+) -> f64 {
+    let verts = mesh.node_verts(slot);
+    let vals = mesh.values();
+    let v = verts.map(|s| vals[s as usize]);
+    let (vmin, vmax) = v
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    let curvature = if level == 0 {
+        f64::INFINITY
+    } else {
+        let mut e = 0.0f64;
+        for (k, &s) in verts.iter().enumerate() {
+            if mesh.vertex_level(s) == level {
+                if let Some([a, b]) = mesh.vertex_ends(s) {
+                    let mid = 0.5 * (vals[a as usize] as f64 + vals[b as usize] as f64);
+                    e = e.max((v[k] as f64 - mid).abs());
+                }
+            }
+        }
+        e
+    };
+    let bound = image_bound(mesh.forest().levels.saturating_sub(level), smax, curvature);
+    img.weight(vmin, vmax, bound, 2.0 * r) as f32 as f64
 }

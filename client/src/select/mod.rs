@@ -62,7 +62,7 @@ use rustc_hash::FxHashMap;
 use std::cmp::Reverse;
 use std::time::Duration;
 use tetwave_protocol::view::Camera;
-pub use tetwave_protocol::view::{data_weight, Tolerance, View};
+pub use tetwave_protocol::view::{data_weight, ImageCriterion, Sensitivity, Tolerance, View};
 use tetwave_protocol::TetId;
 
 pub use criteria::bounding_sphere;
@@ -129,6 +129,14 @@ pub struct SelectParams {
     pub data_aware: Option<f32>,
     /// The data set's value range (manifest), for the data-aware weight.
     pub value_range: [f32; 2],
+    /// The image criterion: the screen-space error is weighted by how much of a pixel's colour
+    /// the node's subtree can still change under the transfer function
+    /// ([`criteria::image_weight`]), instead of by [`Self::data_aware`]'s weight. `None`: that
+    /// weight (geometric when it is `None` too).
+    pub image: Option<ImageCriterion>,
+    /// Most leaves the red tree may hold: a split that would go beyond is not made (the
+    /// candidates wait, largest error first). `None`: no limit.
+    pub max_tets: Option<usize>,
     pub interactive: Budget,
     pub progressive: Budget,
 }
@@ -143,6 +151,8 @@ impl SelectParams {
             frustum: true,
             data_aware: None,
             value_range,
+            image: None,
+            max_tets: None,
             interactive: Budget::ms(8.0),
             progressive: Budget::ms(50.0),
         }
@@ -162,8 +172,12 @@ pub struct FrameStats {
     pub sweeps: usize,
     /// Candidates left in the heaps for later frames.
     pub pending: usize,
-    /// The mesh is where the criteria want it (for this view and buffer).
+    /// The mesh is where the criteria want it (for this view and buffer), or as near as the leaf
+    /// budget allows.
     pub converged: bool,
+    /// The leaf budget ([`SelectParams::max_tets`]) refused a split the criteria wanted, in this
+    /// frame's sweep or the last one.
+    pub budget_bound: bool,
     pub elapsed: Duration,
     /// Time inside the mesh's refine / coarsen calls (the rest is sweeping and bookkeeping).
     pub op_time: Duration,
@@ -253,6 +267,8 @@ pub struct Selector {
     info: SegVec<SlotEntry>,
     /// Bounding spheres by slot ([`bounding_sphere`]), valid where `info` says so.
     geo: SegVec<(Vec3, f32)>,
+    /// Image weights by slot (with [`SelectParams::image`]), valid where `info` holds a status.
+    wt: SegVec<f32>,
     /// The mesh followed ([`AdaptiveMesh::uid`]) and the changes read from it.
     mesh_uid: u64,
     seen: u64,
@@ -280,6 +296,8 @@ pub struct Selector {
     moved: bool,
     /// Criteria evaluated so far (see [`Self::evaluations`]).
     evals: u64,
+    /// The leaf budget refused a wanted split in the last sweep ([`FrameStats::budget_bound`]).
+    budget_bound: bool,
 }
 
 impl Selector {
@@ -311,6 +329,7 @@ impl Selector {
             waiters: Default::default(),
             info: SegVec::new(),
             geo: SegVec::new(),
+            wt: SegVec::new(),
             mesh_uid: 0,
             seen: 0,
             batch: Vec::new(),
@@ -327,6 +346,7 @@ impl Selector {
             kin: Kinetic::default(),
             moved: false,
             evals: 0,
+            budget_bound: false,
         }
     }
 
@@ -421,7 +441,7 @@ impl Selector {
         let k = &self.kin;
         [
             ("entries", self.info.bytes() + self.slot_flags.bytes()),
-            ("spheres", self.geo.bytes()),
+            ("spheres", self.geo.bytes() + self.wt.bytes()),
             ("certificates", k.certificate_bytes()),
             (
                 "lists",

@@ -82,6 +82,7 @@ impl Selector {
         self.sync(mesh, cam, mode);
         if self.converged {
             st.converged = true;
+            st.budget_bound = self.budget_bound;
             st.elapsed = start.elapsed();
             return Ok(st);
         }
@@ -109,6 +110,7 @@ impl Selector {
                 // a new sweep sees the current view and buffer
                 self.splits.clear();
                 self.merges.clear();
+                self.budget_bound = false;
                 self.sweep_changes = 0;
                 self.sweep_refused = 0;
                 self.sweep_chunked = false;
@@ -271,6 +273,7 @@ impl Selector {
             self.absorb_changes(mesh);
         }
         st.converged = self.converged;
+        st.budget_bound = self.budget_bound;
         st.pending = self.splits.len() + self.merges.len();
         st.elapsed = start.elapsed();
         Ok(st)
