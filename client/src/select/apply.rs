@@ -220,13 +220,14 @@ impl Selector {
             }
             *ops += 1;
             let t = Instant::now();
+            let seq = mesh.change_seq();
             mesh.refine(id, cx.buf)?;
             if self
                 .params
                 .max_tets
                 .is_some_and(|max| mesh.leaf_count() > max)
             {
-                mesh.coarsen(id, cx.buf)?;
+                undo_split(mesh, id, seq, cx.buf)?;
                 st.op_time += t.elapsed();
                 self.refuse_splits();
                 break;
@@ -246,6 +247,30 @@ impl Selector {
         }
         Ok(())
     }
+}
+
+/// Undoes the split of `id` made after change sequence `seq`, with the red splits its closure
+/// forced (domino splits): all merged in one batch, which allows the merges that hold only
+/// together (`id` alone is forced by its neighbours' splits, they by `id`'s).
+fn undo_split(
+    mesh: &mut AdaptiveMesh,
+    id: tetwave_protocol::TetId,
+    seq: u64,
+    buf: &crate::detail_buffer::DetailBuffer,
+) -> Result<(), MeshError> {
+    let mut ids: Vec<_> = match mesh.changes_since(seq) {
+        Some(ch) => ch
+            .iter()
+            .filter_map(|c| mesh.red_node(c.slot as usize))
+            .filter(|n| !n.leaf)
+            .map(|n| n.id)
+            .collect(),
+        None => vec![id],
+    };
+    ids.sort_unstable();
+    ids.dedup();
+    mesh.coarsen_batch(&ids, buf)?;
+    Ok(())
 }
 
 impl Selector {
