@@ -65,6 +65,11 @@ pub struct RunConfig {
     pub coarsen_ref: CoarsenRef,
     pub frustum: bool,
     pub data_aware: Option<f32>,
+    /// The image criterion ([`SelectParams::image`]); `None`: the screen-space error alone (the
+    /// thesis' criterion, and this struct's default).
+    pub image: Option<tetwave_protocol::view::ImageCriterion>,
+    /// The leaf budget ([`SelectParams::max_tets`]); `None`: unbounded.
+    pub max_tets: Option<usize>,
     /// Per-step time budget (ms); `None`: each step refines until converged.
     pub budget_ms: Option<f64>,
     /// Per-step operation budget; `None`: unlimited.
@@ -92,6 +97,8 @@ impl Default for RunConfig {
             coarsen_ref: CoarsenRef::Parent,
             frustum: true,
             data_aware: None,
+            image: None,
+            max_tets: None,
             budget_ms: None,
             budget_ops: None,
             settle: true,
@@ -218,6 +225,8 @@ fn select_params(cfg: &RunConfig, value_range: [f32; 2]) -> SelectParams {
     p.coarsen_ref = cfg.coarsen_ref;
     p.frustum = cfg.frustum;
     p.data_aware = cfg.data_aware;
+    p.image = cfg.image.clone();
+    p.max_tets = cfg.max_tets;
     let b = Budget {
         max_ops: cfg.budget_ops.unwrap_or(usize::MAX),
         max_time: cfg
@@ -475,6 +484,8 @@ pub struct BenchArgs {
     /// Data-aware error: weight by subtree max |detail| / (DELTA · value range), capped at 1.
     #[arg(long)]
     pub data_aware: Option<f32>,
+    #[command(flatten)]
+    pub select: crate::select_args::SelectionArgs,
     /// Skip the settle-and-compare phase after the steps.
     #[arg(long)]
     pub no_settle: bool,
@@ -490,8 +501,8 @@ pub struct BenchArgs {
     /// With `--render-every`: draw with the CPU reference integrator instead of the GPU.
     #[arg(long, requires = "render_every")]
     pub render_cpu: bool,
-    /// Transfer function for `--render-every`: a preset (default, transparent, opaque, shells) or
-    /// a .json file.
+    /// Transfer function drawn by `--render-every` and weighed by the image criterion: a preset
+    /// (default, transparent, opaque, shells) or a .json file.
     #[arg(long, default_value = "default")]
     pub tf: String,
     /// One JSON object per run on stdout.
@@ -531,9 +542,14 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     if args.simple || args.simple_only {
         tols.push(None);
     }
+    // the criterion and leaf budget of --criterion / --max-tets, for the transfer function --tf
+    let mut select = SelectParams::new(Tolerance::Pixels(0.0), m.value_range);
+    let tf = tetwave_render::transfer::TransferFunction::load(&args.tf)?;
+    args.select
+        .apply(&mut select, &tf, m.display_value_range(), &store.base);
     let mut probe = match args.render_every {
         Some(every) => {
-            let tf = tetwave_render::transfer::TransferFunction::load(&args.tf)?;
+            let tf = tf.clone();
             let (full, _) = crate::render_cli::store_mesh(&store, None)?;
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
@@ -563,6 +579,8 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
             },
             frustum: !args.no_frustum,
             data_aware: args.data_aware,
+            image: select.image.clone(),
+            max_tets: select.max_tets,
             budget_ms: args.budget_ms,
             budget_ops: args.budget_ops,
             settle: !args.no_settle,

@@ -1,9 +1,9 @@
 //! The selection options `tetwave stream`, `tetwave view` and `tetwave bench progressive` share:
 //! which criterion decides a split, the image criterion's threshold, and the leaf budget.
 
-use crate::select::{ImageCriterion, SelectParams};
+use crate::select::SelectParams;
 use serde::Serialize;
-use tetwave_protocol::view::{DEFAULT_IMAGE_EPS, SENSITIVITY_BINS};
+use tetwave_protocol::view::DEFAULT_IMAGE_EPS;
 use tetwave_protocol::BaseMesh;
 use tetwave_render::transfer::TransferFunction;
 
@@ -28,7 +28,7 @@ pub struct SelectionArgs {
     /// What decides a split: `image` (the screen-space error weighted by how much the node's
     /// subtree can still change the image under the transfer function) or `geometric` (the
     /// screen-space error alone).
-    #[arg(long, value_enum, default_value_t = Criterion::Geometric)]
+    #[arg(long, value_enum, default_value_t = Criterion::Image)]
     pub criterion: Criterion,
     /// With `--criterion image`: the worst-case colour change of one ray segment (0–1) that
     /// counts as a full error; smaller refines more (the worst case is far above what the images
@@ -45,7 +45,7 @@ pub struct SelectionArgs {
 impl Default for SelectionArgs {
     fn default() -> Self {
         SelectionArgs {
-            criterion: Criterion::Geometric,
+            criterion: Criterion::Image,
             image_eps: DEFAULT_IMAGE_EPS,
             max_tets: None,
         }
@@ -79,26 +79,8 @@ impl SelectionArgs {
         p.max_tets = Some(self.leaf_budget());
         p.image = match self.criterion {
             Criterion::Geometric => None,
-            Criterion::Image => Some(image_criterion(tf, value_range, base, self.image_eps)),
+            Criterion::Image => Some(tf.image_criterion(value_range, base, self.image_eps)),
         };
-    }
-}
-
-/// The image criterion of `tf` over `value_range` on a dataset on `base` (whose bounding-box
-/// diagonal is the transfer function's unit of length).
-pub fn image_criterion(
-    tf: &TransferFunction,
-    value_range: [f32; 2],
-    base: &BaseMesh,
-    eps: f64,
-) -> ImageCriterion {
-    let (lo, hi) = base.bounds();
-    let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
-    ImageCriterion {
-        sens: tf.sensitivity(SENSITIVITY_BINS),
-        value_range,
-        length_unit: diag,
-        eps,
     }
 }
 

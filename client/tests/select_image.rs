@@ -4,7 +4,6 @@
 
 use glam::DVec3;
 use tetwave_client::select::{Mode, SelectParams, Selector, Tolerance};
-use tetwave_client::select_args::image_criterion;
 use tetwave_protocol::view::{Camera, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
 
@@ -18,7 +17,7 @@ fn cam(az: f64) -> Camera {
 fn image_params(base: &tetwave_protocol::BaseMesh, range: [f32; 2]) -> SelectParams {
     let mut p = SelectParams::new(Tolerance::Pixels(1.0), range);
     let tf = TransferFunction::preset("default").unwrap();
-    p.image = Some(image_criterion(&tf, range, base, DEFAULT_IMAGE_EPS));
+    p.image = Some(tf.image_criterion(range, base, DEFAULT_IMAGE_EPS));
     p
 }
 

@@ -358,6 +358,33 @@ impl ImageCriterion {
     }
 }
 
+impl ImageCriterion {
+    /// The weight of a level-`level` node (of `levels` in all) of diameter `diam` whose subtree's
+    /// details are at most `smax`, from its corner values `corners` and `curvature`: the largest
+    /// deviation of its corners created at its level from the midpoint value of the parent edge
+    /// each halves (ignored for a base tet, whose bound is unknown). Both sides call this: the
+    /// client on the values it holds, the server on its reference samples.
+    #[inline]
+    pub fn node_weight(
+        &self,
+        corners: [f32; 4],
+        curvature: f64,
+        level: u8,
+        levels: u8,
+        smax: f32,
+        diam: f64,
+    ) -> f64 {
+        let (vmin, vmax) = corners
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let curvature = if level == 0 { f64::INFINITY } else { curvature };
+        let bound = image_bound(levels.saturating_sub(level), smax, curvature);
+        self.weight(vmin, vmax, bound, diam) as f32 as f64
+    }
+}
+
 /// Bounding sphere of a tet with vertices `p`: the centroid rounded to `f32`, and the distance from
 /// it to the farthest vertex rounded up to `f32` (so that the client caches it in 16 bytes, exactly).
 /// A node's size in the criterion is this sphere's diameter.

@@ -8,7 +8,8 @@
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use tetwave_protocol::view::Sensitivity;
+use tetwave_protocol::view::{ImageCriterion, Sensitivity, SENSITIVITY_BINS};
+use tetwave_protocol::BaseMesh;
 
 /// One control point.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -162,6 +163,25 @@ impl TransferFunction {
         }
         let last = pts.last().unwrap();
         (last.rgb.map(|c| c as f64), last.extinction as f64)
+    }
+
+    /// The image criterion of this transfer function over `value_range` on a dataset on `base`
+    /// (whose bounding-box diagonal is the transfer function's unit of length), with threshold
+    /// `eps`: what the client's selection and the server's view order both weigh nodes by.
+    pub fn image_criterion(
+        &self,
+        value_range: [f32; 2],
+        base: &BaseMesh,
+        eps: f64,
+    ) -> ImageCriterion {
+        let (lo, hi) = base.bounds();
+        let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+        ImageCriterion {
+            sens: self.sensitivity(SENSITIVITY_BINS),
+            value_range,
+            length_unit: diag,
+            eps,
+        }
     }
 
     /// The sensitivity the image criterion reads ([`Sensitivity`]), over `bins` equal bins of the

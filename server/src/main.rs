@@ -87,6 +87,11 @@ enum Cmd {
         /// Default order of the stream (a client may pick another with `/v1/stream?order=`).
         #[arg(long, value_enum, default_value_t = tetwave_server::stream::Order::Level)]
         order: tetwave_server::stream::Order,
+        /// What view order weighs a node's screen-space error by: `image` (how much its subtree
+        /// can change the image under the default transfer function, as the client's default
+        /// selection does) or `data` (its details relative to the value range).
+        #[arg(long, value_enum, default_value_t = tetwave_server::stream::ViewCriterion::Image)]
+        view_criterion: tetwave_server::stream::ViewCriterion,
         /// Nodes in the first batch (and the first after each view change); later batches
         /// double up to --max-batch.
         #[arg(long, default_value_t = 512)]
@@ -201,6 +206,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             render_deadline,
             max_render_pixels,
             order,
+            view_criterion,
             batch,
             max_batch,
             window,
@@ -268,9 +274,13 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     allow_origins: lower(allow_origins),
                 },
                 verify_checksums: verify,
+                view_criterion,
                 ..ServeConfig::default()
             };
             let shared = Shared::open(&store, config)?;
+            if order == tetwave_server::stream::Order::View {
+                shared.warm_view_order();
+            }
             let mut rt = tokio::runtime::Builder::new_multi_thread();
             if let Some(t) = threads {
                 rt.worker_threads(t.max(1));

@@ -1,10 +1,12 @@
-//! One refinement criterion for both sides: the server's view order and the client's selection
-//! rank the nodes of a store identically for one view (both call `tetwave_protocol::view`).
+//! One refinement criterion for both sides: the server's view order and the client's default
+//! (image) selection rank the nodes of a store identically for one view (both call
+//! `tetwave_protocol::view`'s `ImageCriterion::node_weight`, the server on its reference samples).
 
 use tetwave_client::select::{Mode, SelectParams, Selector};
 use tetwave_client::session::Session;
-use tetwave_protocol::view::{Camera, Tolerance, View};
-use tetwave_server::stream::{ServeConfig, Shared, DATA_DELTA};
+use tetwave_protocol::view::{Camera, Tolerance, View, DEFAULT_IMAGE_EPS};
+use tetwave_render::transfer::TransferFunction;
+use tetwave_server::stream::{ServeConfig, Shared};
 use tetwave_store::Store;
 
 mod common;
@@ -26,9 +28,11 @@ fn server_view_order_and_client_selection_rank_nodes_alike() {
         .view_priorities(&vp);
 
     // the client: every node held and refined (complete mode), then each node's split priority
-    // under the data-aware criterion with the server's δ and a zero tolerance
+    // under the image criterion of the default transfer function and a zero tolerance
     let mut params = SelectParams::new(Tolerance::Pixels(0.0), value_range);
-    params.data_aware = Some(DATA_DELTA);
+    let tf = TransferFunction::preset("default").unwrap();
+    let img = tf.image_criterion(value_range, &store.base, DEFAULT_IMAGE_EPS);
+    params.image = Some(img);
     let mut session = Session::new(store.base.clone(), params.clone()).unwrap();
     session.insert(&nodes).unwrap();
     session.converge(&cam, Mode::Complete).unwrap();
@@ -50,13 +54,16 @@ fn server_view_order_and_client_selection_rank_nodes_alike() {
         visible.len(),
         hidden.len()
     );
-    // where the client sees a node, the server gives it the same error (its data weight is floored
-    // at 10⁻³ so that flat subtrees are still sent: compare above the floor)
+    // where the client sees a node, the server gives it the same error (its weight is floored at
+    // 10⁻³ so that subtrees that cannot change the image are still sent: compare above the floor)
     let mut compared = 0;
-    let bounds = tetwave_protocol::node::resolved_bounds(store.forest(), &nodes);
     for &(id, s, c) in &visible {
-        let w = tetwave_protocol::view::data_weight(bounds[id], value_range, DATA_DELTA);
-        if w >= 1e-3 {
+        let t = tetwave_protocol::LatticeTet::from_id(&store.forest(), id as u64);
+        let (centre, r) = tetwave_protocol::view::tet_sphere(
+            t.v.map(|w| glam::DVec3::from_array(store.base.position(t.base, &w))),
+        );
+        let unweighted = view.error_px(centre.as_dvec3(), 2.0 * r as f64);
+        if c >= 1e-3 * unweighted {
             assert!(
                 (s - c).abs() <= 1e-5 * c.abs(),
                 "node {id}: server {s}, client {c}"

@@ -5,7 +5,7 @@ use super::{CoarsenRef, FrameCtx, Mode, Selector};
 use crate::detail_buffer::DetailBuffer;
 use crate::mesh::{AdaptiveMesh, RedNode};
 use glam::{DVec3, Vec3};
-use tetwave_protocol::view::{data_weight, image_bound, tet_sphere, ImageCriterion, View};
+use tetwave_protocol::view::{data_weight, tet_sphere, ImageCriterion, View};
 use tetwave_protocol::TetId;
 
 /// The facts of one node the criteria read ([`Selector::info_of`] gives them from its cache entry).
@@ -379,10 +379,10 @@ impl Selector {
     }
 }
 
-/// The image criterion's weight of the node in `slot` ([`ImageCriterion::weight`] of the
-/// [`image_bound`] over its vertex values, rounded to `f32` so that a weight kept in the cache is
-/// the weight computed again). The curvature term reads the node's level-`l` corners and the ends
-/// of the parent edges they halve.
+/// The image criterion's weight of the node in `slot` ([`ImageCriterion::node_weight`] over the
+/// values the mesh holds, rounded to `f32` so that a weight kept in the cache is the weight
+/// computed again). The curvature term reads the node's level-`l` corners and the ends of the
+/// parent edges they halve.
 pub(super) fn image_weight(
     img: &ImageCriterion,
     mesh: &AdaptiveMesh,
@@ -394,25 +394,14 @@ pub(super) fn image_weight(
     let verts = mesh.node_verts(slot);
     let vals = mesh.values();
     let v = verts.map(|s| vals[s as usize]);
-    let (vmin, vmax) = v
-        .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
-            (a.min(x), b.max(x))
-        });
-    let curvature = if level == 0 {
-        f64::INFINITY
-    } else {
-        let mut e = 0.0f64;
-        for (k, &s) in verts.iter().enumerate() {
-            if mesh.vertex_level(s) == level {
-                if let Some([a, b]) = mesh.vertex_ends(s) {
-                    let mid = 0.5 * (vals[a as usize] as f64 + vals[b as usize] as f64);
-                    e = e.max((v[k] as f64 - mid).abs());
-                }
+    let mut curvature = 0.0f64;
+    for (k, &s) in verts.iter().enumerate() {
+        if level > 0 && mesh.vertex_level(s) == level {
+            if let Some([a, b]) = mesh.vertex_ends(s) {
+                let mid = 0.5 * (vals[a as usize] as f64 + vals[b as usize] as f64);
+                curvature = curvature.max((v[k] as f64 - mid).abs());
             }
         }
-        e
-    };
-    let bound = image_bound(mesh.forest().levels.saturating_sub(level), smax, curvature);
-    img.weight(vmin, vmax, bound, 2.0 * r) as f32 as f64
+    }
+    img.node_weight(v, curvature, level, mesh.forest().levels, smax, 2.0 * r)
 }

@@ -89,6 +89,14 @@ pub struct ViewerApp {
     target: Option<Target>,
     draw_data: Option<TetDrawData>,
     tets: u64,
+    /// Leaves of the red tree after the last refinement, and the most of any frame.
+    leaves: u64,
+    max_leaves: u64,
+    /// The last refinement's leaf budget refused a wanted split; frames in which it did.
+    budget_bound: bool,
+    frames_budget_bound: u64,
+    /// `--max-tets`, or its default for this machine.
+    leaf_budget: u64,
     mesh_dirty: bool,
     image_dirty: bool,
     last_cam: Option<Camera>,
@@ -195,6 +203,11 @@ impl ViewerApp {
             target: None,
             draw_data: None,
             tets: 0,
+            leaves: 0,
+            max_leaves: 0,
+            budget_bound: false,
+            frames_budget_bound: 0,
+            leaf_budget: args.select.leaf_budget() as u64,
             mesh_dirty: true,
             image_dirty: true,
             last_cam: None,
@@ -619,6 +632,7 @@ impl ViewerApp {
         }
         self.data.send_view(&cam, self.tol);
         let mut converged = true;
+        self.data.follow_tf(&self.tf);
         if let Some(s) = self.data.session.as_mut() {
             s.set_tolerance(Tolerance::Pixels(tol));
             let base = *self
@@ -645,6 +659,10 @@ impl ViewerApp {
                         self.mesh_dirty = true;
                     }
                     converged = s.is_converged();
+                    self.leaves = s.mesh().leaf_count() as u64;
+                    self.max_leaves = self.max_leaves.max(self.leaves);
+                    self.budget_bound = st.budget_bound;
+                    self.frames_budget_bound += st.budget_bound as u64;
                 }
                 Err(e) => {
                     let e = format!("refinement: {e}");
@@ -863,6 +881,15 @@ impl ViewerApp {
                 ui.end_row();
             };
             row("tets drawn", self.tets.to_string());
+            row(
+                "leaves / budget",
+                format!(
+                    "{} / {}{}",
+                    self.leaves,
+                    self.leaf_budget,
+                    if self.budget_bound { " (binds)" } else { "" }
+                ),
+            );
             row("nodes held", format!("{held} / {total}"));
             row(
                 "bytes received",
@@ -1019,6 +1046,10 @@ impl ViewerApp {
             nodes,
             nodes_total,
             tets: self.tets,
+            leaves: self.leaves,
+            max_leaves: self.max_leaves,
+            leaf_budget: self.leaf_budget,
+            frames_budget_bound: self.frames_budget_bound,
             bytes_received: self.data.bytes_received(),
             complete: self.data.is_complete(),
             fps: if elapsed > 0.0 {

@@ -5,6 +5,7 @@
 
 use crate::ingest::{Ingest, Step};
 use crate::select::{SelectParams, Tolerance};
+use crate::select_args::SelectionArgs;
 use crate::session::Session;
 use crate::stream::{
     network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError, INGEST_QUEUE,
@@ -19,7 +20,25 @@ use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{ClientMsg, ViewParams};
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 use tokio::sync::mpsc;
+
+/// How the viewer's session selects: the command line's selection options (criterion, leaf
+/// budget) and the transfer function drawn, which the image criterion weighs by.
+#[derive(Debug, Clone)]
+pub struct Selection {
+    pub args: SelectionArgs,
+    pub tf: TransferFunction,
+}
+
+impl Selection {
+    /// The parameters of a session on `base` at tolerance `tol`, over `value_range`.
+    fn params(&self, tol: Tolerance, value_range: [f32; 2], base: &BaseMesh) -> SelectParams {
+        let mut p = SelectParams::new(tol, value_range);
+        self.args.apply(&mut p, &self.tf, value_range, base);
+        p
+    }
+}
 
 /// What `tetwave view` was given.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -92,6 +111,7 @@ pub struct Data {
     changed: bool,
     /// Number of levels of the hierarchy (0 for a mesh file).
     pub levels: u8,
+    select: Selection,
 }
 
 impl Data {
@@ -101,6 +121,7 @@ impl Data {
         token: Option<String>,
         tol: Tolerance,
         max_nodes: u64,
+        select: Selection,
     ) -> Result<Data, String> {
         let empty = |kind| Data {
             kind,
@@ -112,6 +133,7 @@ impl Data {
             error: None,
             changed: true,
             levels: 0,
+            select: select.clone(),
         };
         match source {
             Source::Url(url) => {
@@ -185,10 +207,24 @@ impl Data {
     }
 
     fn start_session(&mut self, base: BaseMesh, tol: Tolerance) -> Result<(), String> {
-        let params = SelectParams::new(tol, self.value_range);
+        let params = self.select.params(tol, self.value_range, &base);
         self.session = Some(Session::new(base, params).map_err(|e| format!("base mesh: {e}"))?);
         self.session_started();
         Ok(())
+    }
+
+    /// Keeps the session's image criterion on `tf`, the transfer function drawn: another transfer
+    /// function makes other details visible (the next frame looks at the whole mesh again).
+    pub fn follow_tf(&mut self, tf: &TransferFunction) {
+        if self.select.tf == *tf {
+            return;
+        }
+        self.select.tf = tf.clone();
+        if let Some(s) = self.session.as_mut() {
+            let mut p = s.params().clone();
+            self.select.args.apply(&mut p, tf, self.value_range, s.base());
+            s.set_params(p);
+        }
     }
 
     /// Frames the view on a new session's base mesh.
@@ -364,8 +400,10 @@ impl Data {
                 }
             };
             self.bytes_applied += nbytes;
+            let select = &self.select;
             let start = |b: BaseMesh, m: &Manifest| {
-                Session::new(b, SelectParams::new(tol, m.display_value_range()))
+                let params = select.params(tol, m.display_value_range(), &b);
+                Session::new(b, params)
                     .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
             };
             let step = r

@@ -118,6 +118,8 @@ pub struct ViewArgs {
     /// Refuse a stream whose hierarchy has more detail nodes than this (as `tetwave stream`).
     #[arg(long, default_value_t = crate::stream::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_nodes: u64,
+    #[command(flatten)]
+    pub select: crate::select_args::SelectionArgs,
 }
 
 fn motion_ms(s: &str) -> Result<f64, String> {
@@ -150,6 +152,13 @@ pub struct ViewReport {
     pub nodes_total: u64,
     /// Tets drawn in the last frame.
     pub tets: u64,
+    /// Leaves of the red tree at the end (what `--max-tets` bounds), and the most of any frame.
+    pub leaves: u64,
+    pub max_leaves: u64,
+    /// The leaf budget in force (`--max-tets` or its default).
+    pub leaf_budget: u64,
+    /// Frames in which the leaf budget refused a split the criterion wanted.
+    pub frames_budget_bound: u64,
     pub bytes_received: u64,
     /// Times the stream's connection was lost and made again.
     pub reconnects: u64,
@@ -246,6 +255,10 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         args.token.clone(),
         crate::select::Tolerance::Pixels(args.tol),
         args.max_nodes,
+        data::Selection {
+            args: args.select.clone(),
+            tf: tf.clone(),
+        },
     )
     .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let report = Arc::new(Mutex::new(ViewReport::default()));

@@ -28,6 +28,16 @@ impl Order {
     }
 }
 
+/// What view order weighs a node's screen-space error by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ViewCriterion {
+    /// How much the node's subtree can change the image under the default transfer function
+    /// (`tetwave_protocol::view::ImageCriterion`, the client's default selection).
+    Image,
+    /// The node's subtree detail relative to the value range (δ = `DATA_DELTA`).
+    Data,
+}
+
 /// Serving parameters.
 #[derive(Debug, Clone)]
 pub struct ServeConfig {
@@ -64,6 +74,8 @@ pub struct ServeConfig {
     /// Recompute every store file's CRC-32 when the store opens (`serve --verify`; reads the whole
     /// store). The structure and `base.bin`'s checksum are always checked.
     pub verify_checksums: bool,
+    /// What view order weighs the screen-space error by.
+    pub view_criterion: ViewCriterion,
 }
 
 /// What a server admits and for how long; `docs/security.md` lists each with its flag.
@@ -120,6 +132,7 @@ impl Default for ServeConfig {
             limits: Limits::default(),
             origins: OriginPolicy::default(),
             verify_checksums: false,
+            view_criterion: ViewCriterion::Image,
         }
     }
 }

@@ -44,7 +44,7 @@ mod state;
 
 pub use admission::{open_file_limit, Peer};
 pub use background::BackgroundServer;
-pub use config::{Limits, Order, ServeConfig};
+pub use config::{Limits, Order, ServeConfig, ViewCriterion};
 pub use error::ServeError;
 pub use origin::OriginPolicy;
 pub use routes::{app, rss_kib};

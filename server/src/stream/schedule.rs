@@ -369,13 +369,18 @@ impl ViewPriority {
         }
     }
 
-    /// [`screen_error`] with the data weight (δ = [`DATA_DELTA`]) floored at 10⁻³, × 10⁻⁶ outside
-    /// the view frustum: flat or hidden subtrees last, but still sent.
+    /// [`screen_error`] with the node's image weight ([`Geometry::image`](super::state)) or
+    /// else its data weight (δ = [`DATA_DELTA`]), floored at 10⁻³, × 10⁻⁶ outside the view
+    /// frustum: subtrees that cannot change the image or are hidden go last, but are still sent.
     #[inline]
-    fn eval(&self, centre: [f32; 3], radius: f32, smax: f32) -> f32 {
+    fn eval(&self, centre: [f32; 3], radius: f32, smax: f32, image: Option<f32>) -> f32 {
         let c = DVec3::from_array(centre.map(f64::from));
         let r = radius as f64;
-        let data = data_weight(smax, self.value_range, DATA_DELTA).max(1e-3);
+        let data = match image {
+            Some(w) => w as f64,
+            None => data_weight(smax, self.value_range, DATA_DELTA),
+        }
+        .max(1e-3);
         let mut e = screen_error(&self.view, c, r, data);
         if !self.view.sphere_visible(c, r) {
             e *= 1e-6;
@@ -405,7 +410,7 @@ impl Shared {
         let p = ViewPriority::new(view, self.store.manifest.value_range);
         ids.map(|u| {
             let u = u as usize;
-            p.eval(g.centre[u], g.radius[u], self.smax[u])
+            p.eval(g.centre[u], g.radius[u], self.smax[u], g.image_of(u))
         })
         .collect()
     }
@@ -435,7 +440,7 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
         }
         let u = i as usize;
         let e = p
-            .eval(g.centre[u], g.radius[u], s.smax[u])
+            .eval(g.centre[u], g.radius[u], s.smax[u], g.image_of(u))
             .max(0.0)
             .to_bits();
         let item = Reverse((e, Reverse(i)));

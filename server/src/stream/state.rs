@@ -4,7 +4,7 @@
 
 use super::admission::{Admission, PeerBudgets};
 use super::auth::FailureLimiter;
-use super::config::ServeConfig;
+use super::config::{ServeConfig, ViewCriterion};
 use super::error::ServeError;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
@@ -16,17 +16,93 @@ use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::order::shuffle;
 use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
-use tetwave_protocol::view::tet_sphere;
+use tetwave_protocol::view::{tet_sphere, DEFAULT_IMAGE_EPS};
 use tetwave_protocol::wire::{encode, ServerMsg, SessionStart};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
+use tetwave_render::transfer::TransferFunction;
 use tetwave_store::Manifest;
 use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
 
-/// Per-node geometry for view-dependent order: bounding spheres, in world units.
+/// Per-node geometry for view-dependent order: bounding spheres, in world units, and the image
+/// weights the client's default selection gives the nodes.
 pub(super) struct Geometry {
     pub(super) centre: Vec<[f32; 3]>,
     /// Bounding-sphere radius ([`tet_sphere`]).
     pub(super) radius: Vec<f32>,
+    /// Every node's [`ImageCriterion::node_weight`] under the default transfer function over the
+    /// store's value range, read off the store's reference samples (within the store's bound of
+    /// what a client synthesizes); `None` under [`ViewCriterion::Data`] or without a reference.
+    pub(super) image: Option<Vec<f32>>,
+}
+
+impl Geometry {
+    /// Node `u`'s image weight, when view order weighs by it.
+    #[inline]
+    pub(super) fn image_of(&self, u: usize) -> Option<f32> {
+        self.image.as_ref().map(|w| w[u])
+    }
+}
+
+/// Ids per parallel task when the per-node geometry is computed.
+const GEOMETRY_CHUNK: u64 = 1 << 14;
+
+/// [`Geometry::image`]: per level, the parents' 10 split points' reference values give each
+/// child its corners and the midpoint deviation of its corners created at its level.
+fn image_weights(
+    store: &Store,
+    forest: Forest,
+    smax: &[f32],
+    radius: &[f32],
+    reference: &[f32],
+) -> Vec<f32> {
+    use rayon::prelude::*;
+    use tetwave_protocol::hierarchy::{LevelWalker, BEY_CHILDREN, EDGES};
+    let base = &store.base;
+    let keys = base.vertex_keys();
+    let tf = TransferFunction::preset("default").expect("the default preset exists");
+    let img = tf.image_criterion(store.manifest.value_range, base, DEFAULT_IMAGE_EPS);
+    let levels = forest.levels;
+    let n = forest.nodes() as usize;
+    let mut w = vec![1.0f32; n];
+    // base tets (level 0) have an unknown bound: weight 1
+    for l in 1..levels {
+        let (p0, p1) = (forest.level_start(l - 1), forest.level_start(l));
+        let c0 = forest.level_start(l) as usize;
+        let c1 = forest.level_start(l + 1).min(n as u64) as usize;
+        w[c0..c1]
+            .par_chunks_mut(8 * GEOMETRY_CHUNK as usize)
+            .enumerate()
+            .for_each(|(k, out)| {
+                let a = p0 + k as u64 * GEOMETRY_CHUNK;
+                let b = (a + GEOMETRY_CHUNK).min(p1);
+                for (j, (pid, t)) in LevelWalker::new(forest, l - 1, a..b).enumerate() {
+                    let pts = t.split_points();
+                    let v: [f32; 10] =
+                        std::array::from_fn(|i| reference[keys.key(t.base, &pts[i]) as usize]);
+                    for (i, corners) in BEY_CHILDREN.iter().enumerate() {
+                        let id = forest.child(pid, i) as usize;
+                        let mut curvature = 0.0f64;
+                        for &c in corners {
+                            if c >= 4 {
+                                let (e0, e1) = EDGES[c - 4];
+                                let mid = 0.5 * (v[e0] as f64 + v[e1] as f64);
+                                curvature = curvature.max((v[c] as f64 - mid).abs());
+                            }
+                        }
+                        let vals = corners.map(|c| v[c]);
+                        out[8 * j + i] = img.node_weight(
+                            vals,
+                            curvature,
+                            l,
+                            levels,
+                            smax[id],
+                            2.0 * radius[id] as f64,
+                        ) as f32;
+                    }
+                }
+            });
+    }
+    w
 }
 
 /// What every connection shares: the store, encoded frames that never change, per-node metadata.
@@ -235,22 +311,70 @@ impl Shared {
             .clone()
     }
 
-    /// Every node's bounding sphere; computed when view order first asks.
+    /// Computes what view order reads ([`Self::geometry`]) on a thread of its own, so that the
+    /// first session in view order does not pay for it (a session that asks before it is done
+    /// waits for the same computation, not a second one).
+    pub fn warm_view_order(self: &Arc<Self>) {
+        let s = Arc::clone(self);
+        let spawned = std::thread::Builder::new()
+            .name("view-order".into())
+            .spawn(move || {
+                s.geometry();
+            });
+        if let Err(e) = spawned {
+            tracing::warn!("view order is computed by the first session that needs it: {e}");
+        }
+    }
+
+    /// Every node's bounding sphere and image weight; computed when view order first asks (or by
+    /// [`Self::warm_view_order`]).
     pub(super) fn geometry(&self) -> Arc<Geometry> {
         self.geometry
             .get_or_init(|| {
+                use rayon::prelude::*;
+                let t0 = std::time::Instant::now();
                 let base = &self.store.base;
-                let n = self.nodes as usize;
-                let mut centre = Vec::with_capacity(n);
-                let mut radius = Vec::with_capacity(n);
-                for id in 0..self.nodes {
-                    let t = LatticeTet::from_id(&self.forest, id);
-                    let (c, r) =
-                        tet_sphere(t.v.map(|w| DVec3::from_array(base.position(t.base, &w))));
-                    centre.push(c.to_array());
-                    radius.push(r);
-                }
-                Arc::new(Geometry { centre, radius })
+                let forest = self.forest;
+                let spheres: Vec<([f32; 3], f32)> = (0..self.nodes.div_ceil(GEOMETRY_CHUNK))
+                    .into_par_iter()
+                    .flat_map_iter(|k| {
+                        let a = k * GEOMETRY_CHUNK;
+                        (a..(a + GEOMETRY_CHUNK).min(self.nodes)).map(move |id| {
+                            let t = LatticeTet::from_id(&forest, id);
+                            let (c, r) = tet_sphere(
+                                t.v.map(|w| DVec3::from_array(base.position(t.base, &w))),
+                            );
+                            (c.to_array(), r)
+                        })
+                    })
+                    .collect();
+                let (centre, radius): (Vec<_>, Vec<_>) = spheres.into_iter().unzip();
+                let image = match self.config.view_criterion {
+                    ViewCriterion::Data => None,
+                    ViewCriterion::Image => match self.store.read_reference() {
+                        Ok(r) if r.len() as u64 == base.vertex_keys().vertex_count() => {
+                            Some(image_weights(&self.store, forest, &self.smax, &radius, &r))
+                        }
+                        Ok(_) | Err(_) => {
+                            tracing::warn!(
+                                "the store has no readable reference samples: view order \
+                                 weighs nodes by their details alone"
+                            );
+                            None
+                        }
+                    },
+                };
+                tracing::info!(
+                    nodes = self.nodes,
+                    image = image.is_some(),
+                    "view-order geometry computed in {:.2} s",
+                    t0.elapsed().as_secs_f64()
+                );
+                Arc::new(Geometry {
+                    centre,
+                    radius,
+                    image,
+                })
             })
             .clone()
     }
