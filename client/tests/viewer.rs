@@ -490,6 +490,35 @@ fn view_tolerance_coarsens_and_refines() {
     assert!(pc < pf && pc < 40.0, "tolerance 1000 px: {pc:.2} dB");
 }
 
+/// `--max-tets` holds in the window: at tolerance 0 the criterion wants every one of the 20,480
+/// leaves, the selector never holds more than the budget, and the report says that it bound.
+#[test]
+fn view_never_exceeds_the_leaf_budget() {
+    let (d, s) = store(4);
+    let out = view_under_xvfb(
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "128x128",
+            "--tol",
+            "0",
+            "--max-tets",
+            "1000",
+            "--frames",
+            "60",
+            "--json",
+        ],
+        180,
+    );
+    let r = json_report(&out);
+    drop(d);
+    eprintln!("{r}");
+    assert_eq!(r["leaf_budget"], 1000, "{r}");
+    let max = r["max_leaves"].as_u64().unwrap();
+    assert!(max > 500 && max <= 1000, "{r}");
+    assert!(r["frames_budget_bound"].as_u64().unwrap() > 0, "{r}");
+}
+
 /// A local store and a mesh file open too (no server), and `--frames` ends the run.
 /// Opens `store` in the window in complete mode (128×128, 40 frames): every node arrives, and the
 /// screenshot matches the offscreen render of the same view (≥ 40 dB).
