@@ -34,12 +34,13 @@ pub fn render_reference_f64(
     cam: &Camera,
     tf: &TransferFunction,
 ) -> Vec<[f64; 4]> {
-    trace(mesh, cam, tf, None, |p| p).expect("not cancellable")
+    trace(mesh, cam, tf, None, BAND_TETS, |p| p).expect("not cancellable")
 }
 
 /// [`render_reference_f64`] quantized to RGBA8.
 pub fn render_reference(mesh: &RenderMesh, cam: &Camera, tf: &TransferFunction) -> Rgba8Image {
-    let pixels = trace(mesh, cam, tf, None, |p| p.map(unit_to_u8)).expect("not cancellable");
+    let pixels =
+        trace(mesh, cam, tf, None, BAND_TETS, |p| p.map(unit_to_u8)).expect("not cancellable");
     Rgba8Image {
         width: cam.width,
         height: cam.height,
@@ -48,15 +49,18 @@ pub fn render_reference(mesh: &RenderMesh, cam: &Camera, tf: &TransferFunction) 
 }
 
 /// [`render_reference`] that stops when `cancel` becomes true (checked before each row): `None`
-/// then. Memory: 4 bytes per pixel for the image, plus per tet its ray geometry (~140 bytes) and one
-/// 12-byte entry per image row its screen footprint spans.
+/// then. Memory: 4 bytes per pixel for the image and 8 per tet (its screen footprint), plus, for
+/// the tets over the band of rows being drawn ([`BAND_TETS`] tets' worth of rows at a time), each
+/// one's ray geometry (~140 bytes) and a 12-byte entry per row of the band its footprint spans.
 pub fn render_reference_cancellable(
     mesh: &RenderMesh,
     cam: &Camera,
     tf: &TransferFunction,
     cancel: &AtomicBool,
 ) -> Option<Rgba8Image> {
-    let pixels = trace(mesh, cam, tf, Some(cancel), |p| p.map(unit_to_u8))?;
+    let pixels = trace(mesh, cam, tf, Some(cancel), BAND_TETS, |p| {
+        p.map(unit_to_u8)
+    })?;
     Some(Rgba8Image {
         width: cam.width,
         height: cam.height,
@@ -64,12 +68,24 @@ pub fn render_reference_cancellable(
     })
 }
 
-/// The integrator: every pixel's premultiplied RGBA through `px`; `None` when cancelled.
+/// A tet's pixel bounding box, `[x0, x1, y0, y1]` inclusive.
+type Footprint = [u16; 4];
+
+/// The footprint of a tet that covers no pixel centre.
+const EMPTY_FOOTPRINT: Footprint = [u16::MAX, 0, u16::MAX, 0];
+
+/// Tets whose ray geometry one band of rows holds at most (about): a larger mesh is drawn a band
+/// of rows at a time, each band with the geometry of the tets over it only.
+const BAND_TETS: usize = 1 << 23;
+
+/// The integrator: every pixel's premultiplied RGBA through `px`, in bands of rows over about
+/// `band_tets` tets each; `None` when cancelled.
 fn trace<T: Send + Copy + Default>(
     mesh: &RenderMesh,
     cam: &Camera,
     tf: &TransferFunction,
     cancel: Option<&AtomicBool>,
+    band_tets: usize,
     px: impl Fn([f64; 4]) -> T + Sync,
 ) -> Option<Vec<T>> {
     let cancelled = || cancel.is_some_and(|c| c.load(Ordering::Relaxed));
@@ -80,124 +96,144 @@ fn trace<T: Send + Copy + Default>(
     let origin = mesh.center();
     let eye = cam.eye - origin;
     let ext_scale = 1.0 / mesh.diagonal();
-    let geo: Vec<TetRay> = (0..mesh.tets.len())
-        .into_par_iter()
-        .map(|t| {
-            let (planes, g, c) = mesh.tet_geometry(t, origin);
-            let (lg, lc) = mesh.tet_levelset(t, origin);
-            TetRay {
-                planes,
-                g,
-                c,
-                lg,
-                lc,
-            }
-        })
-        .collect();
     // screen footprint of each tet: pixel bbox (whole screen if it reaches behind the near plane)
     let vp = cam.view_proj(origin, 1.0);
     let fwd = cam.forward();
-    let mut rows: Vec<Vec<(u32, u32, u32)>> = vec![Vec::new(); h];
-    for (t, tet) in mesh.tets.iter().enumerate() {
-        if geo[t].planes[0].0 == DVec3::ZERO {
-            continue;
-        }
-        let mut lo = [f64::INFINITY; 2];
-        let mut hi = [f64::NEG_INFINITY; 2];
-        let mut behind = false;
-        for &v in tet {
-            let p = DVec3::from_array(mesh.positions[v as usize]) - origin;
-            if (p - eye).dot(fwd) <= cam.near * 0.999 {
-                behind = true;
-                break;
+    let foot: Vec<Footprint> = mesh
+        .tets
+        .par_iter()
+        .map(|tet| {
+            let mut lo = [f64::INFINITY; 2];
+            let mut hi = [f64::NEG_INFINITY; 2];
+            for &v in tet {
+                let p = DVec3::from_array(mesh.positions[v as usize]) - origin;
+                if (p - eye).dot(fwd) <= cam.near * 0.999 {
+                    return [0, w as u16 - 1, 0, h as u16 - 1];
+                }
+                let c = vp * p.extend(1.0);
+                let px = ((c.x / c.w) + 1.0) * 0.5 * w as f64;
+                let py = (1.0 - c.y / c.w) * 0.5 * h as f64;
+                lo = [lo[0].min(px), lo[1].min(py)];
+                hi = [hi[0].max(px), hi[1].max(py)];
             }
-            let c = vp * p.extend(1.0);
-            let px = ((c.x / c.w) + 1.0) * 0.5 * w as f64;
-            let py = (1.0 - c.y / c.w) * 0.5 * h as f64;
-            lo = [lo[0].min(px), lo[1].min(py)];
-            hi = [hi[0].max(px), hi[1].max(py)];
-        }
-        let (x0, x1, y0, y1) = if behind {
-            (0, w as i64 - 1, 0, h as i64 - 1)
-        } else {
             // pixel centres inside [lo, hi], with a one-pixel margin for rounding
-            (
-                (lo[0] - 1.5).floor() as i64,
-                (hi[0] + 0.5).ceil() as i64,
-                (lo[1] - 1.5).floor() as i64,
-                (hi[1] + 0.5).ceil() as i64,
-            )
-        };
-        let (x0, x1) = (x0.max(0), x1.min(w as i64 - 1));
-        let (y0, y1) = (y0.max(0), y1.min(h as i64 - 1));
-        if x0 > x1 || y0 > y1 {
-            continue;
-        }
-        for row in rows.iter_mut().take(y1 as usize + 1).skip(y0 as usize) {
-            row.push((t as u32, x0 as u32, x1 as u32));
-        }
-    }
-    if cancelled() {
-        return None;
-    }
+            let clamp = |v: f64, n: usize| v.clamp(-1.0, n as f64) as i64;
+            let (x0, x1) = (
+                clamp((lo[0] - 1.5).floor(), w),
+                clamp((hi[0] + 0.5).ceil(), w),
+            );
+            let (y0, y1) = (
+                clamp((lo[1] - 1.5).floor(), h),
+                clamp((hi[1] + 0.5).ceil(), h),
+            );
+            let (x0, x1) = (x0.max(0), x1.min(w as i64 - 1));
+            let (y0, y1) = (y0.max(0), y1.min(h as i64 - 1));
+            if x0 > x1 || y0 > y1 {
+                EMPTY_FOOTPRINT
+            } else {
+                [x0 as u16, x1 as u16, y0 as u16, y1 as u16]
+            }
+        })
+        .collect();
+    // bands of rows, each with the ray geometry of the tets over it only: a mesh of any size is
+    // drawn within about BAND_TETS tets' geometry at a time (one band below that)
+    let bands = mesh.tets.len().div_ceil(band_tets.max(1)).clamp(1, h);
+    let band_h = h.div_ceil(bands);
     let mut out = vec![T::default(); w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, line)| {
+    for (b, band) in out.chunks_mut(band_h * w).enumerate() {
+        let (by0, by1) = (b * band_h, (b * band_h + band.len() / w).min(h));
+        let mut local: Vec<u32> = Vec::new();
+        let mut rows: Vec<Vec<(u32, u32, u32)>> = vec![Vec::new(); by1 - by0];
+        for (t, f) in foot.iter().enumerate() {
+            let (y0, y1) = (f[2] as usize, f[3] as usize);
+            if *f == EMPTY_FOOTPRINT || y1 < by0 || y0 >= by1 {
+                continue;
+            }
+            let l = local.len() as u32;
+            local.push(t as u32);
+            for row in &mut rows[y0.max(by0) - by0..=y1.min(by1 - 1) - by0] {
+                row.push((l, f[0] as u32, f[1] as u32));
+            }
+        }
+        let geo: Vec<TetRay> = local
+            .par_iter()
+            .map(|&t| {
+                let (planes, g, c) = mesh.tet_geometry(t as usize, origin);
+                let (lg, lc) = mesh.tet_levelset(t as usize, origin);
+                TetRay {
+                    planes,
+                    g,
+                    c,
+                    lg,
+                    lc,
+                }
+            })
+            .collect();
         if cancelled() {
-            return;
+            return None;
         }
-        let mut segs: Vec<(f64, f64, f64, f64)> = Vec::new();
-        for (x, pixel) in line.iter_mut().enumerate() {
-            let dir = cam.ray_dir(x as u32, y as u32);
-            let t_near = cam.near_t(dir);
-            segs.clear();
-            for &(t, x0, x1) in &rows[y] {
-                if (x as u32) < x0 || (x as u32) > x1 {
-                    continue;
-                }
-                let g = &geo[t as usize];
-                let (mut t0, mut t1) = (t_near, f64::INFINITY);
-                for &(n, d) in &g.planes {
-                    let denom = n.dot(dir);
-                    let num = d - n.dot(eye);
-                    if denom > 0.0 {
-                        t1 = t1.min(num / denom);
-                    } else if denom < 0.0 {
-                        t0 = t0.max(num / denom);
-                    } else if num < 0.0 {
-                        t1 = f64::NEG_INFINITY;
-                    }
-                }
-                if t1 > t0 {
-                    let l0 = g.lg.dot(eye + dir * t0) + g.lc;
-                    let l1 = g.lg.dot(eye + dir * t1) + g.lc;
-                    let Some((a, b)) = clip_to_levelset(l0, l1) else {
+        band.par_chunks_mut(w).enumerate().for_each(|(dy, line)| {
+            if cancelled() {
+                return;
+            }
+            let y = by0 + dy;
+            let mut segs: Vec<(f64, f64, f64, f64)> = Vec::new();
+            for (x, pixel) in line.iter_mut().enumerate() {
+                let dir = cam.ray_dir(x as u32, y as u32);
+                let t_near = cam.near_t(dir);
+                segs.clear();
+                for &(t, x0, x1) in &rows[dy] {
+                    if (x as u32) < x0 || (x as u32) > x1 {
                         continue;
-                    };
-                    let (t0, t1) = (t0 + (t1 - t0) * a, t0 + (t1 - t0) * b);
+                    }
+                    let g = &geo[t as usize];
+                    if g.planes[0].0 == DVec3::ZERO {
+                        continue;
+                    }
+                    let (mut t0, mut t1) = (t_near, f64::INFINITY);
+                    for &(n, d) in &g.planes {
+                        let denom = n.dot(dir);
+                        let num = d - n.dot(eye);
+                        if denom > 0.0 {
+                            t1 = t1.min(num / denom);
+                        } else if denom < 0.0 {
+                            t0 = t0.max(num / denom);
+                        } else if num < 0.0 {
+                            t1 = f64::NEG_INFINITY;
+                        }
+                    }
                     if t1 > t0 {
-                        let s0 = g.g.dot(eye + dir * t0) + g.c;
-                        let s1 = g.g.dot(eye + dir * t1) + g.c;
-                        segs.push((t0, t1, s0, s1));
+                        let l0 = g.lg.dot(eye + dir * t0) + g.lc;
+                        let l1 = g.lg.dot(eye + dir * t1) + g.lc;
+                        let Some((a, b)) = clip_to_levelset(l0, l1) else {
+                            continue;
+                        };
+                        let (t0, t1) = (t0 + (t1 - t0) * a, t0 + (t1 - t0) * b);
+                        if t1 > t0 {
+                            let s0 = g.g.dot(eye + dir * t0) + g.c;
+                            let s1 = g.g.dot(eye + dir * t1) + g.c;
+                            segs.push((t0, t1, s0, s1));
+                        }
                     }
                 }
-            }
-            segs.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut c = [0f64; 3];
-            let mut tr = 1f64;
-            for &(t0, t1, s0, s1) in &segs {
-                let (sc, st) =
-                    integrate_segment_converged(tf, s0, s1, t1 - t0, ext_scale, SEGMENT_TOL);
-                for k in 0..3 {
-                    c[k] += tr * sc[k];
+                segs.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let mut c = [0f64; 3];
+                let mut tr = 1f64;
+                for &(t0, t1, s0, s1) in &segs {
+                    let (sc, st) =
+                        integrate_segment_converged(tf, s0, s1, t1 - t0, ext_scale, SEGMENT_TOL);
+                    for k in 0..3 {
+                        c[k] += tr * sc[k];
+                    }
+                    tr *= st;
+                    if tr < 1e-12 {
+                        break;
+                    }
                 }
-                tr *= st;
-                if tr < 1e-12 {
-                    break;
-                }
+                *pixel = px([c[0], c[1], c[2], 1.0 - tr]);
             }
-            *pixel = px([c[0], c[1], c[2], 1.0 - tr]);
-        }
-    });
+        });
+    }
     (!cancelled()).then_some(out)
 }
 
@@ -217,6 +253,20 @@ mod tests {
             vec![[0, 1, 2, 3]],
             vec![v; 4],
         )
+    }
+
+    /// Drawn a band of rows at a time, a mesh gives the image it gives in one band, bit for bit.
+    #[test]
+    fn bands_of_rows_change_nothing() {
+        let mesh = RenderMesh::kuhn_cube(4, 2.0, |p| (p[0] * 1.3 + p[1] * p[2]).sin());
+        let tf = TransferFunction::preset("default").unwrap();
+        let cam = Camera::orbit(mesh.center(), 5.0, 35.0, 25.0, 40.0, 40, 33);
+        let whole = trace(&mesh, &cam, &tf, None, usize::MAX, |p| p).unwrap();
+        for band_tets in [1, 7, 100] {
+            let banded = trace(&mesh, &cam, &tf, None, band_tets, |p| p).unwrap();
+            assert!(whole == banded, "{band_tets} tets a band");
+        }
+        assert!(whole.iter().any(|p| p[3] > 0.1), "the cube is drawn");
     }
 
     /// A single tet with a constant field: every covered pixel equals the closed form
