@@ -172,17 +172,25 @@ impl Session {
     }
 
     /// Whether the mesh is final for the last frame's camera whatever arrives next: the selector
-    /// converged and every leaf it could still split holds its store node (not a preview), whose
-    /// subtree bound told the criterion that the image needs nothing below it. Later arrivals
-    /// may still correct vertex values in place (by at most the missing details). One pass over
-    /// the mesh's nodes.
+    /// converged, and every leaf it could still split either holds its store node (not a
+    /// preview), whose subtree bound told the criterion that the image needs nothing below it,
+    /// or stays unsplit under its nearest held ancestor's bound, which covers its subtree
+    /// ([`Selector::stays_unsplit_without_node`]): so a client needs the nodes of its leaves only
+    /// where their parent's bound cannot settle them. Later arrivals may still correct vertex
+    /// values in place (by at most the missing details). One pass over the mesh's nodes.
     pub fn view_complete(&self) -> bool {
         if !self.sel.is_converged() {
             return false;
         }
         let mut ok = true;
         self.mesh.for_each_splittable_leaf(|id| {
-            ok &= self.buf.is_present(id) && !self.buf.is_preview(id);
+            if !ok || (self.buf.is_present(id) && !self.buf.is_preview(id)) {
+                return;
+            }
+            ok = self.mesh.red_node_of(id).is_some_and(|n| {
+                self.sel
+                    .stays_unsplit_without_node(&self.mesh, &self.buf, &n)
+            });
         });
         ok
     }

@@ -93,15 +93,99 @@ fn the_leaf_budget_is_never_exceeded() {
     assert!(free.leaf_count() > 600);
 }
 
-/// Tolerance 0 (complete mode) with the image criterion still ends at every leaf.
+/// A tolerance of 0 with the image criterion still ends at every leaf where the field changes
+/// the image: by view (progressive mode, 0 px, no culling) on a field whose every subtree has
+/// details, and in complete mode.
 #[test]
 fn tolerance_zero_reaches_every_leaf() {
-    let (mut mesh, buf, base) = loaded(3, wave);
-    let mut sel = Selector::new(image_params(&base, [-1.0, 1.0]));
-    sel.converge(&mut mesh, &buf, &cam(0.0), Mode::Complete)
-        .unwrap();
-    assert_eq!(
-        mesh.leaf_count() as u64,
-        base.tets.len() as u64 * 8u64.pow(3)
+    let all = common::box5(3).tets.len() as u64 * 8u64.pow(3);
+    for mode in [Mode::Progressive, Mode::Complete] {
+        let (mut mesh, buf, base) = loaded(3, wave);
+        let mut p = image_params(&base, [-1.0, 1.0]);
+        p.tol = Tolerance::Pixels(8.0);
+        p.frustum = false;
+        let mut sel = Selector::new(p);
+        let st = sel.converge(&mut mesh, &buf, &cam(0.0), mode).unwrap();
+        assert!(st.converged, "{mode:?}");
+        assert_eq!(mesh.leaf_count() as u64, all, "{mode:?}");
+        mesh.check_conformity().unwrap();
+    }
+}
+
+/// A bump in one corner of an otherwise flat field: most of the volume has nothing to show.
+fn bump(p: [f64; 3]) -> f32 {
+    let d2 = (0..3).map(|k| (p[k] - 7.0).powi(2)).sum::<f64>();
+    (-d2 / 18.0).exp() as f32
+}
+
+/// A session that says its view is complete (`Session::view_complete`) before every node has
+/// arrived holds the mesh it holds once every node has arrived: the leaves whose own nodes were
+/// missing stayed unsplit under their ancestors' bounds, which cover them. Over random arrival
+/// orders (by view, 2 px, image criterion); and with exactly the nodes the final mesh reads
+/// (its refined nodes, and its leaves' own nodes where the parent's bound does not settle them)
+/// it says so without the rest.
+#[test]
+fn view_complete_before_every_node_is_final() {
+    use tetwave_client::session::Session;
+    let (base, nodes) = common::detail_nodes(common::box5(4), bump);
+    let c = cam(40.0);
+    let session = || {
+        let mut p = image_params(&base, [0.0, 1.0]);
+        p.tol = Tolerance::Pixels(2.0);
+        Session::new(base.clone(), p).unwrap()
+    };
+    let sorted_leaves = |s: &Session| {
+        let mut v = s.mesh().leaf_ids();
+        v.sort_unstable();
+        v
+    };
+    let mut full = session();
+    full.insert(&nodes).unwrap();
+    full.converge(&c, Mode::Progressive).unwrap();
+    assert!(full.view_complete());
+    let reference = sorted_leaves(&full);
+
+    // the nodes the final mesh reads
+    let f = base.forest();
+    let refined = |id| full.mesh().red_node_of(id).is_some_and(|n| !n.leaf);
+    let settled = |id| {
+        full.mesh().red_node_of(id).is_some_and(|n| {
+            n.leaf
+                && full
+                    .selector()
+                    .stays_unsplit_without_node(full.mesh(), full.buffer(), &n)
+        })
+    };
+    let (read, rest): (Vec<_>, Vec<_>) = nodes
+        .iter()
+        .cloned()
+        .partition(|n| f.parent(n.id).is_none_or(refined) && !settled(n.id));
+    let settled_leaves = nodes.iter().filter(|n| settled(n.id)).count();
+    assert!(
+        settled_leaves > 100,
+        "{settled_leaves} leaves settled by their parent's bound"
     );
+    let mut s = session();
+    s.insert(&read).unwrap();
+    s.converge(&c, Mode::Progressive).unwrap();
+    assert!(s.view_complete(), "{} of {} nodes", read.len(), nodes.len());
+    assert_eq!(sorted_leaves(&s), reference);
+    s.insert(&rest).unwrap();
+    s.converge(&c, Mode::Progressive).unwrap();
+    assert_eq!(sorted_leaves(&s), reference);
+
+    for seed in 0..6u64 {
+        let mut order = nodes.clone();
+        tetwave_protocol::order::shuffle(&mut order, seed);
+        let mut s = session();
+        for chunk in order.chunks(64) {
+            s.insert(chunk).unwrap();
+            s.converge(&c, Mode::Progressive).unwrap();
+            if s.view_complete() {
+                assert_eq!(sorted_leaves(&s), reference, "seed {seed}");
+                s.mesh().check_conformity().unwrap();
+            }
+        }
+        assert!(s.view_complete());
+    }
 }

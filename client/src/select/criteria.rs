@@ -93,6 +93,40 @@ impl Selector {
         (e > view.tol_px).then_some(e)
     }
 
+    /// Whether leaf `n`, whose own store node has not arrived (or is still a preview), stays
+    /// unsplit under the last frame's camera whatever that node brings: the subtree bound of its
+    /// nearest held ancestor covers its subtree, and with that bound in its place the criterion
+    /// does not split it (or culls it). Every weight grows with the bound, so the node's own,
+    /// smaller bound cannot split it either. Complete mode splits whatever arrives: never.
+    pub fn stays_unsplit_without_node(
+        &self,
+        mesh: &AdaptiveMesh,
+        buf: &DetailBuffer,
+        n: &RedNode,
+    ) -> bool {
+        let (Some(cam), Some(mode)) = (self.last_cam.as_ref(), self.last_mode) else {
+            return false;
+        };
+        if mode == Mode::Complete {
+            return false;
+        }
+        let forest = mesh.forest();
+        let mut up = forest.parent(n.id);
+        let smax = loop {
+            let Some(a) = up else { return false };
+            if let Some(m) = buf.subtree_max(a).filter(|_| !buf.is_preview(a)) {
+                break m;
+            }
+            up = forest.parent(a);
+        };
+        let view = View::new(cam, self.params.tol);
+        let slot = n.slot as usize;
+        let (c, r) = bounding_sphere(mesh, &mesh.node_verts(slot));
+        let fac = self.node_weight(mesh, slot, forest.level(n.id), Some(smax), r);
+        self.sphere_error(&view, c, r, fac)
+            .is_none_or(|e| e <= view.tol_px)
+    }
+
     /// Data-aware screen-space error of `n`; `None` outside the frustum (when culling).
     fn error(
         &self,

@@ -222,7 +222,9 @@ impl Data {
         self.select.tf = tf.clone();
         if let Some(s) = self.session.as_mut() {
             let mut p = s.params().clone();
-            self.select.args.apply(&mut p, tf, self.value_range, s.base());
+            self.select
+                .args
+                .apply(&mut p, tf, self.value_range, s.base());
             s.set_params(p);
         }
     }

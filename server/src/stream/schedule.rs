@@ -369,6 +369,20 @@ impl ViewPriority {
         }
     }
 
+    /// Whether the client will split a node with this sphere, subtree bound and image weight
+    /// under this view: inside the frustum, with its weighted screen-space error (unfloored, as
+    /// the client computes it) over the view's tolerance.
+    #[inline]
+    fn splits(&self, centre: [f32; 3], radius: f32, smax: f32, image: Option<f32>) -> bool {
+        let c = DVec3::from_array(centre.map(f64::from));
+        let r = radius as f64;
+        let w = match image {
+            Some(w) => w as f64,
+            None => data_weight(smax, self.value_range, DATA_DELTA),
+        };
+        self.view.sphere_visible(c, r) && screen_error(&self.view, c, r, w) > self.view.tol_px
+    }
+
     /// [`screen_error`] with the node's image weight ([`Geometry::image`](super::state)) or
     /// else its data weight (δ = [`DATA_DELTA`]), floored at 10⁻³, × 10⁻⁶ outside the view
     /// frustum: subtrees that cannot change the image or are hidden go last, but are still sent.
@@ -421,8 +435,16 @@ impl Shared {
     }
 }
 
-/// The best not-yet-done ids for `view`, best last. Takes at most `max(4096, n/16)` of them, so a
-/// connection recomputes at most ~16 times over the whole stream plus once per `View`.
+/// Factor on the priority of a node whose parent the client will not split under the view
+/// ([`ViewPriority::splits`]): the client does not read it, so every node it will read goes
+/// before it (it is still sent, last).
+const NOT_READ: f32 = 1e-6;
+
+/// The best not-yet-done ids for `view`, best last: by [`ViewPriority::eval`], times
+/// [`NOT_READ`] where the node's parent will not be split, so that the nodes a client converging
+/// on the view reads — the children of what it splits, which its leaves' bounds are — come before
+/// nodes below its leaves. Takes at most `max(4096, n/16)` of them, so a connection recomputes at
+/// most ~16 times over the whole stream plus once per `View`.
 fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> Vec<TetId> {
     use std::cmp::Reverse;
     use std::collections::BinaryHeap;
@@ -431,6 +453,7 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
         return Vec::new();
     }
     let g = s.geometry();
+    let forest = s.forest();
     let p = ViewPriority::new(view, s.store.manifest.value_range);
     // min-heap of the m best (priority bits: non-negative f32 order as their bits)
     let mut heap: BinaryHeap<Reverse<(u32, Reverse<TetId>)>> = BinaryHeap::with_capacity(m + 1);
@@ -439,10 +462,15 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
             continue;
         }
         let u = i as usize;
-        let e = p
+        let mut e = p
             .eval(g.centre[u], g.radius[u], s.smax[u], g.image_of(u))
-            .max(0.0)
-            .to_bits();
+            .max(0.0);
+        if let Some(q) = forest.parent(i).map(|q| q as usize) {
+            if !p.splits(g.centre[q], g.radius[q], s.smax[q], g.image_of(q)) {
+                e *= NOT_READ;
+            }
+        }
+        let e = e.to_bits();
         let item = Reverse((e, Reverse(i)));
         if heap.len() < m {
             heap.push(item);
