@@ -202,6 +202,13 @@ pub fn file_mesh(
             path: path.to_path_buf(),
             source,
         })?;
+    if clean.distance && options.field.is_none() {
+        // a geometry-only mesh: one line says what is drawn
+        eprintln!(
+            "{}: no point or cell arrays; drawing the distance to its boundary (--field distance)",
+            path.display()
+        );
+    }
     let values = clean.values.iter().map(|&v| v as f32).collect();
     Ok((
         RenderMesh::new(clean.points, clean.tets, values),

@@ -76,3 +76,30 @@ fn render_mesh_bad_options_fail_clearly() {
     assert!(!ok && err.contains("/nonexistent/x.vtu"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// A mesh with no arrays renders without flags: the distance to its boundary, with one line
+/// saying so (the CPU reference, so no adapter is needed for this one).
+#[test]
+fn render_a_geometry_only_mesh_without_flags() {
+    let d = tempfile::tempdir().unwrap();
+    let png = d.path().join("bare.png");
+    let (ok, out, err) = render(&[
+        fixture("bare_42.vtk").to_str().unwrap(),
+        "--reference",
+        "--size",
+        "48x48",
+        "--json",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).expect(&out);
+    assert_eq!(v["scalar"], "distance", "{v}");
+    let said: Vec<&str> = err
+        .lines()
+        .filter(|l| l.contains("no point or cell arrays"))
+        .collect();
+    assert_eq!(said.len(), 1, "{err}");
+    assert!(said[0].contains("distance to its boundary"), "{err}");
+    assert!(png.exists());
+}

@@ -367,7 +367,11 @@ pub fn clean_import(
             return Err(CleanError::UnknownField(f.to_string()));
         }
     }
+    // a mesh with no arrays at all (geometry only) is drawn with the distance to its boundary,
+    // as under --field distance, and the report says so
+    let geometry_only = o.field.is_none() && o.scalar.is_none() && arrays(&m).is_empty();
     let choice = match o.field {
+        _ if geometry_only => None,
         Some(_) => None,
         None => Some(choose(&m, o.scalar)?),
     };
@@ -447,13 +451,17 @@ pub fn clean_import(
 
     // The scalar.
     let n = points.len();
+    let distance = choice.is_none();
     let mut values = match choice {
         None => {
             report.scalar = "distance".into();
             report.scalar_source = "geometric".into();
-            report
-                .notes
-                .push("scalar: the distance to the mesh's boundary (--field distance)".into());
+            report.notes.push(if geometry_only {
+                tracing::info!("the mesh has no arrays: drawn with the distance to its boundary");
+                "the mesh has no point or cell arrays: its scalar is the distance to its boundary (as --field distance)".into()
+            } else {
+                "scalar: the distance to the mesh's boundary (--field distance)".into()
+            });
             boundary_distance(points, &tets)
         }
         Some(Choice::Point(name, v, nc, comp)) => {
@@ -570,7 +578,7 @@ pub fn clean_import(
             points: m.mesh.points,
             tets,
             values,
-            distance: o.field.is_some(),
+            distance,
         },
         report,
     ))

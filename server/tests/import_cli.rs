@@ -124,12 +124,16 @@ fn vector_component_from_the_cli() {
 }
 
 #[test]
-fn bare_mesh_needs_field_distance() {
-    expect_error(
-        &fixture("bare_42.vtk"),
-        &[],
-        &["bare_42.vtk", "no point or cell arrays", "--field distance"],
-    );
+fn bare_mesh_gets_the_distance_field() {
+    // no flag needed: a geometry-only mesh prepares with the distance field, and says so
+    let j = prepare(&fixture("bare_42.vtk"), &[]);
+    assert_eq!(j["import"]["scalar"], "distance");
+    assert_eq!(j["import"]["scalar_source"], "geometric");
+    assert!(j["import"]["notes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|n| n.as_str().unwrap().contains("no point or cell arrays")));
     let j = prepare(&fixture("cube_10.msh"), &["--field", "distance"]);
     assert_eq!(j["import"]["scalar"], "distance");
     assert_eq!(j["import"]["scalar_source"], "geometric");

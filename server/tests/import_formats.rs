@@ -313,11 +313,20 @@ fn quality_min_dihedral_and_slivers() {
 
 #[test]
 fn distance_field_for_a_bare_mesh() {
-    let err = clean_import(read("bare_42.vtk"), &opts(None))
-        .err()
-        .unwrap();
-    assert!(matches!(err, CleanError::NoScalars));
-    assert!(err.to_string().contains("--field distance"));
+    // without arrays the distance field is the default, and a note says so
+    let (m0, r0) = clean_import(read("bare_42.vtk"), &opts(None)).unwrap();
+    assert!(m0.distance);
+    assert_eq!(
+        (r0.scalar.as_str(), r0.scalar_source.as_str()),
+        ("distance", "geometric")
+    );
+    assert!(
+        r0.notes
+            .iter()
+            .any(|n| n.contains("no point or cell arrays")),
+        "{:?}",
+        r0.notes
+    );
     let o = ImportOptions {
         field: Some("distance"),
         ..opts(None)
@@ -327,6 +336,7 @@ fn distance_field_for_a_bare_mesh() {
         (r.scalar.as_str(), r.scalar_source.as_str()),
         ("distance", "geometric")
     );
+    assert_eq!(m.values, m0.values);
     assert!(
         m.values.iter().all(|&d| d == 0.0),
         "every cube point is on the boundary"
