@@ -208,7 +208,7 @@ def free_port():
 class Server:
     """`tetwave-server serve` on a free loopback port, until close()."""
 
-    def __init__(self, bindir, store, order, log_path, extra=()):
+    def __init__(self, bindir, store, order, log_path, extra=(), ready_s=60):
         self.port = free_port()
         self.log = open(log_path, "w")
         self.proc = subprocess.Popen(
@@ -217,7 +217,7 @@ class Server:
             stdout=self.log,
             stderr=subprocess.STDOUT,
         )
-        deadline = time.time() + 60
+        deadline = time.time() + ready_s
         while True:
             if self.proc.poll() is not None:
                 fail(f"serve {store} exited with status {self.proc.returncode}; see {log_path}")
@@ -227,7 +227,7 @@ class Server:
             except OSError:
                 if time.time() > deadline:
                     self.close()
-                    fail(f"serve {store} did not answer /healthz within 60 s")
+                    fail(f"serve {store} did not answer /healthz within {ready_s} s")
                 time.sleep(0.1)
 
     def close(self):

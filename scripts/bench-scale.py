@@ -1,0 +1,356 @@
+#!/usr/bin/env python3
+"""Scale benchmark: does a client model no more than the scene needs on large grids?
+
+Run through `scripts/bench-scale` (which builds the release binaries and installs numpy,
+scikit-fem and matplotlib into the checkout's venv .venv); by hand:
+
+  .venv/bin/python scripts/bench-scale.py --bin-dir target/release [--levels 7,8]
+      [--fields harmonic,fem] [--bounds lossless,0.1%] [--tol 2] [--size 512x512]
+      [--criteria image,geometric] [--timeout 300] [--l9] [--out out/bench-scale]
+
+For every field, level L and bound: one (2^L+1)^3 grid (harmonic: `synthetic:harmonic`, sampled at
+the grid points by `prepare`; fem: bench-rd's scikit-fem solution evaluated at the grid points and
+written as a raw f32 grid), prepared with `--base box6 --levels L [--max-error B]` (wall time and
+peak RSS of `prepare`), served on 127.0.0.1 in view order (the stream starts once the server has
+computed its view order, a one-time cost of its start: `view_order_ready_s`), and streamed by
+`tetwave stream --headless --no-render --until-converged --tol T --size WxH --final-png`
+once per selection criterion (`--criterion image|geometric`); a run ends at the first frame whose
+mesh is final for the default camera, or is killed at --timeout seconds (the row says so):
+
+  converge_s    the session's last frame, from connect (`ms_since_connect`);
+  leaves, tets  what the client holds then (`leaves` is what --max-tets bounds), and tets per pixel;
+  client_rss    the client process's peak RSS (its VmHWM, read every 50 ms), drawing --final-png included;
+  psnr_db       the CPU reference image of the converged mesh (`--final-png`, same camera) against
+                the CPU reference image of every leaf of the store (`tetwave render STORE
+                --reference`, once per store), RGB in 8-bit units.
+
+With --l9: a 513^3 u8 raw grid written by slabs (the harmonic field scaled to 0..255), prepared
+at `--levels 9 --max-error 0.1%` (time, peak RSS), served in level order (serve's default), and
+streamed to its first frame (`first_frame_s`, from connect).
+
+With --view CASE: that case's store served in view order and orbited a full turn in `tetwave view`
+under Xvfb (512², 2 px; once per --view-max-tets): frame period p50/p95/max, the most leaves held
+against the budget, frames in which the budget bound.
+
+Writes OUT/scale.jsonl (one object per run, appended as runs end) and OUT/scale.md (the table);
+work files in OUT/work/.
+"""
+
+import argparse
+import importlib.util
+import json
+import os
+import sys
+import threading
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def load_bench_rd():
+    """bench-rd.py's FEM grid and its loopback server (one copy of each)."""
+    spec = importlib.util.spec_from_file_location("bench_rd", os.path.join(HERE, "bench-rd.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+rd = load_bench_rd()
+fail = rd.fail
+
+
+def peak_rss_mib(pid):
+    """The largest peak RSS so far (VmHWM of /proc/PID/status), MiB, of the process and its
+    descendants (a program run under xvfb-run is a grandchild); None once none is left."""
+    children = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+                children.setdefault(ppid, []).append(int(d))
+            except (OSError, ValueError, IndexError):
+                pass
+    best, todo = None, [pid]
+    while todo:
+        p = todo.pop()
+        todo.extend(children.get(p, []))
+        try:
+            with open(f"/proc/{p}/status") as f:
+                for line in f:
+                    if line.startswith("VmHWM:"):
+                        v = int(line.split()[1]) / 1024.0
+                        best = v if best is None else max(best, v)
+        except OSError:
+            pass
+    return best
+
+
+def run_measured(cmd, what, log, timeout=None):
+    """Runs `cmd` with stdout and stderr into `log` (.out / .err); returns (stdout, wall seconds,
+    peak RSS in MiB, timed out). The peak is the largest VmHWM of the program and its descendants, read every 50 ms until it
+    exits (getrusage of a child would count this Python process's memory at the fork). A non-zero
+    exit that is not a time-out fails the benchmark."""
+    import subprocess
+
+    t0 = time.time()
+    with open(log + ".out", "w") as o, open(log + ".err", "w") as e:
+        p = subprocess.Popen([str(c) for c in cmd], stdout=o, stderr=e)
+        peak = [0.0]
+        done = threading.Event()
+
+        def watch():
+            while not done.is_set():
+                v = peak_rss_mib(p.pid)
+                if v is not None:
+                    peak[0] = max(peak[0], v)
+                time.sleep(0.05)
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
+        try:
+            p.wait(timeout=timeout)
+            killed = False
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+            killed = True
+        done.set()
+        watcher.join()
+    wall = time.time() - t0
+    out = open(log + ".out").read()
+    if p.returncode != 0 and not killed:
+        err = open(log + ".err").read()
+        fail(f"{what} failed (status {p.returncode}): {' '.join(map(str, cmd))}\n{err[-4000:]}")
+    return out, wall, peak[0], killed
+
+
+def png_rgb(path):
+    from PIL import Image
+    import numpy as np
+
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64)
+
+
+def psnr(a, b):
+    import numpy as np
+
+    mse = float(np.mean((png_rgb(a) - png_rgb(b)) ** 2))
+    return 99.0 if mse == 0 else min(99.0, 10 * np.log10(255.0**2 / mse))
+
+
+def grid_input(field, level, work):
+    """prepare's input arguments for `field` on a (2^level+1)^3 grid."""
+    n = (1 << level) + 1
+    if field == "harmonic":
+        return ["synthetic:harmonic"]
+    path = os.path.join(work, f"fem-{n}.raw")
+    if not os.path.exists(path):
+        arr, _, _ = rd.fem_grid(level, 12)
+        arr.tofile(path)
+    return [path, "--dims", f"{n},{n},{n}", "--dtype", "f32"]
+
+
+def write_l9_grid(path, n=513, slab=16):
+    """bench-rd's harmonic field (tetwave_protocol::fields::harmonic on [0,30]^3) at n^3 points,
+    scaled from its range [-1, 1.25] to u8 and written slab by slab (bounded memory)."""
+    import numpy as np
+
+    if os.path.exists(path) and os.path.getsize(path) == n**3:
+        return
+    s = np.linspace(0.0, 30.0, n)
+    with open(path + ".part", "wb") as f:
+        for z0 in range(0, n, slab):
+            z, y, x = np.meshgrid(s[z0 : min(n, z0 + slab)], s, s, indexing="ij")
+            u = [(c - 15.0) / 15.0 for c in (x, y, z)]
+            r2 = u[0] ** 2 + u[1] ** 2 + u[2] ** 2
+            v = np.exp(-2.0 * r2) * np.cos(4.0 * np.pi * np.sqrt(r2)) + 0.25 * np.sin(
+                2.0 * np.pi * u[0]
+            ) * np.sin(2.0 * np.pi * u[1]) * np.sin(2.0 * np.pi * u[2])
+            f.write(np.clip((v + 1.0) / 2.25 * 255.0 + 0.5, 0, 255).astype(np.uint8).tobytes())
+    os.replace(path + ".part", path)
+
+
+def view_server(bindir, store, log):
+    """`serve --order view` on loopback, once its view order is computed (the one-time cost of a
+    server's start, which it logs): returns the server and the seconds to /healthz and to that."""
+    t0 = time.time()
+    srv = rd.Server(bindir, store, "view", log, extra=("--log", "tetwave_server=info"), ready_s=600)
+    healthz = time.time() - t0
+    while "view-order geometry computed" not in open(log).read():
+        if time.time() - t0 > 600:
+            srv.close()
+            fail(f"serve {store}: view order not computed within 600 s; see {log}")
+        time.sleep(0.1)
+    return srv, {"healthz_s": round(healthz, 2), "view_order_ready_s": round(time.time() - t0, 2)}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--bin-dir", default="target/release")
+    ap.add_argument("--levels", default="7,8")
+    ap.add_argument("--fields", default="harmonic,fem")
+    ap.add_argument("--bounds", default="lossless,0.1%")
+    ap.add_argument("--criteria", default="image,geometric")
+    ap.add_argument("--tol", default="2")
+    ap.add_argument("--size", default="512x512")
+    ap.add_argument("--timeout", type=float, default=300.0, help="seconds a stream may run")
+    ap.add_argument("--skip", default="", help="comma-separated field-lL-bound-criterion runs to skip")
+    ap.add_argument("--no-reference", action="store_true", help="skip the all-leaves images (no PSNR)")
+    ap.add_argument("--l9", action="store_true", help="also prepare and stream a 513^3 grid")
+    ap.add_argument("--view", default="", help="a case (e.g. harmonic-l8-0.1pc) to orbit in `tetwave view` under Xvfb")
+    ap.add_argument("--view-max-tets", default="default,300000", help="--max-tets of each view run")
+    ap.add_argument("--view-motion-lod", action="store_true", help="view runs with --motion-lod too")
+    ap.add_argument("--out", default="out/bench-scale")
+    a = ap.parse_args()
+
+    bindir = a.bin_dir
+    server = os.path.join(bindir, "tetwave-server")
+    client = os.path.join(bindir, "tetwave")
+    for b in (server, client):
+        if not os.access(b, os.X_OK):
+            fail(f"{b} is missing: build the release binaries first (scripts/bench-scale does)")
+    work = os.path.join(a.out, "work")
+    os.makedirs(work, exist_ok=True)
+    jl = os.path.join(a.out, "scale.jsonl")
+    skip = set(filter(None, a.skip.split(",")))
+    w, h = (int(v) for v in a.size.lower().split("x"))
+    rows = []
+
+    def emit(row):
+        rows.append(row)
+        with open(jl, "a") as f:
+            f.write(json.dumps(row) + "\n")
+        print(json.dumps(row), flush=True)
+
+    for level in (int(v) for v in a.levels.split(",")):
+        for field in a.fields.split(","):
+            for bound in a.bounds.split(","):
+                tag = f"{field}-l{level}-{bound.replace('%', 'pc')}"
+                store = os.path.join(work, tag)
+                prep = {"run": "prepare", "case": tag}
+                if not os.path.exists(os.path.join(store, "manifest.json")):
+                    cmd = [server, "prepare", *grid_input(field, level, work), "--base", "box6",
+                           "--levels", level, "--out", store, "--json"]
+                    if bound != "lossless":
+                        cmd += ["--max-error", bound]
+                    out, wall, rss, _ = run_measured(cmd, f"prepare {tag}", os.path.join(work, tag + "-prepare"))
+                    summary = json.loads(out.strip().splitlines()[-1])
+                    prep.update(prepare_s=round(wall, 2), prepare_rss_mib=round(rss), bytes=summary["bytes"],
+                                leaves_total=summary["leaves"], nodes=summary["nodes"])
+                    emit(prep)
+                ref = os.path.join(work, tag + "-all-leaves.png")
+                if not a.no_reference and not os.path.exists(ref):
+                    _, wall, rss, _ = run_measured(
+                        [client, "render", store, "--reference", "--size", a.size, "-o", ref],
+                        f"render {tag}", os.path.join(work, tag + "-reference"))
+                    emit({"run": "all-leaves image", "case": tag, "render_s": round(wall, 1),
+                          "render_rss_mib": round(rss)})
+                srv, ready = view_server(bindir, store, os.path.join(work, tag + "-serve.log"))
+                emit({"run": "serve", "case": tag, **ready})
+                try:
+                    for crit in a.criteria.split(","):
+                        name = f"{tag}-{crit}"
+                        if name in skip:
+                            continue
+                        final = os.path.join(work, name + "-converged.png")
+                        cmd = [client, "stream", f"http://127.0.0.1:{srv.port}", "--headless", "--no-render",
+                               "--until-converged", "--frames", "100000", "--tol", a.tol, "--size", a.size,
+                               "--criterion", crit, "--final-png", final, "--out", os.path.join(work, name)]
+                        out, wall, rss, killed = run_measured(cmd, f"stream {name}", os.path.join(work, name),
+                                                              timeout=a.timeout)
+                        frames = [json.loads(l) for l in out.splitlines() if l.startswith("{")]
+                        row = {"run": "stream", "case": tag, "criterion": crit, "tol_px": a.tol,
+                               "size": a.size, "wall_s": round(wall, 2), "client_rss_mib": round(rss),
+                               "timed_out": killed}
+                        if frames:
+                            f = frames[-1]
+                            row.update(frames=len(frames), converge_s=round(f["ms_since_connect"] / 1e3, 2),
+                                       converged=f["view_complete"], leaves=f["leaves"], tets=f["tets"],
+                                       tets_per_px=round(f["tets"] / (w * h), 2),
+                                       budget_bound=f["budget_bound"], bytes=f["bytes_received"],
+                                       nodes=f["nodes"])
+                        if not killed and os.path.exists(final) and os.path.exists(ref):
+                            row["psnr_db"] = round(psnr(final, ref), 2)
+                        emit(row)
+                finally:
+                    srv.close()
+
+    if a.view:
+        store = os.path.join(work, a.view)
+        if not os.path.exists(os.path.join(store, "manifest.json")):
+            fail(f"--view {a.view}: no store at {store} (run its case first)")
+        # a full turn in 10-degree steps every 0.25 s after 3 s of streaming, then 2 s at rest
+        steps = [{"at": 3.0 + 0.25 * k, "orbit": 10} for k in range(36)] + [{"at": 14.0, "quit": True}]
+        script = os.path.join(work, "view-orbit.json")
+        with open(script, "w") as f:
+            json.dump(steps, f)
+        srv, _ = view_server(bindir, store, os.path.join(work, "view-serve.log"))
+        try:
+            runs = [(mt, False) for mt in a.view_max_tets.split(",")]
+            if a.view_motion_lod:
+                runs.append(("default", True))
+            for mt, lod in runs:
+                cmd = ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24", client, "view",
+                       f"http://127.0.0.1:{srv.port}", "--size", a.size, "--tol", a.tol, "--script", script,
+                       "--json"]
+                if mt != "default":
+                    cmd += ["--max-tets", mt]
+                if lod:
+                    cmd += ["--motion-lod"]
+                out, wall, rss, killed = run_measured(cmd, f"view {a.view}",
+                                                      os.path.join(work, f"view-{mt}{'-lod' if lod else ''}"),
+                                                      timeout=120)
+                r = json.loads([l for l in out.splitlines() if l.startswith("{")][-1])
+                p = r["perf"]
+                emit({"run": "view", "case": a.view, "max_tets": mt, "motion_lod": lod, "leaf_budget": r["leaf_budget"],
+                      "max_leaves": r["max_leaves"], "frames_budget_bound": r["frames_budget_bound"],
+                      "frames": r["frames"], "frame_ms_p50": round(p["frame_ms"]["p50"], 1),
+                      "frame_ms_p95": round(p["frame_ms"]["p95"], 1), "frame_ms_max": round(p["frame_ms"]["max"], 1),
+                      "latency_ms_p95": round(p["latency_ms"]["p95"], 1),
+                      "refine_ms_p95": round(p["refine_ms"]["p95"], 1), "tets_last": r["tets"],
+                      "client_rss_mib": round(rss), "timed_out": killed})
+        finally:
+            srv.close()
+
+    if a.l9:
+        raw = os.path.join(work, "harmonic-513.u8")
+        write_l9_grid(raw)
+        store = os.path.join(work, "harmonic-l9-0.1pc")
+        if not os.path.exists(os.path.join(store, "manifest.json")):
+            out, wall, rss, _ = run_measured(
+                [server, "prepare", raw, "--dims", "513,513,513", "--dtype", "u8", "--base", "box6", "--levels", 9,
+                 "--max-error", "0.1%", "--out", store, "--json"],
+                "prepare 513^3", os.path.join(work, "l9-prepare"))
+            summary = json.loads(out.strip().splitlines()[-1])
+            emit({"run": "prepare", "case": "u8-513-l9-0.1pc", "prepare_s": round(wall, 1),
+                  "prepare_rss_mib": round(rss), "bytes": summary["bytes"], "nodes": summary["nodes"]})
+        t_serve = time.time()
+        srv = rd.Server(bindir, store, "level", os.path.join(work, "l9-serve.log"), ready_s=600)
+        serve_ready_s = time.time() - t_serve
+        try:
+            cmd = [client, "stream", f"http://127.0.0.1:{srv.port}", "--headless", "--frames", "1",
+                   "--size", a.size, "--cpu", "--out", os.path.join(work, "l9-stream")]
+            out, wall, rss, _ = run_measured(cmd, "stream 513^3", os.path.join(work, "l9-stream"))
+            f = json.loads([l for l in out.splitlines() if l.startswith("{")][0])
+            emit({"run": "first frame", "case": "u8-513-l9-0.1pc", "first_frame_s": round(f["ms_since_connect"] / 1e3, 3),
+                  "tets": f["tets"], "bytes": f["bytes_received"], "client_rss_mib": round(rss),
+                  "serve_ready_s": round(serve_ready_s, 1)})
+        finally:
+            srv.close()
+
+    md = os.path.join(a.out, "scale.md")
+    with open(md, "w") as f:
+        f.write("| case | criterion | converge s | converged | leaves | tets/px | client RSS MiB | PSNR dB | budget bound |\n")
+        f.write("|---|---|---|---|---|---|---|---|---|\n")
+        for r in rows:
+            if r["run"] == "stream":
+                f.write(f"| {r['case']} | {r['criterion']} | {r.get('converge_s', '-')}"
+                        f"{' (killed)' if r['timed_out'] else ''} | {r.get('converged', '-')} | "
+                        f"{r.get('leaves', '-')} | {r.get('tets_per_px', '-')} | {r['client_rss_mib']} | "
+                        f"{r.get('psnr_db', '-')} | {r.get('budget_bound', '-')} |\n")
+    print(f"wrote {jl} and {md}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
