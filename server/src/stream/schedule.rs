@@ -446,8 +446,8 @@ const NOT_READ: f32 = 1e-6;
 /// nodes below its leaves. Takes at most `max(4096, n/16)` of them, so a connection recomputes at
 /// most ~16 times over the whole stream plus once per `View`.
 fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> Vec<TetId> {
+    use rayon::prelude::*;
     use std::cmp::Reverse;
-    use std::collections::BinaryHeap;
     let m = ((s.nodes / 16).max(4096)).min(remaining) as usize;
     if m == 0 {
         return Vec::new();
@@ -455,32 +455,71 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
     let g = s.geometry();
     let forest = s.forest();
     let p = ViewPriority::new(view, s.store.manifest.value_range);
-    // min-heap of the m best (priority bits: non-negative f32 order as their bits)
-    let mut heap: BinaryHeap<Reverse<(u32, Reverse<TetId>)>> = BinaryHeap::with_capacity(m + 1);
-    for i in 0..s.nodes {
-        if done.get(i) {
-            continue;
-        }
-        let u = i as usize;
-        let mut e = p
-            .eval(g.centre[u], g.radius[u], s.smax[u], g.image_of(u))
-            .max(0.0);
-        if let Some(q) = forest.parent(i).map(|q| q as usize) {
-            if !p.splits(g.centre[q], g.radius[q], s.smax[q], g.image_of(q)) {
-                e *= NOT_READ;
+    // every node's priority as the bits of a non-negative f32 (ordered as the floats; done nodes
+    // DONE, a NaN's bits, which no priority has): one parallel pass, then the m best by a
+    // histogram of the top 16 bits and a selection within the bucket where they begin (no heap
+    // over every node; 4 bytes a node while it runs)
+    const DONE: u32 = u32::MAX;
+    let keys: Vec<u32> = (0..s.nodes as usize)
+        .into_par_iter()
+        .with_min_len(1 << 14)
+        .map(|u| {
+            let i = u as TetId;
+            if done.get(i) {
+                return DONE;
             }
-        }
-        let e = e.to_bits();
-        let item = Reverse((e, Reverse(i)));
-        if heap.len() < m {
-            heap.push(item);
-        } else if heap.peek().is_some_and(|top| item < *top) {
-            heap.pop();
-            heap.push(item);
+            let mut e = p
+                .eval(g.centre[u], g.radius[u], s.smax[u], g.image_of(u))
+                .max(0.0);
+            if let Some(q) = forest.parent(i).map(|q| q as usize) {
+                if !p.splits(g.centre[q], g.radius[q], s.smax[q], g.image_of(q)) {
+                    e *= NOT_READ;
+                }
+            }
+            e.to_bits()
+        })
+        .collect();
+    let hist = keys
+        .par_iter()
+        .with_min_len(1 << 14)
+        .fold(
+            || vec![0u64; 1 << 16],
+            |mut h, &k| {
+                if k != DONE {
+                    h[(k >> 16) as usize] += 1;
+                }
+                h
+            },
+        )
+        .reduce(
+            || vec![0u64; 1 << 16],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    let mut seen = 0u64;
+    let mut cut = 0usize;
+    for b in (0..hist.len()).rev() {
+        seen += hist[b];
+        if seen >= m as u64 {
+            cut = b;
+            break;
         }
     }
-    // ascending priority (worst first), so popping from the end gives the best
-    let mut v: Vec<(u32, Reverse<TetId>)> = heap.into_iter().map(|Reverse(x)| x).collect();
+    let mut v: Vec<(u32, Reverse<TetId>)> = keys
+        .par_iter()
+        .enumerate()
+        .with_min_len(1 << 14)
+        .filter(|&(_, &k)| k != DONE && (k >> 16) as usize >= cut)
+        .map(|(i, &k)| (k, Reverse(i as TetId)))
+        .collect();
+    // the m best (ties: the smaller id first), ascending, so popping from the end gives the best
+    if v.len() > m {
+        let drop = v.len() - m;
+        v.select_nth_unstable(drop);
+        v.drain(..drop);
+    }
     v.sort_unstable();
     v.into_iter().map(|(_, Reverse(i))| i).collect()
 }
