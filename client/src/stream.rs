@@ -782,6 +782,31 @@ pub fn ws_config() -> WebSocketConfig {
         .max_frame_size(Some(MAX_FRAME_BYTES + 4))
 }
 
+/// Draws `session`'s leaf mesh for `cam` (on the GPU when there is one, else with the CPU
+/// reference) and writes it to `path`.
+fn draw_png(
+    gpu: &Option<(GpuContext, PtRenderer)>,
+    session: &Session,
+    m: &Manifest,
+    cam: &Camera,
+    tf: &TransferFunction,
+    path: &std::path::Path,
+) -> Result<Rgba8Image, StreamError> {
+    let rm = session.leaf_mesh(m.display_value_range());
+    let img = match gpu {
+        Some((ctx, r)) => {
+            let data = r.upload(ctx, &rm)?;
+            r.render(ctx, &data, cam, tf)?.0
+        }
+        None => render_reference(&rm, cam, tf),
+    };
+    img.save_png(path).map_err(|e| StreamError::Output {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    Ok(img)
+}
+
 /// Runs a headless streaming session. With `--until-complete`, a session that ends with nodes
 /// missing is an error.
 pub fn run(args: &StreamArgs) -> Result<StreamReport, StreamError> {
@@ -1012,20 +1037,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let img = if args.no_render {
             None
         } else {
-            let rm = session.leaf_mesh(m.display_value_range());
-            let img = match &gpu {
-                Some((ctx, r)) => {
-                    let data = r.upload(ctx, &rm)?;
-                    r.render(ctx, &data, &cam, &tf)?.0
-                }
-                None => render_reference(&rm, &cam, &tf),
-            };
             let path = args.out.join(format!("frame_{frame:04}.png"));
-            img.save_png(&path).map_err(|e| StreamError::Output {
-                path: path.clone(),
-                reason: e.to_string(),
-            })?;
-            Some(img)
+            Some(draw_png(&gpu, session, m, &cam, &tf, &path)?)
         };
         let render_ms = trn.elapsed().as_secs_f64() * 1e3;
         if first_frame_ms.is_none() {
@@ -1067,18 +1080,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     if let (Some(path), Some(session), Some(cam), Some(m)) =
         (&args.final_png, &state, last_cam, ingest.manifest())
     {
-        let rm = session.leaf_mesh(m.display_value_range());
-        let img = match &gpu {
-            Some((ctx, r)) => {
-                let data = r.upload(ctx, &rm)?;
-                r.render(ctx, &data, &cam, &tf)?.0
-            }
-            None => render_reference(&rm, &cam, &tf),
-        };
-        img.save_png(path).map_err(|e| StreamError::Output {
-            path: path.clone(),
-            reason: e.to_string(),
-        })?;
+        draw_png(&gpu, session, m, &cam, &tf, path)?;
     }
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     // (a base mesh of 0 levels has no nodes: it is complete as soon as it is there)

@@ -85,14 +85,7 @@ fn json_report(out: &Output) -> serde_json::Value {
 }
 
 fn png(path: &Path) -> Rgba8Image {
-    let img = image::open(path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-        .to_rgba8();
-    Rgba8Image {
-        width: img.width(),
-        height: img.height(),
-        pixels: img.pixels().map(|p| p.0).collect(),
-    }
+    Rgba8Image::load_png(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// `tetwave render STORE` (the offscreen GPU renderer, full level) for an orbit camera.

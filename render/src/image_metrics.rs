@@ -50,6 +50,17 @@ impl Rgba8Image {
         std::fs::write(path, self.png_bytes()?).map_err(image::ImageError::IoError)
     }
 
+    /// Reads an image file (a PNG written by [`Self::save_png`], or any format `image` reads)
+    /// as RGBA8.
+    pub fn load_png(path: &std::path::Path) -> Result<Rgba8Image, image::ImageError> {
+        let img = image::open(path)?.to_rgba8();
+        Ok(Rgba8Image {
+            width: img.width(),
+            height: img.height(),
+            pixels: img.pixels().map(|p| p.0).collect(),
+        })
+    }
+
     /// Fraction of pixels with any non-zero RGB.
     pub fn coverage(&self) -> f64 {
         self.pixels

@@ -215,3 +215,56 @@ fn until_complete_and_incomplete_is_an_error() {
     }
     assert!(d.path().join("out/frames.jsonl").exists());
 }
+
+/// `--until-converged` stops at the first frame whose mesh is final for its camera (a grid store
+/// at 0.1 % in view order, 6 px: a third of the leaves), and `--final-png` draws that mesh, which
+/// matches the CPU image of every leaf of the store.
+#[test]
+fn until_converged_stops_at_the_final_view_and_draws_it() {
+    use tetwave_server::analysis::ErrorBound;
+    use tetwave_server::resample::BaseSpec;
+    let (d, dir) = common::harmonic_store_with(5, |o| {
+        o.base = BaseSpec::Box6;
+        o.max_error = Some(ErrorBound::OfRange(1e-3));
+    });
+    let total = Store::open(&dir).unwrap();
+    let (nodes, leaves) = (
+        total.manifest.counts.nodes,
+        total.base.tets.len() as u64 * 8u64.pow(5),
+    );
+    let srv = serve(&dir, "view");
+    let png = d.path().join("final.png");
+    let mut a = StreamArgs::new(srv.url(), &d.path().join("out"));
+    a.no_render = true;
+    a.frames = 5000;
+    a.until_converged = true;
+    a.size = (96, 96);
+    a.tol = "6".into();
+    a.frame_ms = 5;
+    a.final_png = Some(png.clone());
+    let r = run(&a).expect("session");
+    let last = r.frames.last().unwrap();
+    assert!(last.view_complete && last.converged, "{last:?}");
+    assert!(
+        r.frames[..r.frames.len() - 1]
+            .iter()
+            .all(|f| !f.view_complete),
+        "stops at the first final frame"
+    );
+    assert!(
+        last.leaves < leaves / 2,
+        "{} of {leaves} leaves",
+        last.leaves
+    );
+    eprintln!(
+        "final after {} frames: {} of {nodes} nodes, {} of {leaves} leaves",
+        r.frames.len(),
+        last.nodes,
+        last.leaves
+    );
+    let drawn = tetwave_render::image_metrics::Rgba8Image::load_png(&png).expect("the final PNG");
+    let (every, _) = common::render_png(&dir, &d.path().join("every.png"), 96, &["--reference"]);
+    let db = common::psnr_pixels(&drawn.pixels, &every);
+    eprintln!("final view against every leaf: {db:.2} dB");
+    assert!(db >= 40.0, "{db:.2} dB");
+}

@@ -41,8 +41,7 @@ pub fn render_png(
     args.extend(extra.iter().map(|s| s.to_string()));
     let cli = RenderCli::try_parse_from(&args).unwrap();
     let report = run(&cli.a).unwrap();
-    let img = image::open(out).unwrap().to_rgba8();
-    (img.pixels().map(|p| p.0).collect(), report)
+    (Rgba8Image::load_png(out).unwrap().pixels, report)
 }
 
 /// PSNR over RGB of two pixel lists of one size ([`tetwave_render::image_metrics::psnr`]).
