@@ -10,6 +10,7 @@ pub mod detail_buffer;
 pub mod draw;
 mod http;
 mod ingest;
+pub mod legend;
 pub mod mesh;
 pub mod progressive;
 pub mod render_cli;

@@ -74,6 +74,10 @@ pub struct RenderArgs {
     /// Output PNG.
     #[arg(short = 'o', long, default_value = "out.png")]
     pub output: PathBuf,
+    /// Add a colour legend under the image: the transfer function's colours across the value
+    /// range, the scalar's name (a store's dataset) and that range.
+    #[arg(long)]
+    pub legend: bool,
     /// Print one JSON object (`tets, ms, psnr_db`, …).
     #[arg(long)]
     pub json: bool,
@@ -234,6 +238,8 @@ fn warn_if_not_convex(mesh: &RenderMesh) {
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     let tf = TransferFunction::load(&a.tf)?;
     let is_mesh = is_mesh_input(&a.store, a.format);
+    // the legend's name: a mesh's scalar, or a store's dataset
+    let mut legend_name = String::new();
     let (mesh, level, scalar) = if is_mesh {
         if a.levels.is_some() {
             return Err(RenderCliError::Usage(
@@ -260,6 +266,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             },
         )?;
         let (mesh, level) = store_mesh(&store, a.levels)?;
+        legend_name = store.manifest.dataset.clone();
         (mesh, level, None)
     };
     let distance = a.camera.distance.unwrap_or(1.6 * mesh.diagonal());
@@ -299,7 +306,15 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
                 refimg,
             )
         };
-    img.save_png(&a.output).map_err(|e| RenderCliError::Png {
+    let psnr_db = refimg.as_ref().map(|(r, _)| psnr(&img, r).min(99.0));
+    let range = [mesh.value_range.0, mesh.value_range.1];
+    let name = scalar.as_deref().unwrap_or(&legend_name);
+    let png = if a.legend {
+        crate::legend::with_legend(&img, &tf, name, range)
+    } else {
+        img
+    };
+    png.save_png(&a.output).map_err(|e| RenderCliError::Png {
         path: a.output.clone(),
         reason: e.to_string(),
     })?;
@@ -313,7 +328,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         height: a.size.1,
         renderer,
         ms,
-        psnr_db: refimg.as_ref().map(|(r, _)| psnr(&img, r).min(99.0)),
+        psnr_db,
         reference_ms: refimg.as_ref().map(|(_, ms)| *ms),
         output: a.output.display().to_string(),
     })

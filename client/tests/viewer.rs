@@ -485,6 +485,7 @@ fn view_tolerance_coarsens_and_refines() {
 
 /// `--max-tets` holds in the window: at tolerance 0 the criterion wants every one of the 20,480
 /// leaves, the selector never holds more than the budget, and the report says that it bound.
+/// The panel's legend names the store's dataset and value range.
 #[test]
 fn view_never_exceeds_the_leaf_budget() {
     let (d, s) = store(4);
@@ -504,6 +505,14 @@ fn view_never_exceeds_the_leaf_budget() {
         180,
     );
     let r = json_report(&out);
+    // the panel's legend names the dataset and the range the transfer function spans
+    let m = tetwave_store::Store::open(&s).unwrap().manifest;
+    assert_eq!(m.dataset, "harmonic");
+    assert_eq!(
+        r["legend"],
+        tetwave_client::legend::legend_text("harmonic", m.display_value_range()),
+        "{r}"
+    );
     drop(d);
     eprintln!("{r}");
     assert_eq!(r["leaf_budget"], 1000, "{r}");

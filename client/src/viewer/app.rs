@@ -869,6 +869,57 @@ impl ViewerApp {
         };
     }
 
+    /// The colour legend (the scalar's name and range, the transfer function's colours across
+    /// it) and the orientation axes of the current camera (x red, y green, z blue, as seen).
+    fn legend(&self, ui: &mut egui::Ui) {
+        ui.separator();
+        ui.monospace(self.legend_text());
+        let w = ui.available_width().max(16.0);
+        let (bar, _) = ui.allocate_exact_size(egui::vec2(w, 12.0), Sense::hover());
+        const STEPS: usize = 64;
+        for k in 0..STEPS {
+            let (rgb, _) = self.tf.eval(k as f64 / (STEPS - 1) as f64);
+            let c = rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+            let x0 = bar.left() + bar.width() * k as f32 / STEPS as f32;
+            let x1 = bar.left() + bar.width() * (k + 1) as f32 / STEPS as f32;
+            ui.painter().rect_filled(
+                Rect::from_min_max(egui::pos2(x0, bar.top()), egui::pos2(x1, bar.bottom())),
+                0.0,
+                Color32::from_rgb(c[0], c[1], c[2]),
+            );
+        }
+        let (axes, _) = ui.allocate_exact_size(egui::vec2(64.0, 64.0), Sense::hover());
+        let (r, u, _) = self.camera(1, 1).basis();
+        let c = axes.center();
+        for (axis, color, name) in [
+            (glam::DVec3::X, Color32::from_rgb(230, 80, 80), "x"),
+            (glam::DVec3::Y, Color32::from_rgb(90, 200, 90), "y"),
+            (glam::DVec3::Z, Color32::from_rgb(100, 140, 255), "z"),
+        ] {
+            let d = egui::vec2(axis.dot(r) as f32, -(axis.dot(u) as f32)) * 22.0;
+            ui.painter()
+                .line_segment([c, c + d], egui::Stroke::new(2.0, color));
+            ui.painter().text(
+                c + d * 1.25,
+                egui::Align2::CENTER_CENTER,
+                name,
+                egui::FontId::monospace(11.0),
+                color,
+            );
+        }
+    }
+
+    /// The legend's line: the scalar's name (the dataset's, or the mesh file's scalar) and the
+    /// value range the transfer function spans.
+    fn legend_text(&self) -> String {
+        let name = if self.data.name.is_empty() {
+            "scalar"
+        } else {
+            &self.data.name
+        };
+        crate::legend::legend_text(name, self.data.value_range)
+    }
+
     fn panel(&mut self, ui: &mut egui::Ui) {
         ui.heading("tetwave view");
         ui.label(egui::RichText::new(&self.args.source).small());
@@ -932,6 +983,7 @@ impl ViewerApp {
                 .show_percentage()
                 .text(format!("stream {:.0}%", 100.0 * frac)),
         );
+        self.legend(ui);
         ui.separator();
         let mut tol = self.tol;
         ui.add(
@@ -1046,6 +1098,7 @@ impl ViewerApp {
             nodes,
             nodes_total,
             tets: self.tets,
+            legend: self.legend_text(),
             leaves: self.leaves,
             max_leaves: self.max_leaves,
             leaf_budget: self.leaf_budget,

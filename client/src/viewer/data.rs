@@ -111,6 +111,9 @@ pub struct Data {
     changed: bool,
     /// Number of levels of the hierarchy (0 for a mesh file).
     pub levels: u8,
+    /// What the legend names the scalar: a store's dataset (once its manifest is known), or a
+    /// mesh file's scalar.
+    pub name: String,
     select: Selection,
 }
 
@@ -133,6 +136,7 @@ impl Data {
             error: None,
             changed: true,
             levels: 0,
+            name: String::new(),
             select: select.clone(),
         };
         match source {
@@ -180,6 +184,7 @@ impl Data {
                     .map_err(|e| e.to_string())?;
                 let mut d = empty(Kind::Local { nodes, next: 0 });
                 d.value_range = m.display_value_range();
+                d.name = m.dataset.clone();
                 d.start_session(store.base.clone(), tol)?;
                 if let (Some(s), Some((_, near))) = (
                     d.session.as_mut(),
@@ -195,9 +200,10 @@ impl Data {
                     field: None,
                     nan_as: None,
                 };
-                let (mesh, _) = crate::render_cli::file_mesh(path, None, &options)
+                let (mesh, scalar) = crate::render_cli::file_mesh(path, None, &options)
                     .map_err(|e| e.to_string())?;
                 let mut d = empty(Kind::Mesh);
+                d.name = scalar;
                 d.value_range = [mesh.value_range.0, mesh.value_range.1];
                 d.frame = Some((mesh.center(), mesh.diagonal()));
                 d.mesh = Some(mesh);
@@ -416,6 +422,7 @@ impl Data {
                 Step::Manifest => {
                     if let Some(m) = r.ingest.manifest() {
                         self.value_range = m.display_value_range();
+                        self.name = m.dataset.clone();
                     }
                 }
                 Step::Started => self.session_started(),

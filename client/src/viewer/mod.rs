@@ -152,6 +152,9 @@ pub struct ViewReport {
     pub nodes_total: u64,
     /// Tets drawn in the last frame.
     pub tets: u64,
+    /// The legend's line in the panel: the scalar's name and the value range
+    /// (`legend::legend_text`).
+    pub legend: String,
     /// Leaves of the red tree at the end (what `--max-tets` bounds), and the most of any frame.
     pub leaves: u64,
     pub max_leaves: u64,
