@@ -4,6 +4,8 @@
 
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
 use tetwave_render::image_metrics::Rgba8Image;
+use tetwave_render::legend::colour_at;
+pub use tetwave_render::legend::legend_text;
 use tetwave_render::transfer::TransferFunction;
 
 /// Height of the strip added under the image, pixels.
@@ -15,27 +17,6 @@ pub const BAR_ROWS: std::ops::Range<u32> = 4..14;
 /// Top of the text's line within the strip, and its size in pixels.
 pub const TEXT_TOP: u32 = 18;
 pub const TEXT_PX: f32 = 15.0;
-
-/// The legend's text: the scalar's name and the range the transfer function spans.
-pub fn legend_text(name: &str, range: [f32; 2]) -> String {
-    format!("{name}  {} .. {}", short(range[0]), short(range[1]))
-}
-
-/// A value in at most 4 significant digits, as a person reads a legend.
-fn short(v: f32) -> String {
-    let v = v as f64;
-    if v == 0.0 || (1e-3..1e5).contains(&v.abs()) {
-        let s = format!("{v:.4}");
-        let s = s.trim_end_matches('0').trim_end_matches('.');
-        if s.is_empty() || s == "-" {
-            "0".into()
-        } else {
-            s.into()
-        }
-    } else {
-        format!("{v:.3e}")
-    }
-}
 
 /// `img` with the legend strip under it: the colour bar (each column the transfer function's
 /// colour at its place in the range) and [`legend_text`].
@@ -55,9 +36,7 @@ pub fn with_legend(
         .resize((w * (h + LEGEND_HEIGHT)) as usize, [0, 0, 0, 255]);
     let bar = w.saturating_sub(2 * MARGIN).max(1);
     for x in 0..bar.min(w) {
-        let s = x as f64 / (bar.max(2) - 1) as f64;
-        let (rgb, _) = tf.eval(s);
-        let c = rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+        let c = colour_at(tf, x as f64 / (bar.max(2) - 1) as f64);
         for y in BAR_ROWS {
             out.pixels[((h + y) * w + MARGIN + x) as usize] = [c[0], c[1], c[2], 255];
         }
@@ -92,20 +71,5 @@ pub fn draw_text(img: &mut Rgba8Image, x: u32, top: u32, text: &str) {
                 }
             });
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn short_values() {
-        assert_eq!(short(0.0), "0");
-        assert_eq!(short(1.0), "1");
-        assert_eq!(short(-0.25), "-0.25");
-        assert_eq!(short(979.5), "979.5");
-        assert_eq!(short(1.5e-7), "1.500e-7");
-        assert_eq!(legend_text("p", [0.0, 1.0]), "p  0 .. 1");
     }
 }

@@ -9,6 +9,7 @@
 
 pub mod gpu;
 pub mod image_metrics;
+pub mod legend;
 pub mod reference;
 pub mod render_mesh;
 pub mod transfer;

@@ -25,7 +25,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::BaseMesh;
 use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
-use tetwave_render::gpu::GpuContext;
+use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference_cancellable;
 use tetwave_render::render_mesh::RenderMesh;
@@ -380,9 +380,11 @@ impl RenderService {
         if cancel.load(Ordering::Relaxed) {
             return Err(cancelled());
         }
-        let mesh = match &st.mesh {
+        let mesh_at = |st: &mut RenderState, level: u8| match &st.mesh {
             Some((l, m)) if *l == level => m.clone(),
             _ => {
+                // the mesh of another level is dropped before this one is built
+                st.mesh = None;
                 let mut m = RenderMesh::uniform_level_clipped(
                     base,
                     values,
@@ -397,6 +399,8 @@ impl RenderService {
                 m
             }
         };
+        let mut level = level;
+        let mut mesh = mesh_at(&mut st, level);
         let cam = Camera::orbit(
             mesh.center(),
             p.eye_distance(base),
@@ -423,12 +427,41 @@ impl RenderService {
                 Ok(g) => {
                     if g.uploaded.as_ref().is_none_or(|(l, _)| *l != level) {
                         g.uploaded = None;
-                        let d = g
-                            .renderer
-                            .upload(&g.ctx, &mesh)
-                            .map_err(|e| internal(e.to_string()))?;
+                        let d = match g.renderer.upload(&g.ctx, &mesh) {
+                            Ok(d) => d,
+                            // more tets than one buffer of this adapter holds: the finest
+                            // coarser level that fits (each level has 8x the tets of the last)
+                            Err(RenderError::TooLarge { needed, limit }) if level > 0 => {
+                                let fits = finest_fitting_level(
+                                    base.tets.len(),
+                                    level,
+                                    needed as f64 / mesh.tets.len().max(1) as f64,
+                                    limit,
+                                );
+                                let Some(l) = fits else {
+                                    return Err(internal(format!(
+                                        "no level of this store fits one GPU buffer of {limit} bytes"
+                                    )));
+                                };
+                                tracing::info!(
+                                    asked = level,
+                                    drawn = l,
+                                    "level {level} needs {needed} bytes in one GPU buffer \
+                                     (this adapter allows {limit}): drawing level {l}"
+                                );
+                                level = l;
+                                mesh = mesh_at(&mut st, level);
+                                let g = st.gpu.as_mut().expect("set above").as_mut().expect("ok");
+                                g.renderer
+                                    .upload(&g.ctx, &mesh)
+                                    .map_err(|e| internal(e.to_string()))?
+                            }
+                            Err(e) => return Err(internal(e.to_string())),
+                        };
+                        let g = st.gpu.as_mut().expect("set above").as_mut().expect("ok");
                         g.uploaded = Some((level, d));
                     }
+                    let g = st.gpu.as_mut().expect("set above").as_mut().expect("ok");
                     let data = &g.uploaded.as_ref().expect("uploaded").1;
                     let (image, _) = g
                         .renderer
@@ -464,6 +497,14 @@ impl RenderService {
     }
 }
 
+/// The finest level below `level` whose uniform mesh (`base_tets` × 8^l tets at `per_tet` bytes
+/// each) fits one GPU buffer of `limit` bytes, if any.
+fn finest_fitting_level(base_tets: usize, level: u8, per_tet: f64, limit: u64) -> Option<u8> {
+    (0..level)
+        .rev()
+        .find(|&l| base_tets as f64 * 8f64.powi(l as i32) * per_tet <= limit as f64)
+}
+
 /// Lowers the calling thread's CPU priority to nice 10 (Linux: `setpriority` on a thread id applies
 /// to that thread only); elsewhere nothing.
 fn lower_priority() {
@@ -475,9 +516,21 @@ fn lower_priority() {
     }
 }
 
-/// The fallback viewer page (`GET /`) for `dataset`: one self-contained HTML document.
-pub fn page_html(dataset: &str) -> String {
+/// The fallback viewer page (`GET /`) for `dataset`: one self-contained HTML document, with a
+/// colour legend (the dataset's name, the value range the transfer functions span, and the
+/// chosen preset's colours across it).
+pub fn page_html(dataset: &str, range: [f32; 2]) -> String {
+    use tetwave_render::legend::{css_gradient, legend_text};
+    let gradients: Vec<String> = tetwave_render::transfer::PRESETS
+        .split(", ")
+        .filter_map(|name| {
+            let tf = TransferFunction::preset(name)?;
+            Some(format!("{name:?}: {:?}", css_gradient(&tf, 17)))
+        })
+        .collect();
     PAGE.replace("{{DATASET}}", &html_escape(dataset))
+        .replace("{{LEGEND}}", &html_escape(&legend_text(dataset, range)))
+        .replace("{{GRADIENTS}}", &gradients.join(", "))
 }
 
 fn html_escape(s: &str) -> String {
@@ -495,10 +548,13 @@ const PAGE: &str = r#"<!doctype html>
  #view { background:#000; cursor:grab; user-select:none; display:block; width:512px; height:512px; }
  #view.drag { cursor:grabbing; }
  label { margin-right:1em; }
+ #legend { width:512px; margin-top:6px; font-family:monospace; }
+ #lbar { height:12px; margin-bottom:2px; }
 </style></head>
 <body>
 <h3>tetwave &mdash; {{DATASET}} (server-rendered fallback)</h3>
 <img id="view" width="512" height="512" alt="rendering" draggable="false">
+<div id="legend"><div id="lbar"></div><span id="ltext">{{LEGEND}}</span></div>
 <p>
  <label>tolerance <input id="tol" type="range" min="0" max="64" step="0.5" value="2"> <span id="tolv">2</span> px</label>
  <label>transfer function <select id="tf"><option>default</option><option>transparent</option><option>opaque</option><option>shells</option></select></label>
@@ -509,6 +565,8 @@ const PAGE: &str = r#"<!doctype html>
   const img = document.getElementById('view'), tol = document.getElementById('tol');
   const tolv = document.getElementById('tolv'), tf = document.getElementById('tf');
   const info = document.getElementById('info');
+  const GRADIENTS = { {{GRADIENTS}} };
+  function legend() { document.getElementById('lbar').style.background = GRADIENTS[tf.value] || ''; }
   const token = new URLSearchParams(location.search).get('token');
   let az = 35, el = 25, busy = false, again = false, drag = null;
   function url() {
@@ -543,9 +601,28 @@ const PAGE: &str = r#"<!doctype html>
     refresh();
   });
   tol.addEventListener('input', () => { tolv.textContent = tol.value; refresh(); });
-  tf.addEventListener('change', refresh);
+  tf.addEventListener('change', () => { legend(); refresh(); });
+  legend();
   refresh();
 })();
 </script>
 </body></html>
 "#;
+
+#[cfg(test)]
+mod tests {
+    use super::finest_fitting_level;
+
+    /// A 129³ box6 store's level 7 (12.6 M tets at 96 bytes) in lavapipe's 128 MiB buffer: level
+    /// 5 (196,608 tets) fits and level 6 (1.57 M) does not; nothing fits a buffer too small for
+    /// the base mesh.
+    #[test]
+    fn the_finest_level_that_fits_one_buffer() {
+        let limit = 128 << 20;
+        assert_eq!(finest_fitting_level(6, 7, 96.0, limit), Some(5));
+        assert_eq!(finest_fitting_level(6, 6, 96.0, limit), Some(5));
+        assert_eq!(finest_fitting_level(6, 5, 96.0, 6 * 8 * 8 * 96), Some(2));
+        assert_eq!(finest_fitting_level(6, 3, 96.0, 100), None);
+        assert_eq!(finest_fitting_level(6, 0, 96.0, limit), None);
+    }
+}

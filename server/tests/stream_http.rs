@@ -289,3 +289,26 @@ async fn render_matches_a_local_render_of_the_same_camera() {
     .await;
     assert_eq!(r.headers["x-tetwave-level"], "3");
 }
+
+/// The fallback page carries a colour legend: the dataset's name and display range (the legend
+/// line every client draws) and each preset's colours as a CSS gradient for the bar.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn page_has_a_legend_with_the_name_the_range_and_the_colours() {
+    let (_d, dir) = make_store(2);
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
+    let r = get(addr, "/", &[]).await;
+    assert_eq!(r.status, 200);
+    let html = String::from_utf8(r.body).unwrap();
+    let m = tetwave_store::Store::open(&dir).unwrap().manifest;
+    let line = tetwave_render::legend::legend_text(&m.dataset, m.display_value_range());
+    assert!(
+        html.contains(&format!("<span id=\"ltext\">{line}</span>")),
+        "{line}"
+    );
+    for name in ["default", "transparent", "opaque", "shells"] {
+        let tf = TransferFunction::preset(name).unwrap();
+        let g = tetwave_render::legend::css_gradient(&tf, 17);
+        assert!(html.contains(&format!("\"{name}\": \"{g}\"")), "{name}");
+    }
+    assert!(!html.contains("{{"), "a placeholder was left");
+}

@@ -878,8 +878,7 @@ impl ViewerApp {
         let (bar, _) = ui.allocate_exact_size(egui::vec2(w, 12.0), Sense::hover());
         const STEPS: usize = 64;
         for k in 0..STEPS {
-            let (rgb, _) = self.tf.eval(k as f64 / (STEPS - 1) as f64);
-            let c = rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+            let c = tetwave_render::legend::colour_at(&self.tf, k as f64 / (STEPS - 1) as f64);
             let x0 = bar.left() + bar.width() * k as f32 / STEPS as f32;
             let x1 = bar.left() + bar.width() * (k + 1) as f32 / STEPS as f32;
             ui.painter().rect_filled(

@@ -297,7 +297,8 @@ async fn render(
 
 /// `GET /`: the fallback viewer page.
 async fn page(State(s): State<Arc<Shared>>) -> Response {
-    let html = render_service::page_html(&s.store.manifest.dataset);
+    let m = &s.store.manifest;
+    let html = render_service::page_html(&m.dataset, m.display_value_range());
     ([(header::CACHE_CONTROL, "no-store")], Html(html)).into_response()
 }
 
