@@ -376,11 +376,18 @@ impl ViewPriority {
     fn splits(&self, centre: [f32; 3], radius: f32, smax: f32, image: Option<f32>) -> bool {
         let c = DVec3::from_array(centre.map(f64::from));
         let r = radius as f64;
-        let w = match image {
+        let w = self.weight(smax, image);
+        self.view.sphere_visible(c, r) && screen_error(&self.view, c, r, w) > self.view.tol_px
+    }
+
+    /// A node's weight: its image weight when view order has one, else its data weight
+    /// (δ = [`DATA_DELTA`]) from its subtree bound `smax`.
+    #[inline]
+    fn weight(&self, smax: f32, image: Option<f32>) -> f64 {
+        match image {
             Some(w) => w as f64,
             None => data_weight(smax, self.value_range, DATA_DELTA),
-        };
-        self.view.sphere_visible(c, r) && screen_error(&self.view, c, r, w) > self.view.tol_px
+        }
     }
 
     /// [`screen_error`] with the node's image weight ([`Geometry::image`](super::state)) or
@@ -390,12 +397,7 @@ impl ViewPriority {
     fn eval(&self, centre: [f32; 3], radius: f32, smax: f32, image: Option<f32>) -> f32 {
         let c = DVec3::from_array(centre.map(f64::from));
         let r = radius as f64;
-        let data = match image {
-            Some(w) => w as f64,
-            None => data_weight(smax, self.value_range, DATA_DELTA),
-        }
-        .max(1e-3);
-        let mut e = screen_error(&self.view, c, r, data);
+        let mut e = screen_error(&self.view, c, r, self.weight(smax, image).max(1e-3));
         if !self.view.sphere_visible(c, r) {
             e *= 1e-6;
         }
