@@ -232,6 +232,9 @@ struct Gpu {
     renderer: PtRenderer,
     /// The last uploaded level.
     uploaded: Option<(u8, TetDrawData)>,
+    /// The finest level whose mesh fits one buffer of this adapter, once a finer one did not:
+    /// later requests draw at most this level without building the finer mesh again.
+    max_level: Option<u8>,
 }
 
 struct RenderState {
@@ -400,6 +403,16 @@ impl RenderService {
             }
         };
         let mut level = level;
+        if let (
+            true,
+            Some(Ok(Gpu {
+                max_level: Some(max),
+                ..
+            })),
+        ) = (p.renderer != RendererChoice::Cpu, &st.gpu)
+        {
+            level = level.min(*max);
+        }
         let mut mesh = mesh_at(&mut st, level);
         let cam = Camera::orbit(
             mesh.center(),
@@ -418,6 +431,7 @@ impl RenderService {
                         renderer: PtRenderer::new(&ctx),
                         ctx,
                         uploaded: None,
+                        max_level: None,
                     })
                     .map_err(|e| e.to_string()),
             );
@@ -452,6 +466,7 @@ impl RenderService {
                                 level = l;
                                 mesh = mesh_at(&mut st, level);
                                 let g = st.gpu.as_mut().expect("set above").as_mut().expect("ok");
+                                g.max_level = Some(l);
                                 g.renderer
                                     .upload(&g.ctx, &mesh)
                                     .map_err(|e| internal(e.to_string()))?
