@@ -35,7 +35,7 @@ fn render_legend_draws_the_colours_the_name_and_the_range() {
     let d = tempfile::tempdir().unwrap();
     let s = d.path().join("harmonic");
     let mut o = PrepareOptions::new("synthetic:harmonic", &s);
-    o.levels = 2;
+    o.levels = Some(2);
     prepare(&o).unwrap();
     let (plain, with) = (d.path().join("plain.png"), d.path().join("legend.png"));
     render(&s, &plain, false);

@@ -26,7 +26,7 @@ fn store(levels: u8) -> (tempfile::TempDir, PathBuf) {
     let d = tempfile::tempdir().unwrap();
     let s = d.path().join("s");
     let mut o = PrepareOptions::new("synthetic:harmonic", &s);
-    o.levels = levels;
+    o.levels = Some(levels);
     prepare(&o).unwrap();
     (d, s)
 }
@@ -286,7 +286,7 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
     std::fs::write(&mesh, tetwave_protocol::testing::notched_cube_vtk(0.4)).unwrap();
     let s = dir.join("notched.store");
     let mut o = PrepareOptions::new(&mesh.display().to_string(), &s);
-    o.levels = 4;
+    o.levels = Some(4);
     assert!(prepare(&o).unwrap().levelset_near_bytes > 0);
     let srv = serve(&s);
     let views = [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)];
@@ -340,7 +340,7 @@ fn stream_says_it_clipped_a_nonconvex_store() {
     std::fs::write(&mesh, tetwave_protocol::testing::notched_cube_vtk(0.4)).unwrap();
     let s = d.path().join("notched.store");
     let mut o = PrepareOptions::new(&mesh.display().to_string(), &s);
-    o.levels = 3;
+    o.levels = Some(3);
     prepare(&o).unwrap();
     let srv = serve(&s);
     let (out, _) = stream_cli(
@@ -566,7 +566,7 @@ fn view_opens_a_store_and_a_mesh_file() {
     // a grid store with the axes predictor (values by grid point, apart from the mesh)
     let axes = d.path().join("axes");
     let mut o = PrepareOptions::new("synthetic:harmonic", &axes);
-    o.levels = 3;
+    o.levels = Some(3);
     o.base = tetwave_server::resample::BaseSpec::Box6;
     o.max_error = Some(tetwave_server::analysis::ErrorBound::OfRange(1e-3));
     assert_eq!(prepare(&o).unwrap().predictor, "axes");

@@ -68,6 +68,47 @@ pub fn box6(lo: [f64; 3], hi: [f64; 3]) -> PointsAndTets {
     (positions, tets)
 }
 
+/// The box `[lo, hi]` cut into `n[0] × n[1] × n[2]` equal cells of 6 Kuhn tets each, positively
+/// oriented: the cells of [`kuhn_grid`] on a grid of `n` cells per axis (points x-fastest, a
+/// cell's tets in the order of `kuhn_grid`'s), so that cells share faces and every refinement
+/// level's vertices are the points of one grid. `n = [1, 1, 1]` is [`box6`], bit for bit.
+/// Coordinates on the box's faces are copied from `lo` and `hi`; inner ones are
+/// `lo + (hi − lo) · i / n`.
+pub fn kuhn_boxes(lo: [f64; 3], hi: [f64; 3], n: [usize; 3]) -> PointsAndTets {
+    let coord = |a: usize, i: usize| match i {
+        0 => lo[a],
+        i if i == n[a] => hi[a],
+        i => lo[a] + (hi[a] - lo[a]) * i as f64 / n[a] as f64,
+    };
+    let idx = |c: [usize; 3]| (c[0] + (n[0] + 1) * (c[1] + (n[1] + 1) * c[2])) as u32;
+    let mut points = Vec::with_capacity((n[0] + 1) * (n[1] + 1) * (n[2] + 1));
+    for k in 0..=n[2] {
+        for j in 0..=n[1] {
+            for i in 0..=n[0] {
+                points.push([coord(0, i), coord(1, j), coord(2, k)]);
+            }
+        }
+    }
+    let mut tets = Vec::with_capacity(6 * n[0] * n[1] * n[2]);
+    for k in 0..n[2] {
+        for j in 0..n[1] {
+            for i in 0..n[0] {
+                for path in KUHN_PATHS {
+                    let mut c = [i, j, k];
+                    let mut t = [idx(c); 4];
+                    for (s, &a) in path.iter().enumerate() {
+                        c[a] += 1;
+                        t[s + 1] = idx(c);
+                    }
+                    tets.push(t);
+                }
+            }
+        }
+    }
+    orient_positive(&points, &mut tets);
+    (points, tets)
+}
+
 /// The unit cube `[0,1]^3` cut into `n^3` cells of 6 Kuhn tets each (around each cell's main
 /// diagonal), keeping the cells where `keep(i, j, k)`: grid points in x-fastest order (all of them,
 /// including those of dropped cells) and tets, cell by cell in x-fastest order; within a cell, tet
@@ -131,6 +172,42 @@ mod tests {
                 let q = |k: usize| p[tet[k] as usize];
                 assert!(signed_volume(q(0), q(1), q(2), q(3)) > 0.0);
             }
+        }
+    }
+
+    #[test]
+    fn kuhn_boxes_of_one_cell_is_box6_and_cells_tile_the_box() {
+        let (lo, hi) = ([-1.0, 0.5, 2.0], [30.0, 20.0, 10.0]);
+        let (p1, t1) = kuhn_boxes(lo, hi, [1, 1, 1]);
+        let (p6, t6) = box6(lo, hi);
+        assert_eq!(t1, t6);
+        let bits = |p: &[[f64; 3]]| p.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&p1), bits(&p6));
+        let (p, t) = kuhn_boxes(lo, hi, [3, 2, 1]);
+        assert_eq!((p.len(), t.len()), (4 * 3 * 2, 36));
+        let want = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
+        assert!((volume(&p, &t) - want).abs() < 1e-9 * want);
+        for tet in &t {
+            let q = |k: usize| p[tet[k] as usize];
+            assert!(signed_volume(q(0), q(1), q(2), q(3)) > 0.0);
+        }
+        // shared faces: every face of a tet is another tet's or lies on the box's boundary
+        let mut faces = std::collections::HashMap::new();
+        for tet in &t {
+            for skip in 0..4 {
+                let mut f: Vec<u32> = (0..4).filter(|&i| i != skip).map(|i| tet[i]).collect();
+                f.sort();
+                *faces.entry(f).or_insert(0) += 1;
+            }
+        }
+        let on_boundary = |f: &Vec<u32>| {
+            (0..3).any(|a| {
+                let c = p[f[0] as usize][a];
+                (c == lo[a] || c == hi[a]) && f.iter().all(|&v| p[v as usize][a] == c)
+            })
+        };
+        for (f, n) in &faces {
+            assert!(*n == 2 || (*n == 1 && on_boundary(f)), "{f:?} in {n} tets");
         }
     }
 

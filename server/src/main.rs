@@ -3,7 +3,7 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use tetwave_server::prepare::{prepare, verify, PrepareOptions};
+use tetwave_server::prepare::{prepare, verify, verify_input, GridArgs, PrepareOptions};
 
 #[derive(Parser)]
 #[command(
@@ -30,10 +30,20 @@ enum Cmd {
         json: bool,
     },
     /// Re-run synthesis from a store and compare with its samples; fails beyond the manifest's bound.
+    /// With --input (a raw grid, read with the --dims/--dtype/--spacing it was prepared with):
+    /// also every voxel of the input against the store, and the value ranges.
     Verify {
         store: PathBuf,
         #[arg(long)]
         json: bool,
+        /// The raw grid the store was prepared from.
+        #[arg(long)]
+        input: Option<PathBuf>,
+        #[command(flatten)]
+        grid: GridArgs,
+        /// As given to prepare: NaN/Inf voxels stand for this value.
+        #[arg(long, allow_negative_numbers = true)]
+        nan_as: Option<f64>,
     },
     /// Serve a store: manifest, base mesh and nodes over HTTP, the progressive stream over
     /// WebSocket (`/v1/stream`), fallback images (`/v1/render`) and a viewer page (`/`).
@@ -180,8 +190,20 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 println!("time         {:.3} s", s.seconds);
             }
         }
-        Cmd::Verify { store, json } => {
-            let r = verify(&store)?;
+        Cmd::Verify {
+            store,
+            json,
+            input,
+            grid,
+            nan_as,
+        } => {
+            let r = match &input {
+                Some(path) => verify_input(&store, &grid.read(path, nan_as)?)?,
+                None if grid.dims.is_some() => {
+                    return Err("--dims describes the grid of --input; give --input too".into())
+                }
+                None => verify(&store)?,
+            };
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
@@ -189,6 +211,13 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     "ok: {} vertices from {} nodes, max abs error {:e} (bound {:e}), {} bit-exact, {:.3} s",
                     r.vertices, r.nodes, r.max_abs_error, r.max_error_bound, r.exact_vertices, r.seconds
                 );
+                if let Some(c) = &r.input {
+                    println!(
+                        "input: {} voxels, max abs error {:e} (bound {:e}), {} bit-exact; values in [{}, {}], store [{}, {}]",
+                        c.voxels, c.max_abs_error, r.max_error_bound, c.exact_voxels,
+                        c.input_range[0], c.input_range[1], c.store_range[0], c.store_range[1]
+                    );
+                }
             }
         }
         Cmd::Serve {

@@ -4,13 +4,13 @@ use crate::analysis::Analysis;
 use crate::analysis::{
     analyze_hierarchy, AnalysisError, ErrorBound, Precision, AXES_MAX_MAGNITUDE,
 };
-use crate::resample::levelset::signed_distance;
-use crate::resample::raw::{RawError, RawGrid, RawType};
+use crate::resample::levelset::{signed_distance, Domain};
+use crate::resample::raw::{LatticeError, RawError, RawGrid, RawType, VoxelLattice};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{
     self, BoundaryDistance, CleanError, CleanReport, ImportOptions, Locator,
 };
-use crate::resample::{resample, BaseSpec, ResampleError, Source};
+use crate::resample::{resample, BaseSpec, ResampleError, Source, MAX_NODES};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -40,6 +40,8 @@ pub enum PrepareError {
     #[error(transparent)]
     Raw(#[from] RawError),
     #[error(transparent)]
+    Lattice(#[from] LatticeError),
+    #[error(transparent)]
     Import(#[from] ImportError),
     #[error("{path}: {source}")]
     Clean { path: PathBuf, source: CleanError },
@@ -59,6 +61,57 @@ pub enum PrepareError {
     },
 }
 
+/// How to read a raw grid (`prepare`, `verify --input`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct GridArgs {
+    /// Raw grid dimensions `X,Y,Z` (x fastest).
+    #[arg(long, value_parser = parse_dims)]
+    pub dims: Option<[usize; 3]>,
+    /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
+    #[arg(long, default_value = "u8")]
+    pub dtype: String,
+    /// Raw grid spacing `sx,sy,sz`.
+    #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
+    pub spacing: [f64; 3],
+}
+
+impl Default for GridArgs {
+    fn default() -> Self {
+        GridArgs {
+            dims: None,
+            dtype: "u8".into(),
+            spacing: [1.0; 3],
+        }
+    }
+}
+
+impl GridArgs {
+    /// Reads the grid at `path`; NaN/Inf samples are refused, or replaced by `nan_as`.
+    pub fn read(&self, path: &Path, nan_as: Option<f64>) -> Result<RawGrid, PrepareError> {
+        let dims = self.dims.ok_or(RawError::MissingDims)?;
+        let dtype = RawType::parse(&self.dtype)
+            .ok_or_else(|| PrepareError::UnknownDtype(self.dtype.clone()))?;
+        let mut grid = RawGrid::read(path, dims, dtype, self.spacing)?;
+        if let Some(first) = grid.first_non_finite() {
+            match nan_as {
+                Some(v) => {
+                    let n = grid.replace_non_finite(v as f32);
+                    tracing::warn!(replaced = n, value = v, "replaced NaN/Inf samples");
+                }
+                None => {
+                    let count = grid.replace_non_finite(0.0);
+                    return Err(PrepareError::NonFiniteRaw {
+                        path: path.to_path_buf(),
+                        count,
+                        first,
+                    });
+                }
+            }
+        }
+        Ok(grid)
+    }
+}
+
 /// What `tetwave-server prepare` is asked to do (its command-line arguments, which are also the
 /// library's options).
 #[derive(Debug, Clone, clap::Args)]
@@ -69,11 +122,16 @@ pub struct PrepareOptions {
     /// Store directory to write.
     #[arg(long)]
     pub out: PathBuf,
-    /// Levels of Bey refinement.
-    #[arg(long, default_value_t = 5)]
-    pub levels: u8,
-    /// Base mesh: `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet mesh file.
-    #[arg(long, default_value = "box5")]
+    /// Levels of Bey refinement. Default: 5; for a raw grid, the most levels whose voxel lattice
+    /// pads the grid by at most half its points (see --base).
+    #[arg(long)]
+    pub levels: Option<u8>,
+    /// Base mesh: `auto`, `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet
+    /// mesh file. `auto` is box5, except for a raw grid: Kuhn boxes whose finest vertices are the
+    /// voxels (no resampling; the lattice's padding, under one box per axis, is clipped away), so
+    /// --max-error bounds every voxel of the input; a non-cubic grid gets boxes along its long
+    /// axes. An explicit box5/box6/file resamples a grid by trilinear interpolation.
+    #[arg(long, default_value = "auto")]
     pub base: BaseSpec,
     /// Quantize details uniformly to this many bits (8..=24); lossless f32 when absent.
     #[arg(long, conflicts_with = "max_error")]
@@ -96,15 +154,8 @@ pub struct PrepareOptions {
     /// quadratic: any base, meshes with an outside), or `auto`: `axes` where it applies.
     #[arg(long, value_enum, default_value_t = PredictorChoice::Auto)]
     pub predictor: PredictorChoice,
-    /// Raw grid dimensions `X,Y,Z` (x fastest).
-    #[arg(long, value_parser = parse_dims)]
-    pub dims: Option<[usize; 3]>,
-    /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
-    #[arg(long, default_value = "u8")]
-    pub dtype: String,
-    /// Raw grid spacing `sx,sy,sz`.
-    #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
-    pub spacing: [f64; 3],
+    #[command(flatten)]
+    pub grid: GridArgs,
     /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
     /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
     /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
@@ -130,15 +181,13 @@ impl PrepareOptions {
         PrepareOptions {
             input: input.to_string(),
             out: out.to_path_buf(),
-            levels: 5,
-            base: BaseSpec::Box5,
+            levels: None,
+            base: BaseSpec::Auto,
             bits: None,
             max_error: None,
             preview: None,
             predictor: PredictorChoice::Auto,
-            dims: None,
-            dtype: "u8".into(),
-            spacing: [1.0; 3],
+            grid: GridArgs::default(),
             scalar: None,
             field: None,
             format: None,
@@ -215,7 +264,7 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    let grid = o.input.starts_with("synthetic:") || o.dims.is_some() || ext == "raw";
+    let grid = o.input.starts_with("synthetic:") || o.grid.dims.is_some() || ext == "raw";
     let mesh_only = [
         ("--scalar", o.scalar.is_some()),
         ("--field", o.field.is_some()),
@@ -242,23 +291,8 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| o.input.clone());
-    if o.dims.is_some() || ext == "raw" {
-        let dims = o.dims.ok_or(RawError::MissingDims)?;
-        let dtype =
-            RawType::parse(&o.dtype).ok_or_else(|| PrepareError::UnknownDtype(o.dtype.clone()))?;
-        let mut grid = RawGrid::read(&path, dims, dtype, o.spacing)?;
-        if let Some(first) = grid.first_non_finite() {
-            match o.nan_as {
-                Some(v) => {
-                    let n = grid.replace_non_finite(v as f32);
-                    tracing::warn!(replaced = n, value = v, "replaced NaN/Inf samples");
-                }
-                None => {
-                    let count = grid.replace_non_finite(0.0);
-                    return Err(PrepareError::NonFiniteRaw { path, count, first });
-                }
-            }
-        }
+    if o.grid.dims.is_some() || ext == "raw" {
+        let grid = o.grid.read(&path, o.nan_as)?;
         return Ok(Loaded {
             source_range: grid.value_range(),
             source: Source::Raw(grid),
@@ -319,15 +353,57 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         source_range,
         boundary,
     } = load_source(o)?;
-    let box6 = matches!(o.base, BaseSpec::Box6);
+    let (base, levels, mut domain) =
+        match (&o.base, &source) {
+            (BaseSpec::Auto, Source::Raw(g)) => {
+                let fits = |tets, l| tetwave_protocol::Forest::new(tets, l).nodes() <= MAX_NODES;
+                let l = VoxelLattice::fit(g.dims, g.spacing, o.levels, fits)?;
+                let [x, y, z] = g.dims;
+                let [px, py, pz] = l.points;
+                let [cx, cy, cz] = l.cells;
+                tracing::info!(
+                "voxel-exact: the {x}×{y}×{z} voxels are vertices of {cx}×{cy}×{cz} Kuhn boxes \
+                 refined {} times ({px}×{py}×{pz} points{})",
+                l.levels,
+                if l.pads(g.dims) { "; the padding is clipped" } else { "" }
+            );
+                let spec = BaseSpec::KuhnBoxes {
+                    lo: [0.0; 3],
+                    hi: l.hi,
+                    cells: l.cells,
+                };
+                let (lo, hi) = g.bounds();
+                (
+                    spec,
+                    l.levels,
+                    l.pads(g.dims).then_some(Domain::Box { lo, hi }),
+                )
+            }
+            (spec, source) => {
+                if let Source::Raw(_) = source {
+                    tracing::info!(
+                    "--base {}: the grid is resampled by trilinear interpolation (omit --base to \
+                     keep every voxel)",
+                    spec.name()
+                );
+                }
+                (
+                    spec.clone(),
+                    o.levels.unwrap_or(5),
+                    boundary.map(Domain::Mesh),
+                )
+            }
+        };
+    tracing::info!(input = %o.input, levels, "resampling");
+    let mut r = resample(&source, &base, levels)?;
+    let box6 = tetwave_protocol::axes::check_base(&r.base).is_ok();
     if o.predictor == PredictorChoice::Axes && !box6 {
         return Err(PrepareError::Usage(
-            "--predictor axes needs --base box6 (the refined vertices of its 6 Kuhn tets are a grid)"
+            "--predictor axes needs one box of 6 Kuhn tets (--base box6, or a raw grid whose \
+             voxel lattice is one box): its refined vertices are a grid"
                 .into(),
         ));
     }
-    tracing::info!(input = %o.input, levels = o.levels, "resampling");
-    let mut r = resample(&source, &o.base, o.levels)?;
     r.base.predictor = match o.predictor {
         PredictorChoice::Parent => Predictor::Parent,
         PredictorChoice::Axes => Predictor::Axes,
@@ -343,13 +419,17 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let predictor = r.base.predictor;
     drop(source);
     let outside = r.outside;
-    // only an input with an outside needs clipping: inside every vertex the level set is ≥ 0
-    let levelset = match boundary {
-        Some(b) if outside > 0 => {
+    // only an input with an outside (a mesh's, or a grid's padding) needs clipping: inside
+    // every vertex the level set is ≥ 0
+    if matches!(domain, Some(Domain::Mesh(_))) && outside == 0 {
+        domain = None;
+    }
+    let levelset = match domain {
+        Some(d) => {
             tracing::info!(vertices = r.samples.len(), "level set of the domain");
-            Some(signed_distance(&r, &b)?)
+            Some(signed_distance(&r, &d)?)
         }
-        _ => None,
+        None => None,
     };
     let (levelset, levelset_near) = match levelset {
         Some(l) => (Some(l.values), Some(l.near)),
@@ -366,7 +446,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
             ))
         }
     };
-    if o.preview.is_some() && o.levels < 2 {
+    if o.preview.is_some() && levels < 2 {
         return Err(PrepareError::Usage(
             "--preview needs at least 2 levels (it covers the coarse ones)".into(),
         ));
@@ -381,11 +461,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         }
         _ => None,
     };
-    let base_name = match &o.base {
-        BaseSpec::Box5 => "box5".to_string(),
-        BaseSpec::Box6 => "box6".to_string(),
-        BaseSpec::File(p) => p.display().to_string(),
-    };
+    let base_name = base.name();
     let meta = StoreMeta {
         dataset: dataset.clone(),
         source: o.input.clone(),
@@ -450,7 +526,24 @@ pub struct VerifyReport {
     /// Root-mean-square of synthesis − sample over every vertex (for PSNR against the samples).
     pub rms_error: f64,
     pub exact_vertices: u64,
+    /// The check against the input grid (`verify --input`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub input: Option<InputCheck>,
     pub seconds: f64,
+}
+
+/// `verify --input`: the store's reconstruction at every voxel of the raw grid it was prepared
+/// from, against the voxel's value in the file.
+#[derive(Debug, Clone, Serialize)]
+pub struct InputCheck {
+    pub voxels: u64,
+    pub max_abs_error: f64,
+    pub rms_error: f64,
+    /// Voxels whose reconstruction is bit-exact.
+    pub exact_voxels: u64,
+    /// The input's value range, and the store's (`value_range` of its manifest).
+    pub input_range: [f32; 2],
+    pub store_range: [f32; 2],
 }
 
 /// Re-runs synthesis from the store's base mesh and nodes and compares every vertex with the stored
@@ -489,8 +582,91 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
         max_error_bound: bound,
         rms_error: (sum_sq / n.max(1) as f64).sqrt(),
         exact_vertices: exact,
+        input: None,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// [`verify`], and then every voxel of `grid` (the raw grid the store was prepared from, as
+/// `prepare` read it) against the store's reconstruction at its vertex: fails when a voxel is not
+/// a vertex (a store resampled with an explicit `--base`), when the store holds values at
+/// points between voxels, or when a voxel's error exceeds the manifest's bound.
+pub fn verify_input(dir: &Path, grid: &RawGrid) -> Result<VerifyReport, PrepareError> {
+    let t0 = Instant::now();
+    let mut report = verify(dir)?;
+    let store = Store::open(dir)?;
+    let values = store.synthesize_all()?;
+    let keys = store.base.vertex_keys();
+    let [nx, ny, nz] = grid.dims;
+    let total = nx * ny * nz;
+    let not_exact = |why: String| {
+        PrepareError::Usage(format!(
+            "{}: the store's vertices are not the voxels of this grid ({why}); a store prepared \
+             with an explicit --base resamples the grid, and only `--base auto` keeps every voxel",
+            dir.display()
+        ))
+    };
+    // per voxel: seen (the base mesh's shared vertices have one key, so twice is an error)
+    let mut seen = vec![false; total];
+    let mut stray: Option<[f64; 3]> = None;
+    let (mut max_err, mut sum_sq, mut exact) = (0f64, 0f64, 0u64);
+    for (entity, _) in keys.entities() {
+        keys.for_each_in(entity, |key, tet, w| {
+            let p = store.base.position(tet, &w);
+            let mut idx = [0usize; 3];
+            let mut in_grid = true;
+            let mut on_voxel = true;
+            for a in 0..3 {
+                let x = p[a] / grid.spacing[a];
+                let r = x.round();
+                on_voxel &= (x - r).abs() <= 1e-6 * x.abs().max(1.0);
+                in_grid &= r >= 0.0 && (r as usize) < grid.dims[a] && x > -0.5;
+                idx[a] = r.max(0.0) as usize;
+            }
+            if !in_grid {
+                return; // padding
+            }
+            if !on_voxel {
+                stray.get_or_insert(p);
+                return;
+            }
+            let i = idx[0] + nx * (idx[1] + ny * idx[2]);
+            seen[i] = true;
+            let (got, want) = (values[key as usize], grid.voxel(idx));
+            if got as f64 == want {
+                exact += 1;
+            }
+            let d = got as f64 - want;
+            max_err = max_err.max(d.abs());
+            sum_sq += d * d;
+        });
+    }
+    if let Some(p) = stray {
+        return Err(not_exact(format!("a vertex lies between voxels at {p:?}")));
+    }
+    if let Some(i) = seen.iter().position(|s| !s) {
+        let (x, y, z) = (i % nx, i / nx % ny, i / (nx * ny));
+        return Err(not_exact(format!("voxel ({x}, {y}, {z}) is no vertex")));
+    }
+    let bound = store.manifest.max_error_bound;
+    if max_err > bound || max_err.is_nan() {
+        return Err(PrepareError::VerifyFailed {
+            what: format!("{} against the input's voxels", dir.display()),
+            error: max_err,
+            bound,
+        });
+    }
+    let (lo, hi) = grid.value_range().unwrap_or((f32::NAN, f32::NAN));
+    report.input = Some(InputCheck {
+        voxels: total as u64,
+        max_abs_error: max_err,
+        rms_error: (sum_sq / total as f64).sqrt(),
+        exact_voxels: exact,
+        input_range: [lo, hi],
+        store_range: store.manifest.value_range,
+    });
+    report.seconds += t0.elapsed().as_secs_f64();
+    Ok(report)
 }
 
 fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {

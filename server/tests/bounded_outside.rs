@@ -20,7 +20,7 @@ fn a_bounded_store_of_a_nonconvex_mesh_is_within_its_bound() {
     ] {
         let out = d.path().join(format!("s{levels}-{fraction}"));
         let mut o = PrepareOptions::new(mesh.to_str().unwrap(), &out);
-        o.levels = levels;
+        o.levels = Some(levels);
         o.base = base;
         o.max_error = Some(ErrorBound::OfRange(fraction));
         let s = prepare(&o).unwrap();

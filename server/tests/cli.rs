@@ -647,7 +647,7 @@ fn predictor_choice() {
     }
     expect_error(
         &then(&grid, &["--predictor", "axes", "--out", &out("d")]),
-        &["--predictor axes needs --base box6"],
+        &["--predictor axes needs one box of 6 Kuhn tets"],
     );
     // samples whose cubic predictions would overflow f32 (5e36 at most: the parent's sums of 6
     // values stay finite, the cubic's 18 do not): auto takes the parent predictor, and axes is

@@ -79,7 +79,7 @@ fn no_tet_outside_the_domain_at_any_level() {
     std::fs::write(&input, cube_minus_octant_vtk()).unwrap();
     let out = d.path().join("store");
     let mut o = PrepareOptions::new(input.to_str().unwrap(), &out);
-    o.levels = 4;
+    o.levels = Some(4);
     prepare(&o).unwrap();
     let store = Store::open(&out).unwrap();
     let values = store.synthesize_all().unwrap();

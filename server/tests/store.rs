@@ -7,7 +7,7 @@ use tetwave_store::{FormatError, Store, StoreError, BLOCK};
 
 fn make_store(dir: &std::path::Path, levels: u8, bits: Option<u8>) -> Store {
     let mut o = PrepareOptions::new("synthetic:harmonic", dir);
-    o.levels = levels;
+    o.levels = Some(levels);
     o.bits = bits;
     prepare(&o).unwrap();
     Store::open(dir).unwrap()
@@ -153,7 +153,7 @@ fn too_many_levels_fail_before_resampling() {
     let d = tempfile::tempdir().unwrap();
     for levels in [10u8, 11] {
         let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
-        o.levels = levels;
+        o.levels = Some(levels);
         let e = prepare(&o).expect_err("refused");
         let msg = e.to_string();
         assert!(
@@ -191,7 +191,7 @@ fn rewrite_over_a_directory(
     }
     std::fs::create_dir(blocked).unwrap();
     let mut o = PrepareOptions::new("synthetic:harmonic", dir);
-    o.levels = 3;
+    o.levels = Some(3);
     prepare(&o).expect_err("a directory where a file must go")
 }
 
@@ -275,9 +275,9 @@ proptest! {
         std::fs::write(&raw, bytes).unwrap();
         let out = d.path().join("store");
         let mut o = PrepareOptions::new(raw.to_str().unwrap(), &out);
-        o.dims = Some([n, n, n]);
-        o.dtype = "f32".into();
-        o.levels = levels;
+        o.grid.dims = Some([n, n, n]);
+        o.grid.dtype = "f32".into();
+        o.levels = Some(levels);
         if box6 {
             // the axes predictor (`--predictor auto` on a box6 grid)
             o.base = tetwave_server::resample::BaseSpec::Box6;
@@ -325,7 +325,7 @@ fn max_error_refuses_what_it_cannot_keep() {
     use tetwave_server::analysis::ErrorBound;
     let d = tempfile::tempdir().unwrap();
     let mut o = PrepareOptions::new("synthetic:harmonic", &d.path().join("a"));
-    o.levels = 2;
+    o.levels = Some(2);
     o.max_error = Some(ErrorBound::Absolute(1e-12));
     let e = prepare(&o).unwrap_err().to_string();
     assert!(e.contains("--max-error") && e.contains("lossless"), "{e}");

@@ -22,7 +22,7 @@ fn preview_store() -> (tempfile::TempDir, std::path::PathBuf) {
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("store");
     let mut o = PrepareOptions::new("synthetic:harmonic", &p);
-    o.levels = 4;
+    o.levels = Some(4);
     o.base = BaseSpec::Box6;
     o.max_error = Some(ErrorBound::OfRange(1e-3));
     o.preview = Some(ErrorBound::OfRange(0.1));

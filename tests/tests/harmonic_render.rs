@@ -17,7 +17,7 @@ use tetwave_store::Store;
 fn client_reads_the_servers_store_identically() {
     let d = tempfile::tempdir().unwrap();
     let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
-    o.levels = 4;
+    o.levels = Some(4);
     o.bits = Some(12);
     prepare(&o).unwrap();
     let server = Store::open(d.path()).unwrap();
@@ -43,7 +43,7 @@ fn client_reads_the_servers_store_identically() {
 fn harmonic_level3_gpu_matches_reference() {
     let d = tempfile::tempdir().unwrap();
     let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
-    o.levels = 3;
+    o.levels = Some(3);
     prepare(&o).unwrap();
     let store = Store::open(d.path()).unwrap();
     let (mesh, level) = store_mesh(&store, None).unwrap();

@@ -86,7 +86,7 @@ fn notched_store(d: &Path) -> (PathBuf, PathBuf, Summary) {
     write_mesh(&mesh);
     let store = d.join("notched.store");
     let mut o = PrepareOptions::new(&mesh.display().to_string(), &store);
-    o.levels = 4;
+    o.levels = Some(4);
     let summary = prepare(&o).unwrap();
     (mesh, store, summary)
 }

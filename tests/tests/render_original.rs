@@ -35,7 +35,7 @@ fn store_and_original_mesh_frame_the_same_view() {
         let mesh = fixture(name);
         let store = d.path().join(format!("{name}.store"));
         let mut o = PrepareOptions::new(&mesh.display().to_string(), &store);
-        o.levels = 4;
+        o.levels = Some(4);
         prepare(&o).unwrap();
         let (s, rs) = render(&store, &d.path().join("s.png"), &["--reference"]);
         let (m, rm) = render(&mesh, &d.path().join("m.png"), &["--reference"]);

@@ -1,5 +1,6 @@
 //! The input domain's level set at the semi-regular vertices: the signed distance to the boundary
-//! of an unstructured input (positive inside, negative outside), stored with the store
+//! of an unstructured input, or of a raw grid's voxels inside a padded lattice (positive inside,
+//! negative outside), stored with the store
 //! (`levelset.f32`) so that renderers clip each tet's ray segment to where its linear
 //! interpolant is ≥ 0, recovering the boundary inside the tets that straddle it instead of
 //! drawing them whole.
@@ -40,13 +41,43 @@ fn points(t: &LatticeTet, midpoints: bool) -> impl Iterator<Item = Bary> + '_ {
         .chain((0..mids).map(|e| t.edge_midpoint(e)))
 }
 
+/// The input's domain, where it is smaller than the semi-regular mesh.
+pub enum Domain {
+    /// An unstructured mesh's: inside where a sample exists (not `NaN`), at the distance to its
+    /// boundary surface.
+    Mesh(BoundaryDistance),
+    /// A raw grid's box of voxels `[lo, hi]`, inside a lattice that reaches past it (padding,
+    /// whose samples exist but are no data): the exact signed distance to the box.
+    Box { lo: [f64; 3], hi: [f64; 3] },
+}
+
+impl Domain {
+    /// `min(distance to the boundary, cap)` and whether `p` (vertex `key`) is inside.
+    fn distance_within(&self, r: &Resampled, key: usize, p: [f64; 3], cap: f64) -> (f64, bool) {
+        match self {
+            Domain::Mesh(b) => (b.distance_within(p, cap), !r.samples[key].is_nan()),
+            Domain::Box { lo, hi } => {
+                let inside = (0..3).all(|a| lo[a] <= p[a] && p[a] <= hi[a]);
+                let d = if inside {
+                    (0..3)
+                        .map(|a| (p[a] - lo[a]).min(hi[a] - p[a]))
+                        .fold(f64::INFINITY, f64::min)
+                } else {
+                    (0..3)
+                        .map(|a| (lo[a] - p[a]).max(p[a] - hi[a]).max(0.0).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                };
+                (d.min(cap), inside)
+            }
+        }
+    }
+}
+
 /// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
 /// 1/32 of the smallest clamp (a finest vertex is an edge midpoint of a level-`L − 1` tet, so
 /// about two finest tets' diameter).
-pub fn signed_distance(
-    r: &Resampled,
-    boundary: &BoundaryDistance,
-) -> Result<LevelSet, LevelSetError> {
+pub fn signed_distance(r: &Resampled, domain: &Domain) -> Result<LevelSet, LevelSetError> {
     let base = &r.base;
     let keys = &r.keys;
     let forest = base.forest();
@@ -88,8 +119,9 @@ pub fn signed_distance(
         keys.for_each_in(entity, |key, tet, w| {
             let p = base.position(tet, &w);
             let k = key as usize;
-            let d = boundary.distance_within(p, cap[k] as f64) as f32;
-            out[(key - start) as usize] = if r.samples[k].is_nan() { -d } else { d };
+            let (d, inside) = domain.distance_within(r, k, p, cap[k] as f64);
+            let d = d as f32;
+            out[(key - start) as usize] = if inside { d } else { -d };
         });
     });
     let finest = cap
@@ -185,7 +217,7 @@ mod tests {
         let source = Source::Mesh(Box::new(loc), bounds);
         let r = resample(&source, &BaseSpec::Box6, 3).unwrap();
         let b = BoundaryDistance::new(&mesh.points, &mesh.tets);
-        let set = signed_distance(&r, &b).unwrap();
+        let set = signed_distance(&r, &Domain::Mesh(b)).unwrap();
         let ls = &set.values;
         let fine_diam = 3f64.sqrt() / 8.0;
         let mut checked = 0;

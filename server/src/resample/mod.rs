@@ -57,18 +57,47 @@ impl Source {
 /// The coarse mesh the hierarchy refines.
 #[derive(Debug, Clone, PartialEq)]
 pub enum BaseSpec {
-    /// The bounding box split into 5 tets (thesis; default).
+    /// What suits the input (`prepare`'s default): for a raw grid, the Kuhn boxes that make every
+    /// voxel a vertex ([`raw::VoxelLattice`]); for anything else, [`BaseSpec::Box5`].
+    Auto,
+    /// The bounding box split into 5 tets (thesis).
     Box5,
     /// The bounding box split into 6 Kuhn tets.
     Box6,
+    /// The box `[lo, hi]` cut into `cells` equal Kuhn cells ([`tetwave_protocol::shapes::kuhn_boxes`]):
+    /// what [`BaseSpec::Auto`] means for a raw grid. Not the input's bounds: it may reach past
+    /// them (padding).
+    KuhnBoxes {
+        lo: [f64; 3],
+        hi: [f64; 3],
+        cells: [usize; 3],
+    },
     /// A coarse conforming tet mesh file (.vtu/.vtk/.msh).
     File(PathBuf),
+}
+
+impl BaseSpec {
+    /// The name a store's manifest records (one Kuhn box is `box6`, which streams as a name).
+    pub fn name(&self) -> String {
+        match self {
+            BaseSpec::Auto | BaseSpec::Box5 => "box5".into(),
+            BaseSpec::Box6
+            | BaseSpec::KuhnBoxes {
+                cells: [1, 1, 1], ..
+            } => "box6".into(),
+            BaseSpec::KuhnBoxes {
+                cells: [x, y, z], ..
+            } => format!("kuhn-boxes {x}x{y}x{z}"),
+            BaseSpec::File(p) => p.display().to_string(),
+        }
+    }
 }
 
 impl std::str::FromStr for BaseSpec {
     type Err = std::convert::Infallible;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Ok(match s {
+            "auto" => BaseSpec::Auto,
             "box5" => BaseSpec::Box5,
             "box6" => BaseSpec::Box6,
             other => BaseSpec::File(PathBuf::from(other)),
@@ -121,15 +150,19 @@ pub fn base_mesh(
     spec: &BaseSpec,
     bounds: ([f64; 3], [f64; 3]),
 ) -> Result<base::PointsAndTets, ResampleError> {
-    let (lo, hi) = bounds;
+    let (lo, hi) = match spec {
+        BaseSpec::KuhnBoxes { lo, hi, .. } => (*lo, *hi),
+        _ => bounds,
+    };
     if !matches!(spec, BaseSpec::File(_))
         && (0..3).any(|a| hi[a] <= lo[a] || !(hi[a] - lo[a]).is_finite())
     {
         return Err(ResampleError::DegenerateBounds { lo, hi });
     }
     match spec {
-        BaseSpec::Box5 => Ok(base::box5(lo, hi)),
+        BaseSpec::Auto | BaseSpec::Box5 => Ok(base::box5(lo, hi)),
         BaseSpec::Box6 => Ok(base::box6(lo, hi)),
+        BaseSpec::KuhnBoxes { cells, .. } => Ok(base::kuhn_boxes(lo, hi, *cells)),
         BaseSpec::File(path) => {
             let mesh = import::read_tet_mesh(path)?;
             if mesh.tets.is_empty() {

@@ -27,7 +27,7 @@ pub fn make_store(levels: u8) -> (tempfile::TempDir, PathBuf) {
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("store");
     let mut o = PrepareOptions::new("synthetic:harmonic", &p);
-    o.levels = levels;
+    o.levels = Some(levels);
     prepare(&o).unwrap();
     (d, p)
 }

@@ -68,7 +68,7 @@ pub fn harmonic_store_with(
     let d = tempfile::tempdir().unwrap();
     let store = d.path().join("s");
     let mut o = PrepareOptions::new("synthetic:harmonic", &store);
-    o.levels = levels;
+    o.levels = Some(levels);
     options(&mut o);
     prepare(&o).unwrap();
     (d, store)
