@@ -1,14 +1,15 @@
 //! The adaptive mesh as the renderers draw it.
 
 use crate::mesh::AdaptiveMesh;
-use tetwave_protocol::levelset::{NearLevelSet, FAR_OUTSIDE};
+use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::BaseMesh;
 use tetwave_render::render_mesh::RenderMesh;
 
 /// The drawable leaf mesh of an adaptive mesh (red leaves and green pieces), its scalar range set
 /// to `value_range` (the dataset's, so that colours agree from frame to frame), clipped to the
-/// domain's level set when `levelset` holds its near band: a far-outside vertex gets minus the
-/// mesh's diameter, a vertex not listed (far inside) plus it, which draws as the exact values do
-/// (see [`tetwave_protocol::levelset`]).
+/// domain's level set when `levelset` holds its near band ([`NearLevelSet::value_at`], with the
+/// mesh's diameter for `far`), which draws as the exact values do (see
+/// [`tetwave_protocol::levelset`]).
 pub fn leaf_mesh(
     mesh: &AdaptiveMesh,
     value_range: [f32; 2],
@@ -28,21 +29,26 @@ pub fn leaf_mesh(
     m.value_range = (value_range[0], value_range[1]);
     if let Some(near) = levelset {
         let far = m.diagonal() as f32;
-        m.levelset = Some(
-            (0..mesh.vertex_slot_len() as u32)
-                .map(|s| levelset_value(near, mesh.vertex_key(s), far))
-                .collect(),
-        );
+        let positions = &m.positions;
+        let values = (0..mesh.vertex_slot_len() as u32)
+            .map(|s| near.value_at(mesh.vertex_key(s), positions[s as usize], far))
+            .collect();
+        m.levelset = Some(values);
     }
     m
 }
 
-/// The level set a drawn vertex gets from the band: a listed value as listed, a far-outside one
-/// `−far`, an unlisted one (no tet beside the outside has it) `+far`; `far` beyond any tet.
-pub fn levelset_value(near: &NearLevelSet, key: u64, far: f32) -> f32 {
-    match near.get(key) {
-        Some(FAR_OUTSIDE) => -far,
-        Some(v) => v,
-        None => far,
+/// The level set at every vertex of `base`'s hierarchy (by key) as a client draws it from `near`,
+/// with the base mesh's diagonal for `far`: what a complete stream's reference image is clipped by.
+pub fn every_vertex_levelset(base: &BaseMesh, near: &NearLevelSet) -> Vec<f32> {
+    let (lo, hi) = base.bounds();
+    let far = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt() as f32;
+    let keys = base.vertex_keys();
+    let mut out = vec![0f32; keys.vertex_count() as usize];
+    for (entity, _) in keys.entities() {
+        keys.for_each_in(entity, |key, tet, w| {
+            out[key as usize] = near.value_at(key, base.position(tet, &w), far);
+        });
     }
+    out
 }

@@ -8,7 +8,7 @@
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
-use crate::draw::levelset_value;
+use crate::draw::every_vertex_levelset;
 use crate::ingest::{Ingest, Step};
 use crate::mesh::AdaptiveMesh;
 use crate::select::{Mode, SelectParams, Tolerance};
@@ -1097,13 +1097,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 .map_err(|e| StreamError::Protocol(e.to_string()))?;
             // clipped as the session draws (with the band it has), so that the reference is
             // what a complete stream should show
-            let levelset: Option<Vec<f32>> = session.levelset().map(|near| {
-                let (lo, hi) = base.bounds();
-                let far = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt() as f32;
-                (0..values.len() as u64)
-                    .map(|key| levelset_value(near, key, far))
-                    .collect()
-            });
+            let levelset = session
+                .levelset()
+                .map(|near| every_vertex_levelset(base, near));
             let mut full = RenderMesh::uniform_level_clipped(
                 base,
                 &values,

@@ -23,6 +23,13 @@
 //! adaptive integer, context: the previous code's bit length); runs of far-outside vertices cost
 //! a fraction of a bit each. Decoding is total: a malformed, truncated or oversized body is an
 //! error.
+//!
+//! **A box domain** (a raw grid's voxels inside a lattice that reaches past them) needs no band:
+//! its body is the count `u64::MAX`, then the box's `lo` and `hi` (6 × f64 LE, 56 bytes in all),
+//! and a client gives each vertex the exact signed distance to the box at its position
+//! ([`NearLevelSet::value_at`]). On the finest level the box's faces are lattice planes, so the
+//! clip is exact there; coarser tets straddling a face are clipped by the linear interpolant, as
+//! with a band.
 
 use crate::entropy::{unzigzag, zigzag, Bit, Decoder, Encoder, EntropyError, UInt};
 
@@ -46,6 +53,26 @@ pub struct NearLevelSet {
     step: f32,
     keys: Vec<u64>,
     codes: Vec<i32>,
+    /// A box domain ([`NearLevelSet::of_box`]): no entries, `φ` computed from positions.
+    domain_box: Option<[[f64; 3]; 2]>,
+}
+
+/// The count that marks a box domain's body: `u64::MAX`, then `lo` and `hi` as 6 f64 LE.
+const BOX_MARK: u64 = u64::MAX;
+
+/// The exact signed distance from `p` to the boundary of the box `[lo, hi]`, positive inside.
+pub fn box_signed_distance(lo: [f64; 3], hi: [f64; 3], p: [f64; 3]) -> f64 {
+    let inside = (0..3).all(|a| lo[a] <= p[a] && p[a] <= hi[a]);
+    if inside {
+        (0..3)
+            .map(|a| (p[a] - lo[a]).min(hi[a] - p[a]))
+            .fold(f64::INFINITY, f64::min)
+    } else {
+        -(0..3)
+            .map(|a| (lo[a] - p[a]).max(p[a] - hi[a]).max(0.0).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -60,6 +87,10 @@ pub enum LevelSetError {
     BadStep(f32),
     #[error("level set: the value {value} of key {key} is not finite or beyond 2^30 steps")]
     BadValue { key: u64, value: f32 },
+    #[error("level set: a box domain's corners {lo:?} .. {hi:?} are not finite and ordered")]
+    BadBox { lo: [f64; 3], hi: [f64; 3] },
+    #[error("level set: a box domain's body is {0} bytes, not 56")]
+    BoxLength(usize),
     #[error("level set: {0}")]
     Coding(#[from] EntropyError),
 }
@@ -84,6 +115,7 @@ impl NearLevelSet {
             step,
             keys: Vec::with_capacity(e.len()),
             codes: Vec::with_capacity(e.len()),
+            domain_box: None,
         };
         for (key, value) in e {
             let code = if value == FAR_OUTSIDE {
@@ -105,6 +137,40 @@ impl NearLevelSet {
             }
         }
         Ok(out)
+    }
+
+    /// The level set of the box domain `[lo, hi]` (a raw grid's voxels inside a lattice that
+    /// reaches past them): no entries, 56 bytes coded; [`Self::value_at`] gives each vertex the
+    /// exact signed distance to the box at its position.
+    pub fn of_box(lo: [f64; 3], hi: [f64; 3]) -> Result<Self, LevelSetError> {
+        if !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
+            return Err(LevelSetError::BadBox { lo, hi });
+        }
+        Ok(NearLevelSet {
+            step: 1.0,
+            keys: Vec::new(),
+            codes: Vec::new(),
+            domain_box: Some([lo, hi]),
+        })
+    }
+
+    /// The box of a box domain.
+    pub fn domain_box(&self) -> Option<[[f64; 3]; 2]> {
+        self.domain_box
+    }
+
+    /// `φ` as a client draws it at vertex `key`, at `pos`, with `far` beyond any tet's diameter:
+    /// a box domain's exact signed distance (clamped to `±far`); otherwise a listed value as
+    /// listed, a far-outside one `−far`, an unlisted one (no tet beside the outside has it) `+far`.
+    pub fn value_at(&self, key: u64, pos: [f64; 3], far: f32) -> f32 {
+        if let Some([lo, hi]) = self.domain_box {
+            return (box_signed_distance(lo, hi, pos) as f32).clamp(-far, far);
+        }
+        match self.get(key) {
+            Some(FAR_OUTSIDE) => -far,
+            Some(v) => v,
+            None => far,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -145,6 +211,11 @@ impl NearLevelSet {
 
     /// The coded form (see the module documentation).
     pub fn encode(&self) -> Result<Vec<u8>, LevelSetError> {
+        if let Some(corners) = self.domain_box {
+            let mut out = BOX_MARK.to_le_bytes().to_vec();
+            out.extend(corners.iter().flatten().flat_map(|x| x.to_le_bytes()));
+            return Ok(out);
+        }
         let mut e = Encoder::default();
         let mut m = Models::default();
         let (mut prev, mut gap_ctx, mut code_ctx, mut prev_far) = (None::<u64>, 0, 0, false);
@@ -177,6 +248,16 @@ impl NearLevelSet {
             return Err(LevelSetError::Truncated(bytes.len()));
         }
         let count = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes"));
+        if count == BOX_MARK {
+            if bytes.len() != 56 {
+                return Err(LevelSetError::BoxLength(bytes.len()));
+            }
+            let x: Vec<f64> = bytes[8..]
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+                .collect();
+            return Self::of_box([x[0], x[1], x[2]], [x[3], x[4], x[5]]);
+        }
         let step = f32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
         if count > n_keys {
             return Err(LevelSetError::TooMany {
@@ -248,6 +329,37 @@ impl Default for Models {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn a_box_domain_round_trips_in_56_bytes_and_gives_the_exact_distance() {
+        let (lo, hi) = ([0.0, -1.0, 2.0], [4.0, 1.0, 2.5]);
+        let set = NearLevelSet::of_box(lo, hi).unwrap();
+        let bytes = set.encode().unwrap();
+        assert_eq!(bytes.len(), 56);
+        let back = NearLevelSet::decode(&bytes, 10).unwrap();
+        assert_eq!(back, set);
+        assert_eq!(back.domain_box(), Some([lo, hi]));
+        assert!(back.is_empty() && back.get(3).is_none());
+        let far = 100.0;
+        // inside: the nearest face; on a face: 0; outside: the distance to the box
+        assert_eq!(back.value_at(0, [1.0, 0.0, 2.25], far), 0.25);
+        assert_eq!(back.value_at(0, [4.0, 0.0, 2.25], far), 0.0);
+        assert_eq!(back.value_at(0, [5.0, 0.0, 2.25], far), -1.0);
+        assert_eq!(back.value_at(0, [7.0, 5.0, 2.25], far), -5.0);
+        assert_eq!(back.value_at(0, [1e9, 0.0, 2.25], far), -far);
+        // refused: other lengths, disordered or infinite corners
+        assert_eq!(
+            NearLevelSet::decode(&bytes[..55], 10),
+            Err(LevelSetError::BoxLength(55))
+        );
+        let mut bad = bytes.clone();
+        bad[8..16].copy_from_slice(&9.0f64.to_le_bytes());
+        assert!(matches!(
+            NearLevelSet::decode(&bad, 10),
+            Err(LevelSetError::BadBox { .. })
+        ));
+        assert!(NearLevelSet::of_box([0.0; 3], [f64::INFINITY, 1.0, 1.0]).is_err());
+    }
 
     #[test]
     fn a_band_round_trips_and_answers_lookups() {

@@ -126,6 +126,9 @@ fn a_non_cubic_grid_gets_boxes_along_its_long_axes_and_its_padding_is_clipped() 
     );
     // the level set: ≥ 0 at every voxel, < 0 at every padding vertex, and a near band streams
     assert!(m.has_levelset_band());
+    let (band_bytes, band) = store.read_levelset_near().unwrap().unwrap();
+    assert_eq!(band_bytes.len(), 56, "the voxels' box, no band");
+    assert_eq!(band.domain_box(), Some([[0.0; 3], [39.0, 32.0, 16.0]]));
     let ls = store
         .read_levelset()
         .unwrap()

@@ -310,3 +310,88 @@ fn a_partly_refined_streamed_mesh_clips_as_the_whole_level_set_does() {
         assert!(p >= 50.0, "az {az}: {p:.1} dB");
     }
 }
+
+/// A raw grid one lattice layer short in x and y and three in z (32×32×30 voxels in a 33³
+/// lattice, `--base auto`): its level set streams as the voxels' box (56 bytes, no band), and the
+/// client's mesh, complete or mixing levels under a view-dependent tolerance, clips exactly where
+/// the store's whole level set (`levelset.f32`) clips it; without the clip the padding (the
+/// nearest voxels repeated) shows.
+#[test]
+fn a_padded_grid_streams_its_box_and_clips_as_its_whole_level_set() {
+    let d = tempfile::tempdir().unwrap();
+    let dims = [32usize, 32, 30];
+    let raw = d.path().join("g.raw");
+    let mut bytes = Vec::new();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let v = (i + j + 2 * k) as f32 / 120.0 + ((i * j) % 7) as f32 * 0.02;
+                bytes.extend(v.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(&raw, bytes).unwrap();
+    let store = d.path().join("g.store");
+    let mut o = PrepareOptions::new(raw.to_str().unwrap(), &store);
+    o.grid.dims = Some(dims);
+    o.grid.dtype = "f32".into();
+    let summary = prepare(&o).unwrap();
+    assert_eq!((summary.base.as_str(), summary.levels), ("box6", 5));
+    assert_eq!(summary.levelset_near_bytes, 56);
+    let opened = Store::open(&store).unwrap();
+    let exact = opened.read_levelset().unwrap().expect("a level set");
+    let (own, _) = store_mesh(&opened, None).unwrap();
+    let tf = TransferFunction::preset("default").unwrap();
+    let range = opened.manifest.display_value_range();
+    for (order, tol) in [("level", "0"), ("view", "20%")] {
+        let srv = serve(&store, order);
+        let mut a = stream_args(srv.url(), &d.path().join(format!("out-{order}")));
+        a.tol = tol.into();
+        a.size = (SIZE, SIZE);
+        a.camera.azimuth = 40.0;
+        a.camera.elevation = 30.0;
+        if tol != "0" {
+            a.until_complete = false;
+            a.until_converged = true;
+        }
+        let s = run_session(&a, Faults::default()).expect("session");
+        assert!(s.report.clipped, "{:?}", s.report.levelset_error);
+        let near = s.levelset.as_ref().expect("the box arrived");
+        assert!(near.domain_box().is_some());
+        let m = s.mesh.as_ref().unwrap();
+        let streamed = leaf_mesh(m, range, Some(near));
+        let mut whole = leaf_mesh(m, range, None);
+        let mut unclipped = whole.clone();
+        whole.levelset = Some(
+            (0..m.vertex_slot_len() as u32)
+                .map(|v| exact[m.vertex_key(v) as usize])
+                .collect(),
+        );
+        unclipped.levelset = None;
+        for (az, el) in [(35.0, 25.0), (215.0, 20.0)] {
+            let cam = orbit_camera(&own, az, el);
+            let (a, b) = (
+                render_reference(&streamed, &cam, &tf),
+                render_reference(&whole, &cam, &tf),
+            );
+            let p = tetwave_render::image_metrics::psnr(&a, &b);
+            let u =
+                tetwave_render::image_metrics::psnr(&a, &render_reference(&unclipped, &cam, &tf));
+            eprintln!(
+                "{order} tol {tol}, az {az}: {} drawn tets, box vs whole level set {p:.1} dB, \
+                 unclipped {u:.1} dB",
+                m.drawable_leaf_tets().len()
+            );
+            assert_eq!(leaks(&b, &a) + leaks(&a, &b), 0, "{order} az {az}");
+            assert!(p >= 50.0, "{order} az {az}: {p:.1} dB");
+            assert!(
+                u < p - 3.0,
+                "{order} az {az}: the padding shows unclipped ({u:.1} dB)"
+            );
+            if tol == "0" {
+                let o = tetwave_render::image_metrics::psnr(&a, &render_reference(&own, &cam, &tf));
+                assert!(o >= 50.0, "az {az}: {o:.1} dB from the store's own image");
+            }
+        }
+    }
+}

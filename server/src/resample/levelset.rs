@@ -19,7 +19,7 @@ use super::Resampled;
 use rayon::prelude::*;
 use tetwave_import::clean::BoundaryDistance;
 use tetwave_protocol::hierarchy::{Bary, LatticeTet, LevelWalker};
-use tetwave_protocol::levelset::{LevelSetError, NearLevelSet, FAR_OUTSIDE};
+use tetwave_protocol::levelset::{box_signed_distance, LevelSetError, NearLevelSet, FAR_OUTSIDE};
 
 /// The level set of a store: every vertex's value and the near band streaming clients need.
 pub struct LevelSet {
@@ -57,18 +57,8 @@ impl Domain {
         match self {
             Domain::Mesh(b) => (b.distance_within(p, cap), !r.samples[key].is_nan()),
             Domain::Box { lo, hi } => {
-                let inside = (0..3).all(|a| lo[a] <= p[a] && p[a] <= hi[a]);
-                let d = if inside {
-                    (0..3)
-                        .map(|a| (p[a] - lo[a]).min(hi[a] - p[a]))
-                        .fold(f64::INFINITY, f64::min)
-                } else {
-                    (0..3)
-                        .map(|a| (lo[a] - p[a]).max(p[a] - hi[a]).max(0.0).powi(2))
-                        .sum::<f64>()
-                        .sqrt()
-                };
-                (d.min(cap), inside)
+                let d = box_signed_distance(*lo, *hi, p);
+                (d.abs().min(cap), d >= 0.0)
             }
         }
     }
@@ -124,6 +114,13 @@ pub fn signed_distance(r: &Resampled, domain: &Domain) -> Result<LevelSet, Level
             out[(key - start) as usize] = if inside { d } else { -d };
         });
     });
+    if let Domain::Box { lo, hi } = domain {
+        // streaming clients compute the box's distance themselves: no band
+        return Ok(LevelSet {
+            values: out,
+            near: NearLevelSet::of_box(*lo, *hi)?,
+        });
+    }
     let finest = cap
         .iter()
         .copied()
