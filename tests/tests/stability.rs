@@ -570,6 +570,17 @@ fn value_spikes() {
     }
     let input = d.path().join("spike.raw");
     std::fs::write(&input, raw).unwrap();
+    // the same grid without the spike: the lossless baseline
+    let plain = d.path().join("plain.raw");
+    let no_spike: Vec<u8> = samples
+        .iter()
+        .enumerate()
+        .flat_map(|(i, &v)| {
+            let v = if v == 1e6 { samples[i - 1] } else { v };
+            v.to_le_bytes()
+        })
+        .collect();
+    std::fs::write(&plain, no_spike).unwrap();
     let out = d.path().join("s");
     let o = prepare_options(&[
         input.to_str().unwrap(),
@@ -613,7 +624,7 @@ fn value_spikes() {
     assert!(samples.contains(&1e6));
     // an absolute bound at the bulk's scale is refused (below what f32 values of the spike's
     // magnitude can hold), naming the lossless way out; "lossless" is then within f32 rounding
-    let args = |out: &Path, bound: Option<&str>| {
+    let args_for = |input: &Path, out: &Path, bound: Option<&str>| {
         let mut a: Vec<String> = [
             input.to_str().unwrap(),
             "--dims",
@@ -629,6 +640,7 @@ fn value_spikes() {
         }
         a
     };
+    let args = |out: &Path, bound: Option<&str>| args_for(&input, out, bound);
     let a = args(&d.path().join("abs"), Some("0.001"));
     let o = prepare_options(&a.iter().map(String::as_str).collect::<Vec<_>>());
     let e = tetwave_server::prepare::prepare(&o)
@@ -663,6 +675,16 @@ fn value_spikes() {
     // reconstruction rounds; the manifest reports that error honestly
     assert!(worst_bulk.max(worst_spike) <= s.max_abs_error);
     assert!(worst_bulk < 0.05 * bulk_range, "{worst_bulk}");
+    let a = args_for(&plain, &d.path().join("plain"), None);
+    let o = prepare_options(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let base = tetwave_server::prepare::prepare(&o).unwrap();
+    eprintln!(
+        "STABILITY no spike, lossless: max error {} ({:.2e} of the range), {} bytes",
+        base.max_abs_error,
+        base.max_abs_error / bulk_range,
+        base.bytes
+    );
+    assert!(base.max_abs_error < worst_bulk, "the spike costs nothing");
 }
 
 /// Non-finite values. `prepare` refuses NaN and ±Inf in a raw grid (naming `--nan-as`) and
