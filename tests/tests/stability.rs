@@ -196,8 +196,13 @@ fn eye_inside_the_volume() {
 /// eye on the line through the cube's centre along x, so the y = ½ and z = ½ grid planes, and the
 /// Kuhn tets' diagonal faces through that line, are seen edge-on), azimuth 45 at elevation 0, half
 /// a degree off the first, and almost straight down. A face misjudged as an exit face edge-on
-/// draws nothing (the rasterizer culls it). Floor 45 dB, except the view with whole grid planes
+/// draws nothing (the rasterizer culls it). Floor 45 dB, except the view with planes of faces
 /// edge-on through the eye: 40 dB (measured 41.7 on lavapipe, below the renderer's usual floor).
+/// Every pixel more than 8 levels off lies within a pixel of an image diagonal (measured: all 58
+/// on one diagonal, where the diagonal faces project, whose pixels' rays lie exactly in those
+/// faces' planes), and there the reference is the one that is off: with the eye moved by 3e-7,
+/// the reference agrees with the GPU (≥ 45 dB asserted; 64.7–64.8 dB measured). The reference
+/// counts a ray lying exactly in a face shared by two tets in both.
 #[test]
 fn grazing_views() {
     let g = gpu();
@@ -213,9 +218,37 @@ fn grazing_views() {
         for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
             let f = measure(&g, &mesh, &cam, order, &format!("grazing az {az} el {el}"));
             let off = off_pixels(&f);
+            // of those, how many lie within a pixel of one of the image's diagonals (where the
+            // Kuhn tets' diagonal faces through the eye's line project in the edge-on view)
+            let w = cam.width as usize;
+            let diagonal = (0..f.gpu.pixels.len())
+                .filter(|&i| {
+                    let (a, b) = (f.gpu.pixels[i], f.reference.pixels[i]);
+                    let (x, y) = (i % w, i / w);
+                    (0..3).any(|k| a[k].abs_diff(b[k]) > 8)
+                        && (x.abs_diff(y) <= 1 || (x + y).abs_diff(w - 1) <= 1)
+                })
+                .count();
             eprintln!(
-                "STABILITY grazing az {az} el {el} [{order:?}]: {off} pixels off by > 8 levels"
+                "STABILITY grazing az {az} el {el} [{order:?}]: {off} pixels off by > 8 levels, \
+                 {diagonal} of them within a pixel of an image diagonal"
             );
+            assert_eq!(off, diagonal, "az {az} el {el}: errors off the diagonals");
+            if floor < 45.0 {
+                // the eye moved by 3e-7 (no pixel's ray exactly in a face's plane any more): the
+                // GPU image is the limit the reference tends to; the reference on rays exactly
+                // in a shared face's plane counts the face in both tets (double absorption)
+                let mut moved = cam;
+                moved.eye += DVec3::new(0.0, 1e-7, -3e-7);
+                let tf = TransferFunction::preset("default").unwrap();
+                let limit = render_reference(&mesh, &moved, &tf);
+                let (to_gpu, to_ref) = (psnr(&f.gpu, &limit), psnr(&f.reference, &limit));
+                eprintln!(
+                    "STABILITY grazing az {az} el {el} [{order:?}]: the reference with the eye \
+                     moved by 3e-7 vs the GPU {to_gpu:.2} dB, vs the reference {to_ref:.2} dB"
+                );
+                assert!(to_gpu >= 45.0, "the GPU is off the limit: {to_gpu:.2} dB");
+            }
             assert!(f.gpu.coverage() > 0.05, "az {az} el {el}: blank");
             if f.psnr < floor {
                 failures.push(format!("az {az} el {el} {order:?}: {:.2} dB", f.psnr));
