@@ -591,11 +591,11 @@ def image_part(args, bindir, work):
     prepare(bindir, raw, n, spacing, L, lossless)
     check_samples(lossless, arr)
     ref_png = os.path.join(d, "reference.png")
-    run([tw, "render", lossless, "--reference", "--size", size, "-o", ref_png, "--json"], "render reference")
+    run([tw, "render", lossless, "--reference", "--tf", "default", "--size", size, "-o", ref_png, "--json"], "render reference")
     ref = read_png(ref_png)
     # the GPU image of the original: the renderer's own error, the ceiling of every curve
     orig_png = os.path.join(d, "original-gpu.png")
-    run([tw, "render", lossless, "--size", size, "-o", orig_png, "--json"], "render original")
+    run([tw, "render", lossless, "--tf", "default", "--size", size, "-o", orig_png, "--json"], "render original")
     nodes = 6 * ((8**L) - 1) // 7
     per = args.image_per_frame or max(1, nodes // 16)
     streams, sz3s = [], []
@@ -627,7 +627,7 @@ def image_part(args, bindir, work):
         sstore = os.path.join(d, f"sz3-{b}-decoded")
         prepare(bindir, sraw, n, spacing, L, sstore)
         spng = os.path.join(d, f"sz3-{b}.png")
-        run([tw, "render", sstore, "--size", size, "-o", spng, "--json"], f"render SZ3-decoded grid at {b}")
+        run([tw, "render", sstore, "--tf", "default", "--size", size, "-o", spng, "--json"], f"render SZ3-decoded grid at {b}")
         sz3s.append({"bound": b, "bytes": int(c.size), "image_psnr_db": image_psnr(read_png(spng), ref),
                      "value_range_decoded": float(dec.max()) - float(dec.min())})
     target = sz3s[0]

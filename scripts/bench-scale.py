@@ -242,7 +242,7 @@ def main():
                 ref = os.path.join(work, tag + "-all-leaves.png")
                 if not a.no_reference and not os.path.exists(ref):
                     _, wall, rss, _ = run_measured(
-                        [client, "render", store, "--reference", "--size", a.size, "-o", ref],
+                        [client, "render", store, "--reference", "--tf", "default", "--size", a.size, "-o", ref],
                         f"render {tag}", os.path.join(work, tag + "-reference"))
                     emit({"run": "all-leaves image", "case": tag, "render_s": round(wall, 1),
                           "render_rss_mib": round(rss)})

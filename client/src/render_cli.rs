@@ -23,7 +23,7 @@ use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
-use tetwave_render::transfer::{TfError, TransferFunction};
+use tetwave_render::transfer::{TfError, TransferFunction, ValueHistogram, AUTO};
 use tetwave_store::{OpenOptions, Store, StoreError};
 
 /// What to render and how.
@@ -55,8 +55,12 @@ pub struct RenderArgs {
     /// Image size `WxH`.
     #[arg(long, default_value = "512x512", value_parser = parse_size)]
     pub size: (u32, u32),
-    /// Transfer function: a preset (default, transparent, opaque, shells) or a .json file.
-    #[arg(long, default_value = "default")]
+    /// Transfer function: `auto` (the `default` preset fitted to the data: its control points moved
+    /// to the data's value quantiles over its volume, so that each colour band covers the share of
+    /// the volume it covers of the range, and its extinctions square-rooted and scaled to a volume mean of 10 per
+    /// diagonal; a store fits to its finest level), a preset (default, transparent, opaque, shells)
+    /// or a .json file. `--json` reports the function drawn with.
+    #[arg(long, default_value = "auto")]
     pub tf: String,
     /// Render with the CPU reference integrator instead of the GPU.
     #[arg(long)]
@@ -162,6 +166,9 @@ pub struct RenderReport {
     pub psnr_db: Option<f64>,
     pub reference_ms: Option<f64>,
     pub output: String,
+    /// The transfer function drawn with (for `auto`, the fitted one: save it as a `.json` file to
+    /// draw another input with the same colours).
+    pub tf: TransferFunction,
 }
 
 /// The level-`level` mesh of a store (finest when `None`), clipped to the store's level set when
@@ -184,6 +191,22 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
     let [lo, hi] = store.manifest.display_value_range();
     mesh.value_range = (lo, hi);
     Ok((mesh, level))
+}
+
+/// The value histogram the `auto` transfer function of a store fits to: that of its finest level
+/// ([`ValueHistogram::of_mesh`], clipped to its level set), whatever level is drawn, so that every
+/// level and every local client draw a store with the same colours. (A coarser level is not enough:
+/// a level-6 store of the heat sink fitted to its level 5, whose lattice does not resolve the fins,
+/// drew 31.3 dB from its source's image, 45.5 dB fitted to level 6.) `drawn`: a level's mesh
+/// already built, reused when it is the finest.
+pub fn store_histogram(
+    store: &Store,
+    drawn: Option<(&RenderMesh, u8)>,
+) -> Result<ValueHistogram, RenderCliError> {
+    match drawn {
+        Some((mesh, l)) if l == store.base.levels => Ok(ValueHistogram::of_mesh(mesh)),
+        _ => Ok(ValueHistogram::of_mesh(&store_mesh(store, None)?.0)),
+    }
 }
 
 /// Whether `tetwave render`'s input is a mesh file rather than a store directory: `--format`
@@ -236,7 +259,9 @@ fn warn_if_not_convex(mesh: &RenderMesh) {
 }
 
 pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
-    let tf = TransferFunction::load(&a.tf)?;
+    // checked before reading the input; `auto` is fitted below, once the data is read
+    let mut tf = TransferFunction::load(&a.tf)?;
+    let auto = a.tf == AUTO;
     let is_mesh = is_mesh_input(&a.store, a.format);
     // the legend's name: a mesh's scalar, or a store's dataset
     let mut legend_name = String::new();
@@ -252,6 +277,9 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             nan_as: a.nan_as,
         };
         let (mesh, scalar) = file_mesh(&a.store, a.format, &options)?;
+        if auto {
+            tf = tf.fitted(&ValueHistogram::of_mesh(&mesh));
+        }
         (mesh, 0, Some(scalar))
     } else {
         if a.scalar.is_some() || a.field.is_some() || a.nan_as.is_some() {
@@ -266,6 +294,9 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             },
         )?;
         let (mesh, level) = store_mesh(&store, a.levels)?;
+        if auto {
+            tf = tf.fitted(&store_histogram(&store, Some((&mesh, level)))?);
+        }
         legend_name = store.manifest.dataset.clone();
         (mesh, level, None)
     };
@@ -331,5 +362,6 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         psnr_db,
         reference_ms: refimg.as_ref().map(|(_, ms)| *ms),
         output: a.output.display().to_string(),
+        tf,
     })
 }

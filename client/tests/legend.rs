@@ -45,8 +45,10 @@ fn render_legend_draws_the_colours_the_name_and_the_range() {
     assert_eq!((img.width, img.height), (240, 60 + LEGEND_HEIGHT));
     // the volume is drawn as without the legend
     assert!(rows(&img, 0, 60) == plain.pixels.as_slice());
-    // the colour bar: the transfer function's colour at each column's place in the range
-    let tf = TransferFunction::preset("default").unwrap();
+    // the colour bar: the transfer function's colour at each column's place in the range (the
+    // one drawn with: `auto`, the default preset fitted to the store's values)
+    let tf: TransferFunction = serde_json::from_value(r["tf"].clone()).unwrap();
+    assert_eq!(tf.name, "auto");
     let bar = 240 - 2 * MARGIN;
     for x in [0, bar / 3, bar - 1] {
         let (rgb, _) = tf.eval(x as f64 / (bar - 1) as f64);
