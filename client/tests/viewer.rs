@@ -88,11 +88,14 @@ fn png(path: &Path) -> Rgba8Image {
     Rgba8Image::load_png(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// `tetwave render STORE` (the offscreen GPU renderer, full level) for an orbit camera.
-fn offscreen(store: &Path, az: f64, el: f64, size: (u32, u32), out: &Path) -> Rgba8Image {
+/// `tetwave render STORE --tf TF` (the offscreen GPU renderer, full level) for an orbit camera:
+/// `auto` for a view of a store or a mesh file, `default` for a view of a stream (which has no
+/// histogram to fit `auto` to).
+fn offscreen(store: &Path, tf: &str, az: f64, el: f64, size: (u32, u32), out: &Path) -> Rgba8Image {
     let o = Command::new(env!("CARGO_BIN_EXE_tetwave"))
         .arg("render")
         .arg(store)
+        .args(["--tf", tf])
         .args([format!("--azimuth={az}"), format!("--elevation={el}")])
         .args(["--size", &format!("{}x{}", size.0, size.1)])
         .arg("-o")
@@ -229,8 +232,22 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
 
     let (ia, ib, is) = (png(&a), png(&b), png(&server));
     assert_eq!((ia.width, ia.height), (256, 224));
-    let ra = offscreen(&s, 35.0, 25.0, (256, 224), &dir.join("ref_a.png"));
-    let rb = offscreen(&s, 105.0, 25.0, (256, 224), &dir.join("ref_b.png"));
+    let ra = offscreen(
+        &s,
+        "default",
+        35.0,
+        25.0,
+        (256, 224),
+        &dir.join("ref_a.png"),
+    );
+    let rb = offscreen(
+        &s,
+        "default",
+        105.0,
+        25.0,
+        (256, 224),
+        &dir.join("ref_b.png"),
+    );
     let (pa, pb, ps, pab) = (
         psnr(&ia, &ra),
         psnr(&ib, &rb),
@@ -310,7 +327,14 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
     let mut leaks_total = 0;
     for (i, &(az, el)) in views.iter().enumerate() {
         let shot = png(&dir.join(format!("v{i}.png")));
-        let want = offscreen(&s, az, el, (192, 160), &dir.join(format!("ref{i}.png")));
+        let want = offscreen(
+            &s,
+            "default",
+            az,
+            el,
+            (192, 160),
+            &dir.join(format!("ref{i}.png")),
+        );
         let black = |p: &[u8; 4]| p[..3] == [0, 0, 0];
         let empty = want.pixels.iter().filter(|p| black(p)).count();
         let leaks = want
@@ -473,7 +497,7 @@ fn view_tolerance_coarsens_and_refines() {
     assert_eq!(r["tets"], 2560, "{r}");
     let coarse_tets = r["screenshot_tets"][0].as_u64().unwrap();
     assert!(coarse_tets < 2560, "{r}");
-    let reference = offscreen(&s, 35.0, 25.0, (160, 160), &dir.join("ref.png"));
+    let reference = offscreen(&s, "default", 35.0, 25.0, (160, 160), &dir.join("ref.png"));
     let (pc, pf) = (
         psnr(&png(&coarse), &reference),
         psnr(&png(&fine), &reference),
@@ -548,6 +572,7 @@ fn view_matches_offscreen(store: &Path, dir: &Path, name: &str) {
     assert_eq!((img.width, img.height), (128, 128));
     let reference = offscreen(
         store,
+        "auto",
         35.0,
         25.0,
         (128, 128),
@@ -796,7 +821,7 @@ fn view_resizes_and_screenshots_at_the_new_size() {
     let (a, b) = (png(&small), png(&large));
     assert_eq!((a.width, a.height), (128, 96));
     assert_eq!((b.width, b.height), (300, 180));
-    let reference = offscreen(&s, 35.0, 25.0, (300, 180), &dir.join("ref.png"));
+    let reference = offscreen(&s, "auto", 35.0, 25.0, (300, 180), &dir.join("ref.png"));
     let p = psnr(&b, &reference);
     eprintln!("resized view vs offscreen at 300x180: {p:.2} dB");
     assert!(p >= 40.0, "resized view vs offscreen: {p:.2} dB");
@@ -990,7 +1015,7 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
     // at rest: the finest level again, the same image as the offscreen render
     assert_eq!(lod["tets"], 2560, "{lod}");
     let az = f(&lod["azimuth"]);
-    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
     let psnr_rest = psnr(&png(&dir.join("lod.png")), &reference);
     eprintln!("at rest after the motion vs offscreen: {psnr_rest:.2} dB");
     assert!(psnr_rest >= 40.0, "{psnr_rest:.2} dB");
@@ -1040,7 +1065,7 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     let img = png(&shot);
     assert_eq!((img.width, img.height), (160, 120));
     let az = r["azimuth"].as_f64().unwrap();
-    let reference = offscreen(&s, az, 25.0, (160, 120), &dir.join("ref.png"));
+    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
     let at_rest = psnr(&img, &reference);
     eprintln!("at rest after a half-size motion vs offscreen: {at_rest:.2} dB");
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");

@@ -26,7 +26,7 @@ use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::{Accumulation, PtRenderer, TetDrawData, VisibilityOrder};
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
-use tetwave_render::transfer::TransferFunction;
+use tetwave_render::transfer::{TransferFunction, AUTO};
 
 /// Width of the side panel, in points.
 pub const PANEL_WIDTH: f32 = 260.0;
@@ -178,7 +178,13 @@ impl ViewerApp {
         let uploader = Uploader::new(gpu.clone(), renderer.clone());
         let blit = Blit::new(&rs.device, rs.target_format);
         let (shot_tx, shot_rx) = mpsc::channel();
-        let tf_preset = PRESETS.contains(&args.tf.as_str()).then(|| args.tf.clone());
+        // `auto` without data to fit (a stream) is the `default` preset
+        let spec = if args.tf == AUTO {
+            tf.name.as_str()
+        } else {
+            args.tf.as_str()
+        };
+        let tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
         let orbit = Orbit {
             target: glam::DVec3::ZERO,
             azimuth: args.camera.azimuth,

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tetwave_render::gpu::{GpuContext, RenderError};
-use tetwave_render::transfer::TransferFunction;
+use tetwave_render::transfer::{TransferFunction, ValueHistogram, AUTO};
 
 /// Refinement modes of the viewer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
@@ -77,8 +77,10 @@ pub struct ViewArgs {
     /// Size of the view (the window adds the side panel), `WxH` pixels.
     #[arg(long, default_value = "640x480", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),
-    /// Transfer function: a preset (default, transparent, opaque, shells) or a .json file.
-    #[arg(long, default_value = "default")]
+    /// Transfer function: `auto` (a store or a mesh file: the `default` preset fitted to its data
+    /// as `tetwave render --tf auto` fits it; a server's stream: `default`), a preset (default,
+    /// transparent, opaque, shells) or a .json file.
+    #[arg(long, default_value = "auto")]
     pub tf: String,
     /// Screen-space tolerance in pixels (0: refine everything visible to the finest level).
     #[arg(long, default_value_t = 2.0, value_parser = tol_px)]
@@ -231,6 +233,37 @@ fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
+/// `tf` (loaded from `spec`) fitted to the source's data when `spec` is `auto` and the source is
+/// a store or a mesh file, as `tetwave render` fits it (the same histogram, so the same colours);
+/// a server's stream has no histogram and keeps `tf`, the `default` preset.
+fn fit_auto(
+    spec: &str,
+    source: &data::Source,
+    tf: TransferFunction,
+) -> Result<TransferFunction, String> {
+    if spec != AUTO {
+        return Ok(tf);
+    }
+    let hist = match source {
+        data::Source::Store(dir) => {
+            let store = tetwave_store::Store::open(dir).map_err(|e| e.to_string())?;
+            crate::render_cli::store_histogram(&store, None).map_err(|e| e.to_string())?
+        }
+        data::Source::Mesh(path) => {
+            let options = tetwave_import::clean::ImportOptions {
+                scalar: None,
+                field: None,
+                nan_as: None,
+            };
+            let (mesh, _) =
+                crate::render_cli::file_mesh(path, None, &options).map_err(|e| e.to_string())?;
+            ValueHistogram::of_mesh(&mesh)
+        }
+        data::Source::Url(_) => return Ok(tf),
+    };
+    Ok(tf.fitted(&hist))
+}
+
 /// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
 pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let start = |s: String| ViewError::Start(one_line(&s));
@@ -253,6 +286,7 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         ),
         e => start(format!("cannot start the viewer: {e}")),
     })?;
+    let tf = fit_auto(&args.tf, &source, tf).map_err(|e| start(format!("{}: {e}", args.source)))?;
     let data = data::Data::open(
         &source,
         args.token.clone(),
