@@ -199,15 +199,33 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
 /// a level-6 store of the heat sink fitted to its level 5, whose lattice does not resolve the fins,
 /// drew 31.3 dB from its source's image, 45.5 dB fitted to level 6.) `drawn`: a level's mesh
 /// already built, reused when it is the finest.
+///
+/// A store whose finest level has more than [`MOST_HISTOGRAM_LEAVES`] leaves is fitted to its
+/// finest vertices' samples instead ([`ValueHistogram::of_samples`]): building that level (100 M
+/// leaves at 257³) would cost more than the drawing.
 pub fn store_histogram(
     store: &Store,
     drawn: Option<(&RenderMesh, u8)>,
 ) -> Result<ValueHistogram, RenderCliError> {
+    let finest = store.base.levels;
     match drawn {
-        Some((mesh, l)) if l == store.base.levels => Ok(ValueHistogram::of_mesh(mesh)),
+        Some((mesh, l)) if l == finest => Ok(ValueHistogram::of_mesh(mesh)),
+        _ if store.base.forest().level_len(finest) > MOST_HISTOGRAM_LEAVES => {
+            let values = store.read_reference()?;
+            let levelset = store.read_levelset()?;
+            let [lo, hi] = store.manifest.display_value_range();
+            Ok(ValueHistogram::of_samples(
+                &values,
+                (lo, hi),
+                levelset.as_deref(),
+            ))
+        }
         _ => Ok(ValueHistogram::of_mesh(&store_mesh(store, None)?.0)),
     }
 }
+
+/// The most finest-level leaves [`store_histogram`] builds a store's mesh of.
+pub const MOST_HISTOGRAM_LEAVES: u64 = 1 << 21;
 
 /// Whether `tetwave render`'s input is a mesh file rather than a store directory: `--format`
 /// given, or not a directory and either a mesh extension or an existing file.

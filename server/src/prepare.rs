@@ -4,7 +4,7 @@ use crate::analysis::Analysis;
 use crate::analysis::{
     analyze_hierarchy, AnalysisError, ErrorBound, Precision, AXES_MAX_MAGNITUDE,
 };
-use crate::resample::levelset::{signed_distance, Domain};
+use crate::resample::levelset::signed_distance;
 use crate::resample::raw::{LatticeError, RawError, RawGrid, RawType, VoxelLattice};
 use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{
@@ -15,6 +15,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tetwave_import::{self as import, ImportError, MeshFormat};
+use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
 use tetwave_store::{
@@ -238,6 +239,15 @@ pub struct Summary {
     pub import: Option<CleanReport>,
 }
 
+/// The input's domain, where it is smaller than the semi-regular mesh.
+enum Domain {
+    /// An unstructured mesh's boundary surface (inside where a sample exists).
+    Mesh(BoundaryDistance),
+    /// A raw grid's box of voxels, inside a lattice that reaches past it (padding, whose samples
+    /// repeat the nearest voxel).
+    Box { lo: [f64; 3], hi: [f64; 3] },
+}
+
 /// What `prepare` reads from its input besides the samples.
 struct Loaded {
     source: Source,
@@ -343,6 +353,31 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
     Err(PrepareError::UnknownInput(o.input.clone()))
 }
 
+/// `--base auto` for a raw grid: the Kuhn boxes whose finest vertices are its voxels
+/// ([`VoxelLattice`]), their levels, and the voxels' box as the domain when the lattice pads.
+fn voxel_base(
+    g: &RawGrid,
+    levels: Option<u8>,
+) -> Result<(BaseSpec, u8, Option<Domain>), PrepareError> {
+    let fits = |tets, l| tetwave_protocol::Forest::new(tets, l).nodes() <= MAX_NODES;
+    let l = VoxelLattice::fit(g.dims, g.spacing, levels, fits)?;
+    let ([x, y, z], [px, py, pz], [cx, cy, cz]) = (g.dims, l.points, l.cells);
+    let pads = l.pads(g.dims);
+    tracing::info!(
+        "voxel-exact: the {x}×{y}×{z} voxels are vertices of {cx}×{cy}×{cz} Kuhn boxes refined \
+         {} times ({px}×{py}×{pz} points{})",
+        l.levels,
+        if pads { "; the padding is clipped" } else { "" }
+    );
+    let spec = BaseSpec::KuhnBoxes {
+        lo: [0.0; 3],
+        hi: l.hi,
+        cells: l.cells,
+    };
+    let (lo, hi) = g.bounds();
+    Ok((spec, l.levels, pads.then_some(Domain::Box { lo, hi })))
+}
+
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let t0 = Instant::now();
@@ -353,47 +388,20 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         source_range,
         boundary,
     } = load_source(o)?;
-    let (base, levels, mut domain) =
-        match (&o.base, &source) {
-            (BaseSpec::Auto, Source::Raw(g)) => {
-                let fits = |tets, l| tetwave_protocol::Forest::new(tets, l).nodes() <= MAX_NODES;
-                let l = VoxelLattice::fit(g.dims, g.spacing, o.levels, fits)?;
-                let [x, y, z] = g.dims;
-                let [px, py, pz] = l.points;
-                let [cx, cy, cz] = l.cells;
+    let (base, levels, domain) = match (&o.base, &source) {
+        (BaseSpec::Auto, Source::Raw(g)) => voxel_base(g, o.levels)?,
+        (spec, source) => {
+            if let Source::Raw(_) = source {
                 tracing::info!(
-                "voxel-exact: the {x}×{y}×{z} voxels are vertices of {cx}×{cy}×{cz} Kuhn boxes \
-                 refined {} times ({px}×{py}×{pz} points{})",
-                l.levels,
-                if l.pads(g.dims) { "; the padding is clipped" } else { "" }
-            );
-                let spec = BaseSpec::KuhnBoxes {
-                    lo: [0.0; 3],
-                    hi: l.hi,
-                    cells: l.cells,
-                };
-                let (lo, hi) = g.bounds();
-                (
-                    spec,
-                    l.levels,
-                    l.pads(g.dims).then_some(Domain::Box { lo, hi }),
-                )
-            }
-            (spec, source) => {
-                if let Source::Raw(_) = source {
-                    tracing::info!(
-                    "--base {}: the grid is resampled by trilinear interpolation (omit --base to \
-                     keep every voxel)",
+                    "--base {}: the grid is resampled by trilinear interpolation (omit --base \
+                     to keep every voxel)",
                     spec.name()
                 );
-                }
-                (
-                    spec.clone(),
-                    o.levels.unwrap_or(5),
-                    boundary.map(Domain::Mesh),
-                )
             }
-        };
+            let domain = boundary.map(Domain::Mesh);
+            (spec.clone(), o.levels.unwrap_or(5), domain)
+        }
+    };
     tracing::info!(input = %o.input, levels, "resampling");
     let mut r = resample(&source, &base, levels)?;
     let box6 = tetwave_protocol::axes::check_base(&r.base).is_ok();
@@ -419,21 +427,17 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let predictor = r.base.predictor;
     drop(source);
     let outside = r.outside;
-    // only an input with an outside (a mesh's, or a grid's padding) needs clipping: inside
-    // every vertex the level set is ≥ 0
-    if matches!(domain, Some(Domain::Mesh(_))) && outside == 0 {
-        domain = None;
-    }
-    let levelset = match domain {
-        Some(d) => {
+    // only an input with an outside needs clipping (inside, every vertex's level set is ≥ 0): a
+    // mesh's, whose level set is stored whole and as a near band; a grid's padding, whose level
+    // set is the voxels' box, which every reader computes from positions
+    let (levelset, levelset_near) = match domain {
+        Some(Domain::Mesh(b)) if outside > 0 => {
             tracing::info!(vertices = r.samples.len(), "level set of the domain");
-            Some(signed_distance(&r, &d)?)
+            let l = signed_distance(&r, &b)?;
+            (Some(l.values), Some(l.near))
         }
-        None => None,
-    };
-    let (levelset, levelset_near) = match levelset {
-        Some(l) => (Some(l.values), Some(l.near)),
-        None => (None, None),
+        Some(Domain::Box { lo, hi }) => (None, Some(NearLevelSet::of_box(lo, hi)?)),
+        _ => (None, None),
     };
     tracing::info!(vertices = r.samples.len(), outside, "analysing");
     let precision = match (o.bits, o.max_error) {

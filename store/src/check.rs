@@ -6,7 +6,7 @@
 //! - `block_index.bin` has `nblocks + 1` entries, starts at 0 and never decreases (checked by
 //!   [`StoreHead::decode`]), and its last entry is `blocks.bin`'s length;
 //! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it
-//!   (with `levelset_near.bin`: one without the other is refused);
+//!   (with `levelset_near.bin`: one without the other is refused, but for a box domain's band);
 //! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
 //!   subtree bound (the finest node level has none: its parent's stands in), and the blocks together own the manifest's coefficient count.
 //!
@@ -16,7 +16,7 @@
 use crate::{io_err, StoreError};
 use std::io::{BufReader, Read};
 use std::path::Path;
-use tetwave_protocol::store_format::{FormatError, StoreHead};
+use tetwave_protocol::store_format::{FormatError, StoreHead, LEVELSET_BAND_FILE};
 use tetwave_protocol::DetailNode;
 
 fn corrupt(dir: &Path, file: &str, reason: String) -> StoreError {
@@ -131,13 +131,22 @@ pub(crate) fn structure(
         expect_size(dir, "levelset.f32", vertices, 4, "vertices")?;
     }
     // a level set and its near band go together (clients clip with the band, renderers with the
-    // whole set: they must describe the same domain)
-    if m.files.contains_key("levelset.f32") != m.has_levelset_band() {
-        return Err(corrupt(
-            dir,
-            mpath,
-            "the manifest lists one of levelset.f32 and levelset_near.bin without the other".into(),
-        ));
+    // whole set: they must describe the same domain), except a box domain's band, from which
+    // every reader computes the level set
+    let whole = m.files.contains_key("levelset.f32");
+    if whole != m.has_levelset_band() {
+        let box_alone = !whole
+            && std::fs::read(dir.join(LEVELSET_BAND_FILE))
+                .is_ok_and(|b| b.len() == 56 && b[..8] == [0xff; 8]);
+        if !box_alone {
+            return Err(corrupt(
+                dir,
+                mpath,
+                "the manifest lists one of levelset.f32 and levelset_near.bin without the other \
+                 (only a box domain's band stands alone)"
+                    .into(),
+            ));
+        }
     }
     let bpath = dir.join("blocks.bin");
     let Some(len) = size_of(dir, "blocks.bin")? else {

@@ -6,7 +6,7 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::block::NodeBlock;
-use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::levelset::{box_signed_distance, NearLevelSet};
 use tetwave_protocol::store_format::{
     FormatError, Manifest, StoreFiles, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
     MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
@@ -286,10 +286,25 @@ impl Store {
     }
 
     /// The signed distance to the input domain's boundary at every finest-level vertex (by vertex
-    /// key; positive inside), when the store has one (`levelset.f32` listed in the manifest).
+    /// key; positive inside), when the store has one: `levelset.f32` when the manifest lists it,
+    /// else computed at every vertex's position when the near band is a box domain.
     pub fn read_levelset(&self) -> Result<Option<Vec<f32>>, StoreError> {
         if !self.manifest.files.contains_key("levelset.f32") {
-            return Ok(None);
+            let Some([lo, hi]) = self
+                .read_levelset_near()?
+                .and_then(|(_, near)| near.domain_box())
+            else {
+                return Ok(None);
+            };
+            let keys = self.base.vertex_keys();
+            let mut out = vec![0f32; keys.vertex_count() as usize];
+            for (entity, _) in keys.entities() {
+                keys.for_each_in(entity, |key, tet, w| {
+                    let p = self.base.position(tet, &w);
+                    out[key as usize] = box_signed_distance(lo, hi, p) as f32;
+                });
+            }
+            return Ok(Some(out));
         }
         let p = self.dir.join("levelset.f32");
         let b = std::fs::read(&p).map_err(io_err(&p))?;

@@ -249,7 +249,8 @@ pub struct StoreMeta {
     /// written as `levelset.f32`; `None` for inputs with no outside (a raw grid, a convex mesh).
     pub levelset: Option<Vec<f32>>,
     /// The level set's near band (what streaming clients clip with), written coded as
-    /// `levelset_near.bin`; present exactly when `levelset` is.
+    /// `levelset_near.bin`; present exactly when `levelset` is, or alone when it is a box domain
+    /// ([`NearLevelSet::of_box`]: a raw grid's padded lattice), whose level set readers compute.
     pub levelset_near: Option<NearLevelSet>,
     /// Written as `preview.bin` when given.
     pub preview: Option<PreviewNodes>,
@@ -366,6 +367,16 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     let path = dir.join(LEVELSET_BAND_FILE);
     match (&meta.levelset, &meta.levelset_near) {
         (Some(_), Some(near)) => {
+            let bytes = near.encode().map_err(|e| StoreError::Corrupt {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?;
+            let mut w = staged.create(LEVELSET_BAND_FILE)?;
+            w.put(&bytes)?;
+            files.insert(LEVELSET_BAND_FILE.into(), w.finish()?);
+        }
+        // a box domain: readers compute the level set from positions
+        (None, Some(near)) if near.domain_box().is_some() => {
             let bytes = near.encode().map_err(|e| StoreError::Corrupt {
                 path: path.clone(),
                 reason: e.to_string(),

@@ -215,10 +215,16 @@ fn a_level_set_and_source_range_read_back() {
     let mpath = d.path().join("manifest.json");
     let mut m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&mpath).unwrap()).unwrap();
+    let band = m["files"]["levelset_near.bin"].clone();
     m["files"]
         .as_object_mut()
         .unwrap()
         .remove("levelset_near.bin");
+    std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
+    refused(d.path(), "manifest.json", &["without the other"]);
+    // and a mesh's band without its level set too (only a box domain's band stands alone)
+    m["files"].as_object_mut().unwrap().remove("levelset.f32");
+    m["files"]["levelset_near.bin"] = band;
     std::fs::write(&mpath, serde_json::to_string(&m).unwrap()).unwrap();
     refused(d.path(), "manifest.json", &["without the other"]);
     // rewritten without a level set: no file, no range, the samples' range by default

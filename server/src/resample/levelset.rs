@@ -1,6 +1,5 @@
 //! The input domain's level set at the semi-regular vertices: the signed distance to the boundary
-//! of an unstructured input, or of a raw grid's voxels inside a padded lattice (positive inside,
-//! negative outside), stored with the store
+//! of an unstructured input (positive inside, negative outside), stored with the store
 //! (`levelset.f32`) so that renderers clip each tet's ray segment to where its linear
 //! interpolant is ≥ 0, recovering the boundary inside the tets that straddle it instead of
 //! drawing them whole.
@@ -19,7 +18,7 @@ use super::Resampled;
 use rayon::prelude::*;
 use tetwave_import::clean::BoundaryDistance;
 use tetwave_protocol::hierarchy::{Bary, LatticeTet, LevelWalker};
-use tetwave_protocol::levelset::{box_signed_distance, LevelSetError, NearLevelSet, FAR_OUTSIDE};
+use tetwave_protocol::levelset::{LevelSetError, NearLevelSet, FAR_OUTSIDE};
 
 /// The level set of a store: every vertex's value and the near band streaming clients need.
 pub struct LevelSet {
@@ -41,33 +40,13 @@ fn points(t: &LatticeTet, midpoints: bool) -> impl Iterator<Item = Bary> + '_ {
         .chain((0..mids).map(|e| t.edge_midpoint(e)))
 }
 
-/// The input's domain, where it is smaller than the semi-regular mesh.
-pub enum Domain {
-    /// An unstructured mesh's: inside where a sample exists (not `NaN`), at the distance to its
-    /// boundary surface.
-    Mesh(BoundaryDistance),
-    /// A raw grid's box of voxels `[lo, hi]`, inside a lattice that reaches past it (padding,
-    /// whose samples exist but are no data): the exact signed distance to the box.
-    Box { lo: [f64; 3], hi: [f64; 3] },
-}
-
-impl Domain {
-    /// `min(distance to the boundary, cap)` and whether `p` (vertex `key`) is inside.
-    fn distance_within(&self, r: &Resampled, key: usize, p: [f64; 3], cap: f64) -> (f64, bool) {
-        match self {
-            Domain::Mesh(b) => (b.distance_within(p, cap), !r.samples[key].is_nan()),
-            Domain::Box { lo, hi } => {
-                let d = box_signed_distance(*lo, *hi, p);
-                (d.abs().min(cap), d >= 0.0)
-            }
-        }
-    }
-}
-
 /// The domain's level set at every vertex of `r`'s hierarchy; the near band's values in steps of
 /// 1/32 of the smallest clamp (a finest vertex is an edge midpoint of a level-`L − 1` tet, so
 /// about two finest tets' diameter).
-pub fn signed_distance(r: &Resampled, domain: &Domain) -> Result<LevelSet, LevelSetError> {
+pub fn signed_distance(
+    r: &Resampled,
+    boundary: &BoundaryDistance,
+) -> Result<LevelSet, LevelSetError> {
     let base = &r.base;
     let keys = &r.keys;
     let forest = base.forest();
@@ -109,18 +88,10 @@ pub fn signed_distance(r: &Resampled, domain: &Domain) -> Result<LevelSet, Level
         keys.for_each_in(entity, |key, tet, w| {
             let p = base.position(tet, &w);
             let k = key as usize;
-            let (d, inside) = domain.distance_within(r, k, p, cap[k] as f64);
-            let d = d as f32;
-            out[(key - start) as usize] = if inside { d } else { -d };
+            let d = boundary.distance_within(p, cap[k] as f64) as f32;
+            out[(key - start) as usize] = if r.samples[k].is_nan() { -d } else { d };
         });
     });
-    if let Domain::Box { lo, hi } = domain {
-        // streaming clients compute the box's distance themselves: no band
-        return Ok(LevelSet {
-            values: out,
-            near: NearLevelSet::of_box(*lo, *hi)?,
-        });
-    }
     let finest = cap
         .iter()
         .copied()
@@ -214,7 +185,7 @@ mod tests {
         let source = Source::Mesh(Box::new(loc), bounds);
         let r = resample(&source, &BaseSpec::Box6, 3).unwrap();
         let b = BoundaryDistance::new(&mesh.points, &mesh.tets);
-        let set = signed_distance(&r, &Domain::Mesh(b)).unwrap();
+        let set = signed_distance(&r, &b).unwrap();
         let ls = &set.values;
         let fine_diam = 3f64.sqrt() / 8.0;
         let mut checked = 0;
