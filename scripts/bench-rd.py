@@ -609,7 +609,8 @@ def image_part(args, bindir, work):
             prep = prepare(bindir, raw, n, spacing, L, store, e, args.predictor, pv)
             sdir = os.path.join(d, f"stream-{tag}")
             st = stream(bindir, store, "view", sdir,
-                        ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0"],
+                        ["--frames", "100000", "--per-frame", str(per), "--size", size, "--tol", "0",
+                         "--tf", "default"],
                         ["--max-batch", str(args.image_max_batch)] if args.image_max_batch else [])
             frames = []
             for fr in st["frames"]:

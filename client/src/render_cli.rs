@@ -193,20 +193,25 @@ pub fn store_mesh(store: &Store, level: Option<u8>) -> Result<(RenderMesh, u8), 
     Ok((mesh, level))
 }
 
-/// The value histogram the `auto` transfer function of a store fits to: that of its finest level
-/// ([`ValueHistogram::of_mesh`], clipped to its level set), whatever level is drawn, so that every
-/// level and every local client draw a store with the same colours. (A coarser level is not enough:
-/// a level-6 store of the heat sink fitted to its level 5, whose lattice does not resolve the fins,
-/// drew 31.3 dB from its source's image, 45.5 dB fitted to level 6.) `drawn`: a level's mesh
-/// already built, reused when it is the finest.
+/// The value histogram the `auto` transfer function of a store fits to: the one its manifest
+/// records (its finest vertices' samples inside the domain, what every client of the store,
+/// streaming or not, fits to), whatever level is drawn, so that every level and every client draw
+/// a store with the same colours. (A coarser level is not enough: a level-6 store of the heat sink
+/// fitted to its level 5, whose lattice does not resolve the fins, drew 31.3 dB from its source's
+/// image, 45.5 dB fitted to level 6.)
 ///
-/// A store whose finest level has more than [`MOST_HISTOGRAM_LEAVES`] leaves is fitted to its
-/// finest vertices' samples instead ([`ValueHistogram::of_samples`]): building that level (100 M
-/// leaves at 257³) would cost more than the drawing.
+/// A store written before manifests recorded one: its finest level's
+/// ([`ValueHistogram::of_mesh`], clipped to its level set; `drawn`, a level's mesh already built,
+/// is reused when it is the finest), or past [`MOST_HISTOGRAM_LEAVES`] leaves its finest
+/// vertices' samples ([`ValueHistogram::of_samples`]): building that level (100 M leaves at 257³)
+/// would cost more than the drawing.
 pub fn store_histogram(
     store: &Store,
     drawn: Option<(&RenderMesh, u8)>,
 ) -> Result<ValueHistogram, RenderCliError> {
+    if let Some(h) = ValueHistogram::of_manifest(&store.manifest) {
+        return Ok(h);
+    }
     let finest = store.base.levels;
     match drawn {
         Some((mesh, l)) if l == finest => Ok(ValueHistogram::of_mesh(mesh)),

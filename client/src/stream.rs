@@ -66,7 +66,10 @@ pub struct StreamArgs {
     pub psnr: bool,
     #[arg(long, default_value = "256x256", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),
-    #[arg(long, default_value = "default")]
+    /// Transfer function: `auto` (the `default` preset fitted to the store's value histogram, as
+    /// `tetwave render` fits it; the preset itself for a store without one), a preset
+    /// (default, transparent, opaque, shells) or a .json file.
+    #[arg(long, default_value = "auto")]
     pub tf: String,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,
@@ -132,7 +135,7 @@ impl StreamArgs {
             tol: "0".into(),
             psnr: false,
             size: (256, 256),
-            tf: "default".into(),
+            tf: "auto".into(),
             camera: Default::default(),
             token: None,
             frame_ms: 30,
@@ -281,6 +284,9 @@ pub struct StreamReport {
     pub clipped: bool,
     /// Why a store's level set could not be had, when it could not.
     pub levelset_error: Option<String>,
+    /// The transfer function drawn with (`auto` fitted to the manifest's histogram, once the
+    /// session started), as a `--tf` .json file holds it.
+    pub tf: TransferFunction,
 }
 
 /// Sorted, merged id ranges of a set.
@@ -832,7 +838,9 @@ pub struct Streamed {
 
 /// [`run`] with injected transport faults, returning the final mesh (tests).
 pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, StreamError> {
-    let tf = TransferFunction::load(&args.tf)?;
+    // `auto` is fitted to the manifest's histogram when the session starts (the preset until then)
+    let mut tf = TransferFunction::load(&args.tf)?;
+    let fitted = std::cell::RefCell::new(None);
     let tol_spec = args.tol.trim();
     let tol = if tol_spec == "0" || tol_spec == "0px" {
         None
@@ -957,14 +965,21 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             got_any = true;
             bytes_applied += nbytes;
             let start = |b: BaseMesh, m: &Manifest| {
+                let tf = TransferFunction::for_manifest(&args.tf, m)
+                    .map_err(|e| StreamError::Protocol(e.to_string()))?;
                 let mut params =
                     SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
                 args.select
                     .apply(&mut params, &tf, m.display_value_range(), &b);
+                *fitted.borrow_mut() = Some(tf);
                 Session::new(b, params)
                     .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
             };
-            match ingest.apply(msg, &mut state, start, &out_tx) {
+            let step = ingest.apply(msg, &mut state, start, &out_tx);
+            if let Some(t) = fitted.borrow_mut().take() {
+                tf = t;
+            }
+            match step {
                 Ok(Step::Nodes {
                     nodes,
                     duplicates: d,
@@ -1146,6 +1161,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         first_frame_ms,
         clipped,
         levelset_error: ingest.levelset_error().map(str::to_owned),
+        tf,
     };
     Ok(Streamed {
         report,

@@ -162,6 +162,38 @@ pub struct Manifest {
     /// session first so that a thin link shows a whole volume early; `None` without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub preview: Option<Preview>,
+    /// How the finest vertices inside the domain spread over the display value range
+    /// ([`Manifest::display_value_range`]), each weighed by the volume it stands for (its home
+    /// base tet's, in units of the smallest base tet's, rounded): [`HISTOGRAM_BINS`] equal bins
+    /// (values outside the range in the end bins). What a renderer fits its default transfer function to
+    /// (`--tf auto`); `None` in stores written before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub value_histogram: Option<Vec<u64>>,
+}
+
+/// Bins of [`Manifest::value_histogram`].
+pub const HISTOGRAM_BINS: usize = 256;
+
+/// `values` weighed into [`HISTOGRAM_BINS`] equal bins of `range` (values outside it in the end
+/// bins): value `k` adds `weight(k)` (0: left out, e.g. outside the domain); non-finite values are
+/// left out.
+pub fn value_histogram(values: &[f32], range: [f32; 2], weight: impl Fn(usize) -> u64) -> Vec<u64> {
+    let n = HISTOGRAM_BINS;
+    let mut counts = vec![0u64; n];
+    let (lo, hi) = (range[0] as f64, range[1] as f64);
+    for (k, &v) in values.iter().enumerate() {
+        let w = weight(k);
+        if !v.is_finite() || w == 0 {
+            continue;
+        }
+        let s = if hi > lo {
+            (v as f64 - lo) / (hi - lo)
+        } else {
+            0.5
+        };
+        counts[((s * n as f64).floor().max(0.0) as usize).min(n - 1)] += w;
+    }
+    counts
 }
 
 /// The store file holding the preview's nodes ([`Preview`]).

@@ -59,6 +59,7 @@ pub fn manifest_for(base: &BaseMesh) -> crate::store_format::Manifest {
         max_abs_error: 0.0,
         files: Default::default(),
         preview: None,
+        value_histogram: None,
     }
 }
 

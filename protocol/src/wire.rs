@@ -25,7 +25,7 @@ pub use start::SessionStart;
 /// `Preview` batches, `Hello.previewed`. 10: `Hello.previewed` names the preview nodes held (a
 /// cut preview resumes where it stopped); the session starts with one `Start` frame, the manifest
 /// and the base mesh, a named box's corners once ([`start`]).
-pub const PROTOCOL_VERSION: u16 = 10;
+pub const PROTOCOL_VERSION: u16 = 11;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -329,6 +329,7 @@ mod tests {
                 max_abs_error: 0.0,
                 files: Default::default(),
                 preview: None,
+                value_histogram: None,
             };
             let (positions, tets) = crate::shapes::box5([0.0; 3], [1.0; 3]);
             let base = BaseMesh {

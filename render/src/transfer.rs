@@ -8,6 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use tetwave_protocol::store_format::{value_histogram, Manifest};
 use tetwave_protocol::view::{ImageCriterion, Sensitivity, SENSITIVITY_BINS};
 use tetwave_protocol::BaseMesh;
 
@@ -90,6 +91,12 @@ impl TransferFunction {
                 .fitted(h)),
             _ => Self::load(spec),
         }
+    }
+
+    /// [`Self::load_with`] a store manifest's histogram ([`ValueHistogram::of_manifest`]): what
+    /// every client of a store draws with, streaming or not.
+    pub fn for_manifest(spec: &str, m: &Manifest) -> Result<Self, TfError> {
+        Self::load_with(spec, ValueHistogram::of_manifest(m).as_ref())
     }
 
     /// This transfer function fitted to a dataset whose normalized values have the volume
@@ -325,7 +332,7 @@ pub struct ValueHistogram {
 
 impl ValueHistogram {
     /// Bins of [`Self::of_mesh`].
-    pub const BINS: usize = 256;
+    pub const BINS: usize = tetwave_protocol::store_format::HISTOGRAM_BINS;
 
     /// The histogram of a render mesh's scalar (normalized by its `value_range`) over its volume:
     /// each tet's volume in four equal parts at the points of the degree-2 Gauss rule (barycentric
@@ -373,24 +380,22 @@ impl ValueHistogram {
     /// semi-regular lattice, whose finest vertices are evenly spread, close to [`Self::of_mesh`]
     /// of its finest level without building it (a 257³ store's 100 M leaves).
     pub fn of_samples(values: &[f32], value_range: (f32, f32), levelset: Option<&[f32]>) -> Self {
-        let bins = Self::BINS;
-        let mut weights = vec![0.0f64; bins];
-        let (lo, hi) = (value_range.0 as f64, value_range.1 as f64);
-        for (k, &v) in values.iter().enumerate() {
-            if levelset.is_some_and(|l| l.get(k).is_some_and(|&x| x < 0.0)) {
-                continue;
-            }
-            let s = if hi > lo {
-                (v as f64 - lo) / (hi - lo)
-            } else {
-                0.5
-            };
-            if !s.is_finite() {
-                continue;
-            }
-            weights[((s * bins as f64).floor().max(0.0) as usize).min(bins - 1)] += 1.0;
+        let inside = |k: usize| levelset.is_none_or(|l| l.get(k).is_none_or(|&x| x >= 0.0));
+        let range = [value_range.0, value_range.1];
+        Self::of_counts(&value_histogram(values, range, |k| inside(k) as u64))
+    }
+
+    /// Bin counts, e.g. a store manifest's [`Manifest::value_histogram`] (its vertex samples,
+    /// as [`Self::of_samples`] counts them).
+    pub fn of_counts(counts: &[u64]) -> Self {
+        ValueHistogram {
+            weights: counts.iter().map(|&c| c as f64).collect(),
         }
-        ValueHistogram { weights }
+    }
+
+    /// The histogram a manifest records, if any.
+    pub fn of_manifest(m: &Manifest) -> Option<Self> {
+        m.value_histogram.as_deref().map(Self::of_counts)
     }
 
     /// The `q`-quantile of the normalized scalar (`q` in `[0, 1]`): the inverse of the cumulative

@@ -22,6 +22,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
+use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::BaseMesh;
 use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
@@ -34,8 +35,9 @@ use tetwave_store::Store;
 
 /// Largest image side.
 pub const MAX_SIDE: u32 = 4096;
-/// Transfer-function presets `/v1/render` accepts (never a file path).
-pub const TF_PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
+/// Transfer functions `/v1/render` accepts (never a file path): `auto` (the default preset fitted
+/// to the store's value histogram, as every client fits it) and the presets.
+pub const TF_PRESETS: [&str; 5] = ["auto", "default", "transparent", "opaque", "shells"];
 
 /// Which renderer a request asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -158,7 +160,7 @@ impl RenderParams {
         if level.is_some() && tol.is_some() {
             return Err("give `level` or `tol`, not both".into());
         }
-        let tf = q.get("tf").cloned().unwrap_or_else(|| "default".into());
+        let tf = q.get("tf").cloned().unwrap_or_else(|| "auto".into());
         if !TF_PRESETS.contains(&tf.as_str()) {
             return Err(format!(
                 "unknown transfer function {tf:?} (presets: {})",
@@ -377,8 +379,8 @@ impl RenderService {
         let (store, values, empty, levelset) = self.data().map_err(internal)?;
         let base = &store.base;
         let level = p.level_for(base);
-        let tf = TransferFunction::preset(&p.tf)
-            .ok_or_else(|| (StatusCode::BAD_REQUEST, format!("unknown tf {:?}", p.tf)))?;
+        let tf = TransferFunction::for_manifest(&p.tf, &store.manifest)
+            .map_err(|e| (StatusCode::BAD_REQUEST, e.to_string()))?;
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         if cancel.load(Ordering::Relaxed) {
             return Err(cancelled());
@@ -531,15 +533,16 @@ fn lower_priority() {
     }
 }
 
-/// The fallback viewer page (`GET /`) for `dataset`: one self-contained HTML document, with a
-/// colour legend (the dataset's name, the value range the transfer functions span, and the
-/// chosen preset's colours across it).
-pub fn page_html(dataset: &str, range: [f32; 2]) -> String {
+/// The fallback viewer page (`GET /`) for the store of manifest `m`: one self-contained HTML
+/// document, with a colour legend (the dataset's name, the value range the transfer functions
+/// span, and the chosen one's colours across it; `auto`, fitted to the store's histogram, first).
+pub fn page_html(m: &Manifest) -> String {
     use tetwave_render::legend::{css_gradient, legend_text};
-    let gradients: Vec<String> = tetwave_render::transfer::PRESETS
-        .split(", ")
+    let (dataset, range) = (m.dataset.as_str(), m.display_value_range());
+    let gradients: Vec<String> = TF_PRESETS
+        .iter()
         .filter_map(|name| {
-            let tf = TransferFunction::preset(name)?;
+            let tf = TransferFunction::for_manifest(name, m).ok()?;
             Some(format!("{name:?}: {:?}", css_gradient(&tf, 17)))
         })
         .collect();
@@ -572,7 +575,7 @@ const PAGE: &str = r#"<!doctype html>
 <div id="legend"><div id="lbar"></div><span id="ltext">{{LEGEND}}</span></div>
 <p>
  <label>tolerance <input id="tol" type="range" min="0" max="64" step="0.5" value="2"> <span id="tolv">2</span> px</label>
- <label>transfer function <select id="tf"><option>default</option><option>transparent</option><option>opaque</option><option>shells</option></select></label>
+ <label>transfer function <select id="tf"><option>auto</option><option>default</option><option>transparent</option><option>opaque</option><option>shells</option></select></label>
 </p>
 <p id="info">drag to orbit</p>
 <script>

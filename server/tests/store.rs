@@ -278,10 +278,12 @@ proptest! {
         o.grid.dims = Some([n, n, n]);
         o.grid.dtype = "f32".into();
         o.levels = Some(levels);
-        if box6 {
-            // the axes predictor (`--predictor auto` on a box6 grid)
-            o.base = tetwave_server::resample::BaseSpec::Box6;
-        }
+        // the axes predictor (`--predictor auto` on a box6 grid), or the parent's on box5
+        o.base = if box6 {
+            tetwave_server::resample::BaseSpec::Box6
+        } else {
+            tetwave_server::resample::BaseSpec::Box5
+        };
         let frac = 10f64.powf(exp);
         let bound = if pct { ErrorBound::OfRange(frac) } else { ErrorBound::Absolute(frac * scale) };
         o.max_error = Some(bound);

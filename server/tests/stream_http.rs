@@ -305,8 +305,15 @@ async fn page_has_a_legend_with_the_name_the_range_and_the_colours() {
         html.contains(&format!("<span id=\"ltext\">{line}</span>")),
         "{line}"
     );
-    for name in ["default", "transparent", "opaque", "shells"] {
-        let tf = TransferFunction::preset(name).unwrap();
+    // `auto` fitted to the store's histogram, first in the list, then the presets
+    assert!(m.value_histogram.is_some());
+    let auto = TransferFunction::for_manifest("auto", &m).unwrap();
+    assert_eq!(auto.name, "auto");
+    assert!(html.contains("<select id=\"tf\"><option>auto</option>"));
+    for (name, tf) in [("auto", auto)].into_iter().chain(
+        ["default", "transparent", "opaque", "shells"]
+            .map(|n| (n, TransferFunction::preset(n).unwrap())),
+    ) {
         let g = tetwave_render::legend::css_gradient(&tf, 17);
         assert!(html.contains(&format!("\"{name}\": \"{g}\"")), "{name}");
     }

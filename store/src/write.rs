@@ -5,9 +5,9 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
-use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::levelset::{box_signed_distance, NearLevelSet};
 use tetwave_protocol::store_format::{
-    Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, PREVIEW_FILE,
+    value_histogram, Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, PREVIEW_FILE,
 };
 use tetwave_protocol::wavelet::{LevelSteps, Quantizer};
 use tetwave_protocol::{BaseMesh, DetailNode};
@@ -433,6 +433,16 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         }
     };
 
+    let value_range = [a.value_range.0, a.value_range.1];
+    let source_value_range = meta.source_value_range.map(|(lo, hi)| [lo, hi]);
+    let value_histogram = Some(histogram_inside(
+        a,
+        meta.levelset.as_deref(),
+        meta.levelset_near
+            .as_ref()
+            .and_then(NearLevelSet::domain_box),
+        source_value_range.unwrap_or(value_range),
+    ));
     let (lo, hi) = a.base.bounds();
     let manifest = Manifest {
         format: STORE_FORMAT.into(),
@@ -444,8 +454,8 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         base_tets: a.base.tets.len() as u64,
         base_vertices: a.base.positions.len() as u64,
         levels: a.base.levels,
-        value_range: [a.value_range.0, a.value_range.1],
-        source_value_range: meta.source_value_range.map(|(lo, hi)| [lo, hi]),
+        value_range,
+        source_value_range,
         counts: Counts {
             tets_total: forest.total_tets(),
             leaves: forest.leaves(),
@@ -460,8 +470,46 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         max_abs_error: a.max_abs_error,
         files,
         preview,
+        value_histogram,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
     staged.commit(&text)?;
     Ok(manifest)
+}
+
+/// The manifest's value histogram: the samples of the vertices inside the domain (level set ≥ 0,
+/// from the whole level set or a box domain's distance at each vertex) over `range`, each weighed
+/// by its home base tet's volume in units of the smallest one's (rounded, at least 1): the finest
+/// vertices are spread evenly through each base tet, and base tets differ in volume (box5's
+/// central tet is twice a corner tet), so a count alone would misweigh them.
+fn histogram_inside(
+    a: &StoreContent<'_>,
+    levelset: Option<&[f32]>,
+    domain_box: Option<[[f64; 3]; 2]>,
+    range: [f32; 2],
+) -> Vec<u64> {
+    let base = a.base;
+    let volume = |t: &[u32; 4]| {
+        let p = |k: usize| base.positions[t[k] as usize];
+        tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
+    };
+    let volumes: Vec<f64> = base.tets.iter().map(volume).collect();
+    let smallest = volumes
+        .iter()
+        .copied()
+        .filter(|v| *v > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let keys = base.vertex_keys();
+    let mut weight = vec![0u32; a.reference.len()];
+    for (entity, _) in keys.entities() {
+        keys.for_each_in(entity, |key, tet, w| {
+            let inside = levelset.is_none_or(|l| l[key as usize] >= 0.0)
+                && domain_box.is_none_or(|[lo, hi]| {
+                    box_signed_distance(lo, hi, base.position(tet, &w)) >= 0.0
+                });
+            let units = (volumes[tet as usize] / smallest).round().clamp(1.0, 1e9);
+            weight[key as usize] = if inside { units as u32 } else { 0 };
+        });
+    }
+    value_histogram(a.reference, range, |k| weight[k] as u64)
 }

@@ -130,7 +130,14 @@ fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
     let mut unclipped_leaks = 0;
     for (az, el) in [(35.0, 25.0), (215.0, 20.0), (125.0, -30.0)] {
         let (az_arg, el_arg) = (format!("--azimuth={az}"), format!("--elevation={el}"));
-        let view = [az_arg.as_str(), el_arg.as_str(), "--reference"];
+        // one transfer function for both (each `auto` would fit its own data)
+        let view = [
+            az_arg.as_str(),
+            el_arg.as_str(),
+            "--reference",
+            "--tf",
+            "default",
+        ];
         // `tetwave render` of both (PNG, RGB): the same default value range, and the PSNR
         let (orig_png, rm) = render_png(&mesh, &d.path().join("m.png"), SIZE, &view);
         let (cpu_png, rs) = render_png(&store, &d.path().join("s.png"), SIZE, &view);
@@ -153,6 +160,7 @@ fn store_of_a_nonconvex_mesh_is_clipped_to_its_domain() {
                 ("azimuth", az.to_string()),
                 ("elevation", el.to_string()),
                 ("renderer", renderer.to_string()),
+                ("tf", "default".to_string()),
             ]
             .into_iter()
             .map(|(k, v)| (k.to_string(), v))

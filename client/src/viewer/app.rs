@@ -77,6 +77,8 @@ pub struct ViewerApp {
     tf: TransferFunction,
     /// The preset the transfer function is, if it is one (the server knows only presets).
     tf_preset: Option<String>,
+    /// `--tf auto` on a stream: fitted to the manifest's histogram once the session starts.
+    auto_pending: bool,
     tol: f64,
     mode: ViewMode,
     orbit: Orbit,
@@ -185,6 +187,7 @@ impl ViewerApp {
             args.tf.as_str()
         };
         let tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
+        let auto_pending = args.tf == AUTO && data.server().is_some();
         let orbit = Orbit {
             target: glam::DVec3::ZERO,
             azimuth: args.camera.azimuth,
@@ -201,6 +204,7 @@ impl ViewerApp {
             data,
             tf,
             tf_preset,
+            auto_pending,
             orbit,
             fly: None,
             home: None,
@@ -638,6 +642,17 @@ impl ViewerApp {
         }
         self.data.send_view(&cam, self.tol);
         let mut converged = true;
+        if self.auto_pending {
+            if let Some(m) = self.data.remote_manifest() {
+                self.auto_pending = false;
+                if let Ok(tf) = TransferFunction::for_manifest(AUTO, m) {
+                    // the server fits `auto` to the same histogram: its images match
+                    self.tf_preset = Some(tf.name.clone());
+                    self.tf = tf;
+                    self.image_dirty = true;
+                }
+            }
+        }
         self.data.follow_tf(&self.tf);
         if let Some(s) = self.data.session.as_mut() {
             s.set_tolerance(Tolerance::Pixels(tol));

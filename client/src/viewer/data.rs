@@ -256,6 +256,14 @@ impl Data {
         }
     }
 
+    /// A stream's manifest, once its session has started.
+    pub fn remote_manifest(&self) -> Option<&Manifest> {
+        match &self.kind {
+            Kind::Remote(r) => r.ingest.manifest(),
+            _ => None,
+        }
+    }
+
     /// The server's HTTP address, for a stream.
     pub fn server(&self) -> Option<&str> {
         match &self.kind {

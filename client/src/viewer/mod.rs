@@ -78,7 +78,8 @@ pub struct ViewArgs {
     #[arg(long, default_value = "640x480", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),
     /// Transfer function: `auto` (a store or a mesh file: the `default` preset fitted to its data
-    /// as `tetwave render --tf auto` fits it; a server's stream: `default`), a preset (default,
+    /// as `tetwave render --tf auto` fits it; a server's stream: fitted to the histogram its
+    /// manifest carries, as the server's own images are), a preset (default,
     /// transparent, opaque, shells) or a .json file.
     #[arg(long, default_value = "auto")]
     pub tf: String,
@@ -235,7 +236,7 @@ fn one_line(s: &str) -> String {
 
 /// `tf` (loaded from `spec`) fitted to the source's data when `spec` is `auto` and the source is
 /// a store or a mesh file, as `tetwave render` fits it (the same histogram, so the same colours);
-/// a server's stream has no histogram and keeps `tf`, the `default` preset.
+/// a server's stream is fitted once its manifest arrives (the viewer's frame loop).
 fn fit_auto(
     spec: &str,
     source: &data::Source,

@@ -9,7 +9,8 @@
 use crate::base::Points;
 use crate::hierarchy::{Forest, MAX_LEVELS};
 use crate::store_format::{
-    Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, STORE_FORMAT, STORE_VERSION,
+    Counts, Encoding, FileSum, Manifest, Preview, HISTOGRAM_BINS, LEVELSET_BAND_FILE, STORE_FORMAT,
+    STORE_VERSION,
 };
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -41,6 +42,7 @@ struct Wire {
     max_abs_error: f64,
     levelset_band: Option<FileSum>,
     preview: Option<Preview>,
+    value_histogram: Option<Vec<u64>>,
 }
 
 pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
@@ -67,6 +69,7 @@ pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
         max_abs_error: m.max_abs_error,
         levelset_band: m.files.get(LEVELSET_BAND_FILE).cloned(),
         preview: m.preview.clone(),
+        value_histogram: m.value_histogram.clone(),
     }
     .serialize(s)
 }
@@ -96,6 +99,14 @@ pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Box<Manifest>, D::
     if let Some(p) = &w.preview {
         p.check(w.levels)
             .map_err(|e| D::Error::custom(format!("manifest: {e}")))?;
+    }
+    if let Some(h) = &w.value_histogram {
+        if h.len() != HISTOGRAM_BINS {
+            return Err(D::Error::custom(format!(
+                "manifest: a value histogram of {} bins, not {HISTOGRAM_BINS}",
+                h.len()
+            )));
+        }
     }
     let bounds = match Points::into_f64(w.bounds)[..] {
         [lo, hi] => [lo, hi],
@@ -135,6 +146,7 @@ pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Box<Manifest>, D::
             .into_iter()
             .collect(),
         preview: w.preview,
+        value_histogram: w.value_histogram,
     }))
 }
 
@@ -189,6 +201,7 @@ mod tests {
                 levels: 4,
                 max_error_bound: 0.1,
             }),
+            value_histogram: Some((0..HISTOGRAM_BINS as u64).map(|k| k * k).collect()),
         }
     }
 
@@ -212,9 +225,10 @@ mod tests {
         want.source.clear();
         want.files.retain(|n, _| n == LEVELSET_BAND_FILE);
         assert_eq!(back.unwrap(), want);
-        // without a preview: under half the whole manifest's bincode
+        // without a preview and a histogram: under half the whole manifest's bincode
         let mut m = store_manifest();
         m.preview = None;
+        m.value_histogram = None;
         let (_, len) = round_trip(&m);
         let whole = bincode::serde::encode_to_vec(&m, bincode::config::standard())
             .unwrap()
@@ -244,5 +258,13 @@ mod tests {
             let err = back.expect_err("refused");
             assert!(err.contains("levels") || err.contains("overflow"), "{err}");
         }
+    }
+
+    #[test]
+    fn a_histogram_of_another_bin_count_is_refused() {
+        let mut m = store_manifest();
+        m.value_histogram = Some(vec![1; HISTOGRAM_BINS + 1]);
+        let err = round_trip(&m).0.expect_err("refused");
+        assert!(err.contains("bins"), "{err}");
     }
 }

@@ -137,6 +137,7 @@ mod tests {
             max_abs_error: 0.004,
             files: Default::default(),
             preview: None,
+            value_histogram: None,
         }
     }
 

@@ -298,7 +298,7 @@ async fn render(
 /// `GET /`: the fallback viewer page.
 async fn page(State(s): State<Arc<Shared>>) -> Response {
     let m = &s.store.manifest;
-    let html = render_service::page_html(&m.dataset, m.display_value_range());
+    let html = render_service::page_html(m);
     ([(header::CACHE_CONTROL, "no-store")], Html(html)).into_response()
 }
 
