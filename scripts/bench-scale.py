@@ -201,6 +201,8 @@ def main():
     ap.add_argument("--view", default="", help="a case (e.g. harmonic-l8-0.1pc) to orbit in `tetwave view` under Xvfb")
     ap.add_argument("--view-max-tets", default="default,300000", help="--max-tets of each view run")
     ap.add_argument("--view-motion-lod", action="store_true", help="view runs with --motion-lod too")
+    ap.add_argument("--view-motion-tets", default="0,4000",
+                    help="--motion-tets of each view run (0: the whole leaf mesh in motion too)")
     ap.add_argument("--out", default="out/bench-scale")
     a = ap.parse_args()
 
@@ -288,10 +290,11 @@ def main():
             json.dump(steps, f)
         srv, _ = view_server(bindir, store, os.path.join(work, "view-serve.log"))
         try:
-            runs = [(mt, False) for mt in a.view_max_tets.split(",")]
+            runs = [(mt, False, mot) for mt in a.view_max_tets.split(",")
+                    for mot in a.view_motion_tets.split(",")]
             if a.view_motion_lod:
-                runs.append(("default", True))
-            for mt, lod in runs:
+                runs.append(("default", True, "0"))
+            for mt, lod, mot in runs:
                 cmd = ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24", client, "view",
                        f"http://127.0.0.1:{srv.port}", "--size", a.size, "--tol", a.tol, "--script", script,
                        "--json"]
@@ -299,12 +302,18 @@ def main():
                     cmd += ["--max-tets", mt]
                 if lod:
                     cmd += ["--motion-lod"]
+                cmd += ["--motion-tets", mot]
                 out, wall, rss, killed = run_measured(cmd, f"view {a.view}",
-                                                      os.path.join(work, f"view-{mt}{'-lod' if lod else ''}"),
+                                                      os.path.join(work, f"view-{mt}-{mot}{'-lod' if lod else ''}"),
                                                       timeout=120)
                 r = json.loads([l for l in out.splitlines() if l.startswith("{")][-1])
                 p = r["perf"]
-                emit({"run": "view", "case": a.view, "max_tets": mt, "motion_lod": lod, "leaf_budget": r["leaf_budget"],
+                emit({"run": "view", "case": a.view, "max_tets": mt, "motion_lod": lod, "motion_tets": int(mot),
+                      "tets_in_motion_p95": p["tets_drawn_in_motion"]["p95"],
+                      "frame_ms_in_motion_p50": round(p["frame_ms_in_motion"]["p50"], 1),
+                      "frame_ms_in_motion_p95": round(p["frame_ms_in_motion"]["p95"], 1),
+                      "paint_drawn_ms_p95": round(p["paint_drawn_ms"]["p95"], 1),
+                      "leaf_budget": r["leaf_budget"],
                       "max_leaves": r["max_leaves"], "frames_budget_bound": r["frames_budget_bound"],
                       "frames": r["frames"], "frame_ms_p50": round(p["frame_ms"]["p50"], 1),
                       "frame_ms_p95": round(p["frame_ms"]["p95"], 1), "frame_ms_max": round(p["frame_ms"]["max"], 1),

@@ -15,6 +15,17 @@ pub fn leaf_mesh(
     value_range: [f32; 2],
     levelset: Option<&NearLevelSet>,
 ) -> RenderMesh {
+    tets_mesh(mesh, &mesh.drawable_leaf_tets(), value_range, levelset)
+}
+
+/// [`leaf_mesh`] of the tets `tets` of `mesh` (its vertex slots), e.g. the coarsened leaf mesh
+/// drawn in motion ([`AdaptiveMesh::coarse_leaf_tets`]).
+pub fn tets_mesh(
+    mesh: &AdaptiveMesh,
+    tets: &[crate::mesh::LeafTet],
+    value_range: [f32; 2],
+    levelset: Option<&NearLevelSet>,
+) -> RenderMesh {
     debug_assert!(
         mesh.values_current(),
         "values drawn before AdaptiveMesh::refresh_values (Session::frame does it)"
@@ -24,7 +35,7 @@ pub fn leaf_mesh(
         .iter()
         .map(|p| p.map(|x| x as f64))
         .collect();
-    let tets = mesh.drawable_leaf_tets().iter().map(|t| t.v).collect();
+    let tets = tets.iter().map(|t| t.v).collect();
     let mut m = RenderMesh::new(positions, tets, mesh.values().to_vec());
     m.value_range = (value_range[0], value_range[1]);
     if let Some(near) = levelset {

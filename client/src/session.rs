@@ -239,6 +239,22 @@ impl Session {
         crate::draw::leaf_mesh(&self.mesh, value_range, self.levelset.as_ref())
     }
 
+    /// The leaf mesh coarsened to at most `most` tets to draw while the camera moves
+    /// ([`AdaptiveMesh::coarse_leaf_tets`]); `None` when the leaf mesh has no more than that.
+    pub fn motion_mesh(&self, value_range: [f32; 2], most: usize) -> Option<RenderMesh> {
+        let (_, drawable) = self.mesh.piece_counts();
+        if drawable <= most {
+            return None;
+        }
+        let tets = self.mesh.coarse_leaf_tets(most);
+        Some(crate::draw::tets_mesh(
+            &self.mesh,
+            &tets,
+            value_range,
+            self.levelset.as_ref(),
+        ))
+    }
+
     /// Clips every mesh drawn from now on to the domain's level set (its near band, as
     /// `/v1/levelset` serves it).
     pub fn set_levelset(&mut self, near: NearLevelSet) {

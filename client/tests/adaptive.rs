@@ -810,3 +810,61 @@ fn ids_past_32_bits_round_trip() {
     }
     assert!(mesh.is_leaf(0));
 }
+
+/// The leaf mesh merged for drawing in motion ([`AdaptiveMesh::coarse_leaf_tets`]): on a mesh
+/// refined in one corner only (red leaves of several levels and green pieces), every budget gives
+/// positively oriented tets over the mesh's own vertices that fill the same volume, at most the
+/// budget's count when the base mesh fits it, and the leaf mesh itself when that fits.
+#[test]
+fn coarse_leaf_tets_fill_the_domain_within_the_budget() {
+    let data = make_data(box5(4), 0);
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut arr = Arrivals::default();
+    for n in &data.nodes {
+        buf.insert(n, &mut arr).unwrap();
+    }
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
+    mesh.apply_arrivals(&buf, &arr);
+    mesh.refresh_values(&buf);
+    // refine near the corner 000, deeper the closer
+    for round in 0..4 {
+        for id in mesh.leaf_ids() {
+            if !mesh.is_leaf(id) || forest.level(id) >= forest.levels {
+                continue;
+            }
+            let lt = mesh.lattice_of(id);
+            let c = lt.v.map(|w| data.base.position(lt.base, &w));
+            let centre: f64 = (0..3)
+                .map(|a| (0..4).map(|k| c[k][a]).sum::<f64>() / 4.0)
+                .sum();
+            if centre < 1.2 / (round + 1) as f64 {
+                mesh.refine(id, &buf).unwrap();
+            }
+        }
+    }
+    let all = mesh.drawable_leaf_tets();
+    assert!(all.iter().any(|t| t.green), "the closure made green pieces");
+    let p = mesh.positions();
+    let volume = |t: &tetwave_client::mesh::LeafTet| {
+        let q = t.v.map(|s| p[s as usize].map(|x| x as f64));
+        tetwave_protocol::base::signed_volume(q[0], q[1], q[2], q[3])
+    };
+    let whole: f64 = all.iter().map(volume).sum();
+    assert!((whole - 1.0).abs() < 1e-9, "{whole}");
+    for most in [all.len(), all.len() / 2, 200, 40, 5, 1] {
+        let coarse = mesh.coarse_leaf_tets(most);
+        if most >= all.len() {
+            assert_eq!(coarse, all);
+        }
+        if most >= 5 {
+            assert!(coarse.len() <= most, "{} tets for {most}", coarse.len());
+        }
+        let v: f64 = coarse.iter().map(volume).sum();
+        assert!((v - 1.0).abs() < 1e-9, "{most}: volume {v}");
+        for t in &coarse {
+            assert!(volume(t) > 0.0, "{most}: {t:?}");
+        }
+        eprintln!("budget {most}: {} of {} tets", coarse.len(), all.len());
+    }
+}

@@ -1071,3 +1071,53 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     assert_eq!(r["perf"]["frames_drawn_scaled"], 0, "{r}");
     assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }
+
+/// `--motion-tets 400` with draws slower than `--motion-ms`: the frames drawn while the camera
+/// moves draw the leaf mesh merged to at most 400 tets (from 2,560), and at rest the whole leaf
+/// mesh again, matching the offscreen render.
+#[test]
+fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let shot = dir.join("rest.png");
+    let mut steps = vec![serde_json::json!({"wait": "complete"})];
+    for _ in 0..10 {
+        steps.push(serde_json::json!({"orbit": 3}));
+        steps.push(serde_json::json!({"frames": 2}));
+    }
+    steps.push(serde_json::json!({"wait": "complete"}));
+    steps.push(serde_json::json!({"screenshot": shot}));
+    steps.push(serde_json::json!({"quit": true}));
+    let script = serde_json::Value::Array(steps);
+    let r = view_script(
+        dir,
+        &script,
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-ms",
+            "0.001",
+            "--motion-tets",
+            "400",
+            "--frames",
+            "20000",
+        ],
+    );
+    let p = &r["perf"];
+    eprintln!("{p}");
+    let moving = &p["tets_drawn_in_motion"];
+    assert!(moving["n"].as_u64().unwrap() >= 5, "{p}");
+    assert!(moving["max"].as_f64().unwrap() <= 400.0, "{p}");
+    assert_eq!(
+        p["tets_drawn_at_rest"]["max"].as_f64().unwrap(),
+        2560.0,
+        "{p}"
+    );
+    assert_eq!(r["tets"], 2560, "{r}");
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
+    let at_rest = psnr(&png(&shot), &reference);
+    eprintln!("at rest after a coarse motion vs offscreen: {at_rest:.2} dB");
+    assert!(at_rest >= 40.0, "{at_rest:.2} dB");
+}

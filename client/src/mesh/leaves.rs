@@ -92,6 +92,65 @@ impl AdaptiveMesh {
         out
     }
 
+    /// The drawable leaf mesh with its deepest level merged into their parents, level after level,
+    /// until it has at most `most` tets or only base tets are left: what the viewer draws while the
+    /// camera moves and whole draws are slow. A merged tet is its ancestor with the ancestor's own
+    /// corners (all vertices of the mesh: a refined tet's corners are its children's), so where it
+    /// meets a finer tet the mesh has hanging vertices; drawn in motion only, never at rest.
+    pub fn coarse_leaf_tets(&self, most: usize) -> Vec<LeafTet> {
+        let mut tets = self.drawable_leaf_tets();
+        let level = |id: TetId| self.forest.level(id);
+        let mut deepest = tets.iter().map(|t| level(t.hier)).max().unwrap_or(0);
+        while tets.len() > most {
+            // the deepest level goes to its parents, and the green pieces of the level above
+            // (whose marked edges were those children's) to their whole tets; last, the base
+            // tets' own green pieces
+            let mut whole = Vec::new();
+            tets.retain(|t| {
+                let l = level(t.hier);
+                let into = if deepest > 0 && l >= deepest {
+                    self.forest.parent(t.hier)
+                } else if t.green && l + 1 >= deepest {
+                    Some(t.hier)
+                } else {
+                    return true;
+                };
+                whole.extend(into);
+                false
+            });
+            whole.sort_unstable();
+            whole.dedup();
+            for id in whole {
+                let Some(slot) = self.slot_of(id) else {
+                    continue;
+                };
+                let Some(n) = self.nodes.get(slot) else {
+                    continue;
+                };
+                if n.flags.contains(NodeFlags::EMPTY) {
+                    continue;
+                }
+                let v = self.node_verts(slot);
+                let v = if n.flags.contains(NodeFlags::FLIP) {
+                    [v[0], v[1], v[3], v[2]]
+                } else {
+                    v
+                };
+                tets.push(LeafTet {
+                    v,
+                    hier: id,
+                    green: false,
+                    empty: false,
+                });
+            }
+            if deepest == 0 {
+                break;
+            }
+            deepest -= 1;
+        }
+        tets
+    }
+
     /// Midpoint slots and keys of the marked edges of leaf `n` (greens are few).
     fn green_mids(&self, n: &Node) -> ([u32; 6], [u64; 6]) {
         let mut mid = [NONE; 6];

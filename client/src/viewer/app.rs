@@ -28,6 +28,10 @@ use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
 
+/// The refinement budget of a frame in motion that draws the coarser mesh (`--motion-tets`): the
+/// leaf mesh it refines is not drawn until the camera rests.
+const MOVING_COARSE_REFINE_MS: f64 = 8.0;
+
 /// Width of the side panel, in points.
 pub const PANEL_WIDTH: f32 = 260.0;
 
@@ -90,6 +94,10 @@ pub struct ViewerApp {
     view_px: (u32, u32),
     target: Option<Target>,
     draw_data: Option<TetDrawData>,
+    /// The coarser mesh drawn in motion when whole draws are slow (`--motion-tets`).
+    motion_data: Option<TetDrawData>,
+    /// The last draw was of the motion mesh (at rest the leaf mesh is drawn again).
+    drew_motion: bool,
     tets: u64,
     /// Leaves of the red tree after the last refinement, and the most of any frame.
     leaves: u64,
@@ -212,6 +220,8 @@ impl ViewerApp {
             view_px: (args.size.0, args.size.1),
             target: None,
             draw_data: None,
+            motion_data: None,
+            drew_motion: false,
             tets: 0,
             leaves: 0,
             max_leaves: 0,
@@ -630,6 +640,10 @@ impl ViewerApp {
             _ => self.motion.tolerance(self.tol, now),
         };
         let in_motion = self.motion.in_motion(now);
+        // whole draws slower than --motion-ms: in motion, a coarser mesh (--motion-tets), if one
+        // was uploaded, is drawn instead, and the leaf mesh only refined, within a short budget
+        let slow = self.args.motion_ms > 0.0 && self.full_draw_ms > self.args.motion_ms;
+        let moving_coarse = in_motion && slow && self.motion_data.is_some();
         let rec = self.perf.current();
         rec.tol_px = tol;
         rec.in_motion = in_motion;
@@ -661,11 +675,16 @@ impl ViewerApp {
                 .get_or_insert_with(|| s.params().interactive);
             if let Some(t) = base.max_time {
                 let ms = self.motion.refine_budget_ms(t.as_secs_f64() * 1e3, now);
+                let ms = if moving_coarse {
+                    ms.min(MOVING_COARSE_REFINE_MS)
+                } else {
+                    ms
+                };
                 s.set_interactive_budget(crate::select::Budget::ms(ms));
             }
             let mode = match self.mode {
                 ViewMode::Interactive => Mode::Interactive,
-                ViewMode::Progressive if self.moving => Mode::Interactive,
+                ViewMode::Progressive if self.moving || moving_coarse => Mode::Interactive,
                 ViewMode::Progressive => Mode::Progressive,
                 ViewMode::Complete => Mode::Complete,
             };
@@ -708,9 +727,10 @@ impl ViewerApp {
         if let Some((res, ms)) = self.uploader.take() {
             self.drawn_tol = self.upload_tol;
             match res {
-                Ok(d) => {
+                Ok((d, motion)) => {
                     self.tets = d.tet_count as u64;
                     self.draw_data = Some(d);
+                    self.motion_data = motion;
                 }
                 Err(e) => self.fail(format!("upload: {e}")),
             }
@@ -718,13 +738,21 @@ impl ViewerApp {
             self.upload_ms = ms;
             self.perf.current().upload_ms = ms;
         }
-        // one upload at a time: a mesh that changes meanwhile goes up after it
-        if self.mesh_dirty && !self.uploader.busy() {
+        // one upload at a time: a mesh that changes meanwhile goes up after it; while slow
+        // draws move with the coarser mesh, none (it would take the CPU the draws need: the leaf
+        // mesh goes up once the camera rests)
+        if self.mesh_dirty && !self.uploader.busy() && !moving_coarse {
             let t = Instant::now();
-            let mesh = match (&self.data.session, &self.data.mesh) {
-                (Some(s), _) => Some(s.leaf_mesh(self.data.value_range)),
-                (None, Some(m)) => Some(m.clone()),
-                (None, None) => None,
+            let most = self.args.motion_tets;
+            let (mesh, motion) = match (&self.data.session, &self.data.mesh) {
+                (Some(s), _) => (
+                    Some(s.leaf_mesh(self.data.value_range)),
+                    (most > 0)
+                        .then(|| s.motion_mesh(self.data.value_range, most))
+                        .flatten(),
+                ),
+                (None, Some(m)) => (Some(m.clone()), None),
+                (None, None) => (None, None),
             };
             if let Some(m) = mesh {
                 self.hist = super::tf_edit::histogram(
@@ -733,7 +761,7 @@ impl ViewerApp {
                     HISTOGRAM_BINS,
                 );
                 self.upload_tol = tol;
-                if let Err(e) = self.uploader.start(m) {
+                if let Err(e) = self.uploader.start(m, motion) {
                     self.fail(format!("upload: {e}"));
                 }
             }
@@ -742,7 +770,6 @@ impl ViewerApp {
         }
         // in motion the volume may be drawn with fewer pixels (the copy into the view scales it
         // up); at rest always with the view's own
-        let slow = self.args.motion_ms > 0.0 && self.full_draw_ms > self.args.motion_ms;
         let scale = if in_motion && slow {
             self.args.motion_scale.max(1)
         } else {
@@ -760,8 +787,18 @@ impl ViewerApp {
             self.image_dirty = true;
         }
         let draw_cam = if scale == 1 { cam } else { self.camera(dw, dh) };
+        // slow whole draws in motion draw the coarser mesh too; at rest the leaf mesh again
+        let use_motion = moving_coarse;
+        if self.drew_motion && !use_motion {
+            self.image_dirty = true;
+        }
         if self.image_dirty {
-            if let (Some(d), Some(t)) = (&self.draw_data, &self.target) {
+            let data = if use_motion {
+                &self.motion_data
+            } else {
+                &self.draw_data
+            };
+            if let (Some(d), Some(t)) = (data, &self.target) {
                 let times = self.renderer.draw_into(
                     &self.gpu,
                     d,
@@ -773,6 +810,7 @@ impl ViewerApp {
                 );
                 self.render_ms = times.total_ms;
                 self.image_dirty = false;
+                self.drew_motion = use_motion;
                 let rec = self.perf.current();
                 rec.render_ms = times.total_ms;
                 rec.drew = true;
@@ -792,11 +830,16 @@ impl ViewerApp {
             }
         }
         self.last_cam = Some(cam);
-        self.perf.current().tets = self.tets;
+        // the tets of the mesh drawn: the coarser one's after a draw in motion
+        self.perf.current().tets = match (&self.motion_data, self.drew_motion) {
+            (Some(m), true) => m.tet_count as u64,
+            _ => self.tets,
+        };
         // drawn: the mesh refined so far, not one still being uploaded or waiting to be, with
         // all the view's pixels
         let drawn = !self.image_dirty
             && scale == 1
+            && !self.drew_motion
             && self.draw_data.is_some()
             && !self.mesh_dirty
             && !self.uploader.busy();

@@ -99,6 +99,9 @@ pub struct PerfReport {
     pub inputs_past_bound: usize,
     /// Frame periods (start to the next start), the last frame left out.
     pub frame_ms: Stats,
+    /// The periods of the frames in motion (the camera moved within
+    /// [`super::motion::HOLD`]): how the window answers while the user drags.
+    pub frame_ms_in_motion: Stats,
     pub ingest_ms: Stats,
     /// Refinement, every frame that refined.
     pub refine_ms: Stats,
@@ -221,6 +224,7 @@ impl Perf {
             latency_ms: Stats::of(self.latencies_ms.iter().copied()),
             inputs_past_bound: self.inputs_past_bound,
             frame_ms: Stats::of(f.iter().map(|r| r.period_ms)),
+            frame_ms_in_motion: Stats::of(f.iter().filter(|r| r.in_motion).map(|r| r.period_ms)),
             ingest_ms: Stats::of(f.iter().map(|r| r.ingest_ms)),
             refine_ms: Stats::of(f.iter().filter(|r| r.refine_ms > 0.0).map(|r| r.refine_ms)),
             leaf_ms: Stats::of(f.iter().filter(|r| r.leaf_ms > 0.0).map(|r| r.leaf_ms)),

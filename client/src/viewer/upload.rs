@@ -12,12 +12,16 @@ use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::render_mesh::RenderMesh;
 
-/// An upload's result and how long it took, in milliseconds.
-pub type Uploaded = (Result<TetDrawData, String>, f64);
+/// An upload's result (the leaf mesh's draw data, and the coarser mesh's drawn in motion when
+/// one was given) and how long it took, in milliseconds.
+pub type Uploaded = (Result<(TetDrawData, Option<TetDrawData>), String>, f64);
+
+/// What one upload takes: the leaf mesh, and the coarser one to draw in motion if any.
+type Meshes = (RenderMesh, Option<RenderMesh>);
 
 /// One upload at a time on a thread of its own.
 pub struct Uploader {
-    tx: Option<mpsc::Sender<RenderMesh>>,
+    tx: Option<mpsc::Sender<Meshes>>,
     rx: mpsc::Receiver<Uploaded>,
     thread: Option<JoinHandle<()>>,
     in_flight: bool,
@@ -25,14 +29,15 @@ pub struct Uploader {
 
 impl Uploader {
     pub fn new(gpu: Arc<GpuContext>, renderer: Arc<PtRenderer>) -> Uploader {
-        let (tx, meshes) = mpsc::channel::<RenderMesh>();
+        let (tx, meshes) = mpsc::channel::<Meshes>();
         let (done, rx) = mpsc::channel();
         let thread = std::thread::Builder::new()
             .name("tetwave-view-upload".into())
             .spawn(move || {
-                for m in meshes {
+                for (m, motion) in meshes {
                     let t = Instant::now();
-                    let r = renderer.upload(&gpu, &m).map_err(|e| e.to_string());
+                    let up = |m: &RenderMesh| renderer.upload(&gpu, m).map_err(|e| e.to_string());
+                    let r = up(&m).and_then(|d| Ok((d, motion.as_ref().map(up).transpose()?)));
                     if done.send((r, t.elapsed().as_secs_f64() * 1e3)).is_err() {
                         break;
                     }
@@ -52,10 +57,14 @@ impl Uploader {
         self.in_flight
     }
 
-    /// Starts uploading `mesh`; only when not [`Self::busy`]. Fails if the thread is gone.
-    pub fn start(&mut self, mesh: RenderMesh) -> Result<(), String> {
+    /// Starts uploading `mesh` and the coarser `motion` mesh; only when not [`Self::busy`]. Fails
+    /// if the thread is gone.
+    pub fn start(&mut self, mesh: RenderMesh, motion: Option<RenderMesh>) -> Result<(), String> {
         debug_assert!(!self.in_flight, "one upload at a time");
-        let sent = self.tx.as_ref().is_some_and(|tx| tx.send(mesh).is_ok());
+        let sent = self
+            .tx
+            .as_ref()
+            .is_some_and(|tx| tx.send((mesh, motion)).is_ok());
         if !sent {
             return Err("the upload thread has ended".into());
         }

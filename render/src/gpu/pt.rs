@@ -285,6 +285,11 @@ impl PtRenderer {
         }
     }
 
+    /// The most tets one draw of this context holds (one storage buffer of per-tet geometry).
+    pub fn max_tets(ctx: &GpuContext) -> u64 {
+        ctx.device.limits().max_storage_buffer_binding_size / std::mem::size_of::<TetGeo>() as u64
+    }
+
     /// Uploads a mesh (centroid ordering only).
     pub fn upload(&self, ctx: &GpuContext, mesh: &RenderMesh) -> Result<TetDrawData, RenderError> {
         self.upload_with(ctx, mesh, false)
