@@ -258,8 +258,7 @@ def main():
                         final = os.path.join(work, name + "-converged.png")
                         cmd = [client, "stream", f"http://127.0.0.1:{srv.port}", "--headless", "--no-render",
                                "--until-converged", "--frames", "100000", "--tol", a.tol, "--size", a.size,
-                               "--criterion", crit, "--tf", "default", "--final-png", final,
-                               "--out", os.path.join(work, name)]
+                               "--criterion", crit, "--final-png", final, "--out", os.path.join(work, name)]
                         out, wall, rss, killed = run_measured(cmd, f"stream {name}", os.path.join(work, name),
                                                               timeout=a.timeout)
                         frames = [json.loads(l) for l in out.splitlines() if l.startswith("{")]

@@ -66,10 +66,11 @@ pub struct StreamArgs {
     pub psnr: bool,
     #[arg(long, default_value = "256x256", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),
-    /// Transfer function: `auto` (the `default` preset fitted to the store's value histogram, as
-    /// `tetwave render` fits it; the preset itself for a store without one), a preset
-    /// (default, transparent, opaque, shells) or a .json file.
-    #[arg(long, default_value = "auto")]
+    /// Transfer function: a preset (default, transparent, opaque, shells), a .json file, or
+    /// `auto` (the `default` preset fitted to the store's value histogram, as `tetwave render`
+    /// fits it: it shows more of real data, and the view-dependent selection refines much more
+    /// for it, see docs/formats.md).
+    #[arg(long, default_value = "default")]
     pub tf: String,
     #[command(flatten)]
     pub camera: crate::camera_arg::CameraArgs,
@@ -135,7 +136,7 @@ impl StreamArgs {
             tol: "0".into(),
             psnr: false,
             size: (256, 256),
-            tf: "auto".into(),
+            tf: "default".into(),
             camera: Default::default(),
             token: None,
             frame_ms: 30,

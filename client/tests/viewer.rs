@@ -88,8 +88,8 @@ fn png(path: &Path) -> Rgba8Image {
     Rgba8Image::load_png(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// `tetwave render STORE --tf TF` (the offscreen GPU renderer, full level) for an orbit camera
-/// (`auto`: the store's histogram, which a view of the store or of its stream fits to as well).
+/// `tetwave render STORE --tf TF` (the offscreen GPU renderer, full level) for an orbit camera:
+/// `auto` for a view of a store or a mesh file, `default` for a view of a stream (their defaults).
 fn offscreen(store: &Path, tf: &str, az: f64, el: f64, size: (u32, u32), out: &Path) -> Rgba8Image {
     let o = Command::new(env!("CARGO_BIN_EXE_tetwave"))
         .arg("render")
@@ -231,8 +231,22 @@ fn view_streams_orbits_and_matches_offscreen_and_server_images() {
 
     let (ia, ib, is) = (png(&a), png(&b), png(&server));
     assert_eq!((ia.width, ia.height), (256, 224));
-    let ra = offscreen(&s, "auto", 35.0, 25.0, (256, 224), &dir.join("ref_a.png"));
-    let rb = offscreen(&s, "auto", 105.0, 25.0, (256, 224), &dir.join("ref_b.png"));
+    let ra = offscreen(
+        &s,
+        "default",
+        35.0,
+        25.0,
+        (256, 224),
+        &dir.join("ref_a.png"),
+    );
+    let rb = offscreen(
+        &s,
+        "default",
+        105.0,
+        25.0,
+        (256, 224),
+        &dir.join("ref_b.png"),
+    );
     let (pa, pb, ps, pab) = (
         psnr(&ia, &ra),
         psnr(&ib, &rb),
@@ -314,7 +328,7 @@ fn view_clips_a_nonconvex_store_to_its_domain() {
         let shot = png(&dir.join(format!("v{i}.png")));
         let want = offscreen(
             &s,
-            "auto",
+            "default",
             az,
             el,
             (192, 160),
@@ -482,7 +496,7 @@ fn view_tolerance_coarsens_and_refines() {
     assert_eq!(r["tets"], 2560, "{r}");
     let coarse_tets = r["screenshot_tets"][0].as_u64().unwrap();
     assert!(coarse_tets < 2560, "{r}");
-    let reference = offscreen(&s, "auto", 35.0, 25.0, (160, 160), &dir.join("ref.png"));
+    let reference = offscreen(&s, "default", 35.0, 25.0, (160, 160), &dir.join("ref.png"));
     let (pc, pf) = (
         psnr(&png(&coarse), &reference),
         psnr(&png(&fine), &reference),

@@ -85,8 +85,8 @@ fn lossy_session_ends_identical(store: &Path, order: &str, out: &Path, values: &
     assert_identical(&s, values);
 }
 
-/// `--tf auto` (the default) is the default preset fitted to the histogram the manifest carries,
-/// the same function `tetwave render` of the store draws with; a preset stays itself.
+/// `--tf auto` is the default preset fitted to the histogram the manifest carries, the same
+/// function `tetwave render` of the store draws with; the default, a preset, stays itself.
 #[test]
 fn a_session_draws_with_the_stores_fitted_transfer_function() {
     use tetwave_render::transfer::TransferFunction;
@@ -96,17 +96,17 @@ fn a_session_draws_with_the_stores_fitted_transfer_function() {
     assert!(m.value_histogram.is_some(), "prepare records a histogram");
     let srv = serve(&dir, "level");
     let s = session_with(srv.url(), &d.path().join("out"), Faults::default(), false);
-    let want = TransferFunction::for_manifest("auto", &m).unwrap();
-    assert_eq!(s.report.tf, want);
-    assert_eq!(s.report.tf.name, "auto");
-    assert_ne!(want, TransferFunction::preset("default").unwrap());
+    assert_eq!(s.report.tf, TransferFunction::preset("default").unwrap());
     let mut a = StreamArgs::new(srv.url(), &d.path().join("out2"));
     a.no_render = true;
     a.until_complete = true;
     a.frame_ms = 5;
-    a.tf = "default".into();
+    a.tf = "auto".into();
     let s = run_session(&a, Faults::default()).unwrap();
-    assert_eq!(s.report.tf, TransferFunction::preset("default").unwrap());
+    let want = TransferFunction::for_manifest("auto", &m).unwrap();
+    assert_eq!(s.report.tf, want);
+    assert_eq!(s.report.tf.name, "auto");
+    assert_ne!(want, TransferFunction::preset("default").unwrap());
 }
 
 #[test]
@@ -287,8 +287,13 @@ fn until_converged_stops_at_the_final_view_and_draws_it() {
         last.leaves
     );
     let drawn = tetwave_render::image_metrics::Rgba8Image::load_png(&png).expect("the final PNG");
-    // both fit `auto` to the store's histogram (the manifest's): the same transfer function
-    let (every, _) = common::render_png(&dir, &d.path().join("every.png"), 96, &["--reference"]);
+    // the stream draws the `default` preset by default, `tetwave render` fits `auto`
+    let (every, _) = common::render_png(
+        &dir,
+        &d.path().join("every.png"),
+        96,
+        &["--reference", "--tf", "default"],
+    );
     let db = common::psnr_pixels(&drawn.pixels, &every);
     eprintln!("final view against every leaf: {db:.2} dB");
     assert!(db >= 40.0, "{db:.2} dB");

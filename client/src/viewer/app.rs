@@ -189,13 +189,13 @@ impl ViewerApp {
         let blit = Blit::new(&rs.device, rs.target_format);
         let (shot_tx, shot_rx) = mpsc::channel();
         // `auto` without data to fit (a stream) is the `default` preset
-        let spec = if args.tf == AUTO {
+        let spec = if args.tf_spec() == AUTO {
             tf.name.as_str()
         } else {
-            args.tf.as_str()
+            args.tf_spec()
         };
         let tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
-        let auto_pending = args.tf == AUTO && data.server().is_some();
+        let auto_pending = args.tf_spec() == AUTO && data.server().is_some();
         let orbit = Orbit {
             target: glam::DVec3::ZERO,
             azimuth: args.camera.azimuth,
@@ -253,8 +253,8 @@ impl ViewerApp {
             closing: false,
             status: String::new(),
             report,
-            tf_path: if args.tf.ends_with(".json") {
-                args.tf.clone()
+            tf_path: if args.tf_spec().ends_with(".json") {
+                args.tf_spec().to_string()
             } else {
                 "tf.json".into()
             },

@@ -78,12 +78,13 @@ pub struct ViewArgs {
     /// Size of the view (the window adds the side panel), `WxH` pixels.
     #[arg(long, default_value = "640x480", value_parser = crate::render_cli::parse_size)]
     pub size: (u32, u32),
-    /// Transfer function: `auto` (a store or a mesh file: the `default` preset fitted to its data
-    /// as `tetwave render --tf auto` fits it; a server's stream: fitted to the histogram its
-    /// manifest carries, as the server's own images are), a preset (default,
-    /// transparent, opaque, shells) or a .json file.
-    #[arg(long, default_value = "auto")]
-    pub tf: String,
+    /// Transfer function: `auto` (the `default` preset fitted to the data as `tetwave render`
+    /// fits it: a store's or a stream's to the histogram its manifest carries), a preset (default,
+    /// transparent, opaque, shells) or a .json file. Default: `auto` for a store or a mesh file,
+    /// `default` for a stream (`auto` makes the view-dependent stream refine much more: see
+    /// docs/formats.md).
+    #[arg(long)]
+    pub tf: Option<String>,
     /// Screen-space tolerance in pixels (0: refine everything visible to the finest level).
     #[arg(long, default_value_t = 2.0, value_parser = tol_px)]
     pub tol: f64,
@@ -271,6 +272,13 @@ fn fit_auto(
     Ok(tf.fitted(&hist))
 }
 
+impl ViewArgs {
+    /// The transfer function asked for (`auto` when none was).
+    pub fn tf_spec(&self) -> &str {
+        self.tf.as_deref().unwrap_or(AUTO)
+    }
+}
+
 /// `args` with a leaf budget this adapter can draw: the drawn mesh adds green pieces to the red
 /// leaves the budget counts (at most 4 a leaf, far fewer in practice), so at most half of the
 /// `drawable` tets one draw holds; lowered with one line when the budget asked (or the
@@ -293,7 +301,17 @@ fn with_drawable_budget(args: &ViewArgs, drawable: u64) -> ViewArgs {
 /// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
 pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let start = |s: String| ViewError::Start(one_line(&s));
-    let tf = TransferFunction::load(&args.tf).map_err(|e| start(e.to_string()))?;
+    let source = data::Source::parse(&args.source);
+    let spec = match (&args.tf, &source) {
+        (Some(spec), _) => spec.clone(),
+        (None, data::Source::Url(_)) => "default".into(),
+        (None, _) => AUTO.into(),
+    };
+    let args = &ViewArgs {
+        tf: Some(spec),
+        ..args.clone()
+    };
+    let tf = TransferFunction::load(args.tf_spec()).map_err(|e| start(e.to_string()))?;
     let steps = match &args.script {
         Some(p) => script::load(p).map_err(|e| start(e.to_string()))?,
         None => Vec::new(),
@@ -303,7 +321,6 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
             "cannot open the viewer's window: no display (DISPLAY is not set); run it on a desktop, or headless under `xvfb-run -a tetwave view …`".into(),
         ));
     }
-    let source = data::Source::parse(&args.source);
     let ctx = GpuContext::new().map_err(|e| match e {
         RenderError::NoAdapter => start(
             "cannot start the viewer: no GPU adapter found (wgpu saw none for Vulkan or GL; on \
@@ -312,7 +329,8 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         ),
         e => start(format!("cannot start the viewer: {e}")),
     })?;
-    let tf = fit_auto(&args.tf, &source, tf).map_err(|e| start(format!("{}: {e}", args.source)))?;
+    let tf = fit_auto(args.tf_spec(), &source, tf)
+        .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let args = &with_drawable_budget(args, PtRenderer::max_tets(&ctx));
     let data = data::Data::open(
         &source,

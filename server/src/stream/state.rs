@@ -19,7 +19,7 @@ use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
 use tetwave_protocol::view::{tet_sphere, DEFAULT_IMAGE_EPS};
 use tetwave_protocol::wire::{encode, ServerMsg, SessionStart};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
-use tetwave_render::transfer::{TransferFunction, AUTO};
+use tetwave_render::transfer::TransferFunction;
 use tetwave_store::Manifest;
 use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
 
@@ -59,9 +59,8 @@ fn image_weights(
     use tetwave_protocol::hierarchy::{LevelWalker, BEY_CHILDREN, EDGES};
     let base = &store.base;
     let keys = base.vertex_keys();
-    // what clients draw by default: the default preset fitted to the store's histogram
-    let tf = TransferFunction::for_manifest(AUTO, &store.manifest)
-        .expect("auto always loads (the preset without a histogram)");
+    // what streaming clients draw by default (`auto` would ask for far more nodes)
+    let tf = TransferFunction::preset("default").expect("the default preset exists");
     let img = tf.image_criterion(store.manifest.value_range, base, DEFAULT_IMAGE_EPS);
     let levels = forest.levels;
     let n = forest.nodes() as usize;
