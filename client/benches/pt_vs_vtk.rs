@@ -8,7 +8,6 @@
 //! configurations named; default all). Besides means, each line has the fastest frame's wall and
 //! CPU time (`min_ms`, `min_cpu_ms`), steadier on a shared machine.
 
-use std::io::Write;
 use std::time::Instant;
 use tetwave_protocol::view::Camera;
 use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
@@ -29,41 +28,6 @@ fn env(name: &str, default: usize) -> usize {
 fn field(p: [f64; 3]) -> f64 {
     let r2 = (p[0] - 0.5).powi(2) + (p[1] - 0.5).powi(2) + (p[2] - 0.5).powi(2);
     (-6.0 * r2).exp() * (1.0 + 0.5 * (6.0 * p[0]).sin() * (5.0 * p[1]).cos())
-}
-
-fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    writeln!(
-        f,
-        "# vtk DataFile Version 3.0\ntetwave bench\nBINARY\nDATASET UNSTRUCTURED_GRID"
-    )?;
-    writeln!(f, "POINTS {} double", mesh.positions.len())?;
-    for p in &mesh.positions {
-        for c in p {
-            f.write_all(&c.to_be_bytes())?;
-        }
-    }
-    writeln!(f, "\nCELLS {} {}", mesh.tets.len(), mesh.tets.len() * 5)?;
-    for t in &mesh.tets {
-        f.write_all(&4i32.to_be_bytes())?;
-        for v in t {
-            f.write_all(&(*v as i32).to_be_bytes())?;
-        }
-    }
-    writeln!(f, "\nCELL_TYPES {}", mesh.tets.len())?;
-    for _ in &mesh.tets {
-        f.write_all(&10i32.to_be_bytes())?;
-    }
-    writeln!(
-        f,
-        "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default",
-        mesh.positions.len()
-    )?;
-    for v in &mesh.values {
-        f.write_all(&v.to_be_bytes())?;
-    }
-    writeln!(f)?;
-    Ok(())
 }
 
 /// CPU time (user + system, all threads, lavapipe's included) of this process in ms, from
@@ -172,7 +136,7 @@ fn main() {
             name
         );
     }
-    write_vtk(&mesh, &out.join("mesh.vtk")).unwrap();
+    mesh.write_vtk(&out.join("mesh.vtk")).unwrap();
     let (r0, r1) = mesh.value_range;
     let scene = serde_json::json!({
         "eye": cam.eye.to_array(), "target": cam.target.to_array(), "up": cam.basis().1.to_array(),

@@ -1026,14 +1026,9 @@ fn view_coarsens_in_motion_when_draws_are_slow_and_refines_at_rest() {
     assert_eq!(f(&p["tets_drawn_in_motion"]["p50"]), 2560.0, "{p}");
 }
 
-/// `--motion-scale 2` with draws slower than `--motion-ms` (every draw, at 1 µs): the frames
-/// drawn while the camera moves use half the view's width and height, and at rest the view is
-/// drawn whole again and matches the offscreen render. With `--motion-ms 0` none is scaled.
-#[test]
-fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
-    let (d, s) = store(3);
-    let dir = d.path();
-    let shot = dir.join("rest.png");
+/// A script: complete, ten 3° orbit steps two frames apart, complete again, a screenshot to
+/// `shot`, quit.
+fn orbit_then_rest(shot: &Path) -> serde_json::Value {
     let mut steps = vec![serde_json::json!({"wait": "complete"})];
     for _ in 0..10 {
         steps.push(serde_json::json!({"orbit": 3}));
@@ -1042,7 +1037,18 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     steps.push(serde_json::json!({"wait": "complete"}));
     steps.push(serde_json::json!({"screenshot": shot}));
     steps.push(serde_json::json!({"quit": true}));
-    let script = serde_json::Value::Array(steps);
+    serde_json::Value::Array(steps)
+}
+
+/// `--motion-scale 2` with draws slower than `--motion-ms` (every draw, at 1 µs): the frames
+/// drawn while the camera moves use half the view's width and height, and at rest the view is
+/// drawn whole again and matches the offscreen render. With `--motion-ms 0` none is scaled.
+#[test]
+fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let shot = dir.join("rest.png");
+    let script = orbit_then_rest(&shot);
     let r = view_script(
         dir,
         &script,
@@ -1094,15 +1100,7 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
     let (d, s) = store(3);
     let dir = d.path();
     let shot = dir.join("rest.png");
-    let mut steps = vec![serde_json::json!({"wait": "complete"})];
-    for _ in 0..10 {
-        steps.push(serde_json::json!({"orbit": 3}));
-        steps.push(serde_json::json!({"frames": 2}));
-    }
-    steps.push(serde_json::json!({"wait": "complete"}));
-    steps.push(serde_json::json!({"screenshot": shot}));
-    steps.push(serde_json::json!({"quit": true}));
-    let script = serde_json::Value::Array(steps);
+    let script = orbit_then_rest(&shot);
     let r = view_script(
         dir,
         &script,

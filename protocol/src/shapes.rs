@@ -80,6 +80,27 @@ pub fn kuhn_boxes(lo: [f64; 3], hi: [f64; 3], n: [usize; 3]) -> PointsAndTets {
         i if i == n[a] => hi[a],
         i => lo[a] + (hi[a] - lo[a]) * i as f64 / n[a] as f64,
     };
+    let (points, mut tets) = kuhn_cells(n, coord, |_, _, _| true);
+    orient_positive(&points, &mut tets);
+    (points, tets)
+}
+
+/// The unit cube `[0,1]^3` cut into `n^3` cells of 6 Kuhn tets each (around each cell's main
+/// diagonal), keeping the cells where `keep(i, j, k)`: grid points in x-fastest order (all of them,
+/// including those of dropped cells) and tets, cell by cell in x-fastest order; within a cell, tet
+/// `[c, c + e_a, c + e_a + e_b, c + 1]` for the axis orders `ab` = xy, xz, yx, yz, zx, zy. Tets are
+/// not reoriented: odd permutations are negative.
+pub fn kuhn_grid(n: usize, keep: impl Fn(usize, usize, usize) -> bool) -> PointsAndTets {
+    kuhn_cells([n; 3], |_, i| i as f64 / n as f64, keep)
+}
+
+/// `n[0] × n[1] × n[2]` Kuhn cells: grid points `coord(axis, index)` in x-fastest order, and the
+/// tets of the cells where `keep`, in [`kuhn_grid`]'s order, not reoriented.
+fn kuhn_cells(
+    n: [usize; 3],
+    coord: impl Fn(usize, usize) -> f64,
+    keep: impl Fn(usize, usize, usize) -> bool,
+) -> PointsAndTets {
     let idx = |c: [usize; 3]| (c[0] + (n[0] + 1) * (c[1] + (n[1] + 1) * c[2])) as u32;
     let mut points = Vec::with_capacity((n[0] + 1) * (n[1] + 1) * (n[2] + 1));
     for k in 0..=n[2] {
@@ -93,45 +114,6 @@ pub fn kuhn_boxes(lo: [f64; 3], hi: [f64; 3], n: [usize; 3]) -> PointsAndTets {
     for k in 0..n[2] {
         for j in 0..n[1] {
             for i in 0..n[0] {
-                for path in KUHN_PATHS {
-                    let mut c = [i, j, k];
-                    let mut t = [idx(c); 4];
-                    for (s, &a) in path.iter().enumerate() {
-                        c[a] += 1;
-                        t[s + 1] = idx(c);
-                    }
-                    tets.push(t);
-                }
-            }
-        }
-    }
-    orient_positive(&points, &mut tets);
-    (points, tets)
-}
-
-/// The unit cube `[0,1]^3` cut into `n^3` cells of 6 Kuhn tets each (around each cell's main
-/// diagonal), keeping the cells where `keep(i, j, k)`: grid points in x-fastest order (all of them,
-/// including those of dropped cells) and tets, cell by cell in x-fastest order; within a cell, tet
-/// `[c, c + e_a, c + e_a + e_b, c + 1]` for the axis orders `ab` = xy, xz, yx, yz, zx, zy. Tets are
-/// not reoriented: odd permutations are negative.
-pub fn kuhn_grid(n: usize, keep: impl Fn(usize, usize, usize) -> bool) -> PointsAndTets {
-    let idx = |c: [usize; 3]| (c[0] + (n + 1) * (c[1] + (n + 1) * c[2])) as u32;
-    let mut points = Vec::with_capacity((n + 1).pow(3));
-    for k in 0..=n {
-        for j in 0..=n {
-            for i in 0..=n {
-                points.push([
-                    i as f64 / n as f64,
-                    j as f64 / n as f64,
-                    k as f64 / n as f64,
-                ]);
-            }
-        }
-    }
-    let mut tets = Vec::with_capacity(6 * n * n * n);
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
                 if !keep(i, j, k) {
                     continue;
                 }

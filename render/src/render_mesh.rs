@@ -119,6 +119,42 @@ impl RenderMesh {
         RenderMesh::new(positions, tets, values)
     }
 
+    /// Writes the mesh as a legacy binary VTK unstructured grid (tets, and the values as point
+    /// scalars `f`), for renderers outside tetwave (VTK's projected tetrahedra in the benchmarks).
+    pub fn write_vtk(&self, path: &std::path::Path) -> std::io::Result<()> {
+        use std::io::Write;
+        let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+        writeln!(
+            f,
+            "# vtk DataFile Version 3.0\ntetwave\nBINARY\nDATASET UNSTRUCTURED_GRID"
+        )?;
+        writeln!(f, "POINTS {} double", self.positions.len())?;
+        for c in self.positions.iter().flatten() {
+            f.write_all(&c.to_be_bytes())?;
+        }
+        writeln!(f, "\nCELLS {} {}", self.tets.len(), self.tets.len() * 5)?;
+        for t in &self.tets {
+            f.write_all(&4i32.to_be_bytes())?;
+            for v in t {
+                f.write_all(&(*v as i32).to_be_bytes())?;
+            }
+        }
+        writeln!(f, "\nCELL_TYPES {}", self.tets.len())?;
+        for _ in &self.tets {
+            f.write_all(&10i32.to_be_bytes())?;
+        }
+        writeln!(
+            f,
+            "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default",
+            self.positions.len()
+        )?;
+        for v in &self.values {
+            f.write_all(&v.to_be_bytes())?;
+        }
+        writeln!(f)?;
+        f.flush()
+    }
+
     /// Swaps the last two vertices of negatively oriented tets.
     pub fn orient_positive(&mut self) {
         shapes::orient_positive(&self.positions, &mut self.tets);

@@ -366,17 +366,8 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
 
     let path = dir.join(LEVELSET_BAND_FILE);
     match (&meta.levelset, &meta.levelset_near) {
-        (Some(_), Some(near)) => {
-            let bytes = near.encode().map_err(|e| StoreError::Corrupt {
-                path: path.clone(),
-                reason: e.to_string(),
-            })?;
-            let mut w = staged.create(LEVELSET_BAND_FILE)?;
-            w.put(&bytes)?;
-            files.insert(LEVELSET_BAND_FILE.into(), w.finish()?);
-        }
-        // a box domain: readers compute the level set from positions
-        (None, Some(near)) if near.domain_box().is_some() => {
+        // a band goes with its whole level set, but a box domain's alone: readers compute it
+        (whole, Some(near)) if whole.is_some() || near.domain_box().is_some() => {
             let bytes = near.encode().map_err(|e| StoreError::Corrupt {
                 path: path.clone(),
                 reason: e.to_string(),

@@ -10,45 +10,8 @@
 //! refused: its image is clipped inside the tets, which a plain unstructured grid cannot say.
 
 use anyhow::{bail, Context, Result};
-use std::io::Write;
 use tetwave_client::render_cli::store_mesh;
-use tetwave_render::render_mesh::RenderMesh;
 use tetwave_store::Store;
-
-fn write_vtk(mesh: &RenderMesh, path: &std::path::Path) -> std::io::Result<()> {
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    writeln!(
-        f,
-        "# vtk DataFile Version 3.0\ntetwave level\nBINARY\nDATASET UNSTRUCTURED_GRID"
-    )?;
-    writeln!(f, "POINTS {} double", mesh.positions.len())?;
-    for p in &mesh.positions {
-        for c in p {
-            f.write_all(&c.to_be_bytes())?;
-        }
-    }
-    writeln!(f, "\nCELLS {} {}", mesh.tets.len(), mesh.tets.len() * 5)?;
-    for t in &mesh.tets {
-        f.write_all(&4i32.to_be_bytes())?;
-        for v in t {
-            f.write_all(&(*v as i32).to_be_bytes())?;
-        }
-    }
-    writeln!(f, "\nCELL_TYPES {}", mesh.tets.len())?;
-    for _ in &mesh.tets {
-        f.write_all(&10i32.to_be_bytes())?;
-    }
-    writeln!(
-        f,
-        "\nPOINT_DATA {}\nSCALARS f float 1\nLOOKUP_TABLE default",
-        mesh.positions.len()
-    )?;
-    for v in &mesh.values {
-        f.write_all(&v.to_be_bytes())?;
-    }
-    writeln!(f)?;
-    f.flush()
-}
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -62,7 +25,8 @@ fn main() -> Result<()> {
     if mesh.levelset.is_some() {
         bail!("the store has a level set: its image is clipped inside tets, which a .vtk grid cannot carry");
     }
-    write_vtk(&mesh, std::path::Path::new(out)).with_context(|| format!("writing {out}"))?;
+    mesh.write_vtk(std::path::Path::new(out))
+        .with_context(|| format!("writing {out}"))?;
     let (lo, hi) = mesh.bounds();
     println!(
         "{}",
