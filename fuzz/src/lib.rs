@@ -261,11 +261,11 @@ fn session_manifest() -> tetwave_protocol::store_format::Manifest {
         .into_iter()
         .collect(),
         preview: Some(Preview {
-        value_histogram: None,
             encoding: Encoding::uniform(8, 0.5),
             levels: 2,
             max_error_bound: 0.25,
         }),
+        value_histogram: Some(vec![1; tetwave_protocol::store_format::HISTOGRAM_BINS]),
     }
 }
 
