@@ -1133,3 +1133,56 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
     eprintln!("at rest after a coarse motion vs offscreen: {at_rest:.2} dB");
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 }
+
+/// `auto` in the transfer-function list: a stream viewed with the `default` preset (its default)
+/// switches to the function fitted to the store's histogram, the one `tetwave render` draws the
+/// store with, and the server renders the same for its image.
+#[test]
+fn picking_auto_on_a_stream_draws_the_stores_fitted_function() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let srv = serve(&s);
+    let shot = dir.join("auto.png");
+    let script = serde_json::json!([
+        {"wait": "complete"},
+        {"tf": "auto"},
+        {"frames": 3},
+        {"wait": "complete"},
+        {"screenshot": shot},
+        {"quit": true}
+    ]);
+    let r = view_script(
+        dir,
+        &script,
+        &[
+            srv.url(),
+            "--size",
+            "160x120",
+            "--mode",
+            "complete",
+            "--frames",
+            "20000",
+        ],
+    );
+    assert_eq!(r["complete"], true, "{r}");
+    let img = png(&shot);
+    let auto = offscreen(
+        &s,
+        "auto",
+        35.0,
+        25.0,
+        (160, 120),
+        &dir.join("auto-ref.png"),
+    );
+    let preset = offscreen(
+        &s,
+        "default",
+        35.0,
+        25.0,
+        (160, 120),
+        &dir.join("default-ref.png"),
+    );
+    let (pa, pd) = (psnr(&img, &auto), psnr(&img, &preset));
+    eprintln!("picked auto vs render auto {pa:.2} dB, vs render default {pd:.2} dB");
+    assert!(pa >= 40.0 && pa > pd + 3.0, "{pa:.2} / {pd:.2} dB");
+}

@@ -45,7 +45,7 @@ const RESIZE_FRAMES: u64 = 600;
 const HISTOGRAM_BINS: usize = 64;
 
 /// The transfer-function presets (what the server's `/v1/render` knows too).
-const PRESETS: [&str; 4] = ["default", "transparent", "opaque", "shells"];
+const PRESETS: [&str; 5] = ["auto", "default", "transparent", "opaque", "shells"];
 
 /// Degrees of rotation per pixel dragged, and per arrow key.
 const DEG_PER_PX: f64 = 0.4;
@@ -81,8 +81,12 @@ pub struct ViewerApp {
     tf: TransferFunction,
     /// The preset the transfer function is, if it is one (the server knows only presets).
     tf_preset: Option<String>,
-    /// `--tf auto` on a stream: fitted to the manifest's histogram once the session starts.
+    /// `--tf auto` on a stream: drawn with once the session starts.
     auto_pending: bool,
+    /// `auto` fitted to the data (a stream's: once its manifest arrives, `auto_fitted`), what
+    /// picking `auto` draws with; the `default` preset until then.
+    auto_tf: TransferFunction,
+    auto_fitted: bool,
     tol: f64,
     mode: ViewMode,
     orbit: Orbit,
@@ -196,6 +200,12 @@ impl ViewerApp {
         };
         let tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
         let auto_pending = args.tf_spec() == AUTO && data.server().is_some();
+        let auto_fitted = tf.name == AUTO;
+        let auto_tf = if auto_fitted {
+            tf.clone()
+        } else {
+            TransferFunction::preset("default").expect("the default preset exists")
+        };
         let orbit = Orbit {
             target: glam::DVec3::ZERO,
             azimuth: args.camera.azimuth,
@@ -213,6 +223,8 @@ impl ViewerApp {
             tf,
             tf_preset,
             auto_pending,
+            auto_tf,
+            auto_fitted,
             orbit,
             fly: None,
             home: None,
@@ -323,10 +335,22 @@ impl ViewerApp {
         self.orbit.zoom(factor, 1e-3 * diag, 100.0 * diag);
     }
 
-    /// Loads a preset or a `.json` file as the transfer function.
+    /// Loads a preset or a `.json` file as the transfer function; `auto` is the one fitted to
+    /// the data.
     fn set_tf(&mut self, spec: &str) -> Result<(), String> {
-        let tf =
-            TransferFunction::load(spec).map_err(|e| format!("transfer function {spec}: {e}"))?;
+        let tf = if spec == AUTO {
+            if !self.auto_fitted && self.data.server().is_none() {
+                // a store or a mesh file viewed with another function: fitted when first asked
+                let source = super::data::Source::parse(&self.args.source);
+                let preset =
+                    TransferFunction::preset("default").expect("the default preset exists");
+                self.auto_tf = super::fit_auto(AUTO, &source, preset)?;
+                self.auto_fitted = true;
+            }
+            self.auto_tf.clone()
+        } else {
+            TransferFunction::load(spec).map_err(|e| format!("transfer function {spec}: {e}"))?
+        };
         self.tf = tf;
         self.tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
         self.image_dirty = true;
@@ -656,13 +680,16 @@ impl ViewerApp {
         }
         self.data.send_view(&cam, self.tol);
         let mut converged = true;
-        if self.auto_pending {
+        if !self.auto_fitted {
             if let Some(m) = self.data.remote_manifest() {
-                self.auto_pending = false;
+                self.auto_fitted = true;
                 if let Ok(tf) = TransferFunction::for_manifest(AUTO, m) {
+                    self.auto_tf = tf;
+                }
+                if self.auto_pending {
                     // the server fits `auto` to the same histogram: its images match
-                    self.tf_preset = Some(tf.name.clone());
-                    self.tf = tf;
+                    self.tf_preset = Some(self.auto_tf.name.clone());
+                    self.tf = self.auto_tf.clone();
                     self.image_dirty = true;
                 }
             }
