@@ -81,8 +81,6 @@ pub struct ViewerApp {
     tf: TransferFunction,
     /// The preset the transfer function is, if it is one (the server knows only presets).
     tf_preset: Option<String>,
-    /// `--tf auto` on a stream: drawn with once the session starts.
-    auto_pending: bool,
     /// `auto` fitted to the data (a stream's: once its manifest arrives, `auto_fitted`), what
     /// picking `auto` draws with; the `default` preset until then.
     auto_tf: TransferFunction,
@@ -199,7 +197,6 @@ impl ViewerApp {
             args.tf_spec()
         };
         let tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
-        let auto_pending = args.tf_spec() == AUTO && data.server().is_some();
         let auto_fitted = tf.name == AUTO;
         let auto_tf = if auto_fitted {
             tf.clone()
@@ -222,7 +219,6 @@ impl ViewerApp {
             data,
             tf,
             tf_preset,
-            auto_pending,
             auto_tf,
             auto_fitted,
             orbit,
@@ -686,7 +682,8 @@ impl ViewerApp {
                 if let Ok(tf) = TransferFunction::for_manifest(AUTO, m) {
                     self.auto_tf = tf;
                 }
-                if self.auto_pending {
+                // `--tf auto` on a stream: drawn with from now on
+                if self.args.tf_spec() == AUTO {
                     // the server fits `auto` to the same histogram: its images match
                     self.tf_preset = Some(self.auto_tf.name.clone());
                     self.tf = self.auto_tf.clone();
