@@ -6,8 +6,8 @@ scikit-fem, meshio, vtk, matplotlib and pillow into the checkout's venv .venv); 
 
   .venv/bin/python scripts/bench-fidelity.py --bin-dir target/release
       [--shapes torus,cube-octant,ball-holes,heatsink,grid] [--levels 3,4,5,6] [--size 512]
-      [--tets 100000] [--grid-level 5] [--side-levels 4,6] [--tf default] [--out out/bench-fidelity]
-      [--no-vtk] [--no-stream] [--docs] [--replot] [--quick]
+      [--tets 100000] [--grid-level 5] [--side-levels 4,6] [--tf default|auto] [--out out/bench-fidelity]
+      [--no-vtk] [--no-stream] [--docs] [--replot] [--quick | --look]
 
 Shapes (non-convex domains meshed by gmsh's OpenCASCADE kernel, about --tets tetrahedra each: the
 mesh size is scaled from a coarse trial mesh,
@@ -71,6 +71,9 @@ import time
 import numpy as np
 
 SHAPES = ("torus", "cube-octant", "ball-holes", "heatsink", "grid")
+# --look: the share of domain pixels the default look must draw at luma >= LOOK_LUMA (Rec. 709 of
+# the 8-bit RGB / 255), and the PSNR a level-6 store keeps against the original in that look
+LOOK_LUMA, LOOK_BRIGHT, LOOK_DB = 0.2, 0.25, 40.0
 
 
 def fail(msg):
@@ -220,6 +223,13 @@ def read_png(path):
     return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64)
 
 
+def bright_share(img, mask):
+    """The share of the `mask`'s pixels whose luma (Rec. 709 weights on RGB / 255) is >= LOOK_LUMA."""
+    rgb = img[..., :3].astype(np.float64) / 255.0
+    y = 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
+    return float((y[mask] >= LOOK_LUMA).mean()) if mask.any() else 0.0
+
+
 def image_psnr(a, b):
     if a.shape != b.shape:
         fail(f"image shapes differ: {a.shape} and {b.shape}")
@@ -247,6 +257,8 @@ def camera(lo, hi, az=35.0, el=25.0, fov=40.0):
 def tf_points(spec):
     """The transfer function's points as render/src/transfer.rs defines its presets (read from a
     .json file, or the preset table below, kept in step with transfer.rs)."""
+    if spec == "auto":  # fitted per input by `tetwave render`: known once the exact image is drawn
+        return None
     if spec.endswith(".json"):
         return json.load(open(spec))["points"]
     presets = {
@@ -414,7 +426,8 @@ def main():
     ap.add_argument("--size", default="512", help="image size: N (N x N) or WxH")
     ap.add_argument("--tets", type=int, default=100000, help="about this many tets per gmsh mesh")
     ap.add_argument("--grid-level", type=int, default=5, help="the raw grid has (2^G+1)^3 points")
-    ap.add_argument("--tf", default="default")
+    ap.add_argument("--tf", default="default", help="a preset, a .json file, or auto: no --tf, the default look "
+                    "(a store's own fit to its manifest's histogram; VTK gets the points the exact image drew)")
     ap.add_argument("--no-vtk", action="store_true")
     ap.add_argument("--no-stream", dest="stream", action="store_false",
                     help="skip the complete stream of each store through the byte-counting relay")
@@ -422,9 +435,17 @@ def main():
     ap.add_argument("--replot", action="store_true", help="only redraw the charts from OUT/fidelity.json (with --docs: its copy too)")
     ap.add_argument("--quick", action="store_true", help="~3,000-tet meshes, 17^3 grid, levels 2,3, 64x64: a smoke test "
                     "(fails unless every PSNR is finite and our GPU image of each original is >= 40 dB)")
+    ap.add_argument("--look", action="store_true", help="the default look's check: the four meshes at ~3,000 tets, --tf auto, "
+                    f"level 6, 128x128, no stream (fails unless each exact image of the original has >= {LOOK_BRIGHT:.0%} of its "
+                    f"domain pixels at luma >= {LOOK_LUMA} and each level-6 store's GPU image is >= {LOOK_DB:.0f} dB against it)")
     args = ap.parse_args()
+    if args.quick and args.look:
+        fail("--quick and --look are two checks; give one")
     if args.quick:
         args.tets, args.grid_level, args.levels, args.side_levels, args.size = 3000, 4, "2,3", "2,3", "64"
+    if args.look:
+        args.tets, args.levels, args.side_levels, args.size, args.tf, args.stream = 3000, "6", "6", "128", "auto", False
+        args.shapes = ",".join(s for s in SHAPES if s != "grid")
     size = tuple(int(x) for x in (args.size.lower().split("x") if "x" in args.size.lower() else (args.size, args.size)))
     size_arg = f"{size[0]}x{size[1]}"
     levels = [int(x) for x in args.levels.split(",")]
@@ -505,6 +526,17 @@ def main():
             g = [row for row in r["rows"] if row["kind"] == "gpu-original"]
             if len(g) != 2 or min(x["psnr_db"] for x in g if x["order"] == "centroid") < 40.0:
                 fail(f"{r['shape']}: our GPU image of the original is below 40 dB: {g}")
+    if args.look:  # issue 34's acceptance: the default look shows each mesh, and level 6 stays faithful to it
+        for r in results:
+            exact, top = r["exact"], next(row for row in r["rows"] if row.get("level") == max(levels))
+            if exact["tf"] != "auto":
+                fail(f"{r['shape']}: the default look drew transfer function {exact['tf']!r}, not auto")
+            if not exact["bright_share"] >= LOOK_BRIGHT:
+                fail(f"{r['shape']}: {exact['bright_share']:.1%} of {exact['domain_pixels']:,} domain pixels at luma >= {LOOK_LUMA} "
+                     f"in the default look (< {LOOK_BRIGHT:.0%})")
+            if not top["gpu_psnr_db"] >= LOOK_DB:
+                fail(f"{r['shape']}: store level {top['level']} GPU is {top['gpu_psnr_db']:.2f} dB against the original (< {LOOK_DB:.0f})")
+            log(f"{r['shape']}: default look {exact['bright_share']:.1%} bright, store level {top['level']} {top['gpu_psnr_db']:.2f} dB: ok")
 
 
 def vtk_version():
@@ -549,19 +581,31 @@ def bench_shape(shape, args, levels, size, size_arg, tw, tws, tf, vtk_error, wor
     info["mesh_seconds"] = round(time.time() - t0, 1)
     log(f"{shape}: {info['original_tets']:,} tets, rendering the original")
 
+    tf_arg = [] if args.tf == "auto" else ["--tf", args.tf]  # auto is render's default look: pass no --tf
+
     def render(inp, png, *extra):
-        return run_json([tw, "render", inp, "--size", size_arg, "--tf", args.tf, "-o", png, "--json", *extra], f"render {png}")
+        return run_json([tw, "render", inp, "--size", size_arg, *tf_arg, "-o", png, "--json", *extra], f"render {png}")
 
     exact_png = os.path.join(d, "original-exact.png")
     exact = render(original, exact_png, "--reference")
     ref = read_png(exact_png)
-    info["exact"] = {"png": exact_png, "ms": round(exact["ms"]), "tets": exact["tets"], "value_range": exact["value_range"]}
+    if args.tf == "auto":  # the points the default look fitted to the original, for VTK and the range-matched row
+        tf = exact["tf"]["points"]
+    # the domain's pixels: the original drawn opaque white
+    mask_tf = os.path.join(d, "mask-tf.json")
+    with open(mask_tf, "w") as f:
+        json.dump({"name": "mask", "points": [{"s": 0.0, "rgb": [1.0, 1.0, 1.0], "extinction": 1e5}]}, f)
+    mask_png = os.path.join(d, "domain-mask.png")
+    run([tw, "render", original, "--size", size_arg, "--tf", mask_tf, "-o", mask_png], "render the domain mask")
+    mask = read_png(mask_png)[..., :3].max(axis=2) > 0
+    info["exact"] = {"png": exact_png, "ms": round(exact["ms"]), "tets": exact["tets"], "value_range": exact["value_range"],
+                     "tf": exact["tf"]["name"], "domain_pixels": int(mask.sum()), "bright_share": bright_share(ref, mask)}
     rows = []
     for order in ("centroid", "mpvo"):
         png = os.path.join(d, f"original-gpu-{order}.png")
         r = render(original, png, "--order", order)
         rows.append({"what": f"ours GPU on the original ({order})", "kind": "gpu-original", "order": order, "tets": r["tets"],
-                     "psnr_db": image_psnr(read_png(png), ref), "ms": round(r["ms"]), "value_range": r["value_range"], "png": png})
+                     "psnr_db": image_psnr(read_png(png), ref), "bright_share": bright_share(read_png(png), mask), "ms": round(r["ms"]), "value_range": r["value_range"], "png": png})
     if vtk_error is None:
         cam = camera(lo, hi)
         png = os.path.join(d, "vtk.png")
@@ -583,6 +627,7 @@ def bench_shape(shape, args, levels, size, size_arg, tw, tws, tf, vtk_error, wor
             png = os.path.join(d, f"store-l{L}-{mode}.png")
             r = render(store, png, *extra)
             row[f"{mode}_psnr_db"] = image_psnr(read_png(png), ref)
+            row[f"{mode}_bright_share"] = bright_share(read_png(png), mask)
             row[f"{mode}_ms"] = round(r["ms"])
             row[f"{mode}_png"] = png
             row["tets"] = r["tets"]
@@ -658,7 +703,9 @@ def tables(result):
     for s in ok:
         out += ["", f"**{s['shape']}**: {s['input']}; {s['points']:,} points, {s['original_tets']:,} tets, "
                 f"original {s['original_bytes']:,} B; exact image {s['exact']['ms']:,} ms, value range "
-                f"[{s['exact']['value_range'][0]:.6g}, {s['exact']['value_range'][1]:.6g}].", "",
+                f"[{s['exact']['value_range'][0]:.6g}, {s['exact']['value_range'][1]:.6g}], transfer function "
+                f"{s['exact']['tf']}, {s['exact']['bright_share']:.1%} of its {s['exact']['domain_pixels']:,} domain pixels "
+                f"at luma >= {LOOK_LUMA}.", "",
                 "| drawn | tets drawn | store bytes | stream bytes (wire) | value range mapped to the TF | PSNR GPU (dB) | PSNR CPU reference (dB) | PSNR GPU, original's range (dB) | ms GPU / CPU |",
                 "|---|---|---|---|---|---|---|---|---|"]
         for r in s["rows"]:
