@@ -101,8 +101,8 @@ impl Session {
             }
         }
         if !self.arrivals.is_empty() {
-            let recomputed = self.mesh.apply_arrivals(&self.buf, &self.arrivals);
-            self.values_changed(recomputed);
+            let changed = self.mesh.apply_arrivals(&self.buf, &self.arrivals);
+            self.values_changed(changed);
             if self.arrivals.replaced.is_empty() {
                 self.sel.notify_arrived(&self.mesh, &self.arrivals.nodes);
             } else {
@@ -128,23 +128,23 @@ impl Session {
     /// One frame of selective refinement for `cam`, within the selector's budget for `mode`
     /// (first bringing vertex values up to the nodes held, where arrivals defer that).
     pub fn frame(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
-        let recomputed = self.mesh.refresh_values(&self.buf);
-        self.values_changed(recomputed);
+        let changed = self.mesh.refresh_values(&self.buf);
+        self.values_changed(changed);
         self.sel.frame(&mut self.mesh, &self.buf, cam, mode)
     }
 
     /// Refines until the selector is satisfied for `cam`, whatever the budget.
     pub fn converge(&mut self, cam: &Camera, mode: Mode) -> Result<FrameStats, MeshError> {
-        let recomputed = self.mesh.refresh_values(&self.buf);
-        self.values_changed(recomputed);
+        let changed = self.mesh.refresh_values(&self.buf);
+        self.values_changed(changed);
         self.sel.converge(&mut self.mesh, &self.buf, cam, mode)
     }
 
-    /// `recomputed` present vertex values were brought up to the coefficients held: the image
-    /// criterion reads vertex values, so its statuses are looked at again (the other criteria
-    /// read none).
-    fn values_changed(&mut self, recomputed: usize) {
-        if recomputed > 0 && self.sel.params.image.is_some() {
+    /// `changed` present vertex values moved when they were brought up to the coefficients held:
+    /// the image criterion reads vertex values, so its statuses are looked at again (the other
+    /// criteria read none).
+    fn values_changed(&mut self, changed: usize) {
+        if changed > 0 && self.sel.params.image.is_some() {
             self.sel.notify_arrivals();
         }
     }

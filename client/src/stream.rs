@@ -35,7 +35,7 @@ use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
-use tetwave_render::transfer::{TfError, TransferFunction};
+use tetwave_render::transfer::{TfError, TransferFunction, AUTO};
 use tokio::sync::mpsc;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
@@ -394,6 +394,9 @@ pub(crate) struct NetPolicy {
     pub(crate) faults: Faults,
     pub(crate) retries: u32,
     pub(crate) max_nodes: u64,
+    /// The session draws with `auto`: asks for the server's view order under the fitted
+    /// function (`/v1/stream?tf=auto`), whose clients need other nodes first.
+    pub(crate) tf_auto: bool,
 }
 
 /// The network task's counters, shared with the session that reads them (this module's frame
@@ -562,7 +565,14 @@ pub(crate) async fn network(
         faults,
         retries,
         max_nodes,
+        tf_auto,
     } = policy;
+    // the level set's address is derived from `url`; the stream's names the transfer function
+    let stream_url = if tf_auto {
+        format!("{url}?tf={AUTO}")
+    } else {
+        url.clone()
+    };
     // consecutive connection attempts that brought no new node (a failed connect counts too)
     let mut failures = 0u32;
     // preview nodes handed to the session (a reconnection names them in `Hello`), in how many
@@ -601,7 +611,11 @@ pub(crate) async fn network(
         held_previews.truncate(MAX_RANGES);
         let conn = tokio::time::timeout(
             Duration::from_secs(5),
-            tokio_tungstenite::connect_async_with_config(url.as_str(), Some(ws_config()), false),
+            tokio_tungstenite::connect_async_with_config(
+                stream_url.as_str(),
+                Some(ws_config()),
+                false,
+            ),
         )
         .await;
         let mut ws = match conn {
@@ -880,6 +894,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             faults,
             retries: args.retries,
             max_nodes: args.max_nodes,
+            tf_auto: args.tf == AUTO,
         },
     ));
 

@@ -400,6 +400,31 @@ fn axes_values_follow_arrivals_in_any_order() {
     assert_uniform_finest(&mesh, &data);
 }
 
+/// A node whose details are all zero changes no present value: `apply_arrivals` reports none, so
+/// a converged image criterion has nothing to look at again.
+#[test]
+fn a_zero_detail_node_changes_no_value() {
+    let data = make_data(box5(3), 0);
+    let forest = data.base.forest();
+    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
+    let mut arr = Arrivals::default();
+    mesh.refine(0, &buf).unwrap();
+    let before: Vec<(u32, u32)> = mesh
+        .vertex_slots()
+        .map(|s| (s, mesh.vertex_value(s).to_bits()))
+        .collect();
+    let mut zero = data.nodes[0].clone();
+    zero.coeffs.iter_mut().for_each(|c| *c = 0.0);
+    buf.insert(&zero, &mut arr).unwrap();
+    assert_eq!(arr.keys.len(), 6, "node 0 owns the 6 present midpoints");
+    assert_eq!(mesh.apply_arrivals(&buf, &arr), 0);
+    assert_eq!(mesh.refresh_values(&buf), 0);
+    for (s, bits) in before {
+        assert_eq!(mesh.vertex_value(s).to_bits(), bits);
+    }
+}
+
 #[test]
 fn fallback_prediction_then_correction() {
     let data = make_data(box5(3), 0);
@@ -436,7 +461,7 @@ fn fallback_prediction_then_correction() {
     // node 0 owns all 6 midpoints of tet 0: exactly those change, to the reference values
     buf.insert(&data.nodes[0], &mut arr).unwrap();
     assert_eq!(arr.keys.len(), 6);
-    assert_eq!(mesh.apply_arrivals(&buf, &arr), 6);
+    let reported = mesh.apply_arrivals(&buf, &arr);
     arr.clear();
     let mut n_changed = 0;
     for (s, bits) in before {
@@ -454,6 +479,10 @@ fn fallback_prediction_then_correction() {
     assert!(
         n_changed >= 4,
         "the field is not linear: most midpoints move"
+    );
+    assert_eq!(
+        reported, n_changed,
+        "apply_arrivals counts the values that moved"
     );
     mesh.check_conformity().unwrap();
 

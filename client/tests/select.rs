@@ -302,6 +302,47 @@ fn session_takes_chunks_and_settles() {
     assert_eq!(s.progress().0, 3);
 }
 
+/// A converged session stays converged when nodes of tets its mesh does not hold arrive (a stream
+/// goes on sending what the view does not need: before, every such batch started the selector's
+/// sweep again, and under a steady stream it never declared the mesh final); the node of a leaf it
+/// holds makes it look again.
+#[test]
+fn nodes_below_the_leaves_leave_a_converged_session_converged() {
+    let (base, nodes) = detail_nodes(box5(4), wave);
+    let forest = base.forest();
+    let (coarse, deep): (Vec<_>, Vec<_>) = nodes.into_iter().partition(|n| forest.level(n.id) < 2);
+    let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0])).unwrap();
+    s.insert(&coarse).unwrap();
+    let c = cam(20.0, 45.0);
+    let mut frames = 0;
+    while !s.is_converged() {
+        s.frame(&c, Mode::Progressive).unwrap();
+        frames += 1;
+        assert!(frames < 10_000, "no final mesh");
+    }
+    let leaves = sorted_leaves(s.mesh());
+    let (below, at_leaves): (Vec<_>, Vec<_>) = deep
+        .into_iter()
+        .partition(|n| s.mesh().slot_of(n.id).is_none());
+    assert!(
+        below.len() > 100 && !at_leaves.is_empty(),
+        "{} {}",
+        below.len(),
+        at_leaves.len()
+    );
+    for chunk in below.chunks(64) {
+        s.insert(chunk).unwrap();
+        assert!(
+            s.is_converged(),
+            "nodes below the leaves un-converged the session"
+        );
+        assert!(s.frame(&c, Mode::Progressive).unwrap().converged);
+    }
+    assert_eq!(sorted_leaves(s.mesh()), leaves);
+    s.insert(&at_leaves[..1]).unwrap();
+    assert!(!s.is_converged(), "a held leaf's node is looked at");
+}
+
 /// A uniform draw in `[0, 1)` from the state `s`.
 fn unit(s: &mut u64) -> f64 {
     *s = splitmix(*s);

@@ -1,18 +1,30 @@
 //! One refinement criterion for both sides: the server's view order and the client's default
 //! (image) selection rank the nodes of a store identically for one view (both call
-//! `tetwave_protocol::view`'s `ImageCriterion::node_weight`, the server on its reference samples).
+//! `tetwave_protocol::view`'s `ImageCriterion::node_weight`, the server on its reference samples),
+//! under the `default` preset and under `auto` (`/v1/stream?tf=auto`: the preset fitted to the
+//! manifest's histogram, which the server fits as the client does).
 
 use tetwave_client::select::{Mode, SelectParams, Selector};
 use tetwave_client::session::Session;
 use tetwave_protocol::view::{Camera, Tolerance, View, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
-use tetwave_server::stream::{ServeConfig, Shared};
+use tetwave_server::stream::{ServeConfig, Shared, ViewTf};
 use tetwave_store::Store;
 
 mod common;
 
 #[test]
 fn server_view_order_and_client_selection_rank_nodes_alike() {
+    rank_alike(ViewTf::Default, "default");
+}
+
+#[test]
+fn server_view_order_under_auto_ranks_nodes_as_a_client_drawing_auto() {
+    rank_alike(ViewTf::Auto, "auto");
+}
+
+/// The server's view order for a session asking `tf` against a client drawing `spec`.
+fn rank_alike(tf: ViewTf, spec: &str) {
     let (_d, dir) = common::harmonic_store(3);
     let store = Store::open(&dir).unwrap();
     let nodes = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
@@ -25,12 +37,13 @@ fn server_view_order_and_client_selection_rank_nodes_alike() {
 
     let server = Shared::open(&dir, ServeConfig::default())
         .unwrap()
-        .view_priorities(&vp);
+        .view_priorities(&vp, tf);
 
     // the client: every node held and refined (complete mode), then each node's split priority
-    // under the image criterion of the default transfer function and a zero tolerance
+    // under the image criterion of its transfer function and a zero tolerance
     let mut params = SelectParams::new(Tolerance::Pixels(0.0), value_range);
-    let tf = TransferFunction::preset("default").unwrap();
+    let tf = TransferFunction::for_manifest(spec, &store.manifest).unwrap();
+    assert_eq!(tf.name, spec, "the store's manifest has a histogram to fit");
     let img = tf.image_criterion(value_range, &store.base, DEFAULT_IMAGE_EPS);
     params.image = Some(img);
     let mut session = Session::new(store.base.clone(), params.clone()).unwrap();

@@ -8,8 +8,9 @@ impl AdaptiveMesh {
     /// Applies coefficients and node metadata that arrived in `buf` (as recorded in `arrivals`):
     /// present vertices owning a new coefficient are recomputed in place, then every present vertex
     /// whose prediction reads a changed one (level by level); children of arrived nodes get their `empty`
-    /// flags. Returns the number of vertex values recomputed. With the axes predictor values are
-    /// brought up to date by [`Self::refresh_values`] instead (0 here).
+    /// flags. Returns the number of vertex values that changed (a zero detail, the common case
+    /// deep in a smooth field, changes none: what reads values need not look again). With the
+    /// axes predictor values are brought up to date by [`Self::refresh_values`] instead (0 here).
     pub fn apply_arrivals(&mut self, buf: &DetailBuffer, arrivals: &Arrivals) -> usize {
         let nbase = self.keys.base_vertex_count();
         if self.axes.is_some() {
@@ -18,8 +19,9 @@ impl AdaptiveMesh {
         let mut dirty: Vec<u32> = Vec::new();
         for &key in &arrivals.keys {
             if let Some(s) = self.slot_of_key(key).filter(|&s| s as u64 >= nbase) {
-                self.vval[s as usize] = self.synth_value(buf, s);
-                dirty.push(s);
+                if self.resynth(buf, s) {
+                    dirty.push(s);
+                }
             }
         }
         let mut count = dirty.len();
@@ -48,12 +50,9 @@ impl AdaptiveMesh {
                         .into_iter()
                         .chain(src)
                         .any(|d| d != NONE && mark[d as usize]);
-                    if read_changed {
-                        self.vval[s as usize] = self.synth_value(buf, s);
-                        if !mark[s as usize] {
-                            mark[s as usize] = true;
-                            count += 1;
-                        }
+                    if read_changed && self.resynth(buf, s) && !mark[s as usize] {
+                        mark[s as usize] = true;
+                        count += 1;
                     }
                 }
             }
@@ -77,7 +76,7 @@ impl AdaptiveMesh {
     }
 
     /// Brings every present vertex's value up to the coefficients `buf` holds; returns how many
-    /// were recomputed. Only meshes with the axes predictor defer this (see
+    /// changed. Only meshes with the axes predictor defer this (see
     /// [`Self::apply_arrivals`]); for the others values are always current and this is free.
     pub fn refresh_values(&mut self, buf: &DetailBuffer) -> usize {
         let Some(axes) = self.axes.as_mut() else {
@@ -90,13 +89,22 @@ impl AdaptiveMesh {
         let nbase = self.keys.base_vertex_count() as usize;
         let mut count = 0;
         for s in nbase..self.vkey.len() {
-            if self.vref[s] != 0 && self.axes.as_ref().is_some_and(|a| a.stale(self.vpoint[s])) {
-                self.vval[s] = self.synth_value(buf, s as u32);
+            if self.vref[s] != 0
+                && self.axes.as_ref().is_some_and(|a| a.stale(self.vpoint[s]))
+                && self.resynth(buf, s as u32)
+            {
                 count += 1;
             }
         }
         self.axes.as_mut().expect("axes values").refreshed();
         count
+    }
+
+    /// Recomputes vertex `s`'s value from the coefficients held; whether it changed (bit for bit).
+    fn resynth(&mut self, buf: &DetailBuffer, s: u32) -> bool {
+        let v = self.synth_value(buf, s);
+        let old = std::mem::replace(&mut self.vval[s as usize], v);
+        old.to_bits() != v.to_bits()
     }
 
     /// Whether every present vertex's value reflects the coefficients held (always, but with the

@@ -369,7 +369,11 @@ impl Selector {
 
     /// Nodes `ids` arrived in the buffer and `mesh` has applied them
     /// ([`AdaptiveMesh::apply_arrivals`]): like [`Self::notify_arrivals`], but only the subtrees of
-    /// the arrived nodes are looked at again (their usability is all that changed).
+    /// the arrived nodes are looked at again (their usability is all that changed). Nodes of tets
+    /// the mesh does not hold change nothing the criteria read (what their coefficients change in
+    /// present vertex values is reported by the mesh, see [`Session`](crate::session::Session)):
+    /// they leave a converged selector converged, so a stream that goes on sending what the view
+    /// does not need cannot keep a client from converging.
     pub fn notify_arrived(&mut self, mesh: &AdaptiveMesh, ids: &[TetId]) {
         if ids.is_empty() {
             return;
@@ -378,14 +382,17 @@ impl Selector {
             self.notify_arrivals();
             return;
         }
-        self.dirty = true;
-        self.converged = false;
         let from = self.todo.len();
         for &id in ids {
             if let Some(s) = mesh.slot_of(id) {
                 mesh.subtree_slots(s, &mut self.todo);
             }
         }
+        if self.todo.len() == from {
+            return;
+        }
+        self.dirty = true;
+        self.converged = false;
         for i in from..self.todo.len() {
             let s = self.todo[i];
             self.forget(s);

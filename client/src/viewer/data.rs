@@ -118,13 +118,15 @@ pub struct Data {
 }
 
 impl Data {
-    /// Opens a source: a store or mesh file is read now; a stream connects on its own thread.
+    /// Opens a source: a store or mesh file is read now; a stream connects on its own thread
+    /// (`tf_auto`: it draws with `auto`, and asks the server for view order under it).
     pub fn open(
         source: &Source,
         token: Option<String>,
         tol: Tolerance,
         max_nodes: u64,
         select: Selection,
+        tf_auto: bool,
     ) -> Result<Data, String> {
         let empty = |kind| Data {
             kind,
@@ -162,6 +164,7 @@ impl Data {
                         faults: Faults::default(),
                         retries: RECONNECT_ATTEMPTS,
                         max_nodes,
+                        tf_auto,
                     },
                 ));
                 Ok(empty(Kind::Remote(Box::new(Remote {

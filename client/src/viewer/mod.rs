@@ -341,6 +341,7 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
             args: args.select.clone(),
             tf: tf.clone(),
         },
+        args.tf_spec() == AUTO,
     )
     .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let report = Arc::new(Mutex::new(ViewReport::default()));

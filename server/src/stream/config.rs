@@ -16,6 +16,27 @@ pub enum Order {
     Random,
 }
 
+/// The transfer function a session's view order weighs nodes by (image criterion): what the
+/// client draws with, named in `/v1/stream?tf=`. `auto` is the `default` preset fitted to the
+/// manifest's value histogram, as every client fits it; any other name (or none) gets `default`'s
+/// weights.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ViewTf {
+    #[default]
+    Default,
+    Auto,
+}
+
+impl ViewTf {
+    /// The `tf` query value: `auto`, else [`ViewTf::Default`].
+    pub fn parse(s: Option<&str>) -> ViewTf {
+        match s {
+            Some(tetwave_render::transfer::AUTO) => ViewTf::Auto,
+            _ => ViewTf::Default,
+        }
+    }
+}
+
 impl Order {
     pub fn parse(s: &str) -> Option<Order> {
         match s {
@@ -133,6 +154,25 @@ impl Default for ServeConfig {
             origins: OriginPolicy::default(),
             verify_checksums: false,
             view_criterion: ViewCriterion::Image,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_auto_asks_for_the_fitted_weights() {
+        assert_eq!(ViewTf::parse(Some("auto")), ViewTf::Auto);
+        for other in [
+            None,
+            Some("default"),
+            Some("opaque"),
+            Some("my.json"),
+            Some(""),
+        ] {
+            assert_eq!(ViewTf::parse(other), ViewTf::Default, "{other:?}");
         }
     }
 }

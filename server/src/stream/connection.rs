@@ -3,7 +3,7 @@
 
 use super::admission::PeerBudgets;
 use super::auth::same;
-use super::config::Order;
+use super::config::{Order, ViewTf};
 use super::preview::PreviewPhase;
 use super::schedule::{Schedule, MAX_QUEUED_WANTS};
 use super::state::Shared;
@@ -135,12 +135,12 @@ impl Closing {
 pub(super) async fn run_connection(
     socket: WebSocket,
     s: Arc<Shared>,
-    order: Order,
+    (order, tf): (Order, ViewTf),
     pre_auth: bool,
     peer: Option<std::net::SocketAddr>,
 ) -> Result<(), ConnError> {
     let (mut sink, stream) = socket.split();
-    let closing = match stream_to(&mut sink, stream, &s, order, pre_auth, peer).await {
+    let closing = match stream_to(&mut sink, stream, &s, (order, tf), pre_auth, peer).await {
         Ok(c) => c,
         // the socket failed: nothing more can be said on it
         Err(e) => return Err(e),
@@ -175,7 +175,7 @@ async fn stream_to(
     sink: &mut Sink,
     mut stream: futures_util::stream::SplitStream<WebSocket>,
     s: &Arc<Shared>,
-    order: Order,
+    (order, tf): (Order, ViewTf),
     pre_auth: bool,
     peer: Option<std::net::SocketAddr>,
 ) -> Result<Closing, ConnError> {
@@ -251,7 +251,7 @@ async fn stream_to(
     let sched_s = s.clone();
     let (mut sched, mut preview) = tokio::task::spawn_blocking(move || {
         let preview = PreviewPhase::new(&sched_s, order, &have, &previewed);
-        let mut sc = Schedule::new(&sched_s, order);
+        let mut sc = Schedule::new(&sched_s, order, tf);
         sc.have(&have);
         (sc, preview)
     })

@@ -6,7 +6,7 @@
 //! | `GET /v1/manifest`         | the store's manifest, JSON                                        |
 //! | `GET /v1/base`             | one wire frame: `ServerMsg::Base`                                 |
 //! | `GET /v1/nodes?from=&to=`  | one wire frame: `ServerMsg::Nodes { seq: 0, block: from..to }`    |
-//! | `GET /v1/stream[?order=]`  | WebSocket: the progressive stream (below)                         |
+//! | `GET /v1/stream[?order=&tf=]` | WebSocket: the progressive stream (below); `tf=auto`: view order weighs by the fitted function |
 //! | `GET /v1/render?…`         | fallback PNG ([`crate::render_service`])                          |
 //! | `GET /`                    | a small page showing fallback images ([`crate::render_service`])  |
 //!
@@ -44,7 +44,7 @@ mod state;
 
 pub use admission::{open_file_limit, Peer};
 pub use background::BackgroundServer;
-pub use config::{Limits, Order, ServeConfig, ViewCriterion};
+pub use config::{Limits, Order, ServeConfig, ViewCriterion, ViewTf};
 pub use error::ServeError;
 pub use origin::OriginPolicy;
 pub use routes::{app, rss_kib};

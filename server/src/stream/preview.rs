@@ -10,7 +10,7 @@
 //! whole volume, coarsely), and each later one about as many bytes as were sent before it, so
 //! what the client holds about doubles with every frame it draws.
 
-use super::config::Order;
+use super::config::{Order, ViewTf};
 use super::schedule::merged;
 use super::state::{ServedPreview, Shared};
 use std::sync::Arc;
@@ -184,7 +184,7 @@ fn view_order(s: &Shared) -> Vec<TetId> {
         return Vec::new();
     };
     let n = p.nodes.len() as TetId;
-    let pri = s.view_priorities_of(&s.default_view(), 0..n);
+    let pri = s.view_priorities_of(&s.default_view(), ViewTf::Default, 0..n);
     let forest = s.forest();
     // a sibling group by its parent (the base tets: one group); a parent precedes its children,
     // so groups are below n + 1

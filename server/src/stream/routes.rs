@@ -3,7 +3,7 @@
 
 use super::admission::{NoSlot, Peer};
 use super::auth::{self, require_token};
-use super::config::Order;
+use super::config::{Order, ViewTf};
 use super::connection::run_connection;
 use super::error::ServeError;
 use super::origin::check_origin;
@@ -324,6 +324,8 @@ async fn stream(
             }
         },
     };
+    // the client's transfer function, for view order's image weights
+    let tf = ViewTf::parse(q.get("tf").map(String::as_str));
     // a token given on the upgrade request must be right; an absent one is checked in `Hello`
     let pre_auth = match auth::upgrade_auth(&s, peer, &headers, q.get("token")) {
         Ok(p) => p,
@@ -353,7 +355,7 @@ async fn stream(
         .max_frame_size(MAX_CLIENT_MESSAGE)
         .on_upgrade(move |socket| async move {
             s.connections.fetch_add(1, AtomicOrdering::Relaxed);
-            let r = run_connection(socket, s.clone(), order, pre_auth, peer).await;
+            let r = run_connection(socket, s.clone(), (order, tf), pre_auth, peer).await;
             s.connections.fetch_sub(1, AtomicOrdering::Relaxed);
             drop(slot);
             if let Err(e) = r {

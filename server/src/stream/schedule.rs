@@ -3,7 +3,7 @@
 //! or view (the best pending ids for the client's last `View`, a chunk at a time). Two bitsets over
 //! the ids say what is done and what is cancelled.
 
-use super::config::Order;
+use super::config::{Order, ViewTf};
 use super::state::Shared;
 use glam::DVec3;
 use std::collections::BTreeMap;
@@ -143,6 +143,8 @@ struct ViewPlan {
     last: Option<(Instant, Duration)>,
     /// The client has sent a `View` (before that, `view` is the default one).
     client_view: bool,
+    /// The transfer function whose image weights rank the nodes (the client's).
+    tf: ViewTf,
 }
 
 impl ViewPlan {
@@ -189,7 +191,8 @@ pub(super) struct Schedule {
 pub(super) const MAX_QUEUED_WANTS: usize = 1 << 16;
 
 impl Schedule {
-    pub(super) fn new(s: &Shared, order: Order) -> Self {
+    /// A schedule in `order`; view order ranks by the image weights of `tf`.
+    pub(super) fn new(s: &Shared, order: Order, tf: ViewTf) -> Self {
         let n = s.nodes;
         let plan = match order {
             Order::Level => Plan::Level { cursor: 0 },
@@ -207,6 +210,7 @@ impl Schedule {
                 stale: true,
                 last: None,
                 client_view: false,
+                tf,
             }),
         };
         Schedule {
@@ -315,7 +319,7 @@ impl Schedule {
                     }
                     let now = Instant::now();
                     if p.rescan_due(now) {
-                        p.chunk = view_chunk(s, &p.view, &self.done, self.remaining);
+                        p.chunk = view_chunk(s, &p.view, p.tf, &self.done, self.remaining);
                         p.stale = false;
                         let end = Instant::now();
                         p.last = Some((end, end - now));
@@ -410,23 +414,25 @@ impl ViewPriority {
 }
 
 impl Shared {
-    /// Every node's view-order priority for `view` (larger is sent first): what
-    /// [`Order::View`](super::Order::View) ranks by.
-    pub fn view_priorities(&self, view: &ViewParams) -> Vec<f32> {
-        self.view_priorities_of(view, 0..self.nodes)
+    /// Every node's view-order priority for `view` and a client drawing with `tf` (larger is
+    /// sent first): what [`Order::View`](super::Order::View) ranks by.
+    pub fn view_priorities(&self, view: &ViewParams, tf: ViewTf) -> Vec<f32> {
+        self.view_priorities_of(view, tf, 0..self.nodes)
     }
 
     /// [`Self::view_priorities`] of nodes `ids`.
     pub(super) fn view_priorities_of(
         &self,
         view: &ViewParams,
+        tf: ViewTf,
         ids: std::ops::Range<TetId>,
     ) -> Vec<f32> {
         let g = self.geometry();
+        let image = g.image(tf);
         let p = ViewPriority::new(view, self.store.manifest.value_range);
         ids.map(|u| {
             let u = u as usize;
-            p.eval(g.centre[u], g.radius[u], self.smax[u], g.image_of(u))
+            p.eval(g.centre[u], g.radius[u], self.smax[u], image.map(|w| w[u]))
         })
         .collect()
     }
@@ -447,7 +453,13 @@ const NOT_READ: f32 = 1e-6;
 /// on the view reads — the children of what it splits, which its leaves' bounds are — come before
 /// nodes below its leaves. Takes at most `max(4096, n/16)` of them, so a connection recomputes at
 /// most ~16 times over the whole stream plus once per `View`.
-fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> Vec<TetId> {
+fn view_chunk(
+    s: &Shared,
+    view: &ViewParams,
+    tf: ViewTf,
+    done: &BitSet,
+    remaining: u64,
+) -> Vec<TetId> {
     use rayon::prelude::*;
     use std::cmp::Reverse;
     let m = ((s.nodes / 16).max(4096)).min(remaining) as usize;
@@ -455,6 +467,7 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
         return Vec::new();
     }
     let g = s.geometry();
+    let image = g.image(tf);
     let forest = s.forest();
     let p = ViewPriority::new(view, s.store.manifest.value_range);
     // every node's priority as the bits of a non-negative f32 (ordered as the floats; done nodes
@@ -471,10 +484,10 @@ fn view_chunk(s: &Shared, view: &ViewParams, done: &BitSet, remaining: u64) -> V
                 return DONE;
             }
             let mut e = p
-                .eval(g.centre[u], g.radius[u], s.smax[u], g.image_of(u))
+                .eval(g.centre[u], g.radius[u], s.smax[u], image.map(|w| w[u]))
                 .max(0.0);
             if let Some(q) = forest.parent(i).map(|q| q as usize) {
-                if !p.splits(g.centre[q], g.radius[q], s.smax[q], g.image_of(q)) {
+                if !p.splits(g.centre[q], g.radius[q], s.smax[q], image.map(|w| w[q])) {
                     e *= NOT_READ;
                 }
             }

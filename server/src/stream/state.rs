@@ -4,7 +4,7 @@
 
 use super::admission::{Admission, PeerBudgets};
 use super::auth::FailureLimiter;
-use super::config::{ServeConfig, ViewCriterion};
+use super::config::{ServeConfig, ViewCriterion, ViewTf};
 use super::error::ServeError;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
@@ -19,7 +19,7 @@ use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
 use tetwave_protocol::view::{tet_sphere, DEFAULT_IMAGE_EPS};
 use tetwave_protocol::wire::{encode, ServerMsg, SessionStart};
 use tetwave_protocol::{DetailNode, Forest, LatticeTet, TetId};
-use tetwave_render::transfer::TransferFunction;
+use tetwave_render::transfer::{TransferFunction, ValueHistogram};
 use tetwave_store::Manifest;
 use tetwave_store::{OpenOptions, Store, StoreError, BLOCK};
 
@@ -29,17 +29,23 @@ pub(super) struct Geometry {
     pub(super) centre: Vec<[f32; 3]>,
     /// Bounding-sphere radius ([`tet_sphere`]).
     pub(super) radius: Vec<f32>,
-    /// Every node's [`ImageCriterion::node_weight`] under the default transfer function over the
-    /// store's value range, read off the store's reference samples (within the store's bound of
-    /// what a client synthesizes); `None` under [`ViewCriterion::Data`] or without a reference.
+    /// Every node's [`ImageCriterion::node_weight`] under the `default` transfer function over
+    /// the store's value range, read off the store's reference samples (within the store's bound
+    /// of what a client synthesizes); `None` under [`ViewCriterion::Data`] or without a reference.
     pub(super) image: Option<Vec<f32>>,
+    /// The same under `auto` (`default` fitted to the manifest's histogram), when the manifest
+    /// has one: it is steeper where most of the data lies, so its clients need other nodes first.
+    pub(super) image_auto: Option<Vec<f32>>,
 }
 
 impl Geometry {
-    /// Node `u`'s image weight, when view order weighs by it.
+    /// The image weights view order reads for a session drawing with `tf`, if any.
     #[inline]
-    pub(super) fn image_of(&self, u: usize) -> Option<f32> {
-        self.image.as_ref().map(|w| w[u])
+    pub(super) fn image(&self, tf: ViewTf) -> Option<&[f32]> {
+        match tf {
+            ViewTf::Auto => self.image_auto.as_deref().or(self.image.as_deref()),
+            ViewTf::Default => self.image.as_deref(),
+        }
     }
 }
 
@@ -54,13 +60,12 @@ fn image_weights(
     smax: &[f32],
     radius: &[f32],
     reference: &[f32],
+    tf: &TransferFunction,
 ) -> Vec<f32> {
     use rayon::prelude::*;
     use tetwave_protocol::hierarchy::{LevelWalker, BEY_CHILDREN, EDGES};
     let base = &store.base;
     let keys = base.vertex_keys();
-    // what streaming clients draw by default (`auto` would ask for far more nodes)
-    let tf = TransferFunction::preset("default").expect("the default preset exists");
     let img = tf.image_criterion(store.manifest.value_range, base, DEFAULT_IMAGE_EPS);
     let levels = forest.levels;
     let n = forest.nodes() as usize;
@@ -354,7 +359,16 @@ impl Shared {
                     ViewCriterion::Data => None,
                     ViewCriterion::Image => match self.store.read_reference() {
                         Ok(r) if r.len() as u64 == base.vertex_keys().vertex_count() => {
-                            Some(image_weights(&self.store, forest, &self.smax, &radius, &r))
+                            let m = &self.store.manifest;
+                            let weights = |tf: &TransferFunction| {
+                                image_weights(&self.store, forest, &self.smax, &radius, &r, tf)
+                            };
+                            // what streaming clients draw by default, and the fitted look
+                            let default = TransferFunction::preset("default")
+                                .expect("the default preset exists");
+                            let auto = ValueHistogram::of_manifest(m)
+                                .map(|h| weights(&default.fitted(&h)));
+                            Some((weights(&default), auto))
                         }
                         Ok(_) | Err(_) => {
                             tracing::warn!(
@@ -365,9 +379,14 @@ impl Shared {
                         }
                     },
                 };
+                let (image, image_auto) = match image {
+                    Some((d, a)) => (Some(d), a),
+                    None => (None, None),
+                };
                 tracing::info!(
                     nodes = self.nodes,
                     image = image.is_some(),
+                    image_auto = image_auto.is_some(),
                     "view-order geometry computed in {:.2} s",
                     t0.elapsed().as_secs_f64()
                 );
@@ -375,6 +394,7 @@ impl Shared {
                     centre,
                     radius,
                     image,
+                    image_auto,
                 })
             })
             .clone()
