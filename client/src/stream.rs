@@ -68,8 +68,8 @@ pub struct StreamArgs {
     pub size: (u32, u32),
     /// Transfer function: a preset (default, transparent, opaque, shells), a .json file, or
     /// `auto` (the `default` preset fitted to the store's value histogram, as `tetwave render`
-    /// fits it: it shows more of real data, and the view-dependent selection refines much more
-    /// for it, see docs/formats.md).
+    /// fits it: it shows more of real data, and the view-dependent selection keeps about twice
+    /// the leaves for it, see docs/formats.md).
     #[arg(long, default_value = "default")]
     pub tf: String,
     #[command(flatten)]

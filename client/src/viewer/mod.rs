@@ -81,8 +81,8 @@ pub struct ViewArgs {
     /// Transfer function: `auto` (the `default` preset fitted to the data as `tetwave render`
     /// fits it: a store's or a stream's to the histogram its manifest carries), a preset (default,
     /// transparent, opaque, shells) or a .json file. Default: `auto` for a store or a mesh file,
-    /// `default` for a stream (`auto` makes the view-dependent stream refine much more: see
-    /// docs/formats.md).
+    /// `default` for a stream (`auto` makes the view-dependent stream keep about twice the
+    /// leaves: see docs/formats.md).
     #[arg(long)]
     pub tf: Option<String>,
     /// Screen-space tolerance in pixels (0: refine everything visible to the finest level).
