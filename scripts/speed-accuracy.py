@@ -39,7 +39,6 @@ chart and the table say that VTK was NOT measured; no VTK point is ever made up.
 
 import argparse
 import json
-import math
 import os
 import shutil
 import statistics
@@ -49,9 +48,6 @@ import time
 
 import numpy as np
 
-# the `default` preset's points (render/src/transfer.rs, as scripts/bench-fidelity.py lists them)
-TF_POINTS = [(0.0, [0.1, 0.2, 0.9], 0.5), (0.45, [0.2, 0.6, 0.9], 1.0), (0.6, [0.9, 0.9, 0.8], 4.0),
-             (0.8, [1.0, 0.6, 0.2], 12.0), (1.0, [1.0, 0.3, 0.1], 20.0)]
 
 
 def fail(msg):
@@ -72,96 +68,31 @@ def run_json(cmd):
         fail(f"{' '.join(cmd)} printed no JSON:\n{p.stdout}\n{p.stderr}")
 
 
-def read_png(path):
-    from PIL import Image
+def bench_fidelity():
+    """scripts/bench-fidelity.py as a module: its camera, image PSNR, transfer-function points and
+    VTK renderer (the same scene there and here)."""
+    import importlib.util
 
-    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64)
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bench-fidelity.py")
+    spec = importlib.util.spec_from_file_location("bench_fidelity", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
-def psnr(a, b):
-    if a.shape != b.shape:
-        fail(f"image shapes differ: {a.shape} and {b.shape}")
-    rmse = math.sqrt(float(np.mean((a - b) ** 2)))
-    return 99.0 if rmse == 0 else min(99.0, 20.0 * math.log10(255.0 / rmse))
-
-
-def camera(lo, hi, az=35.0, el=25.0, fov=40.0):
-    """tetwave's default orbit camera (protocol/src/view.rs Camera::orbit, render_cli.rs): centre of
-    the bounds, distance 1.6 x the diagonal, up +z (as scripts/bench-fidelity.py)."""
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    center = (lo + hi) / 2
-    diag = float(np.linalg.norm(hi - lo))
-    a, e = math.radians(az), math.radians(el)
-    d = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
-    eye = center + d * 1.6 * diag
-    f = center - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, [0, 0, 1.0])
-    r /= np.linalg.norm(r)
-    up = np.cross(r, f)
-    return {"eye": eye.tolist(), "target": center.tolist(), "up": up.tolist(), "fovy_deg": fov, "diagonal": diag}
+BF = bench_fidelity()
+read_png, psnr, camera = BF.read_png, BF.image_psnr, BF.camera
 
 
 def vtk_render(vtk_path, value_range, cam, size, frames, out_png):
-    """vtkProjectedTetrahedraMapper on a legacy .vtk grid. Returns (median ms, all ms, window class)."""
-    if not os.environ.get("DISPLAY"):
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # no X server: EGL
+    """vtkProjectedTetrahedraMapper on a legacy .vtk grid (RenderMesh::write_vtk's, scalar `f`),
+    by bench-fidelity's renderer. Returns (median ms, all ms, window class)."""
     import vtk
 
     r = vtk.vtkUnstructuredGridReader()
     r.SetFileName(vtk_path)
     r.Update()
-    grid = r.GetOutput()
-    lo, hi = value_range
-    color = vtk.vtkColorTransferFunction()
-    opacity = vtk.vtkPiecewiseFunction()
-    for s, rgb, ext in TF_POINTS:
-        v = lo + s * (hi - lo)
-        color.AddRGBPoint(v, *rgb)
-        opacity.AddPoint(v, 1.0 - math.exp(-ext / cam["diagonal"]))
-    prop = vtk.vtkVolumeProperty()
-    prop.SetColor(color)
-    prop.SetScalarOpacity(opacity)
-    prop.SetScalarOpacityUnitDistance(1.0)
-    prop.SetInterpolationTypeToLinear()
-    mapper = vtk.vtkProjectedTetrahedraMapper()
-    mapper.SetInputData(grid)
-    volume = vtk.vtkVolume()
-    volume.SetMapper(mapper)
-    volume.SetProperty(prop)
-    ren = vtk.vtkRenderer()
-    ren.AddVolume(volume)
-    ren.SetBackground(0, 0, 0)
-    win = vtk.vtkRenderWindow()
-    win.SetOffScreenRendering(1)
-    win.AddRenderer(ren)
-    win.SetSize(size, size)
-    c = ren.GetActiveCamera()
-    c.SetPosition(*cam["eye"])
-    c.SetFocalPoint(*cam["target"])
-    c.SetViewUp(*cam["up"])
-    c.SetViewAngle(cam["fovy_deg"])
-    ren.ResetCameraClippingRange()
-    win.Render()  # warm-up: uploads, first sort
-    times = []
-    pixels = vtk.vtkUnsignedCharArray()
-    for _ in range(frames):
-        c.Modified()  # forces the visibility re-sort, as ours sorts every frame
-        t = time.perf_counter()
-        win.Render()
-        win.GetPixelData(0, 0, size - 1, size - 1, 0, pixels, 0)  # read-back, as ours: the frame is finished
-        times.append((time.perf_counter() - t) * 1e3)
-    w2i = vtk.vtkWindowToImageFilter()
-    w2i.SetInput(win)
-    w2i.SetInputBufferTypeToRGB()
-    w2i.ReadFrontBufferOff()
-    w2i.Update()
-    png = vtk.vtkPNGWriter()
-    png.SetFileName(out_png)
-    png.SetInputConnection(w2i.GetOutputPort())
-    png.Write()
-    cls = win.GetClassName()
-    win.Finalize()
+    times, cls = BF.vtk_render(r.GetOutput(), "f", value_range, cam, BF.tf_points("default"), (size, size), out_png, frames)
     return statistics.median(times), times, cls
 
 
@@ -231,7 +162,7 @@ def main():
     os.makedirs(args.charts, exist_ok=True)
     tf_path = os.path.join(out, "tf.json")
     json.dump({"name": "default (speed-accuracy)",
-               "points": [{"s": s, "rgb": rgb, "extinction": e} for s, rgb, e in TF_POINTS]},
+               "points": BF.tf_points("default")},
               open(tf_path, "w"), indent=1)
     size_arg = f"{args.size}x{args.size}"
     common = ["--size", size_arg, "--tf", tf_path, "--json"]
