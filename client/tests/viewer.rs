@@ -1134,6 +1134,47 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 }
 
+/// A whole draw slower than `--motion-ms` (every draw, at 1 µs) at rest is spread over frames, a
+/// range of its triangles a frame, while the view keeps the last image (the window answers); the
+/// image it ends with is the one a single draw makes.
+#[test]
+fn view_spreads_a_slow_draw_at_rest_over_frames() {
+    let (d, s) = store(4);
+    let dir = d.path();
+    let shot = dir.join("rest.png");
+    let script = orbit_then_rest(&shot);
+    let r = view_script(
+        dir,
+        &script,
+        &[
+            s.to_str().unwrap(),
+            "--size",
+            "160x120",
+            "--motion-ms",
+            "0.001",
+            "--motion-tets",
+            "400",
+            "--frames",
+            "20000",
+        ],
+    );
+    let p = &r["perf"];
+    eprintln!("{p}");
+    let (draws, frames) = (
+        p["spread_draws"].as_u64().unwrap(),
+        p["spread_frames"].as_u64().unwrap(),
+    );
+    assert!(draws >= 1, "{p}");
+    // 20,480 tets at a few thousand triangles a frame: several frames each
+    assert!(frames >= 3 * draws, "{draws} draws in {frames} frames");
+    assert_eq!(r["tets"], 20480, "{r}");
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
+    let at_rest = psnr(&png(&shot), &reference);
+    eprintln!("a spread draw at rest vs offscreen: {at_rest:.2} dB");
+    assert!(at_rest >= 40.0, "{at_rest:.2} dB");
+}
+
 /// `auto` in the transfer-function list: a stream viewed with the `default` preset (its default)
 /// switches to the function fitted to the store's histogram, the one `tetwave render` draws the
 /// store with, and the server renders the same for its image.

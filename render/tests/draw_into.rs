@@ -61,4 +61,22 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
         twice != drawn,
         "a second frame without clear blends over the first"
     );
+
+    // one frame spread over uneven ranges of its triangles, one submission each (as the viewer
+    // spreads a slow draw over several window frames): the same image
+    let frame = r.prepare(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid);
+    let n = frame.triangles();
+    assert!(n > 1000, "{n} triangles");
+    let cuts = [0, 1, n / 7, n / 3, n / 3, n / 2 + 5, n - 1, n + 50];
+    for (i, w) in cuts.windows(2).enumerate() {
+        r.draw_range_into(&ctx, &frame, w[0]..w[1], &view, i == 0);
+    }
+    let ranged = r.read_texture(&ctx, &texture).unwrap();
+    assert!(
+        ranged == offscreen,
+        "a frame drawn in ranges differs from the frame drawn at once"
+    );
+    // a range short of the end leaves part of the image undrawn
+    r.draw_range_into(&ctx, &frame, 0..n / 2, &view, true);
+    assert!(r.read_texture(&ctx, &texture).unwrap() != offscreen);
 }

@@ -23,7 +23,7 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{Accumulation, PtRenderer, TetDrawData, VisibilityOrder};
+use tetwave_render::gpu::pt::{Accumulation, FrameDraw, PtRenderer, TetDrawData, VisibilityOrder};
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
@@ -43,6 +43,23 @@ const RESIZE_FRAMES: u64 = 600;
 
 /// Bins of the editor's histogram.
 const HISTOGRAM_BINS: usize = 64;
+/// The fewest triangles one frame of a spread draw ([`PendingDraw`]) draws.
+const MIN_PART_TRIANGLES: u32 = 4096;
+
+/// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: the
+/// frame's triangles in consecutive ranges, one a frame, into a second target, which replaces the
+/// one shown once it holds every triangle (the same image as one whole draw: see
+/// [`PtRenderer::draw_range`]). Meanwhile the window answers, showing the last image. It is
+/// dropped when the camera or the view's size changes or another draw needs the renderer; a new
+/// mesh or transfer function waits for it, then is drawn.
+struct PendingDraw {
+    frame: FrameDraw,
+    target: Target,
+    /// Triangles drawn so far.
+    next: u32,
+    /// The first frame that drew part of it.
+    first_frame: u64,
+}
 
 /// The transfer-function presets (what the server's `/v1/render` knows too).
 const PRESETS: [&str; 5] = ["auto", "default", "transparent", "opaque", "shells"];
@@ -95,6 +112,11 @@ pub struct ViewerApp {
     view_rect: Rect,
     view_px: (u32, u32),
     target: Option<Target>,
+    /// A slow whole draw in progress, and a target of the view's size for the next one.
+    pending: Option<PendingDraw>,
+    spare: Option<Target>,
+    /// Milliseconds of frame period per triangle of a spread draw (0: not measured yet).
+    ms_per_triangle: f64,
     draw_data: Option<TetDrawData>,
     /// The coarser mesh drawn in motion when whole draws are slow (`--motion-tets`).
     motion_data: Option<TetDrawData>,
@@ -227,6 +249,9 @@ impl ViewerApp {
             view_rect: Rect::NOTHING,
             view_px: (args.size.0, args.size.1),
             target: None,
+            pending: None,
+            spare: None,
+            ms_per_triangle: 0.0,
             draw_data: None,
             motion_data: None,
             drew_motion: false,
@@ -800,7 +825,8 @@ impl ViewerApp {
             1
         };
         let (dw, dh) = ((w / scale).max(1), (h / scale).max(1));
-        if self.target.as_ref().map(Target::size) != Some((dw, dh)) {
+        let resized = self.target.as_ref().map(Target::size) != Some((dw, dh));
+        if resized {
             self.target = Some(Target::new(
                 &self.gpu,
                 &self.blit,
@@ -816,7 +842,69 @@ impl ViewerApp {
         if self.drew_motion && !use_motion {
             self.image_dirty = true;
         }
-        if self.image_dirty {
+        // a spread draw is for this camera and size, and holds the renderer's uniforms
+        if self.pending.is_some() && (resized || self.last_cam != Some(cam) || use_motion) {
+            self.pending = None;
+        }
+        if self.image_dirty && self.pending.is_none() {
+            let data = if use_motion {
+                &self.motion_data
+            } else {
+                &self.draw_data
+            };
+            if let (Some(d), Some(_)) = (data, &self.target) {
+                if !use_motion && slow && scale == 1 {
+                    let frame = self.renderer.prepare(
+                        &self.gpu,
+                        d,
+                        &draw_cam,
+                        &self.tf,
+                        VisibilityOrder::Centroid,
+                    );
+                    let target = match self.spare.take() {
+                        Some(t) if t.size() == (dw, dh) => t,
+                        _ => Target::new(&self.gpu, &self.blit, self.renderer.format(), dw, dh),
+                    };
+                    if self.ms_per_triangle <= 0.0 {
+                        self.ms_per_triangle = self.full_draw_ms / frame.triangles().max(1) as f64;
+                    }
+                    self.pending = Some(PendingDraw {
+                        frame,
+                        target,
+                        next: 0,
+                        first_frame: self.frames,
+                    });
+                    self.image_dirty = false;
+                    self.drew_motion = false;
+                }
+            }
+        }
+        if let Some(p) = self.pending.as_mut() {
+            // about half of --motion-ms of drawing a frame
+            let per = (0.5 * self.args.motion_ms / self.ms_per_triangle.max(1e-9))
+                .clamp(MIN_PART_TRIANGLES as f64, u32::MAX as f64) as u32;
+            let n = p.frame.triangles();
+            let end = p.next.saturating_add(per).min(n);
+            self.renderer.draw_range_into(
+                &self.gpu,
+                &p.frame,
+                p.next..end,
+                &p.target.view,
+                p.next == 0,
+            );
+            self.perf.current().drew_part = (end - p.next).max(1);
+            p.next = end;
+            if end >= n {
+                // the new image is shown: this frame counts as a draw at rest
+                let p = self.pending.take().expect("a pending draw");
+                let rec = self.perf.current();
+                rec.drew_part_of = Some(p.first_frame);
+                rec.drew = true;
+                rec.draw_scale = 1;
+                self.spare = self.target.replace(p.target);
+            }
+        }
+        if self.image_dirty && self.pending.is_none() {
             let data = if use_motion {
                 &self.motion_data
             } else {
@@ -862,6 +950,7 @@ impl ViewerApp {
         // drawn: the mesh refined so far, not one still being uploaded or waiting to be, with
         // all the view's pixels
         let drawn = !self.image_dirty
+            && self.pending.is_none()
             && scale == 1
             && !self.drew_motion
             && self.draw_data.is_some()
@@ -1262,6 +1351,23 @@ impl eframe::App for ViewerApp {
         if let Some(last) = self.perf.frames().last() {
             if last.drew && last.draw_scale == 1 && last.period_ms.is_finite() {
                 self.full_draw_ms = last.period_ms;
+            }
+            if last.drew_part > 0 && last.period_ms.is_finite() {
+                let m = last.period_ms / last.drew_part as f64;
+                self.ms_per_triangle = if self.ms_per_triangle > 0.0 {
+                    0.5 * (self.ms_per_triangle + m)
+                } else {
+                    m
+                };
+            }
+            // a spread draw ended: what it took in all stands for a whole draw's period
+            if let Some(first) = last.drew_part_of {
+                let spread: f64 = (self.perf.frames().iter())
+                    .filter(|r| r.frame >= first && r.drew_part > 0)
+                    .map(|r| r.period_ms)
+                    .filter(|p| p.is_finite())
+                    .sum();
+                self.full_draw_ms = spread;
             }
         }
         if std::mem::take(&mut self.observe_draw) {

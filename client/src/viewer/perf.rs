@@ -59,6 +59,10 @@ pub struct FrameRecord {
     pub moving: bool,
     /// The volume was drawn in this frame.
     pub drew: bool,
+    /// Triangles of a whole draw spread over frames drawn in this frame (0: none).
+    pub drew_part: u32,
+    /// This frame drew the last part of a spread draw, whose first part was drawn in this frame.
+    pub drew_part_of: Option<u64>,
 }
 
 /// p50, p95 and maximum of a set of times (nearest rank), and how many.
@@ -131,6 +135,11 @@ pub struct PerfReport {
     pub max_tol_px: f64,
     /// Frames that drew the volume with fewer pixels than the view's (`--motion-scale`).
     pub frames_drawn_scaled: u64,
+    /// Whole draws spread over frames (slow draws at rest), and the frames that drew their parts.
+    pub spread_draws: u64,
+    pub spread_frames: u64,
+    /// The periods of the frames that drew a part of one.
+    pub spread_frame_ms: Stats,
 }
 
 /// A selector checks its clock between operations, so a frame overruns its budget by up to one
@@ -261,6 +270,9 @@ impl Perf {
             ),
             max_tol_px: f.iter().map(|r| r.tol_px).fold(0.0, f64::max),
             frames_drawn_scaled: f.iter().filter(|r| r.drew && r.draw_scale > 1).count() as u64,
+            spread_draws: f.iter().filter(|r| r.drew_part_of.is_some()).count() as u64,
+            spread_frames: f.iter().filter(|r| r.drew_part > 0).count() as u64,
+            spread_frame_ms: Stats::of(f.iter().filter(|r| r.drew_part > 0).map(|r| r.period_ms)),
         }
     }
 }

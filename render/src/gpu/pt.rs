@@ -149,6 +149,18 @@ pub struct FrameDraw {
     sort_ms: f64,
 }
 
+impl FrameDraw {
+    /// Triangles the frame draws (exit faces; a tet has one to three).
+    pub fn triangles(&self) -> u32 {
+        self.triangles
+    }
+
+    /// Milliseconds its visibility sort took.
+    pub fn sort_ms(&self) -> f64 {
+        self.sort_ms
+    }
+}
+
 /// Timings of one frame, in milliseconds.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct FrameTimes {
@@ -584,21 +596,58 @@ impl PtRenderer {
     /// Records `frame` into a render pass of the caller's (e.g. a window's), whose colour target
     /// has [`Self::format`] and holds premultiplied colour: the tets blend over what is there.
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, frame: &FrameDraw) {
-        if frame.triangles == 0 {
+        self.draw_range(pass, frame, 0..frame.triangles);
+    }
+
+    /// Records triangles `tris` of `frame` (in drawing order) into a render pass: drawing a frame's
+    /// triangles in consecutive ranges, in order, into one target makes the image one
+    /// [`Self::draw`] makes (blending is applied in the same order), so a slow frame can be
+    /// spread over several submissions.
+    pub fn draw_range(
+        &self,
+        pass: &mut wgpu::RenderPass<'_>,
+        frame: &FrameDraw,
+        tris: std::ops::Range<u32>,
+    ) {
+        let end = tris.end.min(frame.triangles);
+        if tris.start >= end {
             return;
         }
         pass.set_bind_group(0, &frame.bind, &[]);
         pass.set_index_buffer(frame.indices.slice(..), wgpu::IndexFormat::Uint32);
         let mut first = 0;
         for &(slow, n) in &frame.runs {
+            let (a, b) = (first.max(tris.start), (first + n).min(end));
+            first += n;
+            if a >= b {
+                continue;
+            }
             pass.set_pipeline(if slow {
                 &self.pipeline_steps
             } else {
                 &self.pipeline
             });
-            pass.draw_indexed(3 * first..3 * (first + n), 0, 0..1);
-            first += n;
+            pass.draw_indexed(3 * a..3 * b, 0, 0..1);
         }
+    }
+
+    /// Draws triangles `tris` of `frame` into a texture view of the caller's (of
+    /// [`Self::format`]), cleared to transparent black first when `clear`, and submits it; see
+    /// [`Self::draw_range`]. `frame` must be the last one this renderer prepared.
+    pub fn draw_range_into(
+        &self,
+        ctx: &GpuContext,
+        frame: &FrameDraw,
+        tris: std::ops::Range<u32>,
+        target: &wgpu::TextureView,
+        clear: bool,
+    ) {
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = begin_pass(&mut enc, target, clear);
+            self.draw_range(&mut pass, frame, tris);
+        }
+        ctx.queue.submit([enc.finish()]);
     }
 
     /// Draws one frame into a texture view of the caller's (of [`Self::format`]), cleared to
@@ -636,26 +685,7 @@ impl PtRenderer {
         clear: bool,
         frame: &FrameDraw,
     ) {
-        let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("pt"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: if clear {
-                        wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT)
-                    } else {
-                        wgpu::LoadOp::Load
-                    },
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = begin_pass(enc, view, clear);
         self.draw(&mut pass, frame);
     }
 
@@ -888,4 +918,32 @@ fn half_to_f32(h: u16) -> f32 {
         }
         _ => s * (1.0 + m / 1024.0) * (2f32).powi(e - 15),
     }
+}
+
+/// A render pass onto `view`, cleared to transparent black first when `clear`.
+fn begin_pass<'a>(
+    enc: &'a mut wgpu::CommandEncoder,
+    view: &wgpu::TextureView,
+    clear: bool,
+) -> wgpu::RenderPass<'a> {
+    enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("pt"),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: wgpu::Operations {
+                load: if clear {
+                    wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT)
+                } else {
+                    wgpu::LoadOp::Load
+                },
+                store: wgpu::StoreOp::Store,
+            },
+        })],
+        depth_stencil_attachment: None,
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
 }
