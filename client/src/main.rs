@@ -105,9 +105,13 @@ fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
 fn main() -> ExitCode {
     // before any thread: headless renders would otherwise print a Wayland probe's error
     tetwave_render::gpu::quiet_headless_vulkan_layers();
+    // TETWAVE_LOG (EnvFilter syntax, as the server's --log), e.g. `tetwave_client=trace` for the
+    // viewer's frame records
+    let filter = tracing_subscriber::EnvFilter::try_from_env("TETWAVE_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,winit=error"));
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
-        .with_env_filter("warn,winit=error")
+        .with_env_filter(filter)
         .init();
     match Cli::parse().cmd {
         Cmd::Stream(args) => match tetwave_client::stream::run(&args) {

@@ -46,6 +46,12 @@ const HISTOGRAM_BINS: usize = 64;
 /// The fewest triangles one frame of a spread draw ([`PendingDraw`]) draws.
 const MIN_PART_TRIANGLES: u32 = 4096;
 
+/// The parts a spread draw is cut into (lavapipe draws the 257³ store's ~750 k tets at 512² in
+/// 1.1–2.7 s whole, on the CPU cores the frame's own work uses: a part is a few tens of ms). A
+/// part size measured from frame times would follow the frame's own work (refinement, the leaf
+/// mesh, often larger than a part), not the draw.
+const SPREAD_PARTS: u32 = 48;
+
 /// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: the
 /// frame's triangles in consecutive ranges, one a frame, into a second target, which replaces the
 /// one shown once it holds every triangle (the same image as one whole draw: see
@@ -115,8 +121,6 @@ pub struct ViewerApp {
     /// A slow whole draw in progress, and a target of the view's size for the next one.
     pending: Option<PendingDraw>,
     spare: Option<Target>,
-    /// Milliseconds of frame period per triangle of a spread draw (0: not measured yet).
-    ms_per_triangle: f64,
     draw_data: Option<TetDrawData>,
     /// The coarser mesh drawn in motion when whole draws are slow (`--motion-tets`).
     motion_data: Option<TetDrawData>,
@@ -251,7 +255,6 @@ impl ViewerApp {
             target: None,
             pending: None,
             spare: None,
-            ms_per_triangle: 0.0,
             draw_data: None,
             motion_data: None,
             drew_motion: false,
@@ -854,6 +857,7 @@ impl ViewerApp {
             };
             if let (Some(d), Some(_)) = (data, &self.target) {
                 if !use_motion && slow && scale == 1 {
+                    let t = Instant::now();
                     let frame = self.renderer.prepare(
                         &self.gpu,
                         d,
@@ -865,26 +869,25 @@ impl ViewerApp {
                         Some(t) if t.size() == (dw, dh) => t,
                         _ => Target::new(&self.gpu, &self.blit, self.renderer.format(), dw, dh),
                     };
-                    if self.ms_per_triangle <= 0.0 {
-                        self.ms_per_triangle = self.full_draw_ms / frame.triangles().max(1) as f64;
-                    }
                     self.pending = Some(PendingDraw {
                         frame,
                         target,
                         next: 0,
                         first_frame: self.frames,
                     });
+                    self.perf.current().render_ms = t.elapsed().as_secs_f64() * 1e3;
                     self.image_dirty = false;
                     self.drew_motion = false;
                 }
             }
         }
         if let Some(p) = self.pending.as_mut() {
-            // about half of --motion-ms of drawing a frame
-            let per = (0.5 * self.args.motion_ms / self.ms_per_triangle.max(1e-9))
-                .clamp(MIN_PART_TRIANGLES as f64, u32::MAX as f64) as u32;
             let n = p.frame.triangles();
-            let end = p.next.saturating_add(per).min(n);
+            let end = p
+                .next
+                .saturating_add(n.div_ceil(SPREAD_PARTS).max(MIN_PART_TRIANGLES))
+                .min(n);
+            let t = Instant::now();
             self.renderer.draw_range_into(
                 &self.gpu,
                 &p.frame,
@@ -892,7 +895,9 @@ impl ViewerApp {
                 &p.target.view,
                 p.next == 0,
             );
-            self.perf.current().drew_part = (end - p.next).max(1);
+            let rec = self.perf.current();
+            rec.render_ms += t.elapsed().as_secs_f64() * 1e3;
+            rec.drew_part = (end - p.next).max(1);
             p.next = end;
             if end >= n {
                 // the new image is shown: this frame counts as a draw at rest
@@ -1351,14 +1356,6 @@ impl eframe::App for ViewerApp {
         if let Some(last) = self.perf.frames().last() {
             if last.drew && last.draw_scale == 1 && last.period_ms.is_finite() {
                 self.full_draw_ms = last.period_ms;
-            }
-            if last.drew_part > 0 && last.period_ms.is_finite() {
-                let m = last.period_ms / last.drew_part as f64;
-                self.ms_per_triangle = if self.ms_per_triangle > 0.0 {
-                    0.5 * (self.ms_per_triangle + m)
-                } else {
-                    m
-                };
             }
             // a spread draw ended: what it took in all stands for a whole draw's period
             if let Some(first) = last.drew_part_of {

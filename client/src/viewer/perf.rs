@@ -209,6 +209,7 @@ impl Perf {
         }
         self.work_end = Some(now);
         self.presenting.append(&mut self.applied);
+        tracing::trace!(record = ?self.current, "viewer frame");
         self.frames.push(self.current);
     }
 
