@@ -400,20 +400,29 @@ fn axes_values_follow_arrivals_in_any_order() {
     assert_uniform_finest(&mesh, &data);
 }
 
+/// Every present vertex's slot and value bits.
+fn value_bits(mesh: &AdaptiveMesh) -> Vec<(u32, u32)> {
+    mesh.vertex_slots()
+        .map(|s| (s, mesh.vertex_value(s).to_bits()))
+        .collect()
+}
+
+/// The box5 hierarchy of 3 levels with no node held yet, base tet 0 refined (its midpoints linear
+/// predictions): the data, the empty buffer, the mesh and an empty arrival record.
+fn tet0_refined_without_nodes() -> (Data, DetailBuffer, AdaptiveMesh, Arrivals) {
+    let data = make_data(box5(3), 0);
+    let buf = DetailBuffer::new(data.base.forest(), data.keys.clone());
+    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
+    mesh.refine(0, &buf).unwrap();
+    (data, buf, mesh, Arrivals::default())
+}
+
 /// A node whose details are all zero changes no present value: `apply_arrivals` reports none, so
 /// a converged image criterion has nothing to look at again.
 #[test]
 fn a_zero_detail_node_changes_no_value() {
-    let data = make_data(box5(3), 0);
-    let forest = data.base.forest();
-    let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
-    let mut arr = Arrivals::default();
-    mesh.refine(0, &buf).unwrap();
-    let before: Vec<(u32, u32)> = mesh
-        .vertex_slots()
-        .map(|s| (s, mesh.vertex_value(s).to_bits()))
-        .collect();
+    let (data, mut buf, mut mesh, mut arr) = tet0_refined_without_nodes();
+    let before = value_bits(&mesh);
     let mut zero = data.nodes[0].clone();
     zero.coeffs.iter_mut().for_each(|c| *c = 0.0);
     buf.insert(&zero, &mut arr).unwrap();
@@ -427,13 +436,9 @@ fn a_zero_detail_node_changes_no_value() {
 
 #[test]
 fn fallback_prediction_then_correction() {
-    let data = make_data(box5(3), 0);
+    // base tet 0 refined with no node at all: its midpoints are linear predictions
+    let (data, mut buf, mut mesh, mut arr) = tet0_refined_without_nodes();
     let forest = data.base.forest();
-    let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
-    let mut arr = Arrivals::default();
-    // refine base tet 0 with no node at all: its midpoints are linear predictions
-    mesh.refine(0, &buf).unwrap();
     mesh.check_conformity().unwrap();
     let lt = mesh.lattice_of(0);
     let mids: Vec<u32> = (0..6)
@@ -451,10 +456,7 @@ fn fallback_prediction_then_correction() {
     }
     check_values(&mesh, &buf, &data);
     // a node owning nothing present changes nothing
-    let before: Vec<(u32, u32)> = mesh
-        .vertex_slots()
-        .map(|s| (s, mesh.vertex_value(s).to_bits()))
-        .collect();
+    let before = value_bits(&mesh);
     buf.insert(&data.nodes[3], &mut arr).unwrap();
     assert_eq!(mesh.apply_arrivals(&buf, &arr), 0);
     arr.clear();
@@ -498,10 +500,7 @@ fn fallback_prediction_then_correction() {
     }
     mesh.check_conformity().unwrap();
     check_values(&mesh, &buf, &data);
-    let before: Vec<(u32, u32)> = mesh
-        .vertex_slots()
-        .map(|s| (s, mesh.vertex_value(s).to_bits()))
-        .collect();
+    let before = value_bits(&mesh);
     buf.insert(&data.nodes[1], &mut arr).unwrap();
     let owned: Vec<u32> = arr
         .keys

@@ -1092,12 +1092,11 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }
 
-/// `--motion-tets 400` with draws slower than `--motion-ms`: the frames drawn while the camera
-/// moves draw the leaf mesh merged to at most 400 tets (from 2,560), and at rest the whole leaf
-/// mesh again, matching the offscreen render.
-#[test]
-fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
-    let (d, s) = store(3);
+/// A store of `levels` levels viewed with every whole draw slow (`--motion-ms` 1 µs) and a
+/// 400-tet motion mesh, orbited then at rest ([`orbit_then_rest`]): the `--json` report and the
+/// PSNR of the view at rest against the offscreen render of its camera.
+fn slow_draws_orbited_then_at_rest(levels: u8) -> (serde_json::Value, f64) {
+    let (d, s) = store(levels);
     let dir = d.path();
     let shot = dir.join("rest.png");
     let script = orbit_then_rest(&shot);
@@ -1116,8 +1115,21 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
             "20000",
         ],
     );
+    eprintln!("{}", r["perf"]);
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
+    let at_rest = psnr(&png(&shot), &reference);
+    eprintln!("at rest vs offscreen: {at_rest:.2} dB");
+    (r, at_rest)
+}
+
+/// `--motion-tets 400` with draws slower than `--motion-ms`: the frames drawn while the camera
+/// moves draw the leaf mesh merged to at most 400 tets (from 2,560), and at rest the whole leaf
+/// mesh again, matching the offscreen render.
+#[test]
+fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
+    let (r, at_rest) = slow_draws_orbited_then_at_rest(3);
     let p = &r["perf"];
-    eprintln!("{p}");
     let moving = &p["tets_drawn_in_motion"];
     assert!(moving["n"].as_u64().unwrap() >= 5, "{p}");
     assert!(moving["max"].as_f64().unwrap() <= 400.0, "{p}");
@@ -1127,39 +1139,16 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
         "{p}"
     );
     assert_eq!(r["tets"], 2560, "{r}");
-    let az = r["azimuth"].as_f64().unwrap();
-    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
-    let at_rest = psnr(&png(&shot), &reference);
-    eprintln!("at rest after a coarse motion vs offscreen: {at_rest:.2} dB");
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 }
 
-/// A whole draw slower than `--motion-ms` (every draw, at 1 µs) at rest is spread over frames, a
-/// range of its triangles a frame, while the view keeps the last image (the window answers); the
-/// image it ends with is the one a single draw makes.
+/// A whole draw slower than `--motion-ms` at rest is spread over frames, a range of its
+/// triangles a frame, while the view keeps the last image (the window answers); the image it
+/// ends with is the one a single draw makes.
 #[test]
 fn view_spreads_a_slow_draw_at_rest_over_frames() {
-    let (d, s) = store(4);
-    let dir = d.path();
-    let shot = dir.join("rest.png");
-    let script = orbit_then_rest(&shot);
-    let r = view_script(
-        dir,
-        &script,
-        &[
-            s.to_str().unwrap(),
-            "--size",
-            "160x120",
-            "--motion-ms",
-            "0.001",
-            "--motion-tets",
-            "400",
-            "--frames",
-            "20000",
-        ],
-    );
+    let (r, at_rest) = slow_draws_orbited_then_at_rest(4);
     let p = &r["perf"];
-    eprintln!("{p}");
     let (draws, frames) = (
         p["spread_draws"].as_u64().unwrap(),
         p["spread_frames"].as_u64().unwrap(),
@@ -1168,10 +1157,6 @@ fn view_spreads_a_slow_draw_at_rest_over_frames() {
     // 20,480 tets at a few thousand triangles a frame: several frames each
     assert!(frames >= 3 * draws, "{draws} draws in {frames} frames");
     assert_eq!(r["tets"], 20480, "{r}");
-    let az = r["azimuth"].as_f64().unwrap();
-    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
-    let at_rest = psnr(&png(&shot), &reference);
-    eprintln!("a spread draw at rest vs offscreen: {at_rest:.2} dB");
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 }
 

@@ -855,9 +855,10 @@ impl ViewerApp {
             } else {
                 &self.draw_data
             };
-            if let (Some(d), Some(_)) = (data, &self.target) {
+            if let (Some(d), Some(t)) = (data, &self.target) {
                 if !use_motion && slow && scale == 1 {
-                    let t = Instant::now();
+                    // at rest a slow whole draw is spread over frames (the parts below)
+                    let started = Instant::now();
                     let frame = self.renderer.prepare(
                         &self.gpu,
                         d,
@@ -866,7 +867,7 @@ impl ViewerApp {
                         VisibilityOrder::Centroid,
                     );
                     let target = match self.spare.take() {
-                        Some(t) if t.size() == (dw, dh) => t,
+                        Some(spare) if spare.size() == (dw, dh) => spare,
                         _ => Target::new(&self.gpu, &self.blit, self.renderer.format(), dw, dh),
                     };
                     self.pending = Some(PendingDraw {
@@ -875,9 +876,38 @@ impl ViewerApp {
                         next: 0,
                         first_frame: self.frames,
                     });
-                    self.perf.current().render_ms = t.elapsed().as_secs_f64() * 1e3;
+                    self.perf.current().render_ms = started.elapsed().as_secs_f64() * 1e3;
                     self.image_dirty = false;
                     self.drew_motion = false;
+                } else {
+                    let times = self.renderer.draw_into(
+                        &self.gpu,
+                        d,
+                        &draw_cam,
+                        &self.tf,
+                        VisibilityOrder::Centroid,
+                        &t.view,
+                        true,
+                    );
+                    self.render_ms = times.total_ms;
+                    self.image_dirty = false;
+                    self.drew_motion = use_motion;
+                    let rec = self.perf.current();
+                    rec.render_ms = times.total_ms;
+                    rec.drew = true;
+                    rec.draw_scale = scale;
+                    self.observe_draw = in_motion && self.drawn_tol == tol;
+                    let now = Instant::now();
+                    if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
+                        if dt > 0.0 {
+                            self.fps = if self.fps == 0.0 {
+                                1.0 / dt
+                            } else {
+                                0.9 * self.fps + 0.1 / dt
+                            };
+                        }
+                    }
+                    self.last_draw = Some(now);
                 }
             }
         }
@@ -907,43 +937,6 @@ impl ViewerApp {
                 rec.drew = true;
                 rec.draw_scale = 1;
                 self.spare = self.target.replace(p.target);
-            }
-        }
-        if self.image_dirty && self.pending.is_none() {
-            let data = if use_motion {
-                &self.motion_data
-            } else {
-                &self.draw_data
-            };
-            if let (Some(d), Some(t)) = (data, &self.target) {
-                let times = self.renderer.draw_into(
-                    &self.gpu,
-                    d,
-                    &draw_cam,
-                    &self.tf,
-                    VisibilityOrder::Centroid,
-                    &t.view,
-                    true,
-                );
-                self.render_ms = times.total_ms;
-                self.image_dirty = false;
-                self.drew_motion = use_motion;
-                let rec = self.perf.current();
-                rec.render_ms = times.total_ms;
-                rec.drew = true;
-                rec.draw_scale = scale;
-                self.observe_draw = in_motion && self.drawn_tol == tol;
-                let now = Instant::now();
-                if let Some(dt) = self.last_draw.map(|l| now.duration_since(l).as_secs_f64()) {
-                    if dt > 0.0 {
-                        self.fps = if self.fps == 0.0 {
-                            1.0 / dt
-                        } else {
-                            0.9 * self.fps + 0.1 / dt
-                        };
-                    }
-                }
-                self.last_draw = Some(now);
             }
         }
         self.last_cam = Some(cam);
