@@ -50,7 +50,7 @@ const MIN_PART_TRIANGLES: u32 = 4096;
 /// 1.1–2.7 s whole, on the CPU cores the frame's own work uses: a part is a few tens of ms). A
 /// part size measured from frame times would follow the frame's own work (refinement, the leaf
 /// mesh, often larger than a part), not the draw.
-const SPREAD_PARTS: u32 = 48;
+const SPREAD_PARTS: u32 = 24;
 
 /// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: the
 /// frame's triangles in consecutive ranges, one a frame, into a second target, which replaces the
