@@ -828,26 +828,39 @@ impl ViewerApp {
             1
         };
         let (dw, dh) = ((w / scale).max(1), (h / scale).max(1));
-        let resized = self.target.as_ref().map(Target::size) != Some((dw, dh));
-        if resized {
-            self.target = Some(Target::new(
-                &self.gpu,
-                &self.blit,
-                self.renderer.format(),
-                dw,
-                dh,
-            ));
-            self.image_dirty = true;
+        let sized = |t: &Target| t.size() == (dw, dh);
+        // slow whole draws in motion draw the coarser mesh too; at rest the leaf mesh again,
+        // spread over frames
+        let use_motion = moving_coarse;
+        let spread = !use_motion && slow && scale == 1;
+        // a spread draw is for this camera and size, and holds the renderer's uniforms
+        if self.pending.as_ref().is_some_and(|p| !sized(&p.target))
+            || self.last_cam != Some(cam)
+            || use_motion
+        {
+            if let Some(p) = self.pending.take() {
+                self.spare = Some(p.target);
+            }
+        }
+        if !self.target.as_ref().is_some_and(sized) {
+            // a spread draw at the new size replaces the image shown when it is complete
+            // (meanwhile the old one is shown, scaled); any other draw goes into a new target
+            if !spread || self.target.is_none() {
+                self.target = Some(Target::new(
+                    &self.gpu,
+                    &self.blit,
+                    self.renderer.format(),
+                    dw,
+                    dh,
+                ));
+            }
+            if self.pending.is_none() {
+                self.image_dirty = true;
+            }
         }
         let draw_cam = if scale == 1 { cam } else { self.camera(dw, dh) };
-        // slow whole draws in motion draw the coarser mesh too; at rest the leaf mesh again
-        let use_motion = moving_coarse;
         if self.drew_motion && !use_motion {
             self.image_dirty = true;
-        }
-        // a spread draw is for this camera and size, and holds the renderer's uniforms
-        if self.pending.is_some() && (resized || self.last_cam != Some(cam) || use_motion) {
-            self.pending = None;
         }
         if self.image_dirty && self.pending.is_none() {
             let data = if use_motion {
@@ -856,7 +869,7 @@ impl ViewerApp {
                 &self.draw_data
             };
             if let (Some(d), Some(t)) = (data, &self.target) {
-                if !use_motion && slow && scale == 1 {
+                if spread {
                     // at rest a slow whole draw is spread over frames (the parts below)
                     let started = Instant::now();
                     let frame = self.renderer.prepare(
@@ -1350,14 +1363,12 @@ impl eframe::App for ViewerApp {
             if last.drew && last.draw_scale == 1 && last.period_ms.is_finite() {
                 self.full_draw_ms = last.period_ms;
             }
-            // a spread draw ended: what it took in all stands for a whole draw's period
+            // a spread draw ended: what its parts cost stands for a whole draw's (so a fast GPU
+            // turns spreading off again)
             if let Some(first) = last.drew_part_of {
-                let spread: f64 = (self.perf.frames().iter())
-                    .filter(|r| r.frame >= first && r.drew_part > 0)
-                    .map(|r| r.period_ms)
-                    .filter(|p| p.is_finite())
-                    .sum();
-                self.full_draw_ms = spread;
+                let cost = self.perf.spread_cost(first);
+                self.full_draw_ms = cost;
+                self.render_ms = cost;
             }
         }
         if std::mem::take(&mut self.observe_draw) {
