@@ -23,7 +23,9 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{Accumulation, FrameDraw, PtRenderer, TetDrawData, VisibilityOrder};
+use tetwave_render::gpu::pt::{
+    Accumulation, FrameDraw, FramePlan, PtRenderer, TetDrawData, VisibilityOrder,
+};
 use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
@@ -52,19 +54,28 @@ const MIN_PART_TRIANGLES: u32 = 4096;
 /// mesh, often larger than a part), not the draw.
 const SPREAD_PARTS: u32 = 24;
 
-/// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: the
-/// frame's triangles in consecutive ranges, one a frame, into a second target, which replaces the
-/// one shown once it holds every triangle (the same image as one whole draw: see
-/// [`PtRenderer::draw_range`]). Meanwhile the window answers, showing the last image. It is
-/// dropped when the camera or the view's size changes or another draw needs the renderer; a new
-/// mesh or transfer function waits for it, then is drawn.
+/// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: its
+/// visibility sort on a thread of its own ([`PtRenderer::plan`]), then the frame's triangles in
+/// consecutive ranges, one a frame, into a second target, which replaces the one shown once it
+/// holds every triangle (the same image as one whole draw: see [`PtRenderer::draw_range`]).
+/// Meanwhile the window answers, showing the last image. It is dropped when the camera or the
+/// view's size changes or another draw needs the renderer; a new mesh or transfer function waits
+/// for it, then is drawn.
 struct PendingDraw {
-    frame: FrameDraw,
+    stage: Stage,
     target: Target,
-    /// Triangles drawn so far.
-    next: u32,
-    /// The first frame that drew part of it.
+    /// The mesh and transfer function it draws.
+    data: Arc<TetDrawData>,
+    tf: TransferFunction,
+    /// The first frame of it.
     first_frame: u64,
+}
+
+enum Stage {
+    /// The visibility sort and the exit faces, on their thread.
+    Planning(std::thread::JoinHandle<FramePlan>),
+    /// Triangles drawn so far.
+    Drawing { frame: FrameDraw, next: u32 },
 }
 
 /// The transfer-function presets (what the server's `/v1/render` knows too).
@@ -121,9 +132,9 @@ pub struct ViewerApp {
     /// A slow whole draw in progress, and a target of the view's size for the next one.
     pending: Option<PendingDraw>,
     spare: Option<Target>,
-    draw_data: Option<TetDrawData>,
+    draw_data: Option<Arc<TetDrawData>>,
     /// The coarser mesh drawn in motion when whole draws are slow (`--motion-tets`).
-    motion_data: Option<TetDrawData>,
+    motion_data: Option<Arc<TetDrawData>>,
     /// The last draw was of the motion mesh (at rest the leaf mesh is drawn again).
     drew_motion: bool,
     tets: u64,
@@ -781,8 +792,8 @@ impl ViewerApp {
             match res {
                 Ok((d, motion)) => {
                     self.tets = d.tet_count as u64;
-                    self.draw_data = Some(d);
-                    self.motion_data = motion;
+                    self.draw_data = Some(Arc::new(d));
+                    self.motion_data = motion.map(Arc::new);
                 }
                 Err(e) => self.fail(format!("upload: {e}")),
             }
@@ -870,26 +881,23 @@ impl ViewerApp {
             };
             if let (Some(d), Some(t)) = (data, &self.target) {
                 if spread {
-                    // at rest a slow whole draw is spread over frames (the parts below)
-                    let started = Instant::now();
-                    let frame = self.renderer.prepare(
-                        &self.gpu,
-                        d,
-                        &draw_cam,
-                        &self.tf,
-                        VisibilityOrder::Centroid,
-                    );
+                    // at rest a slow whole draw is spread over frames (the parts below), its
+                    // sort off the frame loop
+                    let (data, tf) = (Arc::clone(d), self.tf.clone());
+                    let plan = std::thread::spawn(move || {
+                        PtRenderer::plan(&data, &draw_cam, &tf, VisibilityOrder::Centroid)
+                    });
                     let target = match self.spare.take() {
                         Some(spare) if spare.size() == (dw, dh) => spare,
                         _ => Target::new(&self.gpu, &self.blit, self.renderer.format(), dw, dh),
                     };
                     self.pending = Some(PendingDraw {
-                        frame,
+                        stage: Stage::Planning(plan),
                         target,
-                        next: 0,
+                        data: Arc::clone(d),
+                        tf: self.tf.clone(),
                         first_frame: self.frames,
                     });
-                    self.perf.current().render_ms = started.elapsed().as_secs_f64() * 1e3;
                     self.image_dirty = false;
                     self.drew_motion = false;
                 } else {
@@ -924,33 +932,58 @@ impl ViewerApp {
                 }
             }
         }
-        if let Some(p) = self.pending.as_mut() {
-            let n = p.frame.triangles();
-            let end = p
-                .next
+        // a sorted spread draw goes to the renderer (no other draw holds its uniforms meanwhile)
+        if self
+            .pending
+            .as_ref()
+            .is_some_and(|p| matches!(&p.stage, Stage::Planning(h) if h.is_finished()))
+        {
+            let mut p = self.pending.take().expect("a pending draw");
+            let Stage::Planning(h) = p.stage else {
+                unreachable!("planning")
+            };
+            match h.join() {
+                Ok(plan) => {
+                    let t = Instant::now();
+                    let frame = self.renderer.finish(&self.gpu, &p.data, &p.tf, plan);
+                    self.perf.current().render_ms = t.elapsed().as_secs_f64() * 1e3;
+                    p.stage = Stage::Drawing { frame, next: 0 };
+                    self.pending = Some(p);
+                }
+                Err(_) => self.fail("the visibility sort of a spread draw failed".into()),
+            }
+        }
+        let mut finished = None;
+        if let Some(PendingDraw {
+            stage: Stage::Drawing { frame, next },
+            target,
+            first_frame,
+            ..
+        }) = self.pending.as_mut()
+        {
+            let n = frame.triangles();
+            let end = next
                 .saturating_add(n.div_ceil(SPREAD_PARTS).max(MIN_PART_TRIANGLES))
                 .min(n);
             let t = Instant::now();
-            self.renderer.draw_range_into(
-                &self.gpu,
-                &p.frame,
-                p.next..end,
-                &p.target.view,
-                p.next == 0,
-            );
+            self.renderer
+                .draw_range_into(&self.gpu, frame, *next..end, &target.view, *next == 0);
             let rec = self.perf.current();
             rec.render_ms += t.elapsed().as_secs_f64() * 1e3;
-            rec.drew_part = (end - p.next).max(1);
-            p.next = end;
+            rec.drew_part = (end - *next).max(1);
+            *next = end;
             if end >= n {
-                // the new image is shown: this frame counts as a draw at rest
-                let p = self.pending.take().expect("a pending draw");
-                let rec = self.perf.current();
-                rec.drew_part_of = Some(p.first_frame);
-                rec.drew = true;
-                rec.draw_scale = 1;
-                self.spare = self.target.replace(p.target);
+                finished = Some(*first_frame);
             }
+        }
+        if let Some(first) = finished {
+            // the new image is shown: this frame counts as a draw at rest
+            let p = self.pending.take().expect("a pending draw");
+            let rec = self.perf.current();
+            rec.drew_part_of = Some(first);
+            rec.drew = true;
+            rec.draw_scale = 1;
+            self.spare = self.target.replace(p.target);
         }
         self.last_cam = Some(cam);
         // the tets of the mesh drawn: the coarser one's after a draw in motion

@@ -137,6 +137,15 @@ pub struct TetDrawData {
     pub tet_count: u32,
 }
 
+/// The CPU half of a frame's draw data ([`PtRenderer::plan`]): the exit faces in visibility
+/// order, the shader runs and the uniforms, for [`PtRenderer::finish`].
+pub struct FramePlan {
+    indices: Vec<[u32; 3]>,
+    runs: Vec<(bool, u32)>,
+    globals: Globals,
+    sort_ms: f64,
+}
+
 /// One frame's draw data ([`PtRenderer::prepare`]): the exit faces of the tets in visibility
 /// order and the bindings to draw them with. Valid for the frame it was prepared for, until the
 /// renderer prepares another.
@@ -440,7 +449,8 @@ impl PtRenderer {
     /// Builds one frame's draw data: the tets sorted for `cam`'s eye ([`VisibilityOrder::Mpvo`]
     /// needs data uploaded with adjacency, else centroid order is used), their exit faces, and the
     /// camera and transfer function written to the renderer's uniforms. Valid until the next
-    /// `prepare` on this renderer: draw it before preparing another frame.
+    /// `prepare` on this renderer: draw it before preparing another frame. [`Self::plan`] then
+    /// [`Self::finish`], which a caller may run apart (the plan on another thread).
     pub fn prepare(
         &self,
         ctx: &GpuContext,
@@ -449,6 +459,17 @@ impl PtRenderer {
         tf: &TransferFunction,
         visibility: VisibilityOrder,
     ) -> FrameDraw {
+        self.finish(ctx, data, tf, Self::plan(data, cam, tf, visibility))
+    }
+
+    /// The CPU half of [`Self::prepare`] (no GPU access, any thread): the visibility order, the
+    /// exit faces in that order, the shader runs and the frame's uniforms.
+    pub fn plan(
+        data: &TetDrawData,
+        cam: &Camera,
+        tf: &TransferFunction,
+        visibility: VisibilityOrder,
+    ) -> FramePlan {
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
@@ -459,7 +480,6 @@ impl PtRenderer {
             _ => centroid_order(&data.centroids, eye32),
         };
         let sort_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let device = &ctx.device;
         let far = (eye.length() + data.diagonal) * 2.0 + data.far;
         let vp = cam.view_proj(data.origin, far).as_mat4();
         let fwd = cam.forward();
@@ -486,21 +506,6 @@ impl PtRenderer {
                 0,
             ],
         };
-        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
-        let (gbuf, tfbuf) = (&self.globals, &self.tf_table);
-        ctx.queue
-            .write_buffer(gbuf, 0, bytemuck::bytes_of(&globals));
-        if cache.tf_points.as_ref() != Some(&tf.points) {
-            let tf_gpu: Vec<[f32; 4]> = (0..=TF_TABLE_INTERVALS)
-                .map(|k| {
-                    let (rgb, ext) = tf.eval(k as f64 / TF_TABLE_INTERVALS as f64);
-                    [rgb[0] as f32, rgb[1] as f32, rgb[2] as f32, ext as f32]
-                })
-                .collect();
-            ctx.queue
-                .write_buffer(tfbuf, 0, bytemuck::cast_slice(&tf_gpu));
-            cache.tf_points = Some(tf.points.clone());
-        }
         // only the exit faces (the eye on the inner side of the face plane; none for a zero-volume
         // tet), outward winding counter-clockwise (reversed for negatively oriented tets); the
         // rasterizer still culls front faces, so a face misjudged at a grazing angle draws nothing
@@ -549,6 +554,45 @@ impl PtRenderer {
             }
             (indices, runs)
         };
+        FramePlan {
+            indices,
+            runs,
+            globals,
+            sort_ms,
+        }
+    }
+
+    /// The GPU half of [`Self::prepare`]: writes `plan`'s uniforms and `tf`'s table (the one the
+    /// plan was made with) to the renderer, uploads its faces. `data` must be the plan's.
+    pub fn finish(
+        &self,
+        ctx: &GpuContext,
+        data: &TetDrawData,
+        tf: &TransferFunction,
+        plan: FramePlan,
+    ) -> FrameDraw {
+        let FramePlan {
+            indices,
+            runs,
+            globals,
+            sort_ms,
+        } = plan;
+        let device = &ctx.device;
+        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        let (gbuf, tfbuf) = (&self.globals, &self.tf_table);
+        ctx.queue
+            .write_buffer(gbuf, 0, bytemuck::bytes_of(&globals));
+        if cache.tf_points.as_ref() != Some(&tf.points) {
+            let tf_gpu: Vec<[f32; 4]> = (0..=TF_TABLE_INTERVALS)
+                .map(|k| {
+                    let (rgb, ext) = tf.eval(k as f64 / TF_TABLE_INTERVALS as f64);
+                    [rgb[0] as f32, rgb[1] as f32, rgb[2] as f32, ext as f32]
+                })
+                .collect();
+            ctx.queue
+                .write_buffer(tfbuf, 0, bytemuck::cast_slice(&tf_gpu));
+            cache.tf_points = Some(tf.points.clone());
+        }
         let ibuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("faces"),
             contents: if indices.is_empty() {
