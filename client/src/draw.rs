@@ -15,34 +15,62 @@ pub fn leaf_mesh(
     value_range: [f32; 2],
     levelset: Option<&NearLevelSet>,
 ) -> RenderMesh {
-    tets_mesh(mesh, &mesh.drawable_leaf_tets(), value_range, levelset)
+    tets_mesh(
+        mesh,
+        &mesh.drawable_leaf_tets(),
+        value_range,
+        levelset,
+        false,
+    )
 }
 
 /// [`leaf_mesh`] of the tets `tets` of `mesh` (its vertex slots), e.g. the coarsened leaf mesh
-/// drawn in motion ([`AdaptiveMesh::coarse_leaf_tets`]).
+/// drawn in motion ([`AdaptiveMesh::coarse_leaf_tets`]). With `compact`, the mesh holds only the
+/// vertices its tets use (a few tets of a large mesh: the positions to convert and upload are
+/// theirs, not every vertex slot's); else every vertex slot, by slot.
 pub fn tets_mesh(
     mesh: &AdaptiveMesh,
     tets: &[crate::mesh::LeafTet],
     value_range: [f32; 2],
     levelset: Option<&NearLevelSet>,
+    compact: bool,
 ) -> RenderMesh {
     debug_assert!(
         mesh.values_current(),
         "values drawn before AdaptiveMesh::refresh_values (Session::frame does it)"
     );
-    let positions: Vec<[f64; 3]> = mesh
-        .positions()
-        .iter()
-        .map(|p| p.map(|x| x as f64))
+    let (slots, tets): (Vec<u32>, Vec<[u32; 4]>) = if compact {
+        let mut index = vec![u32::MAX; mesh.vertex_slot_len()];
+        let mut slots = Vec::new();
+        let tets = (tets.iter())
+            .map(|t| {
+                t.v.map(|s| {
+                    let i = &mut index[s as usize];
+                    if *i == u32::MAX {
+                        *i = slots.len() as u32;
+                        slots.push(s);
+                    }
+                    *i
+                })
+            })
+            .collect();
+        (slots, tets)
+    } else {
+        let all = (0..mesh.vertex_slot_len() as u32).collect();
+        (all, tets.iter().map(|t| t.v).collect())
+    };
+    let (all_positions, all_values) = (mesh.positions(), mesh.values());
+    let positions = (slots.iter())
+        .map(|&s| all_positions[s as usize].map(|x| x as f64))
         .collect();
-    let tets = tets.iter().map(|t| t.v).collect();
-    let mut m = RenderMesh::new(positions, tets, mesh.values().to_vec());
+    let values = slots.iter().map(|&s| all_values[s as usize]).collect();
+    let mut m = RenderMesh::new(positions, tets, values);
     m.value_range = (value_range[0], value_range[1]);
     if let Some(near) = levelset {
         let far = m.diagonal() as f32;
         let positions = &m.positions;
-        let values = (0..mesh.vertex_slot_len() as u32)
-            .map(|s| near.value_at(mesh.vertex_key(s), positions[s as usize], far))
+        let values = (slots.iter().enumerate())
+            .map(|(i, &s)| near.value_at(mesh.vertex_key(s), positions[i], far))
             .collect();
         m.levelset = Some(values);
     }

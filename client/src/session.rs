@@ -239,20 +239,23 @@ impl Session {
         crate::draw::leaf_mesh(&self.mesh, value_range, self.levelset.as_ref())
     }
 
-    /// The leaf mesh coarsened to at most `most` tets to draw while the camera moves
-    /// ([`AdaptiveMesh::coarse_leaf_tets`]); `None` when the leaf mesh has no more than that.
-    pub fn motion_mesh(&self, value_range: [f32; 2], most: usize) -> Option<RenderMesh> {
-        let (_, drawable) = self.mesh.piece_counts();
-        if drawable <= most {
-            return None;
-        }
-        let tets = self.mesh.coarse_leaf_tets(most);
-        Some(crate::draw::tets_mesh(
-            &self.mesh,
-            &tets,
-            value_range,
-            self.levelset.as_ref(),
-        ))
+    /// [`Self::leaf_mesh`], and with `most > 0` that mesh coarsened to at most `most` tets to
+    /// draw while the camera moves ([`AdaptiveMesh::coarse_leaf_tets`], holding only its own
+    /// vertices; `None` when the leaf mesh has no more than `most` tets). The leaves are listed
+    /// once for both.
+    pub fn leaf_meshes(
+        &self,
+        value_range: [f32; 2],
+        most: usize,
+    ) -> (RenderMesh, Option<RenderMesh>) {
+        let tets = self.mesh.drawable_leaf_tets();
+        let levelset = self.levelset.as_ref();
+        let motion = (most > 0 && tets.len() > most).then(|| {
+            let coarse = self.mesh.coarsened(tets.clone(), most);
+            crate::draw::tets_mesh(&self.mesh, &coarse, value_range, levelset, true)
+        });
+        let leaf = crate::draw::tets_mesh(&self.mesh, &tets, value_range, levelset, false);
+        (leaf, motion)
     }
 
     /// Clips every mesh drawn from now on to the domain's level set (its near band, as

@@ -343,6 +343,38 @@ fn nodes_below_the_leaves_leave_a_converged_session_converged() {
     assert!(!s.is_converged(), "a held leaf's node is looked at");
 }
 
+/// The motion mesh of `Session::leaf_meshes` holds only its own vertices, and draws the same tets
+/// with the same corners and values as the coarsened leaf tets over every vertex slot.
+#[test]
+fn the_motion_mesh_holds_only_its_own_vertices() {
+    let (base, nodes) = detail_nodes(box5(3), wave);
+    let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(0.0), [-1.0, 1.0])).unwrap();
+    s.insert(&nodes).unwrap();
+    let c = cam(0.0, 45.0);
+    let mut frames = 0;
+    while !s.is_converged() {
+        s.frame(&c, Mode::Complete).unwrap();
+        frames += 1;
+        assert!(frames < 10_000, "no final mesh");
+    }
+    let (leaf, motion) = s.leaf_meshes([-1.0, 1.0], 100);
+    let motion = motion.expect("2,560 leaves are more than 100");
+    assert_eq!(leaf.tets.len(), s.mesh().leaf_count());
+    assert!(!motion.tets.is_empty() && motion.tets.len() <= 100);
+    assert!(motion.positions.len() <= 4 * motion.tets.len());
+    assert!(motion.positions.len() < leaf.positions.len() / 4);
+    let coarse = s.mesh().coarse_leaf_tets(100);
+    let whole = tetwave_client::draw::tets_mesh(s.mesh(), &coarse, [-1.0, 1.0], None, false);
+    assert_eq!(whole.tets.len(), motion.tets.len());
+    for (a, b) in whole.tets.iter().zip(&motion.tets) {
+        for k in 0..4 {
+            let (i, j) = (a[k] as usize, b[k] as usize);
+            assert_eq!(whole.positions[i], motion.positions[j]);
+            assert_eq!(whole.values[i].to_bits(), motion.values[j].to_bits());
+        }
+    }
+}
+
 /// A uniform draw in `[0, 1)` from the state `s`.
 fn unit(s: &mut u64) -> f64 {
     *s = splitmix(*s);

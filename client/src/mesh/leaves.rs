@@ -98,7 +98,12 @@ impl AdaptiveMesh {
     /// corners (all vertices of the mesh: a refined tet's corners are its children's), so where it
     /// meets a finer tet the mesh has hanging vertices; drawn in motion only, never at rest.
     pub fn coarse_leaf_tets(&self, most: usize) -> Vec<LeafTet> {
-        let mut tets = self.drawable_leaf_tets();
+        self.coarsened(self.drawable_leaf_tets(), most)
+    }
+
+    /// [`Self::coarse_leaf_tets`] from the drawable leaf tets `tets` ([`Self::drawable_leaf_tets`],
+    /// already listed for the leaf mesh).
+    pub fn coarsened(&self, mut tets: Vec<LeafTet>, most: usize) -> Vec<LeafTet> {
         let level = |id: TetId| self.forest.level(id);
         let mut deepest = tets.iter().map(|t| level(t.hier)).max().unwrap_or(0);
         while tets.len() > most {

@@ -808,12 +808,10 @@ impl ViewerApp {
             let t = Instant::now();
             let most = self.args.motion_tets;
             let (mesh, motion) = match (&self.data.session, &self.data.mesh) {
-                (Some(s), _) => (
-                    Some(s.leaf_mesh(self.data.value_range)),
-                    (most > 0)
-                        .then(|| s.motion_mesh(self.data.value_range, most))
-                        .flatten(),
-                ),
+                (Some(s), _) => {
+                    let (leaf, motion) = s.leaf_meshes(self.data.value_range, most);
+                    (Some(leaf), motion)
+                }
                 (None, Some(m)) => (Some(m.clone()), None),
                 (None, None) => (None, None),
             };
