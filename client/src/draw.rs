@@ -26,8 +26,10 @@ pub fn leaf_mesh(
 
 /// [`leaf_mesh`] of the tets `tets` of `mesh` (its vertex slots), e.g. the coarsened leaf mesh
 /// drawn in motion ([`AdaptiveMesh::coarse_leaf_tets`]). With `compact`, the mesh holds only the
-/// vertices its tets use (a few tets of a large mesh: the positions to convert and upload are
-/// theirs, not every vertex slot's); else every vertex slot, by slot.
+/// base vertices and the vertices its tets use (a few tets of a large mesh: the positions to
+/// convert and upload are theirs, not every vertex slot's); the base vertices span every vertex's
+/// box, so the mesh's diagonal, the transfer function's unit of length, stays the leaf mesh's
+/// even where empty tets are left out. Else every vertex slot, by slot.
 pub fn tets_mesh(
     mesh: &AdaptiveMesh,
     tets: &[crate::mesh::LeafTet],
@@ -41,7 +43,10 @@ pub fn tets_mesh(
     );
     let (slots, tets): (Vec<u32>, Vec<[u32; 4]>) = if compact {
         let mut index = vec![u32::MAX; mesh.vertex_slot_len()];
-        let mut slots = Vec::new();
+        // base vertices are slots 0..n (AdaptiveMesh::slot_of_key)
+        let nbase = mesh.vertex_keys().base_vertex_count() as u32;
+        let mut slots: Vec<u32> = (0..nbase).collect();
+        index[..nbase as usize].copy_from_slice(&slots);
         let tets = (tets.iter())
             .map(|t| {
                 t.v.map(|s| {

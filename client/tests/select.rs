@@ -361,8 +361,11 @@ fn the_motion_mesh_holds_only_its_own_vertices() {
     let motion = motion.expect("2,560 leaves are more than 100");
     assert_eq!(leaf.tets.len(), s.mesh().leaf_count());
     assert!(!motion.tets.is_empty() && motion.tets.len() <= 100);
-    assert!(motion.positions.len() <= 4 * motion.tets.len());
+    let nbase = s.base().positions.len();
+    assert!(motion.positions.len() <= nbase + 4 * motion.tets.len());
     assert!(motion.positions.len() < leaf.positions.len() / 4);
+    // the base vertices keep the mesh's box: the same unit of length for the transfer function
+    assert_eq!(motion.diagonal(), leaf.diagonal());
     let coarse = s.mesh().coarse_leaf_tets(100);
     let whole = tetwave_client::draw::tets_mesh(s.mesh(), &coarse, [-1.0, 1.0], None, false);
     assert_eq!(whole.tets.len(), motion.tets.len());

@@ -948,7 +948,10 @@ impl ViewerApp {
                     p.stage = Stage::Drawing { frame, next: 0 };
                     self.pending = Some(p);
                 }
-                Err(_) => self.fail("the visibility sort of a spread draw failed".into()),
+                Err(_) => {
+                    self.spare = Some(p.target);
+                    self.fail("the visibility sort of a spread draw failed".into());
+                }
             }
         }
         let mut finished = None;
