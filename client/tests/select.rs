@@ -19,6 +19,16 @@ fn cam(az_deg: f64, dist: f64) -> Camera {
     Camera::orbit(DVec3::splat(15.0), dist, az_deg, 10.0, 45.0, 256, 256)
 }
 
+/// Frames of `s` for `c` in `mode` until the selector is satisfied (at most 10,000).
+fn settle(s: &mut Session, c: &Camera, mode: Mode) {
+    let mut frames = 0;
+    while !s.is_converged() {
+        s.frame(c, mode).unwrap();
+        frames += 1;
+        assert!(frames < 10_000, "no final mesh");
+    }
+}
+
 fn sorted_leaves(m: &AdaptiveMesh) -> Vec<TetId> {
     let mut v = m.leaf_ids();
     v.sort_unstable();
@@ -281,12 +291,7 @@ fn session_takes_chunks_and_settles() {
     }
     assert_eq!(dup, nodes.chunks(50).count());
     assert_eq!(s.progress(), (total as u64, total as u64));
-    let mut frames = 0;
-    while !s.is_converged() {
-        s.frame(&c, Mode::Complete).unwrap();
-        frames += 1;
-        assert!(frames < 10_000, "no final mesh");
-    }
+    settle(&mut s, &c, Mode::Complete);
     assert_eq!(s.mesh().leaf_count(), leaves);
     let rm = s.leaf_mesh([-1.0, 1.0]);
     assert_eq!(rm.tets.len(), leaves);
@@ -314,12 +319,7 @@ fn nodes_below_the_leaves_leave_a_converged_session_converged() {
     let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0])).unwrap();
     s.insert(&coarse).unwrap();
     let c = cam(20.0, 45.0);
-    let mut frames = 0;
-    while !s.is_converged() {
-        s.frame(&c, Mode::Progressive).unwrap();
-        frames += 1;
-        assert!(frames < 10_000, "no final mesh");
-    }
+    settle(&mut s, &c, Mode::Progressive);
     let leaves = sorted_leaves(s.mesh());
     let (below, at_leaves): (Vec<_>, Vec<_>) = deep
         .into_iter()
@@ -351,12 +351,7 @@ fn the_motion_mesh_holds_only_its_own_vertices() {
     let mut s = Session::new(base, SelectParams::new(Tolerance::Pixels(0.0), [-1.0, 1.0])).unwrap();
     s.insert(&nodes).unwrap();
     let c = cam(0.0, 45.0);
-    let mut frames = 0;
-    while !s.is_converged() {
-        s.frame(&c, Mode::Complete).unwrap();
-        frames += 1;
-        assert!(frames < 10_000, "no final mesh");
-    }
+    settle(&mut s, &c, Mode::Complete);
     let (leaf, motion) = s.leaf_meshes([-1.0, 1.0], 100);
     let motion = motion.expect("2,560 leaves are more than 100");
     assert_eq!(leaf.tets.len(), s.mesh().leaf_count());
