@@ -536,16 +536,24 @@ fn fallback_prediction_then_correction() {
     }
 }
 
-#[test]
-fn coarsen_everything_back() {
-    let data = make_data(box5(3), 0);
-    let forest = data.base.forest();
-    let mut buf = DetailBuffer::new(forest, data.keys.clone());
+/// The box5 hierarchy of `levels` levels with every node held and applied to a base-level mesh.
+fn everything_held(levels: u8) -> (Data, DetailBuffer, AdaptiveMesh) {
+    let data = make_data(box5(levels), 0);
+    let mut buf = DetailBuffer::new(data.base.forest(), data.keys.clone());
     let mut arr = Arrivals::default();
     for n in &data.nodes {
         buf.insert(n, &mut arr).unwrap();
     }
     let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
+    mesh.apply_arrivals(&buf, &arr);
+    mesh.refresh_values(&buf);
+    (data, buf, mesh)
+}
+
+#[test]
+fn coarsen_everything_back() {
+    let (data, buf, mut mesh) = everything_held(3);
+    let forest = data.base.forest();
     refine_all_usable(&mut mesh, &buf);
     assert_eq!(mesh.leaf_count(), 5 * 512);
     // in a uniform mesh an interior tet cannot be coarsened alone: its neighbours keep its edges
@@ -845,16 +853,8 @@ fn ids_past_32_bits_round_trip() {
 /// budget's count when the base mesh fits it, and the leaf mesh itself when that fits.
 #[test]
 fn coarse_leaf_tets_fill_the_domain_within_the_budget() {
-    let data = make_data(box5(4), 0);
+    let (data, buf, mut mesh) = everything_held(4);
     let forest = data.base.forest();
-    let mut buf = DetailBuffer::new(forest, data.keys.clone());
-    let mut arr = Arrivals::default();
-    for n in &data.nodes {
-        buf.insert(n, &mut arr).unwrap();
-    }
-    let mut mesh = AdaptiveMesh::new(&data.base).unwrap();
-    mesh.apply_arrivals(&buf, &arr);
-    mesh.refresh_values(&buf);
     // refine near the corner 000, deeper the closer
     for round in 0..4 {
         for id in mesh.leaf_ids() {

@@ -1040,46 +1040,73 @@ fn orbit_then_rest(shot: &Path) -> serde_json::Value {
     serde_json::Value::Array(steps)
 }
 
+/// A store of `levels` levels viewed at 160×120 with `args` (e.g. `--motion-ms 0.001`: every
+/// whole draw slow), orbited then at rest ([`orbit_then_rest`]).
+struct RestRun {
+    /// The store's directory (and the run's files).
+    dir: tempfile::TempDir,
+    store: PathBuf,
+    script: serde_json::Value,
+    /// The `--json` report.
+    report: serde_json::Value,
+    /// The view at rest, and its PSNR against the offscreen render of its camera.
+    shot: Rgba8Image,
+    at_rest_db: f64,
+}
+
+fn orbited_then_at_rest(levels: u8, args: &[&str]) -> RestRun {
+    let (dir, store) = store(levels);
+    let shot = dir.path().join("rest.png");
+    let script = orbit_then_rest(&shot);
+    let mut all = vec![
+        store.to_str().unwrap(),
+        "--size",
+        "160x120",
+        "--frames",
+        "20000",
+    ];
+    all.extend_from_slice(args);
+    let report = view_script(dir.path(), &script, &all);
+    eprintln!("{}", report["perf"]);
+    let az = report["azimuth"].as_f64().unwrap();
+    let reference = offscreen(
+        &store,
+        "auto",
+        az,
+        25.0,
+        (160, 120),
+        &dir.path().join("ref.png"),
+    );
+    let shot = png(&shot);
+    let at_rest_db = psnr(&shot, &reference);
+    eprintln!("at rest vs offscreen: {at_rest_db:.2} dB");
+    RestRun {
+        dir,
+        store,
+        script,
+        report,
+        shot,
+        at_rest_db,
+    }
+}
+
 /// `--motion-scale 2` with draws slower than `--motion-ms` (every draw, at 1 µs): the frames
 /// drawn while the camera moves use half the view's width and height, and at rest the view is
 /// drawn whole again and matches the offscreen render. With `--motion-ms 0` none is scaled.
 #[test]
 fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
-    let (d, s) = store(3);
-    let dir = d.path();
-    let shot = dir.join("rest.png");
-    let script = orbit_then_rest(&shot);
-    let r = view_script(
-        dir,
-        &script,
-        &[
-            s.to_str().unwrap(),
-            "--size",
-            "160x120",
-            "--motion-scale",
-            "2",
-            "--motion-ms",
-            "0.001",
-            "--frames",
-            "20000",
-        ],
-    );
-    let p = &r["perf"];
-    eprintln!("{p}");
+    let run = orbited_then_at_rest(3, &["--motion-scale", "2", "--motion-ms", "0.001"]);
+    let p = &run.report["perf"];
     assert!(p["frames_drawn_scaled"].as_u64().unwrap() >= 5, "{p}");
-    let img = png(&shot);
-    assert_eq!((img.width, img.height), (160, 120));
-    let az = r["azimuth"].as_f64().unwrap();
-    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
-    let at_rest = psnr(&img, &reference);
-    eprintln!("at rest after a half-size motion vs offscreen: {at_rest:.2} dB");
+    assert_eq!((run.shot.width, run.shot.height), (160, 120));
+    let at_rest = run.at_rest_db;
     assert!(at_rest >= 40.0, "{at_rest:.2} dB");
 
     let r = view_script(
-        dir,
-        &script,
+        run.dir.path(),
+        &run.script,
         &[
-            s.to_str().unwrap(),
+            run.store.to_str().unwrap(),
             "--size",
             "160x120",
             "--motion-ms",
@@ -1092,43 +1119,13 @@ fn view_draws_fewer_pixels_in_motion_and_all_at_rest() {
     assert!(r["perf"]["frames_drawn"].as_u64().unwrap() >= 5, "{r}");
 }
 
-/// A store of `levels` levels viewed with every whole draw slow (`--motion-ms` 1 µs) and a
-/// 400-tet motion mesh, orbited then at rest ([`orbit_then_rest`]): the `--json` report and the
-/// PSNR of the view at rest against the offscreen render of its camera.
-fn slow_draws_orbited_then_at_rest(levels: u8) -> (serde_json::Value, f64) {
-    let (d, s) = store(levels);
-    let dir = d.path();
-    let shot = dir.join("rest.png");
-    let script = orbit_then_rest(&shot);
-    let r = view_script(
-        dir,
-        &script,
-        &[
-            s.to_str().unwrap(),
-            "--size",
-            "160x120",
-            "--motion-ms",
-            "0.001",
-            "--motion-tets",
-            "400",
-            "--frames",
-            "20000",
-        ],
-    );
-    eprintln!("{}", r["perf"]);
-    let az = r["azimuth"].as_f64().unwrap();
-    let reference = offscreen(&s, "auto", az, 25.0, (160, 120), &dir.join("ref.png"));
-    let at_rest = psnr(&png(&shot), &reference);
-    eprintln!("at rest vs offscreen: {at_rest:.2} dB");
-    (r, at_rest)
-}
-
 /// `--motion-tets 400` with draws slower than `--motion-ms`: the frames drawn while the camera
 /// moves draw the leaf mesh merged to at most 400 tets (from 2,560), and at rest the whole leaf
 /// mesh again, matching the offscreen render.
 #[test]
 fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
-    let (r, at_rest) = slow_draws_orbited_then_at_rest(3);
+    let run = orbited_then_at_rest(3, &["--motion-ms", "0.001", "--motion-tets", "400"]);
+    let (r, at_rest) = (&run.report, run.at_rest_db);
     let p = &r["perf"];
     let moving = &p["tets_drawn_in_motion"];
     assert!(moving["n"].as_u64().unwrap() >= 5, "{p}");
@@ -1147,7 +1144,8 @@ fn view_draws_a_coarser_mesh_in_motion_and_the_leaf_mesh_at_rest() {
 /// ends with is the one a single draw makes.
 #[test]
 fn view_spreads_a_slow_draw_at_rest_over_frames() {
-    let (r, at_rest) = slow_draws_orbited_then_at_rest(4);
+    let run = orbited_then_at_rest(4, &["--motion-ms", "0.001", "--motion-tets", "400"]);
+    let (r, at_rest) = (&run.report, run.at_rest_db);
     let p = &r["perf"];
     let (draws, frames) = (
         p["spread_draws"].as_u64().unwrap(),
