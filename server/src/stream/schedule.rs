@@ -428,7 +428,7 @@ impl Shared {
         ids: std::ops::Range<TetId>,
     ) -> Vec<f32> {
         let g = self.geometry();
-        let image = g.image(tf);
+        let image = self.image_weights(&g, tf);
         let p = ViewPriority::new(view, self.store.manifest.value_range);
         ids.map(|u| {
             let u = u as usize;
@@ -467,7 +467,7 @@ fn view_chunk(
         return Vec::new();
     }
     let g = s.geometry();
-    let image = g.image(tf);
+    let image = s.image_weights(&g, tf);
     let forest = s.forest();
     let p = ViewPriority::new(view, s.store.manifest.value_range);
     // every node's priority as the bits of a non-negative f32 (ordered as the floats; done nodes

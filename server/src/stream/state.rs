@@ -35,18 +35,13 @@ pub(super) struct Geometry {
     pub(super) image: Option<Vec<f32>>,
     /// The same under `auto` (`default` fitted to the manifest's histogram), when the manifest
     /// has one: it is steeper where most of the data lies, so its clients need other nodes first.
-    pub(super) image_auto: Option<Vec<f32>>,
+    /// Computed when a session first asks for it ([`Shared::image_weights`]).
+    image_auto: OnceLock<Option<Vec<f32>>>,
 }
 
-impl Geometry {
-    /// The image weights view order reads for a session drawing with `tf`, if any.
-    #[inline]
-    pub(super) fn image(&self, tf: ViewTf) -> Option<&[f32]> {
-        match tf {
-            ViewTf::Auto => self.image_auto.as_deref().or(self.image.as_deref()),
-            ViewTf::Default => self.image.as_deref(),
-        }
-    }
+/// The transfer function streaming clients draw with by default.
+fn default_tf() -> TransferFunction {
+    TransferFunction::preset("default").expect("the default preset exists")
 }
 
 /// Ids per parallel task when the per-node geometry is computed.
@@ -355,38 +350,14 @@ impl Shared {
                     })
                     .collect();
                 let (centre, radius): (Vec<_>, Vec<_>) = spheres.into_iter().unzip();
+                // what streaming clients draw by default
                 let image = match self.config.view_criterion {
                     ViewCriterion::Data => None,
-                    ViewCriterion::Image => match self.store.read_reference() {
-                        Ok(r) if r.len() as u64 == base.vertex_keys().vertex_count() => {
-                            let m = &self.store.manifest;
-                            let weights = |tf: &TransferFunction| {
-                                image_weights(&self.store, forest, &self.smax, &radius, &r, tf)
-                            };
-                            // what streaming clients draw by default, and the fitted look
-                            let default = TransferFunction::preset("default")
-                                .expect("the default preset exists");
-                            let auto = ValueHistogram::of_manifest(m)
-                                .map(|h| weights(&default.fitted(&h)));
-                            Some((weights(&default), auto))
-                        }
-                        Ok(_) | Err(_) => {
-                            tracing::warn!(
-                                "the store has no readable reference samples: view order \
-                                 weighs nodes by their details alone"
-                            );
-                            None
-                        }
-                    },
-                };
-                let (image, image_auto) = match image {
-                    Some((d, a)) => (Some(d), a),
-                    None => (None, None),
+                    ViewCriterion::Image => self.tf_weights(&radius, &default_tf()),
                 };
                 tracing::info!(
                     nodes = self.nodes,
                     image = image.is_some(),
-                    image_auto = image_auto.is_some(),
                     "view-order geometry computed in {:.2} s",
                     t0.elapsed().as_secs_f64()
                 );
@@ -394,10 +365,55 @@ impl Shared {
                     centre,
                     radius,
                     image,
-                    image_auto,
+                    image_auto: OnceLock::new(),
                 })
             })
             .clone()
+    }
+
+    /// The image weights view order reads for a session drawing with `tf` (`None`: it weighs by
+    /// details). `auto`'s are computed when a session first asks (a moment on a large store,
+    /// on the session's blocking task); where the manifest has no histogram they are
+    /// `default`'s, as the client's `auto` then is the preset.
+    pub(super) fn image_weights<'g>(&self, g: &'g Geometry, tf: ViewTf) -> Option<&'g [f32]> {
+        let default = g.image.as_deref();
+        if tf == ViewTf::Default || default.is_none() {
+            return default;
+        }
+        let auto = g.image_auto.get_or_init(|| {
+            let t0 = std::time::Instant::now();
+            let h = ValueHistogram::of_manifest(&self.store.manifest)?;
+            let w = self.tf_weights(&g.radius, &default_tf().fitted(&h));
+            tracing::info!(
+                "view-order weights of auto computed in {:.2} s",
+                t0.elapsed().as_secs_f64()
+            );
+            w
+        });
+        auto.as_deref().or(default)
+    }
+
+    /// Every node's image weight under `tf`, read off the store's reference samples; `None` (and
+    /// a warning) without readable ones.
+    fn tf_weights(&self, radius: &[f32], tf: &TransferFunction) -> Option<Vec<f32>> {
+        let n = self.store.base.vertex_keys().vertex_count();
+        match self.store.read_reference() {
+            Ok(r) if r.len() as u64 == n => Some(image_weights(
+                &self.store,
+                self.forest,
+                &self.smax,
+                radius,
+                &r,
+                tf,
+            )),
+            Ok(_) | Err(_) => {
+                tracing::warn!(
+                    "the store has no readable reference samples: view order weighs nodes by \
+                     their details alone"
+                );
+                None
+            }
+        }
     }
 
     /// The nodes `ids` (in that order when cached, else in increasing id order).
