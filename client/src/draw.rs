@@ -41,7 +41,8 @@ pub fn tets_mesh(
         mesh.values_current(),
         "values drawn before AdaptiveMesh::refresh_values (Session::frame does it)"
     );
-    let (slots, tets): (Vec<u32>, Vec<[u32; 4]>) = if compact {
+    // the slots the mesh holds, in its vertex order (`None`: every slot, the mesh's index)
+    let (slots, tets): (Option<Vec<u32>>, Vec<[u32; 4]>) = if compact {
         let mut index = vec![u32::MAX; mesh.vertex_slot_len()];
         // base vertices are slots 0..n (AdaptiveMesh::slot_of_key)
         let nbase = mesh.vertex_keys().base_vertex_count() as u32;
@@ -59,23 +60,24 @@ pub fn tets_mesh(
                 })
             })
             .collect();
-        (slots, tets)
+        (Some(slots), tets)
     } else {
-        let all = (0..mesh.vertex_slot_len() as u32).collect();
-        (all, tets.iter().map(|t| t.v).collect())
+        (None, tets.iter().map(|t| t.v).collect())
     };
+    let slot = |i: usize| slots.as_ref().map_or(i as u32, |sl| sl[i]);
+    let n = slots.as_ref().map_or(mesh.vertex_slot_len(), Vec::len);
     let (all_positions, all_values) = (mesh.positions(), mesh.values());
-    let positions = (slots.iter())
-        .map(|&s| all_positions[s as usize].map(|x| x as f64))
+    let positions = (0..n)
+        .map(|i| all_positions[slot(i) as usize].map(|x| x as f64))
         .collect();
-    let values = slots.iter().map(|&s| all_values[s as usize]).collect();
+    let values = (0..n).map(|i| all_values[slot(i) as usize]).collect();
     let mut m = RenderMesh::new(positions, tets, values);
     m.value_range = (value_range[0], value_range[1]);
     if let Some(near) = levelset {
         let far = m.diagonal() as f32;
         let positions = &m.positions;
-        let values = (slots.iter().enumerate())
-            .map(|(i, &s)| near.value_at(mesh.vertex_key(s), positions[i], far))
+        let values = (0..n)
+            .map(|i| near.value_at(mesh.vertex_key(slot(i)), positions[i], far))
             .collect();
         m.levelset = Some(values);
     }
