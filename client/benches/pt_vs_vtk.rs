@@ -9,9 +9,9 @@
 //! CPU time (`min_ms`, `min_cpu_ms`), steadier on a shared machine.
 
 use std::time::Instant;
+use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -119,7 +119,7 @@ fn main() {
             format!("ours-{order_name}-{acc_name}.png")
         };
         img.save_png(&out.join(&name)).unwrap();
-        let mean = |f: &dyn Fn(&tetwave_render::gpu::pt::FrameTimes) -> f64| {
+        let mean = |f: &dyn Fn(&tetwave_gpu::pt::FrameTimes) -> f64| {
             times.iter().map(f).sum::<f64>() / times.len() as f64
         };
         println!(

@@ -28,7 +28,7 @@ impl Default for CameraArgs {
     }
 }
 
-fn number(s: &str) -> Result<f64, String> {
+fn number(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let x: f64 = s
         .trim()
         .parse()
@@ -36,46 +36,46 @@ fn number(s: &str) -> Result<f64, String> {
     if x.is_finite() {
         Ok(x)
     } else {
-        Err(format!("{x} is not finite"))
+        Err(format!("{x} is not finite").into())
     }
 }
 
 /// An angle or a rotation in degrees or radians: finite, magnitude at most 10^6.
-pub fn angle(s: &str) -> Result<f64, String> {
+pub fn angle(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let x = number(s)?;
     if x.abs() <= 1e6 {
         Ok(x)
     } else {
-        Err(format!("{x} is out of range (magnitude at most 1e6)"))
+        Err(format!("{x} is out of range (magnitude at most 1e6)").into())
     }
 }
 
 /// An elevation in degrees, within ±90.
-pub fn elevation(s: &str) -> Result<f64, String> {
+pub fn elevation(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let x = number(s)?;
     if (-90.0..=90.0).contains(&x) {
         Ok(x)
     } else {
-        Err(format!("{x} is outside -90..=90 degrees"))
+        Err(format!("{x} is outside -90..=90 degrees").into())
     }
 }
 
 /// An eye distance: finite and positive.
-pub fn distance(s: &str) -> Result<f64, String> {
+pub fn distance(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let x = number(s)?;
     if x > 0.0 {
         Ok(x)
     } else {
-        Err(format!("{x} is not a positive distance"))
+        Err(format!("{x} is not a positive distance").into())
     }
 }
 
 /// A vertical field of view in degrees, strictly between 0 and 180.
-pub fn fov(s: &str) -> Result<f64, String> {
+pub fn fov(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let x = number(s)?;
     if x > 0.0 && x < 180.0 {
         Ok(x)
     } else {
-        Err(format!("{x} is outside (0, 180) degrees"))
+        Err(format!("{x} is outside (0, 180) degrees").into())
     }
 }

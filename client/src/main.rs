@@ -104,7 +104,7 @@ fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
 
 fn main() -> ExitCode {
     // before any thread: headless renders would otherwise print a Wayland probe's error
-    tetwave_render::gpu::quiet_headless_vulkan_layers();
+    tetwave_gpu::quiet_headless_vulkan_layers();
     // TETWAVE_LOG (EnvFilter syntax, as the server's --log), e.g. `tetwave_client=trace` for the
     // viewer's frame records
     let filter = tracing_subscriber::EnvFilter::try_from_env("TETWAVE_LOG")

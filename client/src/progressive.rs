@@ -3,13 +3,13 @@
 //! Tables 2–3: 312 steps of +1000 nodes and a 0.05 rad turn about the vertical axis); `tetwave bench
 //! progressive` prints its rows. The buffer, mesh and selector are a [`Session`]'s.
 
-use crate::mesh::{AdaptiveMesh, MeshError};
 use crate::render_probe::{RenderProbe, RenderSummary};
-use crate::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
-use crate::session::{NodeRejected, Session};
 use glam::DVec3;
 use serde::Serialize;
 use std::time::{Duration, Instant};
+use tetwave_adaptive::mesh::{AdaptiveMesh, MeshError};
+use tetwave_adaptive::select::{Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance};
+use tetwave_adaptive::session::{NodeRejected, Session};
 use tetwave_protocol::node::resolved_bounds;
 use tetwave_protocol::order::shuffle;
 /// The seeded mixing behind [`order_nodes`]'s random order, re-exported for the client's tests.
@@ -515,10 +515,10 @@ pub struct BenchArgs {
 }
 
 /// A count of at least 1 (`--render-every`).
-fn at_least_one(s: &str) -> Result<usize, String> {
+fn at_least_one(s: &str) -> Result<usize, crate::arg_error::ArgError> {
     match s.parse::<usize>() {
         Ok(n) if n >= 1 => Ok(n),
-        _ => Err(format!("expected a whole number of at least 1, got {s:?}")),
+        _ => Err(format!("expected a whole number of at least 1, got {s:?}").into()),
     }
 }
 

@@ -14,12 +14,12 @@
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tetwave_gpu::order::{face_neighbors, is_convex};
+use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_import::clean::{clean_import, CleanError, ImportOptions};
 use tetwave_import::{format_of, read_mesh, ImportError, MeshFormat};
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::order::{face_neighbors, is_convex};
-use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
-use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -95,7 +95,7 @@ pub struct RenderArgs {
 pub const IMAGE_SIDES: std::ops::RangeInclusive<u32> = 1..=8192;
 
 /// One image side in pixels (`--width`, `--height`), within [`IMAGE_SIDES`].
-pub fn parse_side(s: &str) -> Result<u32, String> {
+pub fn parse_side(s: &str) -> Result<u32, crate::arg_error::ArgError> {
     let v: u32 = s
         .parse()
         .map_err(|_| format!("expected a whole number of pixels, got {s:?}"))?;
@@ -106,11 +106,12 @@ pub fn parse_side(s: &str) -> Result<u32, String> {
             "{v} pixels is outside {}..={}",
             IMAGE_SIDES.start(),
             IMAGE_SIDES.end()
-        ))
+        )
+        .into())
     }
 }
 
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+pub fn parse_size(s: &str) -> Result<(u32, u32), crate::arg_error::ArgError> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("expected WxH, got {s:?}"))?;
@@ -123,7 +124,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
         .parse()
         .map_err(|_| format!("bad height in {s:?}"))?;
     if !IMAGE_SIDES.contains(&w) || !IMAGE_SIDES.contains(&h) {
-        return Err(format!("size {w}x{h} outside 1..={}", IMAGE_SIDES.end()));
+        return Err(format!("size {w}x{h} outside 1..={}", IMAGE_SIDES.end()).into());
     }
     Ok((w, h))
 }
@@ -323,7 +324,11 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         legend_name = store.manifest.dataset.clone();
         (mesh, level, None)
     };
-    let distance = a.camera.distance.unwrap_or(1.6 * mesh.diagonal());
+    let (lo, hi) = mesh.bounds();
+    let distance = a
+        .camera
+        .distance
+        .unwrap_or(Camera::framing(lo.to_array(), hi.to_array()).distance);
     let cam = Camera::orbit(
         mesh.center(),
         distance,

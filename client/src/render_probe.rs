@@ -4,13 +4,13 @@
 //! image error. The reference images depend on the step's camera only, so one set serves every
 //! tolerance of a bench run.
 
-use crate::mesh::AdaptiveMesh;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::time::Instant;
+use tetwave_adaptive::mesh::AdaptiveMesh;
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -121,7 +121,7 @@ impl RenderProbe {
 
     fn draw(&mut self, step: usize, mesh: &AdaptiveMesh, cam: &Camera) -> Result<(), RenderError> {
         let t = Instant::now();
-        let rm = crate::draw::leaf_mesh(mesh, self.value_range, None);
+        let rm = tetwave_adaptive::draw::leaf_mesh(mesh, self.value_range, None);
         let (img, draw_ms) = match &self.drawer {
             Drawer::Gpu(g) => {
                 let (ctx, pt) = &**g;

@@ -1,8 +1,8 @@
 //! The selection options `tetwave stream`, `tetwave view` and `tetwave bench progressive` share:
 //! which criterion decides a split, the image criterion's threshold, and the leaf budget.
 
-use crate::select::SelectParams;
 use serde::Serialize;
+use tetwave_adaptive::select::SelectParams;
 use tetwave_protocol::view::DEFAULT_IMAGE_EPS;
 use tetwave_protocol::BaseMesh;
 use tetwave_render::transfer::TransferFunction;
@@ -52,10 +52,10 @@ impl Default for SelectionArgs {
     }
 }
 
-fn positive(s: &str) -> Result<f64, String> {
+fn positive(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("expected a positive number, got {s:?}")),
+        _ => Err(format!("expected a positive number, got {s:?}").into()),
     }
 }
 

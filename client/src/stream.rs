@@ -4,41 +4,32 @@
 //! reconnects and resumes with the ranges it already holds (no node lost, none applied twice).
 //!
 //! The network runs on a tokio task that decodes every message and acknowledges each batch as soon as
-//! it is queued for the frame loop (up to [`INGEST_QUEUE`] messages ahead), so the stream arrives at
+//! it is queued for the frame loop (up to [`tetwave_net::connection::INGEST_QUEUE`] messages ahead), so the stream arrives at
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
-use crate::draw::every_vertex_levelset;
-use crate::ingest::{Ingest, Step};
-use crate::mesh::AdaptiveMesh;
-use crate::select::{Mode, SelectParams, Tolerance};
-use crate::session::{NodeRejected, Session};
-use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
-use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tetwave_protocol::block::BlockCoder;
+use tetwave_adaptive::draw::every_vertex_levelset;
+use tetwave_adaptive::mesh::{AdaptiveMesh, MeshError};
+use tetwave_adaptive::select::{Mode, SelectParams, Tolerance};
+use tetwave_adaptive::session::Session;
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::{GpuContext, RenderError};
+use tetwave_net::connection::{NetPolicy, Next};
+use tetwave_net::ingest::{Ingest, Step};
+pub use tetwave_net::Faults;
+use tetwave_net::{Connection, NetError, ServerUrl};
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::Manifest;
-use tetwave_protocol::synthesis::synthesize_all;
+use tetwave_protocol::synthesis::{synthesize_all, SynthesisError};
 use tetwave_protocol::view::Camera;
-use tetwave_protocol::wire::{
-    decode_server, encode, ClientMsg, IdRange, ServerMsg, SessionStart, ViewParams,
-    MAX_FRAME_BYTES, MAX_RANGES, PROTOCOL_VERSION,
-};
-use tetwave_protocol::{BaseMesh, DetailNode, TetId};
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction, AUTO};
-use tokio::sync::mpsc;
-use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
-use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
 /// `tetwave stream` options.
 #[derive(Debug, Clone, clap::Args)]
@@ -120,10 +111,6 @@ pub struct StreamArgs {
 /// `--max-nodes`' default: see [`StreamArgs::max_nodes`].
 pub const DEFAULT_MAX_NODES: u64 = 1 << 27;
 
-/// `Want` rounds after an `End` with nodes missing before the session fails
-/// ([`StreamError::Unavailable`]).
-pub const MAX_WANT_ROUNDS: u32 = 8;
-
 impl StreamArgs {
     /// The CLI defaults, for `url`, writing into `out`.
     pub fn new(url: &str, out: &std::path::Path) -> Self {
@@ -153,79 +140,24 @@ impl StreamArgs {
     }
 }
 
-/// Refuses, before anything is allocated for it, a base mesh whose hierarchy has more than
-/// `limit` detail nodes (`--max-nodes`), or whose levels or node count disagree with the manifest.
-/// `base` passed [`BaseMesh::validate`] (at most 16 levels), so the count is exact in u128.
-pub fn check_hierarchy(base: &BaseMesh, m: &Manifest, limit: u64) -> Result<(), StreamError> {
-    let tets = base.tets.len();
-    let nodes = tets as u128 * ((1u128 << (3 * base.levels as u32)) - 1) / 7;
-    if nodes > limit as u128 {
-        return Err(StreamError::TooLarge {
-            tets,
-            levels: base.levels,
-            nodes,
-            limit,
-        });
-    }
-    if m.levels != base.levels || m.counts.nodes as u128 != nodes {
-        return Err(StreamError::Protocol(format!(
-            "the base mesh ({} levels, {nodes} nodes) disagrees with the manifest ({} levels, {} nodes)",
-            base.levels, m.levels, m.counts.nodes
-        )));
-    }
-    Ok(())
-}
-
+/// Why `tetwave stream` failed.
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
-    #[error("bad url {0:?}: expected http://host:port or ws://host:port")]
-    Url(String),
-    #[error("connection to {url} failed: {reason}")]
-    Connect { url: String, reason: String },
-    #[error("server error {code}: {message}")]
-    Server { code: u16, message: String },
-    #[error("protocol: {0}")]
-    Protocol(String),
-    /// A frame that does not decode, or whose contents fail their checks (a malformed node, an
-    /// invalid base mesh).
-    #[error("unreadable frame from the server: {0}")]
-    BadFrame(String),
-    /// A WebSocket message over the client's limit ([`ws_config`]).
-    #[error("the server sent a message over the {MAX_FRAME_BYTES}-byte limit ({0})")]
-    FrameTooLarge(String),
-    /// The connection dropped and `--retries` attempts to reconnect brought nothing.
-    #[error("connection to {url} lost: {reason} (gave up after {retries} reconnect attempts)")]
-    Disconnected {
-        url: String,
-        reason: String,
-        retries: u32,
-    },
-    /// A node the session refused (beyond the hierarchy, or claiming another node's vertex).
-    #[error("the server sent an invalid node: {0}")]
-    NodeRejected(#[from] NodeRejected),
-    /// `End` with nodes missing, still missing after [`MAX_WANT_ROUNDS`] requests for them.
-    #[error("the server ended the stream with {missing} of {total} nodes missing after {rounds} requests for them")]
-    Unavailable {
-        missing: u64,
-        total: u64,
-        rounds: u32,
-    },
-    /// A base mesh whose hierarchy is over the client's budget (`--max-nodes`).
-    #[error("the base mesh's hierarchy ({tets} tets, {levels} levels) has {nodes} detail nodes, over the client's limit of {limit} (--max-nodes)")]
-    TooLarge {
-        tets: usize,
-        levels: u8,
-        nodes: u128,
-        limit: u64,
-    },
-    #[error("no manifest/base mesh received within {0:?}")]
-    NoBase(Duration),
+    /// The connection, the server, or what it sent.
+    #[error(transparent)]
+    Net(#[from] NetError),
     #[error(transparent)]
     Tf(#[from] TfError),
-    #[error(transparent)]
-    Tol(#[from] TolError),
+    #[error("bad --tol: {0}")]
+    Tol(String),
     #[error(transparent)]
     Render(#[from] RenderError),
+    /// Selective refinement failed (a broken mesh invariant: a bug, reported rather than drawn).
+    #[error("refinement: {0}")]
+    Refine(#[from] MeshError),
+    /// The final values could not be synthesized for `--psnr`.
+    #[error("synthesis for --psnr: {0}")]
+    Synthesis(#[from] SynthesisError),
     #[error("{path}: {reason}")]
     Output { path: PathBuf, reason: String },
     /// `--until-complete` and the frames ran out with nodes missing (a stream that fails past
@@ -237,10 +169,6 @@ pub enum StreamError {
         frames: usize,
     },
 }
-
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct TolError(String);
 
 /// One frame's line in `frames.jsonl`.
 #[derive(Debug, Clone, Serialize)]
@@ -288,519 +216,6 @@ pub struct StreamReport {
     /// The transfer function drawn with (`auto` fitted to the manifest's histogram, once the
     /// session started), as a `--tf` .json file holds it.
     pub tf: TransferFunction,
-}
-
-/// Sorted, merged id ranges of a set.
-pub fn ranges_of(ids: &BTreeSet<TetId>) -> Vec<IdRange> {
-    let mut out: Vec<IdRange> = Vec::new();
-    for &id in ids {
-        match out.last_mut() {
-            Some(r) if r.to == id => r.to += 1,
-            _ => out.push(IdRange {
-                from: id,
-                to: id + 1,
-            }),
-        }
-    }
-    out
-}
-
-/// GETs the near band of the domain's level set from the server of stream URL `ws_url` and
-/// decodes it for a hierarchy of `n_keys` vertices; returns it and the body's length.
-fn fetch_levelset(
-    ws_url: &str,
-    token: Option<&str>,
-    n_keys: u64,
-) -> Result<(NearLevelSet, u64), String> {
-    let url = ws_url
-        .replacen("ws://", "http://", 1)
-        .replacen("/v1/stream", "/v1/levelset", 1);
-    let bytes = crate::http::get(&url, token, MAX_LEVELSET_BYTES, LEVELSET_TIMEOUT)?;
-    let near = NearLevelSet::decode(&bytes, n_keys).map_err(|e| format!("GET {url}: {e}"))?;
-    Ok((near, bytes.len() as u64))
-}
-
-/// The largest level-set body a client reads (a band of about 40 M vertices).
-const MAX_LEVELSET_BYTES: u64 = 256 << 20;
-/// How long the level set's request may take, all of it.
-const LEVELSET_TIMEOUT: Duration = Duration::from_secs(30);
-/// Requests for the level set in one session at most (a failed one is made again after a
-/// reconnection).
-const LEVELSET_ATTEMPTS: u32 = 3;
-/// The level set's state in the network task: not asked for, asked, held, failed.
-const LEVELSET_IDLE: u32 = 0;
-const LEVELSET_ASKED: u32 = 1;
-const LEVELSET_HELD: u32 = 2;
-const LEVELSET_FAILED: u32 = 3;
-
-pub(crate) fn ws_url(url: &str) -> Result<String, StreamError> {
-    let rest = url
-        .strip_prefix("http://")
-        .or_else(|| url.strip_prefix("ws://"))
-        .ok_or_else(|| StreamError::Url(url.into()))?;
-    let host = rest.split('/').next().unwrap_or("");
-    if host.is_empty() {
-        return Err(StreamError::Url(url.into()));
-    }
-    Ok(format!("ws://{host}/v1/stream"))
-}
-
-/// Test hook: a transport fault injected into the network task.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Faults {
-    /// Drop the connection once, after this many node batches (preview batches count too).
-    pub drop_after_batches: Option<u64>,
-    /// Deliver every k-th node batch twice.
-    pub duplicate_every: Option<u64>,
-    /// Lose every k-th node batch (the client re-requests what is missing after `End`).
-    pub lose_every: Option<u64>,
-    /// Deliver node batches in reversed groups of this many.
-    pub reverse_groups: Option<usize>,
-}
-
-/// The runtime of a network task: one worker, and when dropped it does not wait for its blocking
-/// tasks (a level-set request still in flight ends on its own; nobody takes its answer).
-pub(crate) struct NetRuntime(Option<tokio::runtime::Runtime>);
-
-impl NetRuntime {
-    pub(crate) fn new(name: &str) -> std::io::Result<Self> {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .thread_name(name)
-            .enable_all()
-            .build()
-            .map(|rt| NetRuntime(Some(rt)))
-    }
-}
-
-impl std::ops::Deref for NetRuntime {
-    type Target = tokio::runtime::Runtime;
-    fn deref(&self) -> &Self::Target {
-        self.0.as_ref().expect("a runtime until dropped")
-    }
-}
-
-impl Drop for NetRuntime {
-    fn drop(&mut self) {
-        if let Some(rt) = self.0.take() {
-            rt.shutdown_background();
-        }
-    }
-}
-
-/// How the network task behaves: injected faults (tests), reconnection attempts, and the largest
-/// hierarchy (in nodes) it fetches a level set for.
-pub(crate) struct NetPolicy {
-    pub(crate) faults: Faults,
-    pub(crate) retries: u32,
-    pub(crate) max_nodes: u64,
-    /// The session draws with `auto`: asks for the server's view order under the fitted
-    /// function (`/v1/stream?tf=auto`), whose clients need other nodes first.
-    pub(crate) tf_auto: bool,
-}
-
-/// The network task's counters, shared with the session that reads them (this module's frame
-/// loop, or the viewer's).
-pub(crate) struct Net {
-    pub(crate) bytes: Arc<AtomicU64>,
-    pub(crate) reconnects: Arc<AtomicU64>,
-    /// A connection is open (its `Hello` sent); false before the first and while reconnecting.
-    pub(crate) connected: Arc<AtomicBool>,
-    /// Node ids received over the wire (for resume), whether or not applied yet.
-    pub(crate) received: Arc<Mutex<BTreeSet<TetId>>>,
-}
-
-impl Net {
-    pub(crate) fn new() -> Self {
-        Net {
-            bytes: Arc::new(AtomicU64::new(0)),
-            reconnects: Arc::new(AtomicU64::new(0)),
-            connected: Arc::new(AtomicBool::new(false)),
-            received: Arc::new(Mutex::new(BTreeSet::new())),
-        }
-    }
-}
-
-/// A server message as the frame loop takes it: node blocks already decoded (on the network
-/// task, so the frame loop never waits on decoding).
-#[derive(Debug, Clone)]
-pub(crate) enum Delivery {
-    Manifest(Box<Manifest>),
-    Base(Box<BaseMesh>),
-    Nodes {
-        seq: u64,
-        nodes: Vec<DetailNode>,
-    },
-    /// Preview nodes, held until the store's own replace them.
-    Preview {
-        seq: u64,
-        nodes: Vec<DetailNode>,
-    },
-    /// The near band of the domain's level set (`/v1/levelset`), fetched once a manifest lists
-    /// one (drawn meshes are clipped to it from then on), or why it could not be had.
-    LevelSet(Result<Box<NearLevelSet>, String>),
-    End,
-    Error {
-        code: u16,
-        message: String,
-    },
-}
-
-/// Decodes node blocks with the coder of the manifest and base mesh that came before them.
-#[derive(Default)]
-struct BlockDecoder {
-    manifest: Option<Box<Manifest>>,
-    /// The base mesh, its coder, and the preview's coder when the manifest names a preview.
-    coder: Option<(Box<BaseMesh>, BlockCoder, Option<BlockCoder>)>,
-}
-
-impl BlockDecoder {
-    fn manifest(&mut self, m: Box<Manifest>) -> Result<Delivery, StreamError> {
-        // the block decoder assumes an encoding it can read (bits, steps)
-        m.encoding
-            .check()
-            .map_err(|e| StreamError::Protocol(format!("manifest: {e}")))?;
-        if let Some(p) = &m.preview {
-            p.encoding
-                .check()
-                .map_err(|e| StreamError::Protocol(format!("manifest: preview: {e}")))?;
-        }
-        // a server restarted with another store version: its coders, not the old ones
-        if self
-            .manifest
-            .as_ref()
-            .is_some_and(|old| old.encoding != m.encoding || old.preview != m.preview)
-        {
-            self.coder = None;
-        }
-        self.manifest = Some(m.clone());
-        Ok(Delivery::Manifest(m))
-    }
-
-    fn base(&mut self, b: Box<BaseMesh>) -> Result<Delivery, StreamError> {
-        // a resumed connection sends the same base again: keep its coder
-        if self.coder.as_ref().is_none_or(|(held, ..)| **held != *b) {
-            let m = self
-                .manifest
-                .as_ref()
-                .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
-            let preview = m
-                .preview
-                .as_ref()
-                .map(|p| BlockCoder::for_preview(&b, &p.encoding));
-            self.coder = Some((b.clone(), BlockCoder::new(&b, &m.encoding), preview));
-        }
-        Ok(Delivery::Base(b))
-    }
-
-    /// What `m` delivers: a `Start`, the manifest then the base mesh; anything else, one.
-    fn decode(&mut self, m: ServerMsg) -> Result<Vec<Delivery>, StreamError> {
-        Ok(vec![match m {
-            ServerMsg::Start(st) => {
-                let SessionStart { manifest, base } = *st;
-                let m = self.manifest(Box::new(manifest))?;
-                return Ok(vec![m, self.base(Box::new(base))?]);
-            }
-            ServerMsg::Base(b) => self.base(b)?,
-            ServerMsg::Nodes { seq, block } => {
-                let (_, coder, _) = self
-                    .coder
-                    .as_ref()
-                    .ok_or_else(|| StreamError::Protocol("nodes before the base mesh".into()))?;
-                let nodes = coder
-                    .decode(&block)
-                    .map_err(|e| StreamError::BadFrame(format!("batch {seq}: {e}")))?;
-                Delivery::Nodes { seq, nodes }
-            }
-            ServerMsg::Preview { seq, block } => {
-                let coder = match &self.coder {
-                    None => {
-                        return Err(StreamError::Protocol("preview before the base mesh".into()))
-                    }
-                    Some((_, _, None)) => {
-                        return Err(StreamError::Protocol(
-                            "a preview the manifest does not describe".into(),
-                        ))
-                    }
-                    Some((_, _, Some(c))) => c,
-                };
-                let nodes = coder
-                    .decode(&block)
-                    .map_err(|e| StreamError::BadFrame(format!("preview batch {seq}: {e}")))?;
-                // only the preview's levels (the manifest checked them against the hierarchy)
-                let (levels, base) = match (&self.manifest, &self.coder) {
-                    (Some(m), Some((b, ..))) => (m.preview.as_ref().map_or(0, |p| p.levels), b),
-                    _ => unreachable!("a preview coder comes with its manifest and base"),
-                };
-                let end = base.forest().level_start(levels);
-                if let Some(n) = nodes.iter().find(|n| n.id >= end) {
-                    return Err(StreamError::BadFrame(format!(
-                        "preview batch {seq}: node {} is beyond the preview's {levels} levels",
-                        n.id
-                    )));
-                }
-                Delivery::Preview { seq, nodes }
-            }
-            ServerMsg::End { .. } => Delivery::End,
-            ServerMsg::Error { code, message } => Delivery::Error { code, message },
-        }])
-    }
-}
-
-/// Decoded messages (batches, mostly) the network task may queue ahead of the frame loop.
-pub(crate) const INGEST_QUEUE: usize = 256;
-
-/// Waits between reconnect attempts: none before the first, then 100 ms times the attempts before.
-const RETRY_STEP: Duration = Duration::from_millis(100);
-
-pub(crate) async fn network(
-    url: String,
-    token: Option<String>,
-    net: Arc<Net>,
-    tx: mpsc::Sender<(Delivery, u64)>,
-    mut out: mpsc::UnboundedReceiver<ClientMsg>,
-    policy: NetPolicy,
-) -> Result<(), StreamError> {
-    let NetPolicy {
-        faults,
-        retries,
-        max_nodes,
-        tf_auto,
-    } = policy;
-    // the level set's address is derived from `url`; the stream's names the transfer function
-    let stream_url = if tf_auto {
-        format!("{url}?tf={AUTO}")
-    } else {
-        url.clone()
-    };
-    // consecutive connection attempts that brought no new node (a failed connect counts too)
-    let mut failures = 0u32;
-    // preview nodes handed to the session (a reconnection names them in `Hello`), in how many
-    // batches
-    let mut previewed: BTreeSet<TetId> = BTreeSet::new();
-    let mut previews_delivered = 0u64;
-    let mut dropped = false;
-    let mut batches = 0u64;
-    let mut held_back: Vec<(Delivery, u64)> = Vec::new();
-    let mut blocks = BlockDecoder::default();
-    // the level set is asked for after the first base mesh, and again after a later one (a
-    // reconnection) while it has failed, at most LEVELSET_ATTEMPTS times in all
-    let levelset = Arc::new(AtomicU32::new(LEVELSET_IDLE));
-    let mut levelset_attempts = 0u32;
-    // why the last connection ended, once one has
-    let mut lost: Option<String> = None;
-    // a connect that fails for good: after a lost connection, that loss is the cause
-    let give_up = |url: String, lost: Option<String>, reason: String| match lost {
-        None => StreamError::Connect { url, reason },
-        Some(l) => StreamError::Disconnected {
-            url,
-            reason: format!("{l}; reconnecting: {reason}"),
-            retries,
-        },
-    };
-    loop {
-        // the first attempt after a connection that brought nodes goes at once
-        if failures > 1 {
-            tokio::time::sleep(RETRY_STEP * (failures - 1)).await;
-        }
-        // what the client holds, so the server skips it; the server takes at most MAX_RANGES
-        // ranges, and whatever a shortened list leaves out comes again (a duplicate, ignored)
-        let mut have = ranges_of(&net.received.lock().expect("lock"));
-        have.truncate(MAX_RANGES);
-        let mut held_previews = ranges_of(&previewed);
-        held_previews.truncate(MAX_RANGES);
-        let conn = tokio::time::timeout(
-            Duration::from_secs(5),
-            tokio_tungstenite::connect_async_with_config(
-                stream_url.as_str(),
-                Some(ws_config()),
-                false,
-            ),
-        )
-        .await;
-        let mut ws = match conn {
-            Ok(Ok((ws, _))) => ws,
-            Ok(Err(e)) => {
-                failures += 1;
-                if failures > retries {
-                    return Err(give_up(url, lost, e.to_string()));
-                }
-                continue;
-            }
-            Err(_) => {
-                failures += 1;
-                if failures > retries {
-                    return Err(give_up(url, lost, "connect timed out".into()));
-                }
-                continue;
-            }
-        };
-        let hello = ClientMsg::Hello {
-            version: PROTOCOL_VERSION,
-            token: token.clone(),
-            have,
-            previewed: held_previews,
-        };
-        let frame = encode(&hello).map_err(|e| StreamError::Protocol(e.to_string()))?;
-        let reason = if let Err(e) = ws.send(Message::Binary(frame.into())).await {
-            e.to_string()
-        } else {
-            net.connected.store(true, Ordering::Relaxed);
-            'conn: loop {
-                tokio::select! {
-                    msg = ws.next() => {
-                        let msg = match msg {
-                            None => break "the server closed the connection".to_string(),
-                            // over the limit: the same message would come again on a reconnect
-                            Some(Err(WsError::Capacity(e))) => {
-                                return Err(StreamError::FrameTooLarge(e.to_string()))
-                            }
-                            Some(Err(e)) => break e.to_string(),
-                            Some(Ok(m)) => m,
-                        };
-                        let Message::Binary(bytes) = msg else { continue };
-                        net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
-                        let m = decode_server(&bytes).map_err(|e| StreamError::BadFrame(e.to_string()))?;
-                        let ms = blocks.decode(m)?;
-                        let ask = matches!(levelset.load(Ordering::Acquire), LEVELSET_IDLE | LEVELSET_FAILED)
-                            && levelset_attempts < LEVELSET_ATTEMPTS;
-                        let base = ms.iter().find_map(|d| match d {
-                            Delivery::Base(b) => Some(b),
-                            _ => None,
-                        });
-                        if let (Some(base), true) = (base, ask) {
-                            levelset_attempts += 1;
-                            if let Some(man) = blocks.manifest.as_deref().filter(|m| m.has_levelset_band()) {
-                                // beside the stream, so the nodes do not wait for it; only for a
-                                // hierarchy within the client's budget (the frame loop refuses
-                                // any other), decoded for its exact vertex count
-                                let answer = tx.downgrade();
-                                match check_hierarchy(base, man, max_nodes) {
-                                    Ok(()) => {
-                                        let (u, t, n) = (url.clone(), token.clone(), base.vertex_keys().vertex_count());
-                                        let (bytes, state) = (net.bytes.clone(), levelset.clone());
-                                        state.store(LEVELSET_ASKED, Ordering::Release);
-                                        tokio::task::spawn_blocking(move || {
-                                            let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
-                                                Ok((near, len)) => (Ok(Box::new(near)), len),
-                                                Err(e) => (Err(e), 0),
-                                            };
-                                            let done = if got.is_ok() { LEVELSET_HELD } else { LEVELSET_FAILED };
-                                            bytes.fetch_add(len, Ordering::Relaxed);
-                                            // nobody to tell once the network task has ended; the
-                                            // answer goes first, so a retry cannot overtake it
-                                            if let Some(tx) = answer.upgrade() {
-                                                let _ = tx.blocking_send((Delivery::LevelSet(got), len));
-                                            }
-                                            state.store(done, Ordering::Release);
-                                        });
-                                    }
-                                    Err(e) => {
-                                        // the frame loop refuses this hierarchy too: no retry
-                                        levelset_attempts = LEVELSET_ATTEMPTS;
-                                        let why = format!("level set not fetched: {e}");
-                                        let _ = tx.send((Delivery::LevelSet(Err(why)), 0)).await;
-                                    }
-                                }
-                            }
-                        }
-                        // the frame's bytes go with its first delivery
-                        let mut deliver: Vec<(Delivery, u64)> =
-                            ms.into_iter().zip(std::iter::once(bytes.len() as u64).chain(std::iter::repeat(0))).collect();
-                        if let [(Delivery::Nodes { nodes, .. }, _)] = &deliver[..] {
-                            batches += 1;
-                            if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                                deliver.clear();
-                            } else {
-                                let mut r = net.received.lock().expect("lock");
-                                let before = r.len();
-                                r.extend(nodes.iter().map(|n| n.id));
-                                if r.len() > before {
-                                    // progress: this connection is worth reconnecting to again
-                                    failures = 0;
-                                }
-                                drop(r);
-                                if faults.duplicate_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                                    deliver.push(deliver[0].clone());
-                                }
-                                if let Some(g) = faults.reverse_groups {
-                                    held_back.append(&mut deliver);
-                                    if held_back.len() >= g {
-                                        held_back.reverse();
-                                        deliver.append(&mut held_back);
-                                    }
-                                }
-                            }
-                        } else {
-                            // anything else flushes what was held back, in order of arrival
-                            let mut flushed: Vec<(Delivery, u64)> = std::mem::take(&mut held_back);
-                            flushed.append(&mut deliver);
-                            deliver = flushed;
-                        }
-                        // a batch is acknowledged once it is in the session's queue, not when the frame
-                        // loop gets to it: ingestion runs at the network's pace, and the queue's bound
-                        // is the backpressure
-                        for m in deliver {
-                            let ack = match &m.0 {
-                                Delivery::Nodes { seq, .. } => Some(*seq),
-                                Delivery::Preview { seq, nodes } => {
-                                    // a reconnection asks for the rest of the preview only
-                                    previewed.extend(nodes.iter().map(|n| n.id));
-                                    previews_delivered += 1;
-                                    Some(*seq)
-                                }
-                                _ => None,
-                            };
-                            if tx.send(m).await.is_err() {
-                                return Ok(());
-                            }
-                            if let Some(seq) = ack {
-                                let f = encode(&ClientMsg::Ack { seq })
-                                    .map_err(|e| StreamError::Protocol(e.to_string()))?;
-                                if let Err(e) = ws.send(Message::Binary(f.into())).await {
-                                    break 'conn e.to_string();
-                                }
-                            }
-                        }
-                        let delivered = batches + previews_delivered;
-                        if !dropped && faults.drop_after_batches.is_some_and(|n| delivered >= n) {
-                            dropped = true;
-                            drop(ws);
-                            break "dropped (test fault)".to_string();
-                        }
-                    }
-                    m = out.recv() => {
-                        let Some(m) = m else { return Ok(()) };
-                        let frame = encode(&m).map_err(|e| StreamError::Protocol(e.to_string()))?;
-                        if let Err(e) = ws.send(Message::Binary(frame.into())).await {
-                            break e.to_string();
-                        }
-                    }
-                }
-            }
-        };
-        // dropped: reconnect and resume, unless the attempts since the last progress ran out
-        net.connected.store(false, Ordering::Relaxed);
-        failures += 1;
-        if failures > retries {
-            return Err(StreamError::Disconnected {
-                url,
-                reason,
-                retries,
-            });
-        }
-        lost = Some(reason);
-        net.reconnects.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-/// The client's WebSocket limits: a message may be as large as a whole protocol frame
-/// ([`MAX_FRAME_BYTES`] after the 4-byte length prefix); tungstenite's default (16 MiB) would
-/// refuse a large base mesh forever.
-pub fn ws_config() -> WebSocketConfig {
-    WebSocketConfig::default()
-        .max_message_size(Some(MAX_FRAME_BYTES + 4))
-        .max_frame_size(Some(MAX_FRAME_BYTES + 4))
 }
 
 /// Draws `session`'s leaf mesh for `cam` (on the GPU when there is one, else with the CPU
@@ -860,15 +275,13 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let tol = if tol_spec == "0" || tol_spec == "0px" {
         None
     } else {
-        Some(Tolerance::parse(tol_spec).map_err(TolError)?)
+        Some(Tolerance::parse(tol_spec).map_err(StreamError::Tol)?)
     };
     std::fs::create_dir_all(&args.out).map_err(|e| StreamError::Output {
         path: args.out.clone(),
         reason: e.to_string(),
     })?;
-    let url = ws_url(&args.url)?;
-    let rt = NetRuntime::new("tetwave-net").map_err(|e| StreamError::Protocol(e.to_string()))?;
-    // the renderer is set up before connecting: time to first image counts from the connect
+    let server = ServerUrl::parse(&args.url)?;
     let gpu = if args.cpu || args.no_render {
         None
     } else {
@@ -877,26 +290,18 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         r.warm_up(&ctx, &tf)?;
         Some((ctx, r))
     };
-    let net = Arc::new(Net::new());
-    // decoded messages waiting for the frame loop; the network task acknowledges a batch once it is
-    // queued here, so when the queue is full the network waits, the server's window fills and the
-    // server slows down (backpressure)
-    let (tx, mut rx) = mpsc::channel::<(Delivery, u64)>(INGEST_QUEUE);
-    let (out_tx, out_rx) = mpsc::unbounded_channel::<ClientMsg>();
     let t0 = Instant::now();
-    let mut task = rt.spawn(network(
-        url,
+    let mut conn = Connection::open(
+        server,
         args.token.clone(),
-        net.clone(),
-        tx,
-        out_rx,
         NetPolicy {
             faults,
             retries: args.retries,
             max_nodes: args.max_nodes,
             tf_auto: args.tf == AUTO,
         },
-    ));
+        "tetwave-net",
+    )?;
 
     let mut ingest = Ingest::new(args.max_nodes);
     let mut state: Option<Session> = None;
@@ -910,7 +315,6 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut first_frame_ms = None;
     // wire bytes of the messages the client has applied (what its frames show)
     let mut bytes_applied = 0u64;
-    let mut last_view: Option<ViewParams> = None;
     let wait_base = Duration::from_secs(10);
     let mut frame = 0u32;
     let mut last_cam: Option<Camera> = None;
@@ -935,63 +339,59 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
                 } else {
                     deadline.saturating_duration_since(Instant::now())
                 };
-                match rt.block_on(async { tokio::time::timeout(left, rx.recv()).await }) {
-                    Ok(Some(m)) => Some(m),
-                    Ok(None) if state.is_none() => {
+                match conn.next(left) {
+                    Next::Ready(d, n) => Some((d, n)),
+                    Next::Ended if state.is_none() => {
                         // the network task ended before a base mesh came: report why
-                        let why = rt.block_on(&mut task);
-                        return Err(match why {
-                            Ok(Err(e)) => e,
-                            _ => StreamError::NoBase(wait_base),
+                        return Err(match conn.finish() {
+                            NetError::TaskEnded | NetError::TaskFailed(_) => {
+                                NetError::NoBase(wait_base).into()
+                            }
+                            e => e.into(),
                         });
                     }
-                    Ok(None) => {
+                    Next::Ended => {
                         // the network task ended (after what it delivered): a failure unless
                         // everything has arrived
                         if !net_done {
                             net_done = true;
                             ingest.network_ended();
-                            let why = rt.block_on(&mut task);
+                            let why = conn.finish();
                             if !state.as_ref().is_some_and(Session::is_complete) {
-                                failure = Some(match why {
-                                    Ok(Err(e)) => e,
-                                    Ok(Ok(())) => {
-                                        StreamError::Protocol("the network task ended".into())
-                                    }
-                                    Err(e) => StreamError::Protocol(format!(
-                                        "the network task failed: {e}"
-                                    )),
-                                });
+                                failure = Some(why.into());
                                 break 'frames;
                             }
                         }
                         None
                     }
-                    Err(_) => {
+                    Next::Empty => {
                         if state.is_none() {
-                            return Err(StreamError::NoBase(wait_base));
+                            return Err(NetError::NoBase(wait_base).into());
                         }
                         None
                     }
                 }
             } else {
-                rx.try_recv().ok()
+                match conn.next(Duration::ZERO) {
+                    Next::Ready(d, n) => Some((d, n)),
+                    Next::Empty | Next::Ended => None,
+                }
             };
             let Some((msg, nbytes)) = msg else { break };
             got_any = true;
             bytes_applied += nbytes;
             let start = |b: BaseMesh, m: &Manifest| {
-                let tf = TransferFunction::for_manifest(&args.tf, m)
-                    .map_err(|e| StreamError::Protocol(e.to_string()))?;
+                let tf = TransferFunction::for_manifest(&args.tf, m)?;
                 let mut params =
                     SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
                 args.select
                     .apply(&mut params, &tf, m.display_value_range(), &b);
                 *fitted.borrow_mut() = Some(tf);
-                Session::new(b, params)
-                    .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
+                Session::new(b, params).map_err(NetError::BaseMesh)
             };
-            let step = ingest.apply(msg, &mut state, start, &out_tx);
+            let step = ingest
+                .apply(msg, &mut state, start, conn.sender())
+                .map_err(StreamError::from);
             if let Some(t) = fitted.borrow_mut().take() {
                 tf = t;
             }
@@ -1031,15 +431,10 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let m = ingest.manifest().expect("manifest precedes base");
         // 2. camera and view
         let (lo, hi) = session.base().bounds();
-        let center = glam::DVec3::from_array([
-            0.5 * (lo[0] + hi[0]),
-            0.5 * (lo[1] + hi[1]),
-            0.5 * (lo[2] + hi[2]),
-        ]);
-        let diag = glam::DVec3::from_array(hi).distance(glam::DVec3::from_array(lo));
+        let framing = Camera::framing(lo, hi);
         let cam = Camera::orbit(
-            center,
-            args.camera.distance.unwrap_or(1.6 * diag),
+            framing.center,
+            args.camera.distance.unwrap_or(framing.distance),
             args.camera.azimuth + args.orbit * frame as f64,
             args.camera.elevation,
             args.camera.fov,
@@ -1047,10 +442,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             args.size.1,
         );
         let view = cam.view_params(tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0));
-        if last_view != Some(view) {
-            let _ = out_tx.send(ClientMsg::View(view));
-            last_view = Some(view);
-        }
+        conn.send_view(view);
         // 3. refine
         let tr = Instant::now();
         let mode = match (tol, args.orbit != 0.0) {
@@ -1058,9 +450,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             (Some(_), true) => Mode::Interactive,
             (Some(_), false) => Mode::Progressive,
         };
-        let fst = session
-            .frame(&cam, mode)
-            .map_err(|e| StreamError::Protocol(e.to_string()))?;
+        let fst = session.frame(&cam, mode)?;
         let refine_ms = tr.elapsed().as_secs_f64() * 1e3;
         // 4. render
         let trn = Instant::now();
@@ -1107,7 +497,6 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             break;
         }
     }
-    drop(out_tx);
     if let (Some(path), Some(session), Some(cam), Some(m)) =
         (&args.final_png, &state, last_cam, ingest.manifest())
     {
@@ -1124,8 +513,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             received_nodes.sort_by_key(|n| n.id);
             received_nodes.dedup_by_key(|n| n.id);
             let empty: Vec<u8> = received_nodes.iter().map(|n| n.empty_children).collect();
-            let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))
-                .map_err(|e| StreamError::Protocol(e.to_string()))?;
+            let values = synthesize_all(base, &base.vertex_keys(), received_nodes.drain(..))?;
             // clipped as the session draws (with the band it has), so that the reference is
             // what a complete stream should show
             let levelset = session
@@ -1155,7 +543,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         path: jpath,
         reason: e.to_string(),
     })?;
-    task.abort();
+    conn.close();
     if let Some(e) = failure {
         return Err(e);
     }
@@ -1171,12 +559,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         previews_received,
         preview_duplicates,
         duplicates,
-        bytes_received: net.bytes.load(Ordering::Relaxed),
-        reconnects: net.reconnects.load(Ordering::Relaxed),
+        bytes_received: conn.bytes(),
+        reconnects: conn.reconnects(),
         complete,
         first_frame_ms,
         clipped,
-        levelset_error: ingest.levelset_error().map(str::to_owned),
+        levelset_error: ingest.levelset_error().map(ToString::to_string),
         tf,
     };
     Ok(Streamed {
@@ -1185,45 +573,4 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         mesh,
         levelset,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use tetwave_protocol::shapes::box5;
-    use tetwave_protocol::store_format::Encoding;
-    use tetwave_protocol::testing::{manifest_for, unsampled_base};
-    use tetwave_protocol::wavelet::LevelSteps;
-
-    /// A manifest whose encoding the block decoder cannot read (a server of another build, a
-    /// hostile one) is a protocol error, before any block is decoded with it.
-    #[test]
-    fn a_manifest_with_an_unreadable_encoding_is_refused() {
-        let base = unsampled_base(2, box5([0.0; 3], [1.0; 3]));
-        for (encoding, ok) in [
-            (Encoding::uniform(12, 0.01), true),
-            (Encoding::uniform(40, 0.01), false),
-            (
-                Encoding::Quantized {
-                    bits: 12,
-                    step: 0.01,
-                    levels: LevelSteps {
-                        ratio: 0.5,
-                        cap: 2.0,
-                    },
-                },
-                false,
-            ),
-        ] {
-            let m = Manifest {
-                encoding,
-                ..manifest_for(&base)
-            };
-            let got = BlockDecoder::default().decode(ServerMsg::Start(Box::new(SessionStart {
-                manifest: m,
-                base: base.clone(),
-            })));
-            assert_eq!(got.is_ok(), ok, "{:?}", got.err());
-        }
-    }
 }

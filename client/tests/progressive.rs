@@ -2,10 +2,10 @@
 //! arrival orders, budgets reaching the unbudgeted mesh, and the leaf-mesh edge count.
 
 use rustc_hash::FxHashSet;
+use tetwave_adaptive::select::Tolerance;
 use tetwave_client::progressive::{
     edges_on_box, order_nodes, run_progressive, ArrivalOrder, RunConfig,
 };
-use tetwave_client::select::Tolerance;
 
 // fixtures: as in tests/select.rs
 

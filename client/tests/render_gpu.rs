@@ -5,10 +5,10 @@
 mod common;
 
 use glam::DVec3;
+use tetwave_gpu::pt::{PtRenderer, VisibilityOrder};
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::fields::harmonic_unit;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{PtRenderer, VisibilityOrder};
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -236,7 +236,7 @@ fn refinement_converges() {
 /// ~100 layers per ray), and never below the 32-bit target.
 #[test]
 fn accumulation_precisions_are_ordered_and_bounded() {
-    use tetwave_render::gpu::pt::Accumulation;
+    use tetwave_gpu::pt::Accumulation;
     let ctx = ctx();
     let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic_unit);
     let cam = Camera::orbit(

@@ -2,12 +2,12 @@
 //! point as an unbudgeted run), modes and the client session.
 
 use glam::DVec3;
-use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
-use tetwave_client::mesh::AdaptiveMesh;
-use tetwave_client::select::{
+use tetwave_adaptive::detail_buffer::{Arrivals, DetailBuffer};
+use tetwave_adaptive::mesh::AdaptiveMesh;
+use tetwave_adaptive::select::{
     bounding_sphere, Budget, CoarsenRef, Mode, SelectParams, Selector, Tolerance, View,
 };
-use tetwave_client::session::Session;
+use tetwave_adaptive::session::Session;
 use tetwave_protocol::order::splitmix;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::TetId;
@@ -362,7 +362,7 @@ fn the_motion_mesh_holds_only_its_own_vertices() {
     // the base vertices keep the mesh's box: the same unit of length for the transfer function
     assert_eq!(motion.diagonal(), leaf.diagonal());
     let coarse = s.mesh().coarse_leaf_tets(100);
-    let whole = tetwave_client::draw::tets_mesh(s.mesh(), &coarse, [-1.0, 1.0], None, false);
+    let whole = tetwave_adaptive::draw::tets_mesh(s.mesh(), &coarse, [-1.0, 1.0], None, false);
     assert_eq!(whole.tets.len(), motion.tets.len());
     for (a, b) in whole.tets.iter().zip(&motion.tets) {
         for k in 0..4 {

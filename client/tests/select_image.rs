@@ -3,7 +3,7 @@
 //! refines to every leaf.
 
 use glam::DVec3;
-use tetwave_client::select::{Mode, SelectParams, Selector, Tolerance};
+use tetwave_adaptive::select::{Mode, SelectParams, Selector, Tolerance};
 use tetwave_protocol::view::{Camera, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
 
@@ -126,7 +126,7 @@ fn bump(p: [f64; 3]) -> f32 {
 /// it says so without the rest.
 #[test]
 fn view_complete_before_every_node_is_final() {
-    use tetwave_client::session::Session;
+    use tetwave_adaptive::session::Session;
     let (base, nodes) = common::detail_nodes(common::box5(4), bump);
     let c = cam(40.0);
     let session = || {

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 /// Base mesh as stored and sent: positions, tets (vertex order is part of the contract), the scalar at
 /// the base vertices, and which base tets lie entirely outside the input domain.
 ///
-/// Serialized ([`geometry`]) with its geometry as a named box when it is exactly one
+/// Serialized (`geometry`) with its geometry as a named box when it is exactly one
 /// ([`crate::shapes::box5`] or [`crate::shapes::box6`] of its first and last corners: two points
 /// instead of eight and the tets), else as its points and tets; points as f32 when every
 /// coordinate is one exactly (a box's corners, a grid's bounds), else as f64. Never a rounded

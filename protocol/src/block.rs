@@ -5,7 +5,7 @@
 //! order. Per node it codes only what the client cannot derive:
 //!
 //! - **ids**: increasing; the first in the header, then each against the previous one (a flag
-//!   for the next id, else a jump in whole sibling groups or in ids, see [`Ids`]: runs and the
+//!   for the next id, else a jump in whole sibling groups or in ids, see `Ids`: runs and the
 //!   whole groups view order sends cost almost nothing);
 //! - **owned mask**: derived from the hierarchy ([`crate::ownership`]); one adaptive flag says
 //!   whether the node's mask differs, and only then are its 6 bits sent;

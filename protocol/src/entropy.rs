@@ -125,7 +125,7 @@ impl DecoderModel<PRECISION> for RawBits {
 }
 
 /// The models of an unsigned integer: adaptive unary bit-length (up to [`UInt::MAX_BITS`]), then
-/// the mantissa bits below the leading one, the first [`UInt::MODELLED`] of them adaptive.
+/// the mantissa bits below the leading one, the first `UInt::MODELLED` of them adaptive.
 #[derive(Debug, Clone)]
 pub struct UInt {
     len: [Bit; UInt::MAX_BITS as usize + 1],

@@ -32,7 +32,7 @@ const X12: usize = 7;
 const X13: usize = 8;
 const X23: usize = 9;
 
-/// Bey's regular refinement of `T = [x0,x1,x2,x3]`, children in the contract's order (design.md):
+/// Bey's regular refinement of `T = [x0,x1,x2,x3]`, children in the contract's order (docs/protocol.md):
 /// `T0=[x0,x01,x02,x03] T1=[x01,x1,x12,x13] T2=[x02,x12,x2,x23] T3=[x03,x13,x23,x3]`
 /// `T4=[x01,x02,x03,x13] T5=[x01,x02,x12,x13] T6=[x02,x03,x13,x23] T7=[x02,x12,x13,x23]`.
 /// Entries index the 10 split points (see the constants above). The vertex order is part of the

@@ -1,6 +1,6 @@
 //! Which edges a tet owns, derived from the hierarchy alone.
 //!
-//! The contract (design.md) gives each new vertex one owner: the lowest id among the tets of its
+//! The contract (docs/protocol.md) gives each new vertex one owner: the lowest id among the tets of its
 //! level that contain the vertex's edge. Because the children of tet `t` are `n + 8t + i`, a lower
 //! parent always has lower children, and ownership follows down the forest from two facts about
 //! each tet `P`:

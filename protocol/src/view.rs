@@ -22,7 +22,35 @@ pub struct Camera {
     pub height: u32,
 }
 
+/// How far the default view stands from a volume's centre, in diagonals of its bounding box:
+/// the whole box in view at the default 40° field of view from any direction. Every default
+/// view (`tetwave render`, `stream`, `view`, the server's `/v1/render` and its view order before
+/// a client's `View`) is framed by [`Camera::framing`].
+pub const FRAMING_DIAGONALS: f64 = 1.6;
+
+/// A box's default framing: the point orbited and the eye's distance from it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Framing {
+    pub center: DVec3,
+    /// The box's diagonal.
+    pub diagonal: f64,
+    /// [`FRAMING_DIAGONALS`] × the diagonal.
+    pub distance: f64,
+}
+
 impl Camera {
+    /// The default framing of the box `lo`..`hi` (any corner order per axis is its own box: the
+    /// centre and diagonal are those of the two points).
+    pub fn framing(lo: [f64; 3], hi: [f64; 3]) -> Framing {
+        let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
+        let diagonal = hi.distance(lo);
+        Framing {
+            center: (lo + hi) * 0.5,
+            diagonal,
+            distance: FRAMING_DIAGONALS * diagonal,
+        }
+    }
+
     /// Orbit camera around `center`: azimuth about the vertical (z) axis, elevation above the xy plane.
     pub fn orbit(
         center: DVec3,

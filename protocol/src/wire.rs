@@ -20,11 +20,11 @@ pub use start::SessionStart;
 /// coded). 6: the base mesh and blocks of store format 5 (positions as f32
 /// where exact, modelled signs). 7: the base mesh names its predictor (store format 6). 8: the
 /// blocks of store format 7 (no subtree bound on the finest node level, ids as runs and jumps by
-/// sibling group). 9: the session's manifest in its own form ([`manifest`], with the store's
+/// sibling group). 9: the session's manifest in its own form (`manifest`, with the store's
 /// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
 /// `Preview` batches, `Hello.previewed`. 10: `Hello.previewed` names the preview nodes held (a
 /// cut preview resumes where it stopped); the session starts with one `Start` frame, the manifest
-/// and the base mesh, a named box's corners once ([`start`]).
+/// and the base mesh, a named box's corners once (`start`).
 pub const PROTOCOL_VERSION: u16 = 11;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
@@ -75,7 +75,7 @@ pub enum ClientMsg {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum ServerMsg {
     /// A session's first message: the store's manifest, as much of it as a client needs
-    /// ([`manifest`]), and the base mesh ([`start`]).
+    /// (`manifest`), and the base mesh (`start`).
     Start(#[serde(with = "start")] Box<SessionStart>),
     /// The base mesh alone (`GET /v1/base`).
     Base(Box<BaseMesh>),

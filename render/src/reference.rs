@@ -50,7 +50,7 @@ pub fn render_reference(mesh: &RenderMesh, cam: &Camera, tf: &TransferFunction) 
 
 /// [`render_reference`] that stops when `cancel` becomes true (checked before each row): `None`
 /// then. Memory: 4 bytes per pixel for the image and 8 per tet (its screen footprint), plus, for
-/// the tets over the band of rows being drawn ([`BAND_TETS`] tets' worth of rows at a time), each
+/// the tets over the band of rows being drawn (`BAND_TETS` tets' worth of rows at a time), each
 /// one's ray geometry (~140 bytes) and a 12-byte entry per row of the band its footprint spans.
 pub fn render_reference_cancellable(
     mesh: &RenderMesh,

@@ -129,7 +129,7 @@ enum Cmd {
 
 fn main() -> ExitCode {
     // before any thread: fallback renders would otherwise print a Wayland probe's error
-    tetwave_render::gpu::quiet_headless_vulkan_layers();
+    tetwave_gpu::quiet_headless_vulkan_layers();
     let cli = Cli::parse();
     tracing_subscriber::fmt()
         .with_env_filter(

@@ -22,11 +22,11 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
+use tetwave_gpu::pt::{PtRenderer, TetDrawData};
+use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::BaseMesh;
-use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
-use tetwave_render::gpu::{GpuContext, RenderError};
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference_cancellable;
 use tetwave_render::render_mesh::RenderMesh;
@@ -187,9 +187,11 @@ impl RenderParams {
         })
     }
 
-    /// Eye distance: as asked, else 1.6 × the bounding-box diagonal of `base`.
+    /// Eye distance: as asked, else the default framing's of `base`'s bounding box.
     pub fn eye_distance(&self, base: &BaseMesh) -> f64 {
-        self.distance.unwrap_or_else(|| 1.6 * diagonal(base))
+        let (lo, hi) = base.bounds();
+        self.distance
+            .unwrap_or_else(|| Camera::framing(lo, hi).distance)
     }
 
     /// The uniform level to draw: `level`, or the coarsest whose tets' screen-space error
@@ -208,11 +210,6 @@ impl RenderParams {
             .find(|&l| k * diam0 / (1u64 << l) as f64 / dist <= tol)
             .unwrap_or(base.levels)
     }
-}
-
-fn diagonal(base: &BaseMesh) -> f64 {
-    let (lo, hi) = base.bounds();
-    (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt()
 }
 
 /// Longest edge over the base tets.

@@ -5,11 +5,11 @@
 mod stream_common;
 
 use stream_common::*;
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::wire::{decode_server, ServerMsg};
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;

@@ -236,7 +236,7 @@ pub struct PreviewNodes {
     pub nodes: Vec<DetailNode>,
 }
 
-/// What [`write`] needs besides the content.
+/// What [`write`](fn@write) needs besides the content.
 pub struct StoreMeta {
     pub dataset: String,
     pub source: String,
@@ -257,7 +257,7 @@ pub struct StoreMeta {
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. The files are written
-/// beside an existing store's and replace them only once all are written ([`Staged`]): a write
+/// beside an existing store's and replace them only once all are written (`Staged`): a write
 /// that fails before then leaves the old store as it was; one cut short while replacing leaves a
 /// directory that does not open as a store, never an old manifest over new files.
 pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manifest, StoreError> {

@@ -4,9 +4,9 @@
 
 use glam::DVec3;
 use tetwave_client::render_cli::store_mesh;
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::transfer::TransferFunction;

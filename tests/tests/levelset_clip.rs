@@ -19,13 +19,13 @@ use std::sync::atomic::AtomicBool;
 mod common;
 
 use common::{psnr_pixels as psnr, render_png, serve};
-use tetwave_client::draw::leaf_mesh;
+use tetwave_adaptive::draw::leaf_mesh;
 use tetwave_client::render_cli::{file_mesh, store_mesh};
 use tetwave_client::stream::{run_session, Faults, StreamArgs};
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::testing::notched_cube_vtk;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;

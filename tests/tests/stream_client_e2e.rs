@@ -298,3 +298,147 @@ fn until_converged_stops_at_the_final_view_and_draws_it() {
     eprintln!("final view against every leaf: {db:.2} dB");
     assert!(db >= 40.0, "{db:.2} dB");
 }
+
+/// Each connection's client messages, in order, as a [`ViewDroppingProxy`] saw them.
+type ClientLog = std::sync::Arc<std::sync::Mutex<Vec<Vec<tetwave_protocol::wire::ClientMsg>>>>;
+
+/// A WebSocket proxy on 127.0.0.1 in front of a server's stream that records what the client
+/// says on each connection. The first connection passes the server's first message (`Start`) and
+/// nothing more until the client has sent a `View`, then drops: a connection lost after the
+/// camera was told, before any node came. Later connections pass everything.
+struct ViewDroppingProxy {
+    url: String,
+    log: ClientLog,
+    _rt: tokio::runtime::Runtime,
+}
+
+impl ViewDroppingProxy {
+    fn start(upstream: String) -> Self {
+        use futures_util::{SinkExt, StreamExt};
+        use tetwave_protocol::wire::{decode_client, ClientMsg};
+        use tokio_tungstenite::tungstenite::Message;
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap();
+        let listener = rt
+            .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+            .unwrap();
+        let url = format!("http://{}", listener.local_addr().unwrap());
+        let log = ClientLog::default();
+        let l = log.clone();
+        rt.spawn(async move {
+            while let Ok((tcp, _)) = listener.accept().await {
+                let conn = {
+                    let mut g = l.lock().unwrap();
+                    g.push(Vec::new());
+                    g.len() - 1
+                };
+                let (l, up) = (l.clone(), upstream.clone());
+                tokio::spawn(async move {
+                    let config = Some(tetwave_net::connection::ws_config());
+                    let Ok(client) = tokio_tungstenite::accept_async_with_config(tcp, config).await
+                    else {
+                        return;
+                    };
+                    let Ok((server, _)) =
+                        tokio_tungstenite::connect_async_with_config(up.as_str(), config, false)
+                            .await
+                    else {
+                        return;
+                    };
+                    let (mut to_client, mut from_client) = client.split();
+                    let (mut to_server, mut from_server) = server.split();
+                    let viewed = std::sync::Arc::new(tokio::sync::Notify::new());
+                    let seen = viewed.clone();
+                    let upward = async move {
+                        while let Some(Ok(m)) = from_client.next().await {
+                            if let Message::Binary(b) = &m {
+                                let msg = decode_client(b).expect("the client's frames decode");
+                                if matches!(msg, ClientMsg::View(_)) {
+                                    seen.notify_one();
+                                }
+                                l.lock().unwrap()[conn].push(msg);
+                            }
+                            if to_server.send(m).await.is_err() {
+                                break;
+                            }
+                        }
+                    };
+                    let downward = async move {
+                        let mut passed = 0u64;
+                        while let Some(Ok(m)) = from_server.next().await {
+                            if conn == 0 && passed == 1 {
+                                viewed.notified().await;
+                                return;
+                            }
+                            if to_client.send(m).await.is_err() {
+                                return;
+                            }
+                            passed += 1;
+                        }
+                    };
+                    tokio::select! {
+                        _ = upward => {}
+                        _ = downward => {}
+                    }
+                });
+            }
+        });
+        ViewDroppingProxy { url, log, _rt: rt }
+    }
+}
+
+/// A stream with a fixed camera whose connection is lost after it told the server its view: the
+/// new connection is told the view again right after its `Hello` (the server's view order is per
+/// connection), and the stream completes.
+#[test]
+fn a_fixed_camera_stream_sends_its_view_again_after_a_reconnect() {
+    use tetwave_protocol::wire::ClientMsg;
+    let (_d, dir) = common::harmonic_store(3);
+    let srv = serve(&dir, "view");
+    let upstream = tetwave_net::ServerUrl::parse(srv.url())
+        .unwrap()
+        .stream(None);
+    let proxy = ViewDroppingProxy::start(upstream);
+    let out = tempfile::tempdir().unwrap();
+    let mut a = StreamArgs::new(&proxy.url, out.path());
+    a.no_render = true;
+    a.frames = 400;
+    a.until_complete = true;
+    a.size = (32, 32);
+    a.frame_ms = 5;
+    a.tol = "2px".into();
+    let s = run_session(&a, Faults::default()).expect("session");
+    assert!(s.report.complete, "{:?}", s.report.nodes_received);
+    assert!(
+        s.report.reconnects >= 1,
+        "the proxy dropped the first connection"
+    );
+    let log = proxy.log.lock().unwrap();
+    let kinds = |c: &Vec<ClientMsg>| -> Vec<&'static str> {
+        c.iter()
+            .map(|m| match m {
+                ClientMsg::Hello { .. } => "hello",
+                ClientMsg::View(_) => "view",
+                ClientMsg::Ack { .. } => "ack",
+                _ => "other",
+            })
+            .collect()
+    };
+    assert!(log.len() >= 2, "{} connections", log.len());
+    assert!(
+        log[0].iter().any(|m| matches!(m, ClientMsg::View(_))),
+        "first connection: {:?}",
+        kinds(&log[0])
+    );
+    for (k, c) in log.iter().enumerate().skip(1) {
+        assert_eq!(
+            kinds(c).get(..2),
+            Some(&["hello", "view"][..]),
+            "connection {k}: {:?}",
+            kinds(c)
+        );
+    }
+}

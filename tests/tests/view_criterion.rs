@@ -4,8 +4,8 @@
 //! under the `default` preset and under `auto` (`/v1/stream?tf=auto`: the preset fitted to the
 //! manifest's histogram, which the server fits as the client does).
 
-use tetwave_client::select::{Mode, SelectParams, Selector};
-use tetwave_client::session::Session;
+use tetwave_adaptive::select::{Mode, SelectParams, Selector};
+use tetwave_adaptive::session::Session;
 use tetwave_protocol::view::{Camera, Tolerance, View, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
 use tetwave_server::stream::{ServeConfig, Shared, ViewTf};

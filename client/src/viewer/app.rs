@@ -12,27 +12,25 @@ use super::gpu::{Blit, BlitCallback, Target};
 use super::motion::MotionLod;
 use super::orbit::Orbit;
 use super::perf::Perf;
+use super::plan::{DrawKind, DrawMesh, FrameInputs, FramePlan};
 use super::script::{Action, Step, WaitFor};
 use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
-use crate::select::{Mode, Tolerance};
 use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
 use eframe::egui_wgpu;
 use std::path::PathBuf;
 use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{
-    Accumulation, FrameDraw, FramePlan, PtRenderer, TetDrawData, VisibilityOrder,
+use tetwave_adaptive::select::{Mode, Tolerance};
+use tetwave_gpu::pt::{
+    Accumulation, FrameDraw, FramePlan as SortPlan, PtRenderer, TetDrawData, VisibilityOrder,
 };
-use tetwave_render::gpu::GpuContext;
+use tetwave_gpu::{GpuContext, RenderError};
+use tetwave_net::HttpError;
+use tetwave_protocol::view::Camera;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
-
-/// The refinement budget of a frame in motion that draws the coarser mesh (`--motion-tets`): the
-/// leaf mesh it refines is not drawn until the camera rests.
-const MOVING_COARSE_REFINE_MS: f64 = 8.0;
 
 /// Width of the side panel, in points.
 pub const PANEL_WIDTH: f32 = 260.0;
@@ -48,10 +46,10 @@ const HISTOGRAM_BINS: usize = 64;
 /// The fewest triangles one frame of a spread draw ([`PendingDraw`]) draws.
 const MIN_PART_TRIANGLES: u32 = 4096;
 
-/// The parts a spread draw is cut into (lavapipe draws the 257³ store's ~750 k tets at 512² in
-/// 1.1–2.7 s whole, on the CPU cores the frame's own work uses: a part is a few tens of ms). A
-/// part size measured from frame times would follow the frame's own work (refinement, the leaf
-/// mesh, often larger than a part), not the draw.
+/// The parts a spread draw is cut into: fixed, because a part size measured from frame times
+/// would follow the frame's own work (refinement, the leaf mesh, often larger than a part), not
+/// the draw (the measurements behind the count: docs/benchmarks.md, "Whole draws at rest, spread over
+/// frames").
 const SPREAD_PARTS: u32 = 24;
 
 /// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: its
@@ -73,7 +71,7 @@ struct PendingDraw {
 
 enum Stage {
     /// The visibility sort and the exit faces, on their thread.
-    Planning(std::thread::JoinHandle<FramePlan>),
+    Planning(std::thread::JoinHandle<SortPlan>),
     /// Triangles drawn so far.
     Drawing { frame: FrameDraw, next: u32 },
 }
@@ -96,13 +94,26 @@ enum ServerImage {
     /// Requested for `cam`; the answer comes on `rx`.
     Pending {
         cam: Camera,
-        rx: mpsc::Receiver<Result<Rgba8Image, String>>,
+        rx: mpsc::Receiver<Result<Rgba8Image, HttpError>>,
     },
     /// Shown until the camera (or what the view shows) changes.
     Shown {
         target: Target,
         psnr_db: f64,
     },
+}
+
+/// Why a transfer function picked in the viewer could not be had.
+#[derive(Debug, thiserror::Error)]
+enum TfChoiceError {
+    #[error("transfer function {spec}: {source}")]
+    Load {
+        spec: String,
+        source: tetwave_render::transfer::TfError,
+    },
+    /// `auto` fitted to a store or mesh file that could not be read.
+    #[error(transparent)]
+    Fit(#[from] super::data::SourceError),
 }
 
 pub struct ViewerApp {
@@ -205,7 +216,7 @@ pub struct ViewerApp {
     upload_tol: f64,
     drawn_tol: f64,
     /// The selector's own interactive budget (before motion's changes).
-    interactive_budget: Option<crate::select::Budget>,
+    interactive_budget: Option<tetwave_adaptive::select::Budget>,
     /// Seconds from the window's opening until every node was held.
     complete_s: Option<f64>,
     /// The current frame's start.
@@ -221,9 +232,9 @@ impl ViewerApp {
         tf: TransferFunction,
         steps: Vec<Step>,
         report: Arc<Mutex<ViewReport>>,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, RenderError> {
         let renderer = Arc::new(PtRenderer::with_accumulation(&gpu, Accumulation::Best));
-        renderer.warm_up(&gpu, &tf).map_err(|e| e.to_string())?;
+        renderer.warm_up(&gpu, &tf)?;
         let uploader = Uploader::new(gpu.clone(), renderer.clone());
         let blit = Blit::new(&rs.device, rs.target_format);
         let (shot_tx, shot_rx) = mpsc::channel();
@@ -333,14 +344,14 @@ impl ViewerApp {
     }
 
     /// The initial view once the dataset's box is known: the orbit around its centre at the
-    /// distance `tetwave render` uses (1.6 × the diagonal unless given).
+    /// distance of the default framing (`Camera::framing`) unless given.
     fn init_home(&mut self) {
         if self.home.is_some() {
             return;
         }
-        if let Some((center, diag)) = self.data.frame {
-            self.orbit.target = center;
-            self.orbit.distance = self.args.camera.distance.unwrap_or(1.6 * diag);
+        if let Some(f) = self.data.frame {
+            self.orbit.target = f.center;
+            self.orbit.distance = self.args.camera.distance.unwrap_or(f.distance);
             self.home = Some(self.orbit);
         }
     }
@@ -354,7 +365,7 @@ impl ViewerApp {
     }
 
     fn diagonal(&self) -> f64 {
-        self.data.frame.map_or(1.0, |(_, d)| d)
+        self.data.frame.map_or(1.0, |f| f.diagonal)
     }
 
     /// Back to the initial orbit, out of fly mode.
@@ -366,13 +377,13 @@ impl ViewerApp {
     }
 
     fn zoom(&mut self, factor: f64) {
-        let diag = self.data.frame.map_or(1.0, |(_, d)| d);
+        let diag = self.data.frame.map_or(1.0, |f| f.diagonal);
         self.orbit.zoom(factor, 1e-3 * diag, 100.0 * diag);
     }
 
     /// Loads a preset or a `.json` file as the transfer function; `auto` is the one fitted to
     /// the data.
-    fn set_tf(&mut self, spec: &str) -> Result<(), String> {
+    fn set_tf(&mut self, spec: &str) -> Result<(), TfChoiceError> {
         let tf = if spec == AUTO {
             if !self.auto_fitted && self.data.server().is_none() {
                 // a store or a mesh file viewed with another function: fitted when first asked
@@ -384,7 +395,10 @@ impl ViewerApp {
             }
             self.auto_tf.clone()
         } else {
-            TransferFunction::load(spec).map_err(|e| format!("transfer function {spec}: {e}"))?
+            TransferFunction::load(spec).map_err(|source| TfChoiceError::Load {
+                spec: spec.to_string(),
+                source,
+            })?
         };
         self.tf = tf;
         self.tf_preset = PRESETS.contains(&spec).then(|| spec.to_string());
@@ -442,7 +456,7 @@ impl ViewerApp {
     /// Asks the server for its image of the current view (same camera, transfer function, the
     /// finest level) on a thread of its own.
     fn request_server_image(&mut self) {
-        let Some(server) = self.data.server().map(str::to_string) else {
+        let Some(server) = self.data.server().cloned() else {
             self.fail("server image: the view is not of a stream (give a server's URL)".into());
             return;
         };
@@ -467,10 +481,10 @@ impl ViewerApp {
         }
         let (w, h) = self.view_px;
         let o = self.orbit;
-        let url = format!(
-            "{server}/v1/render?width={w}&height={h}&azimuth={}&elevation={}&distance={}&fov={}&tf={tf}&level={}",
+        let url = server.render(&format!(
+            "width={w}&height={h}&azimuth={}&elevation={}&distance={}&fov={}&tf={tf}&level={}",
             o.azimuth, o.elevation, o.distance, o.fov, self.data.levels
-        );
+        ));
         let token = self.args.token.clone();
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
@@ -490,7 +504,11 @@ impl ViewerApp {
         let res = match rx.try_recv() {
             Ok(r) => r,
             Err(mpsc::TryRecvError::Empty) => return,
-            Err(mpsc::TryRecvError::Disconnected) => Err("the request thread ended".into()),
+            Err(mpsc::TryRecvError::Disconnected) => {
+                self.server = ServerImage::None;
+                self.fail("server image: the request thread ended".into());
+                return;
+            }
         };
         let cam = *cam;
         self.server = ServerImage::None;
@@ -600,7 +618,7 @@ impl ViewerApp {
                 }
                 Action::Tf(spec) => {
                     if let Err(e) = self.set_tf(spec) {
-                        self.fail(e);
+                        self.fail(e.to_string());
                     }
                     changes_view = true;
                 }
@@ -693,16 +711,27 @@ impl ViewerApp {
         if self.moving {
             self.motion.moved(now);
         }
-        // complete mode draws everything that arrived, whatever the tolerance
-        let tol = match self.mode {
-            ViewMode::Complete => self.tol,
-            _ => self.motion.tolerance(self.tol, now),
-        };
         let in_motion = self.motion.in_motion(now);
-        // whole draws slower than --motion-ms: in motion, a coarser mesh (--motion-tets), if one
-        // was uploaded, is drawn instead, and the leaf mesh only refined, within a short budget
-        let slow = self.args.motion_ms > 0.0 && self.full_draw_ms > self.args.motion_ms;
-        let moving_coarse = in_motion && slow && self.motion_data.is_some();
+        let (motion, budget) = (&self.motion, &mut self.interactive_budget);
+        let interactive_ms = self.data.session.as_ref().and_then(|s| {
+            let base = *budget.get_or_insert_with(|| s.params().interactive);
+            base.max_time
+                .map(|t| motion.refine_budget_ms(t.as_secs_f64() * 1e3, now))
+        });
+        let plan = FramePlan::decide(&FrameInputs {
+            mode: self.mode,
+            moving: self.moving,
+            in_motion,
+            tol_px: self.tol,
+            motion_tol_px: self.motion.tolerance(self.tol, now),
+            motion_ms: self.args.motion_ms,
+            full_draw_ms: self.full_draw_ms,
+            has_motion_mesh: self.motion_data.is_some(),
+            motion_scale: self.args.motion_scale,
+            view_px: (w, h),
+            interactive_ms,
+        });
+        let tol = plan.tol_px;
         let rec = self.perf.current();
         rec.tol_px = tol;
         rec.in_motion = in_motion;
@@ -733,24 +762,10 @@ impl ViewerApp {
         self.data.follow_tf(&self.tf);
         if let Some(s) = self.data.session.as_mut() {
             s.set_tolerance(Tolerance::Pixels(tol));
-            let base = *self
-                .interactive_budget
-                .get_or_insert_with(|| s.params().interactive);
-            if let Some(t) = base.max_time {
-                let ms = self.motion.refine_budget_ms(t.as_secs_f64() * 1e3, now);
-                let ms = if moving_coarse {
-                    ms.min(MOVING_COARSE_REFINE_MS)
-                } else {
-                    ms
-                };
-                s.set_interactive_budget(crate::select::Budget::ms(ms));
+            if let Some(ms) = plan.interactive_ms {
+                s.set_interactive_budget(tetwave_adaptive::select::Budget::ms(ms));
             }
-            let mode = match self.mode {
-                ViewMode::Interactive => Mode::Interactive,
-                ViewMode::Progressive if self.moving || moving_coarse => Mode::Interactive,
-                ViewMode::Progressive => Mode::Progressive,
-                ViewMode::Complete => Mode::Complete,
-            };
+            let mode = plan.refine_mode;
             let budget = match mode {
                 Mode::Interactive => s.params().interactive,
                 Mode::Progressive | Mode::Complete => s.params().progressive,
@@ -804,7 +819,7 @@ impl ViewerApp {
         // one upload at a time: a mesh that changes meanwhile goes up after it; while slow
         // draws move with the coarser mesh, none (it would take the CPU the draws need: the leaf
         // mesh goes up once the camera rests)
-        if self.mesh_dirty && !self.uploader.busy() && !moving_coarse {
+        if self.mesh_dirty && !self.uploader.busy() && plan.upload {
             let t = Instant::now();
             let most = self.args.motion_tets;
             let (mesh, motion) = match (&self.data.session, &self.data.mesh) {
@@ -831,17 +846,11 @@ impl ViewerApp {
         }
         // in motion the volume may be drawn with fewer pixels (the copy into the view scales it
         // up); at rest always with the view's own
-        let scale = if in_motion && slow {
-            self.args.motion_scale.max(1)
-        } else {
-            1
-        };
-        let (dw, dh) = ((w / scale).max(1), (h / scale).max(1));
+        let scale = plan.scale;
+        let (dw, dh) = plan.draw_px;
         let sized = |t: &Target| t.size() == (dw, dh);
-        // slow whole draws in motion draw the coarser mesh too; at rest the leaf mesh again,
-        // spread over frames
-        let use_motion = moving_coarse;
-        let spread = !use_motion && slow && scale == 1;
+        let use_motion = plan.mesh == DrawMesh::Motion;
+        let spread = plan.draw == DrawKind::Spread;
         // a spread draw is for this camera and size, and holds the renderer's uniforms
         if self.pending.as_ref().is_some_and(|p| !sized(&p.target))
             || self.last_cam != Some(cam)
@@ -1235,7 +1244,7 @@ impl ViewerApp {
         // a preset picked in the box (not a loaded or edited function that bears a preset's name)
         if preset != shown && PRESETS.contains(&preset.as_str()) {
             if let Err(e) = self.set_tf(&preset) {
-                self.status = e;
+                self.status = e.to_string();
             }
         }
         egui::CollapsingHeader::new("transfer function editor").show(ui, |ui| {
@@ -1250,7 +1259,7 @@ impl ViewerApp {
                     let p = self.tf_path.clone();
                     self.status = match self.set_tf(&p) {
                         Ok(()) => format!("loaded {p}"),
-                        Err(e) => e,
+                        Err(e) => e.to_string(),
                     };
                 }
                 if ui.button("save").clicked() {
@@ -1365,11 +1374,14 @@ impl ViewerApp {
 }
 
 /// GET a PNG and decode it.
-fn fetch_png(url: &str, token: Option<&str>) -> Result<Rgba8Image, String> {
+fn fetch_png(url: &str, token: Option<&str>) -> Result<Rgba8Image, HttpError> {
     // the server's render deadline is 30 s by default; a larger one waits this long at most
-    let bytes = crate::http::get(url, token, 256 << 20, std::time::Duration::from_secs(120))?;
+    let bytes = tetwave_net::http::get(url, token, 256 << 20, std::time::Duration::from_secs(120))?;
     let img = image::load_from_memory(&bytes)
-        .map_err(|e| format!("the server's PNG: {e}"))?
+        .map_err(|e| HttpError {
+            url: url.to_string(),
+            reason: format!("the server's PNG: {e}"),
+        })?
         .to_rgba8();
     Ok(Rgba8Image {
         width: img.width(),

@@ -3,25 +3,19 @@
 //! or a mesh file drawn as it is. Each frame takes what has arrived within a time budget, so the
 //! window never waits on the network or on a large arrival.
 
-use crate::ingest::{Ingest, Step};
-use crate::select::{SelectParams, Tolerance};
 use crate::select_args::SelectionArgs;
-use crate::session::Session;
-use crate::stream::{
-    network, ws_url, Delivery, Faults, Net, NetPolicy, NetRuntime, StreamError, INGEST_QUEUE,
-};
-use glam::DVec3;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
+use tetwave_adaptive::select::{SelectParams, Tolerance};
+use tetwave_adaptive::session::Session;
+use tetwave_net::connection::{NetPolicy, Next};
+use tetwave_net::ingest::{Ingest, Step};
+use tetwave_net::{Connection, Faults, HttpError, NetError, ServerUrl};
 use tetwave_protocol::store_format::Manifest;
-use tetwave_protocol::view::Camera;
-use tetwave_protocol::wire::{ClientMsg, ViewParams};
+use tetwave_protocol::view::{Camera, Framing};
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
-use tokio::sync::mpsc;
 
 /// How the viewer's session selects: the command line's selection options (criterion, leaf
 /// budget) and the transfer function drawn, which the image criterion weighs by.
@@ -40,6 +34,21 @@ impl Selection {
     }
 }
 
+/// Why a source could not be opened or stopped feeding the session.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error(transparent)]
+    Net(#[from] NetError),
+    #[error(transparent)]
+    Store(#[from] tetwave_store::StoreError),
+    #[error(transparent)]
+    Mesh(#[from] crate::render_cli::RenderCliError),
+    #[error("base mesh: {0}")]
+    BaseMesh(#[from] tetwave_adaptive::mesh::MeshError),
+    #[error(transparent)]
+    Node(#[from] tetwave_adaptive::session::NodeRejected),
+}
+
 /// What `tetwave view` was given.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Source {
@@ -53,7 +62,7 @@ pub enum Source {
 
 impl Source {
     pub fn parse(s: &str) -> Source {
-        if s.starts_with("http://") || s.starts_with("ws://") {
+        if ServerUrl::is_server(s) {
             Source::Url(s.to_string())
         } else if crate::render_cli::is_mesh_input(Path::new(s), None) {
             Source::Mesh(s.into())
@@ -72,18 +81,8 @@ const LOCAL_CHUNK: usize = 512;
 const RECONNECT_ATTEMPTS: u32 = 20;
 
 struct Remote {
-    /// The runtime whose one worker runs the network task (dropped with the viewer).
-    rt: NetRuntime,
-    task: tokio::task::JoinHandle<Result<(), StreamError>>,
-    rx: mpsc::Receiver<(Delivery, u64)>,
-    out: mpsc::UnboundedSender<ClientMsg>,
-    net: Arc<Net>,
+    conn: Connection,
     ingest: Ingest,
-    last_view: Option<ViewParams>,
-    /// Reconnections when the view was last sent (a new connection needs it again).
-    view_reconnects: u64,
-    /// The server's HTTP address (`http://host:port`), for `/v1/render`.
-    http: String,
 }
 
 enum Kind {
@@ -102,7 +101,7 @@ pub struct Data {
     /// [`display_value_range`](tetwave_protocol::store_format::Manifest::display_value_range)).
     pub value_range: [f32; 2],
     /// Centre and diagonal of the dataset's bounding box, once known.
-    pub frame: Option<(DVec3, f64)>,
+    pub frame: Option<Framing>,
     /// Wire bytes applied (remote), or 0.
     pub bytes_applied: u64,
     /// Why the data stopped (a failed connection, a refused node, …): shown, and the exit status.
@@ -127,7 +126,7 @@ impl Data {
         max_nodes: u64,
         select: Selection,
         tf_auto: bool,
-    ) -> Result<Data, String> {
+    ) -> Result<Data, SourceError> {
         let empty = |kind| Data {
             kind,
             session: None,
@@ -143,56 +142,33 @@ impl Data {
         };
         match source {
             Source::Url(url) => {
-                let ws = ws_url(url).map_err(|e| e.to_string())?;
-                let http = format!(
-                    "http://{}",
-                    ws.trim_start_matches("ws://")
-                        .trim_end_matches("/v1/stream")
-                );
-                let rt = NetRuntime::new("tetwave-view-net")
-                    .map_err(|e| format!("network runtime: {e}"))?;
-                let net = Arc::new(Net::new());
-                let (tx, rx) = mpsc::channel(INGEST_QUEUE);
-                let (out, out_rx) = mpsc::unbounded_channel();
-                let task = rt.spawn(network(
-                    ws,
+                let conn = Connection::open(
+                    ServerUrl::parse(url)?,
                     token,
-                    net.clone(),
-                    tx,
-                    out_rx,
                     NetPolicy {
                         faults: Faults::default(),
                         retries: RECONNECT_ATTEMPTS,
                         max_nodes,
                         tf_auto,
                     },
-                ));
+                    "tetwave-view-net",
+                )?;
                 Ok(empty(Kind::Remote(Box::new(Remote {
-                    rt,
-                    task,
-                    rx,
-                    out,
-                    net,
+                    conn,
                     ingest: Ingest::new(max_nodes),
-                    last_view: None,
-                    view_reconnects: 0,
-                    http,
                 }))))
             }
             Source::Store(dir) => {
-                let store = tetwave_store::Store::open(dir).map_err(|e| e.to_string())?;
+                let store = tetwave_store::Store::open(dir)?;
                 let m = &store.manifest;
-                let nodes = store
-                    .read_nodes(0, m.counts.nodes)
-                    .map_err(|e| e.to_string())?;
+                let nodes = store.read_nodes(0, m.counts.nodes)?;
                 let mut d = empty(Kind::Local { nodes, next: 0 });
                 d.value_range = m.display_value_range();
                 d.name = m.dataset.clone();
                 d.start_session(store.base.clone(), tol)?;
-                if let (Some(s), Some((_, near))) = (
-                    d.session.as_mut(),
-                    store.read_levelset_near().map_err(|e| e.to_string())?,
-                ) {
+                if let (Some(s), Some((_, near))) =
+                    (d.session.as_mut(), store.read_levelset_near()?)
+                {
                     s.set_levelset(near);
                 }
                 Ok(d)
@@ -203,21 +179,21 @@ impl Data {
                     field: None,
                     nan_as: None,
                 };
-                let (mesh, scalar) = crate::render_cli::file_mesh(path, None, &options)
-                    .map_err(|e| e.to_string())?;
+                let (mesh, scalar) = crate::render_cli::file_mesh(path, None, &options)?;
                 let mut d = empty(Kind::Mesh);
                 d.name = scalar;
                 d.value_range = [mesh.value_range.0, mesh.value_range.1];
-                d.frame = Some((mesh.center(), mesh.diagonal()));
+                let (lo, hi) = mesh.bounds();
+                d.frame = Some(Camera::framing(lo.to_array(), hi.to_array()));
                 d.mesh = Some(mesh);
                 Ok(d)
             }
         }
     }
 
-    fn start_session(&mut self, base: BaseMesh, tol: Tolerance) -> Result<(), String> {
+    fn start_session(&mut self, base: BaseMesh, tol: Tolerance) -> Result<(), SourceError> {
         let params = self.select.params(tol, self.value_range, &base);
-        self.session = Some(Session::new(base, params).map_err(|e| format!("base mesh: {e}"))?);
+        self.session = Some(Session::new(base, params)?);
         self.session_started();
         Ok(())
     }
@@ -244,15 +220,14 @@ impl Data {
             return;
         };
         let (lo, hi) = base.bounds();
-        let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
-        self.frame = Some(((lo + hi) * 0.5, hi.distance(lo)));
+        self.frame = Some(Camera::framing(lo, hi));
         self.levels = base.levels;
         self.changed = true;
     }
 
     /// Why drawn meshes are not clipped to the store's level set when it has one (its band could
     /// not be had); shown in the panel.
-    pub fn levelset_error(&self) -> Option<&str> {
+    pub fn levelset_error(&self) -> Option<&HttpError> {
         match &self.kind {
             Kind::Remote(r) => r.ingest.levelset_error(),
             _ => None,
@@ -267,10 +242,10 @@ impl Data {
         }
     }
 
-    /// The server's HTTP address, for a stream.
-    pub fn server(&self) -> Option<&str> {
+    /// The server's address, for a stream.
+    pub fn server(&self) -> Option<&ServerUrl> {
         match &self.kind {
-            Kind::Remote(r) => Some(&r.http),
+            Kind::Remote(r) => Some(r.conn.server()),
             _ => None,
         }
     }
@@ -302,7 +277,7 @@ impl Data {
     /// Bytes received over the wire (remote), or 0.
     pub fn bytes_received(&self) -> u64 {
         match &self.kind {
-            Kind::Remote(r) => r.net.bytes.load(Ordering::Relaxed),
+            Kind::Remote(r) => r.conn.bytes(),
             _ => 0,
         }
     }
@@ -310,7 +285,7 @@ impl Data {
     /// Connections lost and retried so far (a stream; 0 otherwise).
     pub fn reconnects(&self) -> u64 {
         match &self.kind {
-            Kind::Remote(r) => r.net.reconnects.load(Ordering::Relaxed),
+            Kind::Remote(r) => r.conn.reconnects(),
             _ => 0,
         }
     }
@@ -321,8 +296,8 @@ impl Data {
             Kind::Remote(r) => {
                 self.error.is_none()
                     && !self.is_complete()
-                    && r.net.reconnects.load(Ordering::Relaxed) > 0
-                    && !r.net.connected.load(Ordering::Relaxed)
+                    && r.conn.reconnects() > 0
+                    && !r.conn.connected()
             }
             _ => false,
         }
@@ -333,20 +308,11 @@ impl Data {
         std::mem::take(&mut self.changed)
     }
 
-    /// Tells the server the view (a stream only; sent when it changed, and again to a new
-    /// connection after one was lost).
+    /// Tells the server the view (a stream only; sent when it changed, and by the connection
+    /// again to a new connection after one was lost).
     pub fn send_view(&mut self, cam: &Camera, tol_px: f64) {
         if let Kind::Remote(r) = &mut self.kind {
-            let view = cam.view_params(tol_px);
-            let reconnects = r.net.reconnects.load(Ordering::Relaxed);
-            if reconnects != r.view_reconnects {
-                r.view_reconnects = reconnects;
-                r.last_view = None;
-            }
-            if r.last_view != Some(view) {
-                let _ = r.out.send(ClientMsg::View(view));
-                r.last_view = Some(view);
-            }
+            r.conn.send_view(cam.view_params(tol_px));
         }
     }
 
@@ -378,7 +344,7 @@ impl Data {
             }
             Kind::Remote(_) => match self.ingest_remote(t0, budget, tol) {
                 Ok(n) => applied = n,
-                Err(e) => self.error = Some(e),
+                Err(e) => self.error = Some(e.to_string()),
             },
         }
         if applied > 0 {
@@ -392,7 +358,7 @@ impl Data {
         t0: Instant,
         budget: Duration,
         tol: Tolerance,
-    ) -> Result<usize, String> {
+    ) -> Result<usize, NetError> {
         let mut applied = 0;
         loop {
             let Kind::Remote(r) = &mut self.kind else {
@@ -401,34 +367,27 @@ impl Data {
             if t0.elapsed() >= budget {
                 return Ok(applied);
             }
-            let (msg, nbytes) = match r.rx.try_recv() {
-                Ok(m) => m,
-                Err(mpsc::error::TryRecvError::Empty) => return Ok(applied),
-                Err(mpsc::error::TryRecvError::Disconnected) => {
+            let (msg, nbytes) = match r.conn.next(Duration::ZERO) {
+                Next::Ready(d, n) => (d, n),
+                Next::Empty => return Ok(applied),
+                Next::Ended => {
                     r.ingest.network_ended();
                     if self.session.as_ref().is_some_and(Session::is_complete) {
                         return Ok(applied);
                     }
                     // the network task ended: why (it has finished, so this does not wait)
-                    let why = r.rt.block_on(&mut r.task);
-                    return Err(match why {
-                        Ok(Err(e)) => e.to_string(),
-                        Ok(Ok(())) => "the network task ended".into(),
-                        Err(e) => format!("the network task failed: {e}"),
-                    });
+                    return Err(r.conn.finish());
                 }
             };
             self.bytes_applied += nbytes;
             let select = &self.select;
             let start = |b: BaseMesh, m: &Manifest| {
                 let params = select.params(tol, m.display_value_range(), &b);
-                Session::new(b, params)
-                    .map_err(|e| StreamError::Protocol(format!("base mesh: {e}")))
+                Session::new(b, params).map_err(NetError::BaseMesh)
             };
             let step = r
                 .ingest
-                .apply(msg, &mut self.session, start, &r.out)
-                .map_err(|e| e.to_string())?;
+                .apply(msg, &mut self.session, start, r.conn.sender())?;
             match step {
                 Step::Manifest => {
                     if let Some(m) = r.ingest.manifest() {
@@ -448,7 +407,7 @@ impl Data {
     /// Stops the network task (the viewer is closing).
     pub fn close(&mut self) {
         if let Kind::Remote(r) = &mut self.kind {
-            r.task.abort();
+            r.conn.close();
         }
     }
 }

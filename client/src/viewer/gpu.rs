@@ -1,6 +1,6 @@
 //! The viewer's GPU side, on the one device the window and the renderer share.
 //!
-//! The volume is drawn by [`PtRenderer::draw_into`] into an offscreen texture of the renderer's
+//! The volume is drawn by [`tetwave_gpu::pt::PtRenderer::draw_into`] into an offscreen texture of the renderer's
 //! accumulation format (32-bit float where blendable, else 16-bit): blending many layers in the
 //! window's 8-bit surface would lose precision at every layer (≈ 30 dB against the reference
 //! instead of ≥ 45). An egui paint callback then copies that texture, texel for texel, into the
@@ -9,7 +9,7 @@
 //! screenshot of the view is the offscreen image quantized once to 8 bits.
 
 use eframe::egui_wgpu;
-use tetwave_render::gpu::GpuContext;
+use tetwave_gpu::GpuContext;
 use tetwave_render::image_metrics::Rgba8Image;
 
 const BLIT: &str = r#"

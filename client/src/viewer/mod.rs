@@ -27,6 +27,7 @@ pub mod gpu;
 pub mod motion;
 pub mod orbit;
 pub mod perf;
+pub mod plan;
 pub mod script;
 pub mod tf_edit;
 pub mod upload;
@@ -34,8 +35,8 @@ pub mod upload;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::{GpuContext, RenderError};
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_render::transfer::{TransferFunction, ValueHistogram, AUTO};
 
 /// Refinement modes of the viewer.
@@ -132,14 +133,14 @@ pub struct ViewArgs {
     pub select: crate::select_args::SelectionArgs,
 }
 
-fn motion_ms(s: &str) -> Result<f64, String> {
+fn motion_ms(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && (0.0..=10_000.0).contains(&v) => Ok(v),
-        _ => Err(format!("expected milliseconds within 0..=10000, got {s:?}")),
+        _ => Err(format!("expected milliseconds within 0..=10000, got {s:?}").into()),
     }
 }
 
-fn tol_px(s: &str) -> Result<f64, String> {
+fn tol_px(s: &str) -> Result<f64, crate::arg_error::ArgError> {
     let s = s.trim();
     let v: f64 = s
         .strip_suffix("px")
@@ -150,7 +151,7 @@ fn tol_px(s: &str) -> Result<f64, String> {
     if v.is_finite() && (0.0..=1000.0).contains(&v) {
         Ok(v)
     } else {
-        Err(format!("{v} pixels is outside 0..=1000"))
+        Err(format!("{v} pixels is outside 0..=1000").into())
     }
 }
 
@@ -248,14 +249,14 @@ fn fit_auto(
     spec: &str,
     source: &data::Source,
     tf: TransferFunction,
-) -> Result<TransferFunction, String> {
+) -> Result<TransferFunction, data::SourceError> {
     if spec != AUTO {
         return Ok(tf);
     }
     let hist = match source {
         data::Source::Store(dir) => {
-            let store = tetwave_store::Store::open(dir).map_err(|e| e.to_string())?;
-            crate::render_cli::store_histogram(&store, None).map_err(|e| e.to_string())?
+            let store = tetwave_store::Store::open(dir)?;
+            crate::render_cli::store_histogram(&store, None)?
         }
         data::Source::Mesh(path) => {
             let options = tetwave_import::clean::ImportOptions {
@@ -263,8 +264,7 @@ fn fit_auto(
                 field: None,
                 nan_as: None,
             };
-            let (mesh, _) =
-                crate::render_cli::file_mesh(path, None, &options).map_err(|e| e.to_string())?;
+            let (mesh, _) = crate::render_cli::file_mesh(path, None, &options)?;
             ValueHistogram::of_mesh(&mesh)
         }
         data::Source::Url(_) => return Ok(tf),
@@ -335,7 +335,7 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let data = data::Data::open(
         &source,
         args.token.clone(),
-        crate::select::Tolerance::Pixels(args.tol),
+        tetwave_adaptive::select::Tolerance::Pixels(args.tol),
         args.max_nodes,
         data::Selection {
             args: args.select.clone(),

@@ -21,6 +21,7 @@
 //! image is written. Unknown keys and steps with no action or several are refused when the file
 //! is read, with the step's index.
 
+use crate::arg_error::ArgError;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -165,7 +166,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Vec<Step>, ScriptError> {
     raw.into_iter()
         .enumerate()
         .map(|(index, r)| {
-            step(r).map_err(|reason| ScriptError::Step {
+            step(r).map_err(|ArgError(reason)| ScriptError::Step {
                 path: path.into(),
                 index,
                 reason,
@@ -183,18 +184,18 @@ pub fn load(path: &Path) -> Result<Vec<Step>, ScriptError> {
     parse(&text, path)
 }
 
-fn finite(what: &str, x: f64) -> Result<f64, String> {
+fn finite(what: &str, x: f64) -> Result<f64, ArgError> {
     if x.is_finite() {
         Ok(x)
     } else {
-        Err(format!("{what} must be finite"))
+        Err(format!("{what} must be finite").into())
     }
 }
 
-fn step(r: RawStep) -> Result<Step, String> {
+fn step(r: RawStep) -> Result<Step, ArgError> {
     if let Some(at) = r.at {
         if !(at.is_finite() && at >= 0.0) {
-            return Err(format!("at {at}: must be a finite number of seconds ≥ 0"));
+            return Err(format!("at {at}: must be a finite number of seconds ≥ 0").into());
         }
     }
     let mut actions = Vec::new();
@@ -212,10 +213,9 @@ fn step(r: RawStep) -> Result<Step, String> {
         if c.elevation
             .is_some_and(|e| e.abs() > super::orbit::MAX_ELEVATION)
         {
-            return Err(format!(
-                "elevation must be within ±{}°",
-                super::orbit::MAX_ELEVATION
-            ));
+            return Err(
+                format!("elevation must be within ±{}°", super::orbit::MAX_ELEVATION).into(),
+            );
         }
         if c.distance.is_some_and(|d| d <= 0.0) {
             return Err("distance must be positive".into());
@@ -292,7 +292,7 @@ fn step(r: RawStep) -> Result<Step, String> {
             action: actions.pop().expect("one"),
         }),
         0 => Err("no action (give one of camera, orbit, elevate, zoom, fly, reset, tf, tol, mode, size, wait, frames, server_image, screenshot, window_screenshot, quit)".into()),
-        n => Err(format!("{n} actions in one step; give one per step")),
+        n => Err(format!("{n} actions in one step; give one per step").into()),
     }
 }
 

@@ -13,11 +13,28 @@ use eframe::egui::{self, Color32, Pos2, Rect, Sense, Stroke};
 use std::path::Path;
 use tetwave_render::transfer::{TfPoint, TransferFunction};
 
+/// Why a transfer function could not be saved.
+#[derive(Debug, thiserror::Error)]
+pub enum SaveError {
+    #[error(transparent)]
+    Invalid(#[from] tetwave_render::transfer::TfError),
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    #[error("{path}: {source}")]
+    Write {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+}
+
 /// Writes `tf` as the JSON `TransferFunction::load` reads; refuses an invalid function.
-pub fn save(tf: &TransferFunction, path: &Path) -> Result<(), String> {
-    tf.validate().map_err(|e| e.to_string())?;
-    let text = serde_json::to_string_pretty(tf).map_err(|e| e.to_string())?;
-    std::fs::write(path, text + "\n").map_err(|e| format!("{}: {e}", path.display()))
+pub fn save(tf: &TransferFunction, path: &Path) -> Result<(), SaveError> {
+    tf.validate()?;
+    let text = serde_json::to_string_pretty(tf)?;
+    std::fs::write(path, text + "\n").map_err(|source| SaveError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Counts of `values` in `bins` equal bins over `range` (mapped to `[0, 1]` as the transfer

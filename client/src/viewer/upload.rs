@@ -8,13 +8,22 @@ use std::sync::mpsc;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
-use tetwave_render::gpu::pt::{PtRenderer, TetDrawData};
-use tetwave_render::gpu::GpuContext;
+use tetwave_gpu::pt::{PtRenderer, TetDrawData};
+use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_render::render_mesh::RenderMesh;
 
 /// An upload's result (the leaf mesh's draw data, and the coarser mesh's drawn in motion when
 /// one was given) and how long it took, in milliseconds.
-pub type Uploaded = (Result<(TetDrawData, Option<TetDrawData>), String>, f64);
+pub type Uploaded = (Result<(TetDrawData, Option<TetDrawData>), UploadError>, f64);
+
+/// Why an upload failed.
+#[derive(Debug, thiserror::Error)]
+pub enum UploadError {
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    #[error("the upload thread has ended")]
+    ThreadEnded,
+}
 
 /// What one upload takes: the leaf mesh, and the coarser one to draw in motion if any.
 type Meshes = (RenderMesh, Option<RenderMesh>);
@@ -36,7 +45,7 @@ impl Uploader {
             .spawn(move || {
                 for (m, motion) in meshes {
                     let t = Instant::now();
-                    let up = |m: &RenderMesh| renderer.upload(&gpu, m).map_err(|e| e.to_string());
+                    let up = |m: &RenderMesh| renderer.upload(&gpu, m).map_err(UploadError::from);
                     let r = up(&m).and_then(|d| Ok((d, motion.as_ref().map(up).transpose()?)));
                     if done.send((r, t.elapsed().as_secs_f64() * 1e3)).is_err() {
                         break;
@@ -59,14 +68,18 @@ impl Uploader {
 
     /// Starts uploading `mesh` and the coarser `motion` mesh; only when not [`Self::busy`]. Fails
     /// if the thread is gone.
-    pub fn start(&mut self, mesh: RenderMesh, motion: Option<RenderMesh>) -> Result<(), String> {
+    pub fn start(
+        &mut self,
+        mesh: RenderMesh,
+        motion: Option<RenderMesh>,
+    ) -> Result<(), UploadError> {
         debug_assert!(!self.in_flight, "one upload at a time");
         let sent = self
             .tx
             .as_ref()
             .is_some_and(|tx| tx.send((mesh, motion)).is_ok());
         if !sent {
-            return Err("the upload thread has ended".into());
+            return Err(UploadError::ThreadEnded);
         }
         self.in_flight = true;
         Ok(())
@@ -85,7 +98,7 @@ impl Uploader {
             Err(mpsc::TryRecvError::Empty) => None,
             Err(mpsc::TryRecvError::Disconnected) => {
                 self.in_flight = false;
-                Some((Err("the upload thread has ended".into()), 0.0))
+                Some((Err(UploadError::ThreadEnded), 0.0))
             }
         }
     }

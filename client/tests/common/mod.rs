@@ -28,12 +28,12 @@ pub fn loaded(
     levels: u8,
     f: impl Fn([f64; 3]) -> f32,
 ) -> (
-    tetwave_client::mesh::AdaptiveMesh,
-    tetwave_client::detail_buffer::DetailBuffer,
+    tetwave_adaptive::mesh::AdaptiveMesh,
+    tetwave_adaptive::detail_buffer::DetailBuffer,
     BaseMesh,
 ) {
-    use tetwave_client::detail_buffer::{Arrivals, DetailBuffer};
-    use tetwave_client::mesh::AdaptiveMesh;
+    use tetwave_adaptive::detail_buffer::{Arrivals, DetailBuffer};
+    use tetwave_adaptive::mesh::AdaptiveMesh;
     let (base, nodes) = detail_nodes(box5(levels), f);
     let mut mesh = AdaptiveMesh::new(&base).unwrap();
     let mut buf = DetailBuffer::new(base.forest(), base.vertex_keys());
@@ -57,7 +57,7 @@ pub fn probed_run(
     tetwave_client::progressive::RunReport,
     tetwave_client::render_probe::RenderSummary,
 ) {
-    use tetwave_client::mesh::AdaptiveMesh;
+    use tetwave_adaptive::mesh::AdaptiveMesh;
     use tetwave_client::progressive::{order_nodes, run_progressive_with, ArrivalOrder};
     use tetwave_client::render_probe::RenderProbe;
     use tetwave_protocol::view::Camera;

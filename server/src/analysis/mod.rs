@@ -1,4 +1,4 @@
-//! Wavelet analysis: predict-only lifting over the semi-regular hierarchy (thesis §4.3, design.md).
+//! Wavelet analysis: predict-only lifting over the semi-regular hierarchy (thesis §4.3; docs/protocol.md).
 //!
 //! For every new vertex `m` (midpoint of an edge `(u,v)` of a level-`k−1` tet) one detail
 //! `d_m = f(m) − P(m)`, `P` the prediction of [`tetwave_protocol::wavelet`] (linear on base edges,

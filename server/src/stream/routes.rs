@@ -30,7 +30,7 @@ use tower::ServiceBuilder;
 use tower_http::limit::RequestBodyLimitLayer;
 use tower_http::timeout::TimeoutLayer;
 
-/// The application: every route, with the Host/Origin allowlists ([`super::origin`]) in front of
+/// The application: every route, with the Host/Origin allowlists (`stream::origin`) in front of
 /// everything, token enforcement, a time limit on every request and a bounded render queue.
 pub fn app(shared: Arc<Shared>) -> Router {
     let limits = &shared.config.limits;

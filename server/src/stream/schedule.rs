@@ -542,14 +542,10 @@ fn view_chunk(
 /// The default camera of view order before a client sends its own (the render CLI's default).
 fn default_view(base: &BaseMesh) -> ViewParams {
     let (lo, hi) = base.bounds();
-    let c = [
-        0.5 * (lo[0] + hi[0]),
-        0.5 * (lo[1] + hi[1]),
-        0.5 * (lo[2] + hi[2]),
-    ];
-    let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+    let framing = tetwave_protocol::view::Camera::framing(lo, hi);
+    let c = framing.center.to_array();
     let (az, el) = (35f64.to_radians(), 25f64.to_radians());
-    let d = 1.6 * diag;
+    let d = framing.distance;
     ViewParams {
         eye: [
             c[0] + d * el.cos() * az.cos(),

@@ -312,7 +312,7 @@ impl Shared {
             .clone()
     }
 
-    /// Computes what view order reads ([`Self::geometry`]) on a thread of its own, so that the
+    /// Computes what view order reads (`Self::geometry`) on a thread of its own, so that the
     /// first session in view order does not pay for it (a session that asks before it is done
     /// waits for the same computation, not a second one).
     pub fn warm_view_order(self: &Arc<Self>) {

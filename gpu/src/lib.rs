@@ -1,6 +1,8 @@
-//! GPU rendering (wgpu). [`GpuContext`] is the shared set-up (instance, adapter, device, queue);
+//! # tetwave-gpu
+//!
+//! GPU rendering (wgpu) of what `tetwave-render` describes. [`GpuContext`] is the shared set-up (instance, adapter, device, queue);
 //! [`pt::PtRenderer`] draws leaf tets by projected tetrahedra (WGSL in `shaders/pt.wgsl`).
-//! The adaptive mesh never touches wgpu: renderers take a [`crate::render_mesh::RenderMesh`].
+//! The adaptive mesh never touches wgpu: renderers take a [`tetwave_render::render_mesh::RenderMesh`].
 
 pub mod order;
 pub mod pt;

@@ -2,9 +2,9 @@
 //! renders offscreen. Needs a GPU adapter (`scripts/setup` installs Mesa's lavapipe); without one
 //! it fails with the renderer's "no GPU adapter" message rather than skip.
 
+use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 

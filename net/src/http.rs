@@ -1,6 +1,7 @@
 //! Plain HTTP GETs of the server's routes beside the stream (`/v1/render`, `/v1/levelset`), with
 //! the stream's token.
 
+use crate::error::HttpError;
 use std::time::Duration;
 
 /// The body of `GET url` (at most `limit` bytes, within `timeout` all told), sending `token` as a
@@ -10,7 +11,11 @@ pub fn get(
     token: Option<&str>,
     limit: u64,
     timeout: Duration,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<u8>, HttpError> {
+    let fail = |e: ureq::Error| HttpError {
+        url: url.to_string(),
+        reason: e.to_string(),
+    };
     let mut req = ureq::get(url)
         .config()
         .timeout_global(Some(timeout))
@@ -18,10 +23,10 @@ pub fn get(
     if let Some(t) = token {
         req = req.header("Authorization", &format!("Bearer {t}"));
     }
-    let mut resp = req.call().map_err(|e| format!("GET {url}: {e}"))?;
+    let mut resp = req.call().map_err(fail)?;
     resp.body_mut()
         .with_config()
         .limit(limit)
         .read_to_vec()
-        .map_err(|e| format!("GET {url}: {e}"))
+        .map_err(fail)
 }

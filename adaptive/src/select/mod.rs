@@ -131,7 +131,7 @@ pub struct SelectParams {
     pub value_range: [f32; 2],
     /// The image criterion: the screen-space error is weighted by how much of a pixel's colour
     /// the node's subtree can still change under the transfer function
-    /// ([`criteria::image_weight`]), instead of by [`Self::data_aware`]'s weight. `None`: that
+    /// (`criteria::image_weight`), instead of by [`Self::data_aware`]'s weight. `None`: that
     /// weight (geometric when it is `None` too).
     pub image: Option<ImageCriterion>,
     /// Most leaves the red tree may hold: a split that would go beyond is not made (the
@@ -214,7 +214,7 @@ struct FrameCtx<'a> {
 /// [`Selector::notify_arrived`] change the status of the arrived nodes' subtrees only.
 ///
 /// Merge candidates the mesh settles by refined tets outside their batch
-/// ([`AdaptiveMesh::batch_held`]) are *parked*: listed scans leave them out, which changes no
+/// (`AdaptiveMesh::batch_held`) are *parked*: listed scans leave them out, which changes no
 /// outcome while those tets stay refined and out of the batches. When one of them is queued to
 /// merge by a listed scan, the candidates parked on it are queued with it (and, in turn, those
 /// parked on them); when one changes, or is queued by a full scan or as the parent of a merge,
@@ -476,7 +476,7 @@ impl Selector {
     /// included, as [`Self::eval`] would return it) with a fresh evaluation for `cam` and `mode`,
     /// the camera and mode of the last frame. Returns how many were compared, or the first that
     /// differs.
-    #[doc(hidden)]
+    #[cfg(any(test, feature = "testing"))]
     pub fn verify_remembered(
         &mut self,
         mesh: &AdaptiveMesh,

@@ -4,8 +4,10 @@
 //! whether it comes before or after the base, insert node batches, and at the stream's end
 //! re-request what is missing, a bounded number of times.
 
-use crate::session::Session;
-use crate::stream::{check_hierarchy, Delivery, StreamError, MAX_WANT_ROUNDS};
+use crate::connection::{check_hierarchy, Delivery};
+use crate::error::{HttpError, NetError};
+use crate::MAX_WANT_ROUNDS;
+use tetwave_adaptive::session::Session;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::wire::{ClientMsg, IdRange, MAX_RANGES};
@@ -14,13 +16,13 @@ use tokio::sync::mpsc;
 
 /// The state of one streamed session's ingestion, around the [`Session`] its caller holds.
 #[derive(Default)]
-pub(crate) struct Ingest {
+pub struct Ingest {
     manifest: Option<Manifest>,
     /// The level set's band when it comes before the base mesh.
     early_levelset: Option<NearLevelSet>,
     /// An answer about the band came, or none can come any more.
     levelset_answered: bool,
-    levelset_error: Option<String>,
+    levelset_error: Option<HttpError>,
     want_rounds: u32,
     ended: bool,
     max_nodes: u64,
@@ -28,7 +30,7 @@ pub(crate) struct Ingest {
 
 /// What one delivery changed.
 #[derive(Debug)]
-pub(crate) enum Step {
+pub enum Step {
     Manifest,
     /// A session was built on the base mesh.
     Started,
@@ -69,8 +71,8 @@ impl Ingest {
     }
 
     /// Why drawn meshes are not clipped although the store has a level set.
-    pub fn levelset_error(&self) -> Option<&str> {
-        self.levelset_error.as_deref()
+    pub fn levelset_error(&self) -> Option<&HttpError> {
+        self.levelset_error.as_ref()
     }
 
     /// The manifest lists a level set and no answer about it has come yet.
@@ -94,9 +96,9 @@ impl Ingest {
         &mut self,
         delivery: Delivery,
         session: &mut Option<Session>,
-        start: impl FnOnce(BaseMesh, &Manifest) -> Result<Session, StreamError>,
+        start: impl FnOnce(BaseMesh, &Manifest) -> Result<Session, NetError>,
         out: &mpsc::UnboundedSender<ClientMsg>,
-    ) -> Result<Step, StreamError> {
+    ) -> Result<Step, NetError> {
         Ok(match delivery {
             Delivery::Manifest(m) => {
                 self.manifest = Some(*m);
@@ -104,16 +106,12 @@ impl Ingest {
             }
             Delivery::Base(b) => match session {
                 Some(s) if *s.base() == *b => Step::Nothing,
-                Some(_) => {
-                    return Err(StreamError::Protocol(
-                        "the server sent a different base mesh on a resumed connection".into(),
-                    ))
-                }
+                Some(_) => return Err(NetError::BaseChanged),
                 None => {
-                    let m = self
-                        .manifest
-                        .as_ref()
-                        .ok_or_else(|| StreamError::Protocol("base before manifest".into()))?;
+                    let m = self.manifest.as_ref().ok_or_else(|| NetError::OutOfOrder {
+                        what: "base",
+                        before: "manifest",
+                    })?;
                     check_hierarchy(&b, m, self.max_nodes)?;
                     let mut s = start(*b, m)?;
                     if let Some(near) = self.early_levelset.take() {
@@ -174,7 +172,7 @@ impl Ingest {
                     let want: Vec<IdRange> = s.buffer().missing_ranges().take(MAX_RANGES).collect();
                     let _ = out.send(ClientMsg::Want(want));
                 } else {
-                    return Err(StreamError::Unavailable {
+                    return Err(NetError::Unavailable {
                         missing: total - held,
                         total,
                         rounds: self.want_rounds,
@@ -182,7 +180,7 @@ impl Ingest {
                 }
                 Step::End
             }
-            Delivery::Error { code, message } => return Err(StreamError::Server { code, message }),
+            Delivery::Error { code, message } => return Err(NetError::Server { code, message }),
         })
     }
 }
@@ -190,17 +188,18 @@ impl Ingest {
 /// The session, which `what` (nodes, a preview) needs: an error before the base mesh.
 fn started<'s>(
     session: &'s mut Option<Session>,
-    what: &str,
-) -> Result<&'s mut Session, StreamError> {
-    session
-        .as_mut()
-        .ok_or_else(|| StreamError::Protocol(format!("{what} before the base mesh")))
+    what: &'static str,
+) -> Result<&'s mut Session, NetError> {
+    session.as_mut().ok_or(NetError::OutOfOrder {
+        what,
+        before: "the base mesh",
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::select::{SelectParams, Tolerance};
+    use tetwave_adaptive::select::{SelectParams, Tolerance};
     use tetwave_protocol::shapes::box5;
     use tetwave_protocol::store_format::{FileSum, LEVELSET_BAND_FILE};
     use tetwave_protocol::testing::{detail_nodes, manifest_for, unsampled_base};
@@ -221,9 +220,16 @@ mod tests {
         (base, nodes, manifest)
     }
 
-    fn start(b: BaseMesh, m: &Manifest) -> Result<Session, StreamError> {
+    fn start(b: BaseMesh, m: &Manifest) -> Result<Session, NetError> {
         Session::new(b, SelectParams::new(Tolerance::Pixels(0.0), m.value_range))
-            .map_err(|e| StreamError::Protocol(e.to_string()))
+            .map_err(NetError::BaseMesh)
+    }
+
+    fn http_error(reason: &str) -> HttpError {
+        HttpError {
+            url: "http://127.0.0.1:1/v1/levelset".into(),
+            reason: reason.into(),
+        }
     }
 
     fn band() -> Box<NearLevelSet> {
@@ -248,7 +254,7 @@ mod tests {
                 sent,
             }
         }
-        fn give(&mut self, d: Delivery) -> Result<Step, StreamError> {
+        fn give(&mut self, d: Delivery) -> Result<Step, NetError> {
             self.ingest.apply(d, &mut self.session, start, &self.out)
         }
         fn base(b: &BaseMesh) -> Delivery {
@@ -275,7 +281,7 @@ mod tests {
         assert!(matches!(step, Ok(Step::Started)));
         assert!(c.session.as_ref().is_some_and(Session::has_levelset));
         // an earlier request's failure, arriving late, does not undo it
-        c.give(Delivery::LevelSet(Err("gone".into()))).unwrap();
+        c.give(Delivery::LevelSet(Err(http_error("gone")))).unwrap();
         assert_eq!(c.ingest.levelset_error(), None);
     }
 
@@ -286,8 +292,11 @@ mod tests {
         c.give(Delivery::Manifest(Box::new(m))).unwrap();
         c.give(Client::base(&base)).unwrap();
         assert!(c.ingest.levelset_pending());
-        c.give(Delivery::LevelSet(Err("404".into()))).unwrap();
-        assert_eq!(c.ingest.levelset_error(), Some("404"));
+        c.give(Delivery::LevelSet(Err(http_error("404")))).unwrap();
+        assert_eq!(
+            c.ingest.levelset_error().map(|e| e.reason.as_str()),
+            Some("404")
+        );
         assert!(!c.ingest.levelset_pending());
         assert!(!c.session.as_ref().unwrap().has_levelset());
         // a later success (after a reconnection) clears the failure
@@ -301,7 +310,7 @@ mod tests {
         let (base, nodes, m) = data(false);
         let mut c = Client::new(u64::MAX);
         let before_manifest = c.give(Client::base(&base));
-        assert!(matches!(before_manifest, Err(StreamError::Protocol(_))));
+        assert!(matches!(before_manifest, Err(NetError::OutOfOrder { .. })));
         assert!(c.give(Client::nodes(&nodes)).is_err());
         assert!(!c.ingest.levelset_pending(), "no band listed");
         c.give(Delivery::Manifest(Box::new(m.clone()))).unwrap();
@@ -309,7 +318,7 @@ mod tests {
         let mut small = Client::new(1);
         small.give(Delivery::Manifest(Box::new(m))).unwrap();
         let too_large = small.give(Client::base(&base));
-        assert!(matches!(too_large, Err(StreamError::TooLarge { .. })));
+        assert!(matches!(too_large, Err(NetError::TooLarge { .. })));
         c.give(Client::base(&base)).unwrap();
         // a resumed connection's base mesh: the same one is kept, another one is refused
         let again = c.give(Client::base(&base));
@@ -317,12 +326,12 @@ mod tests {
         let mut other = base;
         other.positions[0][0] -= 0.5;
         let other = c.give(Client::base(&other));
-        assert!(matches!(other, Err(StreamError::Protocol(_))));
+        assert!(matches!(other, Err(NetError::BaseChanged)));
         let server = c.give(Delivery::Error {
             code: 7,
             message: "bye".into(),
         });
-        assert!(matches!(server, Err(StreamError::Server { code: 7, .. })));
+        assert!(matches!(server, Err(NetError::Server { code: 7, .. })));
     }
 
     #[test]
@@ -349,7 +358,7 @@ mod tests {
         let gave_up = c.give(Delivery::End);
         assert!(matches!(
             gave_up,
-            Err(StreamError::Unavailable { missing, rounds: MAX_WANT_ROUNDS, .. })
+            Err(NetError::Unavailable { missing, rounds: MAX_WANT_ROUNDS, .. })
                 if missing == rest.len() as u64
         ));
         // the rest arrives (twice): the next End completes the stream

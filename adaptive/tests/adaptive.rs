@@ -4,8 +4,8 @@
 use proptest::prelude::*;
 use std::collections::HashMap;
 use std::time::Instant;
-use tetwave_client::detail_buffer::{Arrivals, DetailBuffer, Inserted};
-use tetwave_client::mesh::{AdaptiveMesh, MeshError, VertexPrediction};
+use tetwave_adaptive::detail_buffer::{Arrivals, DetailBuffer, Inserted};
+use tetwave_adaptive::mesh::{AdaptiveMesh, MeshError, VertexPrediction};
 use tetwave_protocol::order::{shuffle, splitmix};
 use tetwave_protocol::shapes;
 use tetwave_protocol::synthesis::synthesize_all;
@@ -804,7 +804,7 @@ fn too_many_tets_is_an_error() {
     let base = corner_tet(14);
     base.validate().expect("a valid base mesh");
     let total = base.forest().total_tets();
-    assert!(total >= tetwave_client::mesh::MAX_TETS);
+    assert!(total >= tetwave_adaptive::mesh::MAX_TETS);
     match AdaptiveMesh::new(&base) {
         Err(MeshError::TooManyTets(n)) => assert_eq!(n, total),
         other => panic!("expected TooManyTets, got {:?}", other.map(|_| ())),
@@ -874,7 +874,7 @@ fn coarse_leaf_tets_fill_the_domain_within_the_budget() {
     let all = mesh.drawable_leaf_tets();
     assert!(all.iter().any(|t| t.green), "the closure made green pieces");
     let p = mesh.positions();
-    let volume = |t: &tetwave_client::mesh::LeafTet| {
+    let volume = |t: &tetwave_adaptive::mesh::LeafTet| {
         let q = t.v.map(|s| p[s as usize].map(|x| x as f64));
         tetwave_protocol::base::signed_volume(q[0], q[1], q[2], q[3])
     };

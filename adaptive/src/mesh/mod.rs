@@ -61,7 +61,7 @@ mod red_tree;
 mod refine;
 mod vertices;
 
-/// Re-exported for the selector's per-slot arrays (its home is [`crate::seg_vec`]).
+/// Re-exported for the selector's per-slot arrays (its home is `crate::seg_vec`).
 pub use changes::SlotChange;
 pub use conformity::ConformityError;
 pub use error::MeshError;

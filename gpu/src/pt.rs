@@ -11,13 +11,13 @@
 
 use super::order::{centroid_order, face_neighbors, mpvo_order};
 use super::{GpuContext, RenderError};
-use crate::image_metrics::Rgba8Image;
-use crate::render_mesh::RenderMesh;
-use crate::transfer::TransferFunction;
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use rayon::prelude::*;
 use tetwave_protocol::view::Camera;
+use tetwave_render::image_metrics::Rgba8Image;
+use tetwave_render::render_mesh::RenderMesh;
+use tetwave_render::transfer::TransferFunction;
 use wgpu::util::DeviceExt;
 
 /// How tets are ordered back to front each frame (see [`super::order`]).
@@ -31,7 +31,7 @@ pub enum VisibilityOrder {
     Mpvo,
 }
 
-const SHADER: &str = include_str!("../../../shaders/pt.wgsl");
+const SHADER: &str = include_str!("../../shaders/pt.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -110,7 +110,7 @@ pub struct PtRenderer {
 /// transfer-function table is rewritten only when the function changes.
 #[derive(Default)]
 struct FrameCache {
-    tf_points: Option<Vec<crate::transfer::TfPoint>>,
+    tf_points: Option<Vec<tetwave_render::transfer::TfPoint>>,
     target: Option<(u32, u32, wgpu::Texture, wgpu::TextureView, wgpu::Buffer)>,
 }
 
@@ -912,7 +912,7 @@ fn decode_mapped(
         .map_err(|e| RenderError::Readback(e.to_string()))?;
     let q = |x: f32| {
         if x.is_finite() {
-            crate::image_metrics::unit_to_u8(x as f64)
+            tetwave_render::image_metrics::unit_to_u8(x as f64)
         } else {
             0
         }

@@ -3,9 +3,9 @@
 //! Mesa's lavapipe); without one it fails with the renderer's "no GPU adapter" message.
 
 use glam::DVec3;
+use tetwave_gpu::pt::PtRenderer;
+use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Camera;
-use tetwave_render::gpu::pt::PtRenderer;
-use tetwave_render::gpu::GpuContext;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;

@@ -10,8 +10,8 @@ const KEY_PAGE: usize = 1 << KEY_PAGE_BITS;
 
 /// Vertex slot by vertex key (`NONE`: absent), in pages of [`KEY_PAGE`] keys made on first use and
 /// recycled when emptied. A view-dependent mesh holds a few of the hierarchy's keys, scattered:
-/// a dense table sized for every key took 27.6 B per leaf on a level-6 run at 20% (0.92 MB), pages
-/// of 16 about 4 B plus 0.25 B per key for the directory. No operation moves the table (pages sit
+/// a dense table sized for every key costs far more per leaf than small pages plus a directory
+/// of 0.25 B per key (docs/benchmarks.md, "Vertex key table"). No operation moves the table (pages sit
 /// in a [`SegVec`]), so it never stalls a frame the way a growing hash map's rehash would.
 #[derive(Clone, Debug)]
 pub(super) struct KeySlots {

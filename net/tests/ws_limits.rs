@@ -3,7 +3,7 @@
 
 use futures_util::{SinkExt, StreamExt};
 use std::time::Duration;
-use tetwave_client::stream::ws_config;
+use tetwave_net::connection::ws_config;
 use tetwave_protocol::wire::MAX_FRAME_BYTES;
 use tokio_tungstenite::tungstenite::Message;
 

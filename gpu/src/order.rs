@@ -244,7 +244,7 @@ mod tests {
         assert!(!check(&|i, j, k| (i, j, k) != (1, 1, 1), false));
         assert!(!check(&|_, _, _| true, true));
     }
-    use crate::render_mesh::RenderMesh;
+    use tetwave_render::render_mesh::RenderMesh;
 
     /// On a convex Kuhn-cube mesh, MPVO respects every face: whenever two tets share a face, the one
     /// on the eye's side of it comes later.
