@@ -11,7 +11,7 @@
 use std::time::Instant;
 use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_gpu::GpuContext;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -67,15 +67,14 @@ fn main() {
     std::fs::create_dir_all(&out).expect("output directory");
     let mesh = RenderMesh::kuhn_cube(n, 1.0, field);
     let tf = TransferFunction::preset("default").unwrap();
-    let cam = Camera::orbit(
-        mesh.center(),
-        1.6 * mesh.diagonal(),
-        35.0,
-        25.0,
-        40.0,
-        size,
-        size,
-    );
+    let cam = Orbit {
+        target: mesh.center(),
+        distance: 1.6 * mesh.diagonal(),
+        azimuth: 35.0,
+        elevation: 25.0,
+        fov: 40.0,
+    }
+    .camera(size, size);
     let ctx =
         GpuContext::new().expect("a GPU adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let r = PtRenderer::new(&ctx);

@@ -1,29 +1,45 @@
 //! Command-line parsers for camera arguments: a clear error for values that would give a blank or
 //! meaningless image (NaN, a negative distance, a field of view of 0).
 
+use tetwave_protocol::view::{Framing, Orbit, DEFAULT_AZIMUTH, DEFAULT_ELEVATION, DEFAULT_FOV};
+
 /// The orbit camera's options, shared by `render`, `stream` and `view`: the eye on a sphere around
 /// the volume's centre.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CameraArgs {
-    #[arg(long, default_value_t = 35.0, value_parser = angle)]
+    #[arg(long, default_value_t = DEFAULT_AZIMUTH, value_parser = angle)]
     pub azimuth: f64,
-    #[arg(long, default_value_t = 25.0, value_parser = elevation)]
+    #[arg(long, default_value_t = DEFAULT_ELEVATION, value_parser = elevation)]
     pub elevation: f64,
     /// Eye distance from the volume's centre (default: 1.6 × the bounding-box diagonal).
     #[arg(long, value_parser = distance)]
     pub distance: Option<f64>,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = fov)]
+    #[arg(long, default_value_t = DEFAULT_FOV, value_parser = fov)]
     pub fov: f64,
 }
 
 impl Default for CameraArgs {
     fn default() -> Self {
         CameraArgs {
-            azimuth: 35.0,
-            elevation: 25.0,
+            azimuth: DEFAULT_AZIMUTH,
+            elevation: DEFAULT_ELEVATION,
             distance: None,
-            fov: 40.0,
+            fov: DEFAULT_FOV,
+        }
+    }
+}
+
+impl CameraArgs {
+    /// The orbit these options ask for around a box framed by `f`: its centre, at the framing's
+    /// distance unless `--distance` says otherwise.
+    pub fn orbit(&self, f: Framing) -> Orbit {
+        Orbit {
+            target: f.center,
+            azimuth: self.azimuth,
+            elevation: self.elevation,
+            distance: self.distance.unwrap_or(f.distance),
+            fov: self.fov,
         }
     }
 }

@@ -13,7 +13,7 @@ use tetwave_adaptive::session::{NodeRejected, Session};
 use tetwave_protocol::node::resolved_bounds;
 use tetwave_protocol::order::shuffle;
 /// The seeded mixing behind [`order_nodes`]'s random order, re-exported for the client's tests.
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
 /// Order in which the detail nodes arrive.
@@ -183,15 +183,14 @@ pub struct RunReport {
 
 /// The orbit camera of step `step`.
 pub fn step_camera(cfg: &RunConfig, center: DVec3, step: usize) -> Camera {
-    Camera::orbit(
-        center,
-        cfg.distance,
-        (step as f64 * cfg.rotate).to_degrees(),
-        cfg.elevation_deg,
-        cfg.fovy_deg,
-        cfg.width,
-        cfg.height,
-    )
+    Orbit {
+        target: center,
+        distance: cfg.distance,
+        azimuth: (step as f64 * cfg.rotate).to_degrees(),
+        elevation: cfg.elevation_deg,
+        fov: cfg.fovy_deg,
+    }
+    .camera(cfg.width, cfg.height)
 }
 
 /// Leaf-mesh edge count by Euler's formula for a mesh of a ball whose boundary is the bounding box

@@ -325,19 +325,10 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         (mesh, level, None)
     };
     let (lo, hi) = mesh.bounds();
-    let distance = a
+    let cam = a
         .camera
-        .distance
-        .unwrap_or(Camera::framing(lo.to_array(), hi.to_array()).distance);
-    let cam = Camera::orbit(
-        mesh.center(),
-        distance,
-        a.camera.azimuth,
-        a.camera.elevation,
-        a.camera.fov,
-        a.size.0,
-        a.size.1,
-    );
+        .orbit(Camera::framing(lo.to_array(), hi.to_array()))
+        .camera(a.size.0, a.size.1);
     let reference = |mesh: &RenderMesh| {
         let t = Instant::now();
         let img = render_reference(mesh, &cam, &tf);

@@ -19,6 +19,7 @@ use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_net::connection::{NetPolicy, Next};
 use tetwave_net::ingest::{Ingest, Step};
+use tetwave_net::transport::{Faulty, WebSocket};
 pub use tetwave_net::Faults;
 use tetwave_net::{Connection, NetError, ServerUrl};
 use tetwave_protocol::levelset::NearLevelSet;
@@ -291,17 +292,18 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         Some((ctx, r))
     };
     let t0 = Instant::now();
-    let mut conn = Connection::open(
-        server,
-        args.token.clone(),
-        NetPolicy {
-            faults,
-            retries: args.retries,
-            max_nodes: args.max_nodes,
-            tf_auto: args.tf == AUTO,
-        },
-        "tetwave-net",
-    )?;
+    let policy = NetPolicy {
+        retries: args.retries,
+        max_nodes: args.max_nodes,
+        tf_auto: args.tf == AUTO,
+    };
+    let token = args.token.clone();
+    let mut conn = if faults.none() {
+        Connection::open(server, token, policy, "tetwave-net")?
+    } else {
+        let faulty = Faulty::new(WebSocket, faults);
+        Connection::open_with(faulty, server, token, policy, "tetwave-net")?
+    };
 
     let mut ingest = Ingest::new(args.max_nodes);
     let mut state: Option<Session> = None;
@@ -431,16 +433,9 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         let m = ingest.manifest().expect("manifest precedes base");
         // 2. camera and view
         let (lo, hi) = session.base().bounds();
-        let framing = Camera::framing(lo, hi);
-        let cam = Camera::orbit(
-            framing.center,
-            args.camera.distance.unwrap_or(framing.distance),
-            args.camera.azimuth + args.orbit * frame as f64,
-            args.camera.elevation,
-            args.camera.fov,
-            args.size.0,
-            args.size.1,
-        );
+        let mut orbit = args.camera.orbit(Camera::framing(lo, hi));
+        orbit.azimuth += args.orbit * frame as f64;
+        let cam = orbit.camera(args.size.0, args.size.1);
         let view = cam.view_params(tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0));
         conn.send_view(view);
         // 3. refine

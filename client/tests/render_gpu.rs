@@ -8,7 +8,7 @@ use glam::DVec3;
 use tetwave_gpu::pt::{PtRenderer, VisibilityOrder};
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::fields::harmonic_unit;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -58,23 +58,36 @@ fn gpu_matches_reference_45db() {
         let cams = [
             (
                 "outside",
-                Camera::orbit(c, 2.0 * d, 35.0, 25.0, 40.0, 256, 256),
+                Orbit {
+                    target: c,
+                    distance: 2.0 * d,
+                    azimuth: 35.0,
+                    elevation: 25.0,
+                    fov: 40.0,
+                }
+                .camera(256, 256),
             ),
             (
                 "inside",
-                Camera::orbit(
-                    c + DVec3::new(0.05, 0.02, 0.01) * d,
-                    0.1 * d,
-                    35.0,
-                    25.0,
-                    60.0,
-                    256,
-                    256,
-                ),
+                Orbit {
+                    target: c + DVec3::new(0.05, 0.02, 0.01) * d,
+                    distance: 0.1 * d,
+                    azimuth: 35.0,
+                    elevation: 25.0,
+                    fov: 60.0,
+                }
+                .camera(256, 256),
             ),
             (
                 "grazing",
-                Camera::orbit(c, 2.0 * d, 0.0, 0.5, 40.0, 256, 256),
+                Orbit {
+                    target: c,
+                    distance: 2.0 * d,
+                    azimuth: 0.0,
+                    elevation: 0.5,
+                    fov: 40.0,
+                }
+                .camera(256, 256),
             ),
         ];
         for (cname, cam) in &cams {
@@ -105,16 +118,22 @@ fn mpvo_order_matches_reference() {
     let c = mesh.center();
     let d = mesh.diagonal();
     for cam in [
-        Camera::orbit(c, 2.0 * d, 35.0, 25.0, 40.0, 192, 192),
-        Camera::orbit(
-            c + DVec3::new(0.05, 0.02, 0.01) * d,
-            0.1 * d,
-            35.0,
-            25.0,
-            60.0,
-            192,
-            192,
-        ),
+        Orbit {
+            target: c,
+            distance: 2.0 * d,
+            azimuth: 35.0,
+            elevation: 25.0,
+            fov: 40.0,
+        }
+        .camera(192, 192),
+        Orbit {
+            target: c + DVec3::new(0.05, 0.02, 0.01) * d,
+            distance: 0.1 * d,
+            azimuth: 35.0,
+            elevation: 25.0,
+            fov: 60.0,
+        }
+        .camera(192, 192),
     ] {
         let reference = render_reference(&mesh, &cam, &tf);
         let (m, _) = r
@@ -176,15 +195,14 @@ fn degenerate_input() {
     cases.push(("constant", RenderMesh::kuhn_cube(3, 1.0, |_| 0.4)));
     let tf = TransferFunction::preset("default").unwrap();
     for (name, mesh) in &cases {
-        let cam = Camera::orbit(
-            mesh.center(),
-            2.0 * mesh.diagonal(),
-            30.0,
-            20.0,
-            40.0,
-            128,
-            128,
-        );
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 2.0 * mesh.diagonal(),
+            azimuth: 30.0,
+            elevation: 20.0,
+            fov: 40.0,
+        }
+        .camera(128, 128);
         let data = r.upload(&ctx, mesh).unwrap();
         let (gpu, _) = r.render(&ctx, &data, &cam, &tf).unwrap();
         assert!(gpu.coverage() > 0.05, "{name}: blank");
@@ -207,15 +225,14 @@ fn refinement_converges() {
     let tf = TransferFunction::preset("default").unwrap();
     let smooth = |p: [f64; 3]| (p[0] * 2.0).sin() + (p[1] * 3.0).cos() * p[2];
     let finest = RenderMesh::kuhn_cube(32, 1.0, smooth);
-    let cam = Camera::orbit(
-        finest.center(),
-        2.0 * finest.diagonal(),
-        35.0,
-        25.0,
-        40.0,
-        128,
-        128,
-    );
+    let cam = Orbit {
+        target: finest.center(),
+        distance: 2.0 * finest.diagonal(),
+        azimuth: 35.0,
+        elevation: 25.0,
+        fov: 40.0,
+    }
+    .camera(128, 128);
     let reference = render_reference(&finest, &cam, &tf);
     let mut psnrs = Vec::new();
     for n in [2usize, 4, 8, 16] {
@@ -239,15 +256,14 @@ fn accumulation_precisions_are_ordered_and_bounded() {
     use tetwave_gpu::pt::Accumulation;
     let ctx = ctx();
     let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic_unit);
-    let cam = Camera::orbit(
-        mesh.center(),
-        1.6 * mesh.diagonal(),
-        35.0,
-        25.0,
-        40.0,
-        192,
-        192,
-    );
+    let cam = Orbit {
+        target: mesh.center(),
+        distance: 1.6 * mesh.diagonal(),
+        azimuth: 35.0,
+        elevation: 25.0,
+        fov: 40.0,
+    }
+    .camera(192, 192);
     let tf = TransferFunction::preset("default").unwrap();
     let reference = render_reference(&mesh, &cam, &tf);
     let mut out = Vec::new();
@@ -311,14 +327,28 @@ fn image_sizes_outside_the_limit_are_errors() {
     let tf = TransferFunction::preset("default").unwrap();
     let limit = ctx.device.limits().max_texture_dimension_2d;
     for (w, h) in [(0, 16), (16, 0), (limit + 1, 1)] {
-        let cam = Camera::orbit(mesh.center(), 3.0, 30.0, 20.0, 40.0, w, h);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 3.0,
+            azimuth: 30.0,
+            elevation: 20.0,
+            fov: 40.0,
+        }
+        .camera(w, h);
         let e = r.render(&ctx, &data, &cam, &tf).expect_err("refused");
         assert!(
             e.to_string().contains("each side must be 1..="),
             "{w}x{h}: {e}"
         );
     }
-    let cam = Camera::orbit(mesh.center(), 3.0, 30.0, 20.0, 40.0, 0, 16);
+    let cam = Orbit {
+        target: mesh.center(),
+        distance: 3.0,
+        azimuth: 30.0,
+        elevation: 20.0,
+        fov: 40.0,
+    }
+    .camera(0, 16);
     let img = render_reference(&mesh, &cam, &tf);
     assert_eq!((img.width, img.height, img.pixels.len()), (0, 16, 0));
 }

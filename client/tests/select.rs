@@ -9,14 +9,21 @@ use tetwave_adaptive::select::{
 };
 use tetwave_adaptive::session::Session;
 use tetwave_protocol::order::splitmix;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_protocol::TetId;
 
 mod common;
 use common::{box5, detail_nodes, loaded, wave};
 
 fn cam(az_deg: f64, dist: f64) -> Camera {
-    Camera::orbit(DVec3::splat(15.0), dist, az_deg, 10.0, 45.0, 256, 256)
+    Orbit {
+        target: DVec3::splat(15.0),
+        distance: dist,
+        azimuth: az_deg,
+        elevation: 10.0,
+        fov: 45.0,
+    }
+    .camera(256, 256)
 }
 
 /// Frames of `s` for `c` in `mode` until the selector is satisfied (at most 10,000).
@@ -53,7 +60,14 @@ fn tolerance_parse() {
 fn frustum_outside_stays_coarse() {
     let (mut mesh, buf, _) = loaded(4, wave);
     // close to one face, looking at it: most of the box is behind or beside the view
-    let c = Camera::orbit(DVec3::new(15.0, 15.0, 15.0), 20.0, 0.0, 0.0, 30.0, 256, 256);
+    let c = Orbit {
+        target: DVec3::new(15.0, 15.0, 15.0),
+        distance: 20.0,
+        azimuth: 0.0,
+        elevation: 0.0,
+        fov: 30.0,
+    }
+    .camera(256, 256);
     let mut p = SelectParams::new(Tolerance::Pixels(2.0), [-1.0, 1.0]);
     let mut sel = Selector::new(p.clone());
     let st = sel
@@ -477,7 +491,14 @@ fn incremental_equals_full_scan() {
                 } else if r < 0.95 {
                     fovy = 30.0 + 30.0 * unit(&mut s);
                 }
-                let c = Camera::orbit(target, dist, az, el, fovy, 256, 192);
+                let c = Orbit {
+                    target,
+                    distance: dist,
+                    azimuth: az,
+                    elevation: el,
+                    fov: fovy,
+                }
+                .camera(256, 192);
                 let mode = match step % 23 {
                     7 => Mode::Complete,
                     11 => Mode::Interactive,
@@ -569,7 +590,14 @@ fn incremental_equals_full_scan_through_previews() {
                     25.0 + 10.0 * unit(&mut s)
                 };
             }
-            let c = Camera::orbit(DVec3::splat(15.0), dist, az, 10.0, 45.0, 256, 192);
+            let c = Orbit {
+                target: DVec3::splat(15.0),
+                distance: dist,
+                azimuth: az,
+                elevation: 10.0,
+                fov: 45.0,
+            }
+            .camera(256, 192);
             let sa = inc.converge(&c, Mode::Progressive).unwrap();
             let sb = full.converge(&c, Mode::Progressive).unwrap();
             assert!(sa.converged && sb.converged);
@@ -582,7 +610,14 @@ fn incremental_equals_full_scan_through_previews() {
         }
         assert!(inc.is_complete(), "seed {seed}: {:?}", inc.progress());
         assert_eq!(inc.buffer().previews_held(), 0);
-        let c = Camera::orbit(DVec3::splat(15.0), 25.0, az, 10.0, 45.0, 256, 192);
+        let c = Orbit {
+            target: DVec3::splat(15.0),
+            distance: 25.0,
+            azimuth: az,
+            elevation: 10.0,
+            fov: 45.0,
+        }
+        .camera(256, 192);
         inc.converge(&c, Mode::Complete).unwrap();
         full.converge(&c, Mode::Complete).unwrap();
         let values = |x: &Session| {

@@ -4,14 +4,21 @@
 
 use glam::DVec3;
 use tetwave_adaptive::select::{Mode, SelectParams, Selector, Tolerance};
-use tetwave_protocol::view::{Camera, DEFAULT_IMAGE_EPS};
+use tetwave_protocol::view::{Camera, Orbit, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
 
 mod common;
 use common::{loaded, wave};
 
 fn cam(az: f64) -> Camera {
-    Camera::orbit(DVec3::splat(15.0), 60.0, az, 20.0, 45.0, 256, 256)
+    Orbit {
+        target: DVec3::splat(15.0),
+        distance: 60.0,
+        azimuth: az,
+        elevation: 20.0,
+        fov: 45.0,
+    }
+    .camera(256, 256)
 }
 
 fn image_params(base: &tetwave_protocol::BaseMesh, range: [f32; 2]) -> SelectParams {
@@ -64,15 +71,14 @@ fn the_leaf_budget_is_never_exceeded() {
     let mut sel = Selector::new(p.clone());
     let mut bound = 0;
     for k in 0..12 {
-        let c = Camera::orbit(
-            DVec3::splat(15.0),
-            25.0 + 5.0 * k as f64,
-            30.0 * k as f64,
-            10.0,
-            45.0,
-            256,
-            256,
-        );
+        let c = Orbit {
+            target: DVec3::splat(15.0),
+            distance: 25.0 + 5.0 * k as f64,
+            azimuth: 30.0 * k as f64,
+            elevation: 10.0,
+            fov: 45.0,
+        }
+        .camera(256, 256);
         let st = sel
             .converge(&mut mesh, &buf, &c, Mode::Progressive)
             .unwrap();

@@ -14,7 +14,7 @@ use super::{GpuContext, RenderError};
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 use rayon::prelude::*;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
@@ -420,7 +420,14 @@ impl PtRenderer {
     /// its shader variants now rather than during the first real frame.
     pub fn warm_up(&self, ctx: &GpuContext, tf: &TransferFunction) -> Result<(), RenderError> {
         let corners = vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let cam = Camera::orbit(DVec3::splat(0.25), 3.0, 30.0, 20.0, 40.0, 16, 16);
+        let cam = Orbit {
+            target: DVec3::splat(0.25),
+            distance: 3.0,
+            azimuth: 30.0,
+            elevation: 20.0,
+            fov: 40.0,
+        }
+        .camera(16, 16);
         // a constant field takes the two-sub-step shader, a full-range one the adaptive shader
         for values in [vec![0.5; 4], vec![0.0, 1.0, 0.5, 0.25]] {
             let tet = RenderMesh::new(corners.clone(), vec![[0, 1, 2, 3]], values);

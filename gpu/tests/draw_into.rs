@@ -4,7 +4,7 @@
 
 use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_gpu::GpuContext;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 
@@ -16,7 +16,14 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     let data = r.upload(&ctx, &mesh).unwrap();
     let tf = TransferFunction::preset("default").unwrap();
     let (w, h) = (96, 72);
-    let cam = Camera::orbit(mesh.center(), 2.0 * mesh.diagonal(), 30.0, 20.0, 40.0, w, h);
+    let cam = Orbit {
+        target: mesh.center(),
+        distance: 2.0 * mesh.diagonal(),
+        azimuth: 30.0,
+        elevation: 20.0,
+        fov: 40.0,
+    }
+    .camera(w, h);
     let (offscreen, _) = r
         .render_ordered(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid)
         .unwrap();

@@ -5,7 +5,7 @@
 use glam::DVec3;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -50,7 +50,14 @@ fn gpu_clips_to_the_level_set_like_the_reference() {
         let mut whole = mesh.clone();
         whole.levelset = None;
         for (az, el) in [(30.0, 25.0), (200.0, -35.0)] {
-            let cam = Camera::orbit(mesh.center(), 2.2 * mesh.diagonal(), az, el, 35.0, 128, 128);
+            let cam = Orbit {
+                target: mesh.center(),
+                distance: 2.2 * mesh.diagonal(),
+                azimuth: az,
+                elevation: el,
+                fov: 35.0,
+            }
+            .camera(128, 128);
             let data = r.upload(&ctx, mesh).unwrap();
             let (gpu, _) = r.render(&ctx, &data, &cam, &tf).unwrap();
             let reference = render_reference(mesh, &cam, &tf);

@@ -7,10 +7,11 @@
 //! goes on for the same camera whether or not it moves again.
 
 use crate::error::{HttpError, NetError};
+use crate::transport::{Transport, WebSocket};
 use crate::url::ServerUrl;
 use futures_util::{SinkExt, StreamExt};
 use std::collections::BTreeSet;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tetwave_protocol::block::BlockCoder;
@@ -90,22 +91,36 @@ const LEVELSET_TIMEOUT: Duration = Duration::from_secs(30);
 /// reconnection).
 const LEVELSET_ATTEMPTS: u32 = 3;
 /// The level set's state in the network task: not asked for, asked, held, failed.
-const LEVELSET_IDLE: u32 = 0;
-const LEVELSET_ASKED: u32 = 1;
-const LEVELSET_HELD: u32 = 2;
-const LEVELSET_FAILED: u32 = 3;
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+enum LevelSetFetch {
+    Idle = 0,
+    Asked = 1,
+    Held = 2,
+    Failed = 3,
+}
 
-/// Test hook: a transport fault injected into the network task.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Faults {
-    /// Drop the connection once, after this many node batches (preview batches count too).
-    pub drop_after_batches: Option<u64>,
-    /// Deliver every k-th node batch twice.
-    pub duplicate_every: Option<u64>,
-    /// Lose every k-th node batch (the client re-requests what is missing after `End`).
-    pub lose_every: Option<u64>,
-    /// Deliver node batches in reversed groups of this many.
-    pub reverse_groups: Option<usize>,
+/// A [`LevelSetFetch`] shared by the connection task and the thread that fetches the band.
+#[derive(Debug)]
+struct SharedFetch(AtomicU8);
+
+impl SharedFetch {
+    fn new() -> Self {
+        SharedFetch(AtomicU8::new(LevelSetFetch::Idle as u8))
+    }
+
+    fn get(&self) -> LevelSetFetch {
+        match self.0.load(Ordering::Acquire) {
+            0 => LevelSetFetch::Idle,
+            1 => LevelSetFetch::Asked,
+            2 => LevelSetFetch::Held,
+            _ => LevelSetFetch::Failed,
+        }
+    }
+
+    fn set(&self, s: LevelSetFetch) {
+        self.0.store(s as u8, Ordering::Release);
+    }
 }
 
 /// The runtime of a network task: one worker, and when dropped it does not wait for its blocking
@@ -138,10 +153,9 @@ impl Drop for NetRuntime {
     }
 }
 
-/// How the network task behaves: injected faults (tests), reconnection attempts, and the largest
+/// How the network task behaves: reconnection attempts, and the largest
 /// hierarchy (in nodes) it fetches a level set for.
 pub struct NetPolicy {
-    pub faults: Faults,
     pub retries: u32,
     pub max_nodes: u64,
     /// The session draws with `auto`: asks for the server's view order under the fitted
@@ -305,7 +319,8 @@ pub const INGEST_QUEUE: usize = 256;
 /// Waits between reconnect attempts: none before the first, then 100 ms times the attempts before.
 const RETRY_STEP: Duration = Duration::from_millis(100);
 
-async fn network(
+async fn network<T: Transport>(
+    transport: T,
     server: ServerUrl,
     token: Option<String>,
     net: Arc<Net>,
@@ -314,7 +329,6 @@ async fn network(
     policy: NetPolicy,
 ) -> Result<(), NetError> {
     let NetPolicy {
-        faults,
         retries,
         max_nodes,
         tf_auto,
@@ -330,14 +344,10 @@ async fn network(
     // preview nodes handed to the session (a reconnection names them in `Hello`), in how many
     // batches
     let mut previewed: BTreeSet<TetId> = BTreeSet::new();
-    let mut previews_delivered = 0u64;
-    let mut dropped = false;
-    let mut batches = 0u64;
-    let mut held_back: Vec<(Delivery, u64)> = Vec::new();
     let mut blocks = BlockDecoder::default();
     // the level set is asked for after the first base mesh, and again after a later one (a
     // reconnection) while it has failed, at most LEVELSET_ATTEMPTS times in all
-    let levelset = Arc::new(AtomicU32::new(LEVELSET_IDLE));
+    let levelset = Arc::new(SharedFetch::new());
     let mut levelset_attempts = 0u32;
     // why the last connection ended, once one has
     let mut lost: Option<String> = None;
@@ -363,15 +373,11 @@ async fn network(
         held_previews.truncate(MAX_RANGES);
         let conn = tokio::time::timeout(
             Duration::from_secs(5),
-            tokio_tungstenite::connect_async_with_config(
-                stream_url.as_str(),
-                Some(ws_config()),
-                false,
-            ),
+            transport.connect(stream_url.as_str()),
         )
         .await;
         let mut ws = match conn {
-            Ok(Ok((ws, _))) => ws,
+            Ok(Ok(ws)) => ws,
             Ok(Err(e)) => {
                 failures += 1;
                 if failures > retries {
@@ -424,7 +430,7 @@ async fn network(
                         net.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                         let m = decode_server(&bytes).map_err(|e| NetError::BadFrame(e.to_string()))?;
                         let ms = blocks.decode(m)?;
-                        let ask = matches!(levelset.load(Ordering::Acquire), LEVELSET_IDLE | LEVELSET_FAILED)
+                        let ask = matches!(levelset.get(), LevelSetFetch::Idle | LevelSetFetch::Failed)
                             && levelset_attempts < LEVELSET_ATTEMPTS;
                         let base = ms.iter().find_map(|d| match d {
                             Delivery::Base(b) => Some(b),
@@ -441,20 +447,20 @@ async fn network(
                                     Ok(()) => {
                                         let (u, t, n) = (server.clone(), token.clone(), base.vertex_keys().vertex_count());
                                         let (bytes, state) = (net.bytes.clone(), levelset.clone());
-                                        state.store(LEVELSET_ASKED, Ordering::Release);
+                                        state.set(LevelSetFetch::Asked);
                                         tokio::task::spawn_blocking(move || {
                                             let (got, len) = match fetch_levelset(&u, t.as_deref(), n) {
                                                 Ok((near, len)) => (Ok(Box::new(near)), len),
                                                 Err(e) => (Err(e), 0),
                                             };
-                                            let done = if got.is_ok() { LEVELSET_HELD } else { LEVELSET_FAILED };
+                                            let done = if got.is_ok() { LevelSetFetch::Held } else { LevelSetFetch::Failed };
                                             bytes.fetch_add(len, Ordering::Relaxed);
                                             // nobody to tell once the network task has ended; the
                                             // answer goes first, so a retry cannot overtake it
                                             if let Some(tx) = answer.upgrade() {
                                                 let _ = tx.blocking_send((Delivery::LevelSet(got), len));
                                             }
-                                            state.store(done, Ordering::Release);
+                                            state.set(done);
                                         });
                                     }
                                     Err(e) => {
@@ -470,37 +476,16 @@ async fn network(
                             }
                         }
                         // the frame's bytes go with its first delivery
-                        let mut deliver: Vec<(Delivery, u64)> =
+                        let deliver: Vec<(Delivery, u64)> =
                             ms.into_iter().zip(std::iter::once(bytes.len() as u64).chain(std::iter::repeat(0))).collect();
                         if let [(Delivery::Nodes { nodes, .. }, _)] = &deliver[..] {
-                            batches += 1;
-                            if faults.lose_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                                deliver.clear();
-                            } else {
-                                let mut r = net.received.lock().expect("lock");
-                                let before = r.len();
-                                r.extend(nodes.iter().map(|n| n.id));
-                                if r.len() > before {
-                                    // progress: this connection is worth reconnecting to again
-                                    failures = 0;
-                                }
-                                drop(r);
-                                if faults.duplicate_every.is_some_and(|k| batches.is_multiple_of(k)) {
-                                    deliver.push(deliver[0].clone());
-                                }
-                                if let Some(g) = faults.reverse_groups {
-                                    held_back.append(&mut deliver);
-                                    if held_back.len() >= g {
-                                        held_back.reverse();
-                                        deliver.append(&mut held_back);
-                                    }
-                                }
+                            let mut r = net.received.lock().expect("lock");
+                            let before = r.len();
+                            r.extend(nodes.iter().map(|n| n.id));
+                            if r.len() > before {
+                                // progress: this connection is worth reconnecting to again
+                                failures = 0;
                             }
-                        } else {
-                            // anything else flushes what was held back, in order of arrival
-                            let mut flushed: Vec<(Delivery, u64)> = std::mem::take(&mut held_back);
-                            flushed.append(&mut deliver);
-                            deliver = flushed;
                         }
                         // a batch is acknowledged once it is in the session's queue, not when the frame
                         // loop gets to it: ingestion runs at the network's pace, and the queue's bound
@@ -511,7 +496,6 @@ async fn network(
                                 Delivery::Preview { seq, nodes } => {
                                     // a reconnection asks for the rest of the preview only
                                     previewed.extend(nodes.iter().map(|n| n.id));
-                                    previews_delivered += 1;
                                     Some(*seq)
                                 }
                                 _ => None,
@@ -526,12 +510,6 @@ async fn network(
                                     break 'conn e.to_string();
                                 }
                             }
-                        }
-                        let delivered = batches + previews_delivered;
-                        if !dropped && faults.drop_after_batches.is_some_and(|n| delivered >= n) {
-                            dropped = true;
-                            drop(ws);
-                            break "dropped (test fault)".to_string();
                         }
                     }
                     m = out.recv() => {
@@ -597,9 +575,20 @@ pub struct Connection {
 }
 
 impl Connection {
-    /// Starts connecting to `server` (on a thread named `thread`); deliveries are queued from
-    /// then on.
+    /// Starts connecting to `server` by WebSocket (on a thread named `thread`); deliveries are
+    /// queued from then on.
     pub fn open(
+        server: ServerUrl,
+        token: Option<String>,
+        policy: NetPolicy,
+        thread: &str,
+    ) -> Result<Connection, NetError> {
+        Self::open_with(WebSocket, server, token, policy, thread)
+    }
+
+    /// [`Self::open`] through `transport` (tests wrap the WebSocket in [`crate::transport::Faulty`]).
+    pub fn open_with<T: Transport>(
+        transport: T,
         server: ServerUrl,
         token: Option<String>,
         policy: NetPolicy,
@@ -612,6 +601,7 @@ impl Connection {
         let (tx, rx) = mpsc::channel(INGEST_QUEUE);
         let (out, out_rx) = mpsc::unbounded_channel();
         let task = rt.spawn(network(
+            transport,
             server.clone(),
             token,
             net.clone(),

@@ -2,17 +2,19 @@
 //!
 //! The client's side of the wire: a server's address ([`ServerUrl`]), the connection task shared
 //! by `tetwave stream` and the viewer ([`connection`]: reconnects, resumes with what is held and
-//! re-sends the view), what the frame loop does with each delivery ([`ingest`]), GETs beside the
+//! re-sends the view) over a [`transport`] (a WebSocket; tests wrap it to inject faults), what the frame loop does with each delivery ([`ingest`]), GETs beside the
 //! stream ([`http`]) and the typed [`NetError`]. Feeds a `tetwave-adaptive` session; draws nothing.
 
 pub mod connection;
 pub mod error;
 pub mod http;
 pub mod ingest;
+pub mod transport;
 pub mod url;
 
-pub use connection::{Connection, Delivery, Faults};
+pub use connection::{Connection, Delivery};
 pub use error::{HttpError, NetError};
+pub use transport::Faults;
 pub use url::ServerUrl;
 
 /// `Want` rounds after an `End` with nodes missing before the session fails

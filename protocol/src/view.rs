@@ -38,6 +38,91 @@ pub struct Framing {
     pub distance: f64,
 }
 
+/// The default orbit's azimuth and elevation, in degrees, and its vertical field of view: what
+/// `tetwave render`, `stream`, `view` and the server's `/v1/render` draw unless told otherwise.
+pub const DEFAULT_AZIMUTH: f64 = 35.0;
+pub const DEFAULT_ELEVATION: f64 = 25.0;
+pub const DEFAULT_FOV: f64 = 40.0;
+
+/// Elevations an orbit is moved to stay inside ±89°, so that its up vector never flips.
+pub const MAX_ELEVATION: f64 = 89.0;
+
+/// An orbit camera's parameters: the eye on a sphere around `target`, at `azimuth` degrees about
+/// the vertical (z) axis and `elevation` degrees above the xy plane, `distance` away, with a
+/// vertical field of view of `fov` degrees. The one parametrization of `tetwave render`'s,
+/// `/v1/render`'s and the viewer's cameras, so that an unpanned view is reproduced offscreen and
+/// by the server.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Orbit {
+    /// The point orbited: the volume's centre unless panned.
+    pub target: DVec3,
+    pub azimuth: f64,
+    pub elevation: f64,
+    pub distance: f64,
+    pub fov: f64,
+}
+
+impl Orbit {
+    /// The default orbit of a framed box: its centre, the framing's distance, the default angles
+    /// and field of view.
+    pub fn framed(f: Framing) -> Orbit {
+        Orbit {
+            target: f.center,
+            azimuth: DEFAULT_AZIMUTH,
+            elevation: DEFAULT_ELEVATION,
+            distance: f.distance,
+            fov: DEFAULT_FOV,
+        }
+    }
+
+    /// The camera for a `width`×`height` view.
+    pub fn camera(&self, width: u32, height: u32) -> Camera {
+        let (az, el) = (self.azimuth.to_radians(), self.elevation.to_radians());
+        let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+        let up = if el.cos().abs() < 1e-6 {
+            DVec3::Y
+        } else {
+            DVec3::Z
+        };
+        Camera {
+            eye: self.target + dir * self.distance,
+            target: self.target,
+            up,
+            fovy_deg: self.fov,
+            near: (self.distance * 1e-3).max(1e-6),
+            width,
+            height,
+        }
+    }
+
+    /// Rotates by `d_az`, `d_el` degrees (elevation clamped to ±[`MAX_ELEVATION`]).
+    pub fn rotate(&mut self, d_az: f64, d_el: f64) {
+        self.azimuth = (self.azimuth + d_az).rem_euclid(360.0);
+        self.elevation = (self.elevation + d_el).clamp(-MAX_ELEVATION, MAX_ELEVATION);
+    }
+
+    /// Multiplies the distance by `factor` (> 0), kept within `[min, max]`.
+    pub fn zoom(&mut self, factor: f64, min: f64, max: f64) {
+        if factor.is_finite() && factor > 0.0 {
+            self.distance = (self.distance * factor).clamp(min, max);
+        }
+    }
+
+    /// Moves the target by `dx`, `dy` pixels of a `height`-pixel view in the view plane (the
+    /// point under the cursor follows it at the target's depth).
+    pub fn pan(&mut self, dx: f64, dy: f64, height: u32) {
+        let cam = self.camera(16, height.max(1));
+        let (right, up) = {
+            let fwd = cam.forward();
+            let right = fwd.cross(cam.up).normalize_or_zero();
+            (right, right.cross(fwd).normalize_or_zero())
+        };
+        let units_per_px =
+            2.0 * self.distance * (self.fov.to_radians() / 2.0).tan() / height.max(1) as f64;
+        self.target += (-dx * right + dy * up) * units_per_px;
+    }
+}
+
 impl Camera {
     /// The default framing of the box `lo`..`hi` (any corner order per axis is its own box: the
     /// centre and diagonal are those of the two points).
@@ -48,34 +133,6 @@ impl Camera {
             center: (lo + hi) * 0.5,
             diagonal,
             distance: FRAMING_DIAGONALS * diagonal,
-        }
-    }
-
-    /// Orbit camera around `center`: azimuth about the vertical (z) axis, elevation above the xy plane.
-    pub fn orbit(
-        center: DVec3,
-        distance: f64,
-        azimuth_deg: f64,
-        elevation_deg: f64,
-        fovy_deg: f64,
-        width: u32,
-        height: u32,
-    ) -> Self {
-        let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
-        let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
-        let up = if el.cos().abs() < 1e-6 {
-            DVec3::Y
-        } else {
-            DVec3::Z
-        };
-        Camera {
-            eye: center + dir * distance,
-            target: center,
-            up,
-            fovy_deg,
-            near: (distance * 1e-3).max(1e-6),
-            width,
-            height,
         }
     }
 
@@ -462,6 +519,59 @@ pub fn f32_down(x: f64) -> f32 {
 mod tests {
     use super::*;
 
+    fn an_orbit() -> Orbit {
+        Orbit {
+            target: DVec3::new(1.0, 2.0, 3.0),
+            azimuth: 35.0,
+            elevation: 25.0,
+            distance: 10.0,
+            fov: 40.0,
+        }
+    }
+
+    #[test]
+    fn an_orbit_camera_stands_on_its_sphere_looking_at_the_target() {
+        let o = an_orbit();
+        let c = o.camera(64, 48);
+        let (az, el) = (35f64.to_radians(), 25f64.to_radians());
+        let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+        assert!((c.eye - (o.target + 10.0 * dir)).length() < 1e-12);
+        assert_eq!(c.target, o.target);
+        assert_eq!((c.width, c.height, c.fovy_deg), (64, 48, 40.0));
+        let f = Camera::framing([0.0; 3], [3.0, 4.0, 0.0]);
+        assert_eq!(f.diagonal, 5.0);
+        assert_eq!(f.distance, FRAMING_DIAGONALS * 5.0);
+        let d = Orbit::framed(f);
+        assert_eq!(d.target, DVec3::new(1.5, 2.0, 0.0));
+        assert_eq!(
+            (d.azimuth, d.elevation, d.fov),
+            (DEFAULT_AZIMUTH, DEFAULT_ELEVATION, DEFAULT_FOV)
+        );
+    }
+
+    #[test]
+    fn elevation_is_clamped_and_zoom_bounded() {
+        let mut o = an_orbit();
+        o.rotate(350.0, 200.0);
+        assert_eq!(o.elevation, MAX_ELEVATION);
+        assert!((o.azimuth - 25.0).abs() < 1e-9);
+        o.zoom(0.01, 1.0, 100.0);
+        assert_eq!(o.distance, 1.0);
+        o.zoom(f64::NAN, 1.0, 100.0);
+        assert_eq!(o.distance, 1.0);
+    }
+
+    #[test]
+    fn pan_moves_the_target_in_the_view_plane() {
+        let mut o = an_orbit();
+        let fwd = o.camera(64, 64).forward();
+        let before = o.target;
+        o.pan(10.0, 0.0, 64);
+        let moved = o.target - before;
+        assert!(moved.length() > 0.0);
+        assert!(moved.dot(fwd).abs() < 1e-9 * moved.length().max(1.0));
+    }
+
     /// The image weight: 0 with nothing to change (zero bound, flat TF over the values), grows
     /// with the bound, the size and the TF's slope, and is capped at 1.
     #[test]
@@ -498,7 +608,14 @@ mod tests {
     /// The projection maps each pixel's ray back onto that pixel's centre.
     #[test]
     fn rays_and_projection_agree() {
-        let cam = Camera::orbit(DVec3::new(1.0, 2.0, 3.0), 10.0, 30.0, 20.0, 40.0, 64, 48);
+        let cam = Orbit {
+            target: DVec3::new(1.0, 2.0, 3.0),
+            distance: 10.0,
+            azimuth: 30.0,
+            elevation: 20.0,
+            fov: 40.0,
+        }
+        .camera(64, 48);
         let vp = cam.view_proj(DVec3::ZERO, 100.0);
         for (x, y) in [(0, 0), (63, 47), (10, 30), (32, 24)] {
             let p = cam.eye + cam.ray_dir(x, y) * 7.0;

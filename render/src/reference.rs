@@ -240,6 +240,7 @@ fn trace<T: Send + Copy + Default>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tetwave_protocol::view::Orbit;
 
     /// The unit corner tet with the value `v` at every vertex.
     fn one_tet(v: f32) -> RenderMesh {
@@ -260,7 +261,14 @@ mod tests {
     fn bands_of_rows_change_nothing() {
         let mesh = RenderMesh::kuhn_cube(4, 2.0, |p| (p[0] * 1.3 + p[1] * p[2]).sin());
         let tf = TransferFunction::preset("default").unwrap();
-        let cam = Camera::orbit(mesh.center(), 5.0, 35.0, 25.0, 40.0, 40, 33);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 5.0,
+            azimuth: 35.0,
+            elevation: 25.0,
+            fov: 40.0,
+        }
+        .camera(40, 33);
         let whole = trace(&mesh, &cam, &tf, None, usize::MAX, |p| p).unwrap();
         for band_tets in [1, 7, 100] {
             let banded = trace(&mesh, &cam, &tf, None, band_tets, |p| p).unwrap();
@@ -275,7 +283,14 @@ mod tests {
     fn constant_field_matches_closed_form() {
         let mesh = one_tet(0.5);
         let tf = TransferFunction::preset("default").unwrap();
-        let cam = Camera::orbit(mesh.center(), 4.0, 30.0, 25.0, 30.0, 48, 48);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 4.0,
+            azimuth: 30.0,
+            elevation: 25.0,
+            fov: 30.0,
+        }
+        .camera(48, 48);
         let img = render_reference_f64(&mesh, &cam, &tf);
         let (rgb, ext) = tf.eval(0.5);
         let tau = ext / mesh.diagonal();
@@ -318,7 +333,14 @@ mod tests {
         let coarse = RenderMesh::kuhn_cube(2, 1.0, f);
         let fine = RenderMesh::kuhn_cube(4, 1.0, f);
         let tf = TransferFunction::preset("default").unwrap();
-        let cam = Camera::orbit(coarse.center(), 3.0, 20.0, 30.0, 35.0, 40, 40);
+        let cam = Orbit {
+            target: coarse.center(),
+            distance: 3.0,
+            azimuth: 20.0,
+            elevation: 30.0,
+            fov: 35.0,
+        }
+        .camera(40, 40);
         let a = render_reference_f64(&coarse, &cam, &tf);
         let b = render_reference_f64(&fine, &cam, &tf);
         let worst = a
@@ -367,7 +389,14 @@ mod tests {
         whole.levelset = None;
         let tf = TransferFunction::preset("default").unwrap();
         for (az, el) in [(30.0, 25.0), (120.0, -20.0), (250.0, 60.0)] {
-            let cam = Camera::orbit(clipped.center(), 3.0, az, el, 35.0, 40, 40);
+            let cam = Orbit {
+                target: clipped.center(),
+                distance: 3.0,
+                azimuth: az,
+                elevation: el,
+                fov: 35.0,
+            }
+            .camera(40, 40);
             let a = render_reference_f64(&clipped, &cam, &tf);
             let b = render_reference_f64(&exact, &cam, &tf);
             let w = render_reference_f64(&whole, &cam, &tf);
@@ -392,7 +421,14 @@ mod tests {
         let mut mesh = one_tet(0.5);
         mesh.values = vec![0.0, 0.3, 0.6, 1.0];
         mesh.value_range = (0.0, 1.0);
-        let cam = Camera::orbit(mesh.center(), 3.0, 35.0, 25.0, 40.0, 24, 20);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 3.0,
+            azimuth: 35.0,
+            elevation: 25.0,
+            fov: 40.0,
+        }
+        .camera(24, 20);
         let tf = TransferFunction::preset("default").unwrap();
         let keep = AtomicBool::new(false);
         let a = render_reference(&mesh, &cam, &tf);

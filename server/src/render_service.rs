@@ -25,7 +25,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use tetwave_gpu::pt::{PtRenderer, TetDrawData};
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_protocol::store_format::Manifest;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_protocol::BaseMesh;
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference_cancellable;
@@ -413,15 +413,14 @@ impl RenderService {
             level = level.min(*max);
         }
         let mut mesh = mesh_at(&mut st, level);
-        let cam = Camera::orbit(
-            mesh.center(),
-            p.eye_distance(base),
-            p.azimuth,
-            p.elevation,
-            p.fov,
-            p.width,
-            p.height,
-        );
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: p.eye_distance(base),
+            azimuth: p.azimuth,
+            elevation: p.elevation,
+            fov: p.fov,
+        }
+        .camera(p.width, p.height);
         let want_gpu = p.renderer != RendererChoice::Cpu;
         if want_gpu && st.gpu.is_none() {
             st.gpu = Some(

@@ -8,7 +8,7 @@ use stream_common::*;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::block::BlockCoder;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_protocol::wire::{decode_server, ServerMsg};
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
@@ -233,7 +233,14 @@ async fn render_matches_a_local_render_of_the_same_camera() {
         level,
     );
     let dist = dist * mesh.diagonal();
-    let cam = Camera::orbit(mesh.center(), dist, az, el, 40.0, w, h);
+    let cam = Orbit {
+        target: mesh.center(),
+        distance: dist,
+        azimuth: az,
+        elevation: el,
+        fov: 40.0,
+    }
+    .camera(w, h);
     let tf = TransferFunction::load("default").unwrap();
     let reference = render_reference(&mesh, &cam, &tf);
 

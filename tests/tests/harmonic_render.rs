@@ -6,7 +6,7 @@ use glam::DVec3;
 use tetwave_client::render_cli::store_mesh;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::transfer::TransferFunction;
@@ -56,23 +56,36 @@ fn harmonic_level3_gpu_matches_reference() {
     let cams = [
         (
             "outside",
-            Camera::orbit(c, 1.6 * diag, 35.0, 25.0, 40.0, 256, 256),
+            Orbit {
+                target: c,
+                distance: 1.6 * diag,
+                azimuth: 35.0,
+                elevation: 25.0,
+                fov: 40.0,
+            }
+            .camera(256, 256),
         ),
         (
             "inside",
-            Camera::orbit(
-                c + DVec3::new(2.0, 1.0, 0.5),
-                3.0,
-                35.0,
-                25.0,
-                70.0,
-                256,
-                256,
-            ),
+            Orbit {
+                target: c + DVec3::new(2.0, 1.0, 0.5),
+                distance: 3.0,
+                azimuth: 35.0,
+                elevation: 25.0,
+                fov: 70.0,
+            }
+            .camera(256, 256),
         ),
         (
             "grazing",
-            Camera::orbit(c, 1.6 * diag, 0.0, 0.3, 40.0, 256, 256),
+            Orbit {
+                target: c,
+                distance: 1.6 * diag,
+                azimuth: 0.0,
+                elevation: 0.3,
+                fov: 40.0,
+            }
+            .camera(256, 256),
         ),
     ];
     let mut worst = f64::INFINITY;

@@ -25,7 +25,7 @@ use tetwave_client::stream::{run_session, Faults, StreamArgs};
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::testing::notched_cube_vtk;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -58,15 +58,14 @@ fn stream_args(url: &str, out: &Path) -> StreamArgs {
 
 /// `tetwave render`'s default camera on `mesh` from azimuth `az`, elevation `el`.
 fn orbit_camera(mesh: &RenderMesh, az: f64, el: f64) -> Camera {
-    Camera::orbit(
-        mesh.center(),
-        1.6 * mesh.diagonal(),
-        az,
-        el,
-        40.0,
-        SIZE,
-        SIZE,
-    )
+    Orbit {
+        target: mesh.center(),
+        distance: 1.6 * mesh.diagonal(),
+        azimuth: az,
+        elevation: el,
+        fov: 40.0,
+    }
+    .camera(SIZE, SIZE)
 }
 
 /// Pixels where `original` is empty (transparent black: the ray meets no tet) and `img` is not.

@@ -16,7 +16,7 @@ use tetwave_gpu::order::{centroid_order, face_neighbors, is_convex, mpvo_order};
 use tetwave_gpu::pt::{PtRenderer, VisibilityOrder};
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::fields::harmonic_unit;
-use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Camera, Orbit};
 use tetwave_render::image_metrics::{psnr, rmse, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
@@ -143,7 +143,14 @@ fn slivers_stay_within_the_floor() {
     for ratio in [1e-2, 1e-4, 1e-6] {
         let mesh = sliver_layer(8, 4, ratio);
         for (az, el) in [(35.0, 25.0), (10.0, 2.0)] {
-            let cam = Camera::orbit(mesh.center(), 2.0 * mesh.diagonal(), az, el, 40.0, 128, 128);
+            let cam = Orbit {
+                target: mesh.center(),
+                distance: 2.0 * mesh.diagonal(),
+                azimuth: az,
+                elevation: el,
+                fov: 40.0,
+            }
+            .camera(128, 128);
             for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
                 let f = measure(
                     &g,
@@ -214,7 +221,14 @@ fn grazing_views() {
         (0.0, 0.5, 45.0),
         (90.0, 89.99, 45.0),
     ] {
-        let cam = Camera::orbit(mesh.center(), 2.0 * mesh.diagonal(), az, el, 40.0, 128, 128);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 2.0 * mesh.diagonal(),
+            azimuth: az,
+            elevation: el,
+            fov: 40.0,
+        }
+        .camera(128, 128);
         for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
             let f = measure(&g, &mesh, &cam, order, &format!("grazing az {az} el {el}"));
             let off = off_pixels(&f);
@@ -375,7 +389,14 @@ fn non_convex_meshes_and_visibility_cycles() {
         assert_eq!(is_convex(&m.positions, &m.tets, &nb), convex, "{name}");
         // looking into the notch from its side, and across the gap
         for (az, el) in [(45.0, 35.0), (200.0, 20.0), (0.0, 10.0)] {
-            let cam = Camera::orbit(m.center(), 2.0 * m.diagonal(), az, el, 40.0, 128, 128);
+            let cam = Orbit {
+                target: m.center(),
+                distance: 2.0 * m.diagonal(),
+                azimuth: az,
+                elevation: el,
+                fov: 40.0,
+            }
+            .camera(128, 128);
             for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
                 let f = measure(&g, m, &cam, order, &format!("{name} az {az} el {el}"));
                 assert!(f.gpu.coverage() > 0.05, "{name}: blank");
@@ -519,15 +540,14 @@ fn value_spikes() {
     let mut spiked = smooth.clone();
     spiked.values[spike_at] = lo + 1e6 * (hi - lo);
     spiked.value_range = (lo, spiked.values[spike_at]);
-    let cam = Camera::orbit(
-        smooth.center(),
-        2.0 * smooth.diagonal(),
-        35.0,
-        25.0,
-        40.0,
-        128,
-        128,
-    );
+    let cam = Orbit {
+        target: smooth.center(),
+        distance: 2.0 * smooth.diagonal(),
+        azimuth: 35.0,
+        elevation: 25.0,
+        fov: 40.0,
+    }
+    .camera(128, 128);
     let tf = TransferFunction::preset("default").unwrap();
     let bulk = render_reference(&smooth, &cam, &tf);
     let f = measure(
@@ -811,7 +831,14 @@ fn inverted_and_degenerate_tets_are_drawn_as_the_reference() {
     let mut oriented = mesh.clone();
     oriented.orient_positive();
     for (az, el) in [(35.0, 25.0), (250.0, -40.0)] {
-        let cam = Camera::orbit(mesh.center(), 2.0 * mesh.diagonal(), az, el, 40.0, 128, 128);
+        let cam = Orbit {
+            target: mesh.center(),
+            distance: 2.0 * mesh.diagonal(),
+            azimuth: az,
+            elevation: el,
+            fov: 40.0,
+        }
+        .camera(128, 128);
         for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
             let f = measure(
                 &g,

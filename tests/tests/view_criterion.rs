@@ -6,7 +6,7 @@
 
 use tetwave_adaptive::select::{Mode, SelectParams, Selector};
 use tetwave_adaptive::session::Session;
-use tetwave_protocol::view::{Camera, Tolerance, View, DEFAULT_IMAGE_EPS};
+use tetwave_protocol::view::{Camera, Orbit, Tolerance, View, DEFAULT_IMAGE_EPS};
 use tetwave_render::transfer::TransferFunction;
 use tetwave_server::stream::{ServeConfig, Shared, ViewTf};
 use tetwave_store::Store;
@@ -32,7 +32,14 @@ fn rank_alike(tf: ViewTf, spec: &str) {
     let (lo, hi) = store.base.bounds();
     let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
     // close enough that part of the volume is outside the frustum
-    let cam = Camera::orbit(centre, 1.2, 30.0, 20.0, 40.0, 320, 240);
+    let cam = Orbit {
+        target: centre,
+        distance: 1.2,
+        azimuth: 30.0,
+        elevation: 20.0,
+        fov: 40.0,
+    }
+    .camera(320, 240);
     let vp = cam.view_params(0.0);
 
     let server = Shared::open(&dir, ServeConfig::default())

@@ -10,7 +10,6 @@ use super::data::Data;
 use super::fly::Fly;
 use super::gpu::{Blit, BlitCallback, Target};
 use super::motion::MotionLod;
-use super::orbit::Orbit;
 use super::perf::Perf;
 use super::plan::{DrawKind, DrawMesh, FrameInputs, FramePlan};
 use super::script::{Action, Step, WaitFor};
@@ -29,6 +28,7 @@ use tetwave_gpu::pt::{
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_net::HttpError;
 use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::Orbit;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
 

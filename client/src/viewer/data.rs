@@ -10,7 +10,7 @@ use tetwave_adaptive::select::{SelectParams, Tolerance};
 use tetwave_adaptive::session::Session;
 use tetwave_net::connection::{NetPolicy, Next};
 use tetwave_net::ingest::{Ingest, Step};
-use tetwave_net::{Connection, Faults, HttpError, NetError, ServerUrl};
+use tetwave_net::{Connection, HttpError, NetError, ServerUrl};
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::{Camera, Framing};
 use tetwave_protocol::{BaseMesh, DetailNode};
@@ -146,7 +146,6 @@ impl Data {
                     ServerUrl::parse(url)?,
                     token,
                     NetPolicy {
-                        faults: Faults::default(),
                         retries: RECONNECT_ATTEMPTS,
                         max_nodes,
                         tf_auto,

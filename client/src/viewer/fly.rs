@@ -6,10 +6,10 @@
 //! plane (`pt.wgsl` clamps a tet's entry to it), and the rasterizer clips the exit faces of tets
 //! behind the eye (their vertices have `w < 0` in clip space).
 
-use super::orbit::{Orbit, MAX_ELEVATION};
 use eframe::egui;
 use glam::DVec3;
 use tetwave_protocol::view::Camera;
+use tetwave_protocol::view::{Orbit, MAX_ELEVATION};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Fly {

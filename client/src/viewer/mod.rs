@@ -25,7 +25,6 @@ pub mod data;
 pub mod fly;
 pub mod gpu;
 pub mod motion;
-pub mod orbit;
 pub mod perf;
 pub mod plan;
 pub mod script;

@@ -211,11 +211,13 @@ fn step(r: RawStep) -> Result<Step, ArgError> {
             }
         }
         if c.elevation
-            .is_some_and(|e| e.abs() > super::orbit::MAX_ELEVATION)
+            .is_some_and(|e| e.abs() > tetwave_protocol::view::MAX_ELEVATION)
         {
-            return Err(
-                format!("elevation must be within ±{}°", super::orbit::MAX_ELEVATION).into(),
-            );
+            return Err(format!(
+                "elevation must be within ±{}°",
+                tetwave_protocol::view::MAX_ELEVATION
+            )
+            .into());
         }
         if c.distance.is_some_and(|d| d <= 0.0) {
             return Err("distance must be positive".into());

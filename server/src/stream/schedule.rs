@@ -541,22 +541,16 @@ fn view_chunk(
 
 /// The default camera of view order before a client sends its own (the render CLI's default).
 fn default_view(base: &BaseMesh) -> ViewParams {
+    use tetwave_protocol::view::{Camera, Orbit};
     let (lo, hi) = base.bounds();
-    let framing = tetwave_protocol::view::Camera::framing(lo, hi);
-    let c = framing.center.to_array();
-    let (az, el) = (35f64.to_radians(), 25f64.to_radians());
-    let d = framing.distance;
+    let cam = Orbit::framed(Camera::framing(lo, hi)).camera(512, 512);
     ViewParams {
-        eye: [
-            c[0] + d * el.cos() * az.cos(),
-            c[1] + d * el.cos() * az.sin(),
-            c[2] + d * el.sin(),
-        ],
-        target: c,
+        eye: cam.eye.to_array(),
+        target: cam.target.to_array(),
         up: [0.0, 0.0, 1.0],
-        fovy_deg: 40.0,
-        width: 512,
-        height: 512,
+        fovy_deg: cam.fovy_deg,
+        width: cam.width,
+        height: cam.height,
         tol_px: 1.0,
     }
 }
