@@ -13,6 +13,7 @@ pub mod progressive;
 pub mod render_cli;
 pub mod render_probe;
 pub mod select_args;
+pub mod source;
 pub mod store_info;
 pub mod stream;
 pub mod viewer;

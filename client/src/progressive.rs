@@ -549,7 +549,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     let mut probe = match args.render_every {
         Some(every) => {
             let tf = tf.clone();
-            let (full, _) = crate::render_cli::store_mesh(&store, None)?;
+            let (full, _) = crate::source::load::store_mesh(&store, None)?;
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
                     anyhow::anyhow!("--render-every: {e} (--render-cpu draws on the CPU instead)")

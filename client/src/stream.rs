@@ -8,22 +8,20 @@
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
+use crate::source::{Data, OpenOptions, Pump, Selection, Source, SourceError};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use tetwave_adaptive::draw::every_vertex_levelset;
 use tetwave_adaptive::mesh::{AdaptiveMesh, MeshError};
-use tetwave_adaptive::select::{Mode, SelectParams, Tolerance};
+use tetwave_adaptive::select::{Mode, Tolerance};
 use tetwave_adaptive::session::Session;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::{GpuContext, RenderError};
-use tetwave_net::connection::{NetPolicy, Next};
-use tetwave_net::ingest::{Ingest, Step};
-use tetwave_net::transport::{Faulty, WebSocket};
+use tetwave_net::ingest::Step;
 pub use tetwave_net::Faults;
-use tetwave_net::{Connection, NetError, ServerUrl};
+use tetwave_net::{NetError, ServerUrl};
 use tetwave_protocol::levelset::NearLevelSet;
-use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::synthesis::{synthesize_all, SynthesisError};
 use tetwave_protocol::view::Camera;
 use tetwave_protocol::{BaseMesh, DetailNode};
@@ -148,6 +146,8 @@ pub enum StreamError {
     #[error(transparent)]
     Net(#[from] NetError),
     #[error(transparent)]
+    Source(#[from] SourceError),
+    #[error(transparent)]
     Tf(#[from] TfError),
     #[error("bad --tol: {0}")]
     Tol(String),
@@ -219,17 +219,17 @@ pub struct StreamReport {
     pub tf: TransferFunction,
 }
 
-/// Draws `session`'s leaf mesh for `cam` (on the GPU when there is one, else with the CPU
+/// Draws `session`'s leaf mesh (`value_range` mapped to `tf`) for `cam` (on the GPU when there is one, else with the CPU
 /// reference) and writes it to `path`.
 fn draw_png(
     gpu: &Option<(GpuContext, PtRenderer)>,
     session: &Session,
-    m: &Manifest,
+    value_range: [f32; 2],
     cam: &Camera,
     tf: &TransferFunction,
     path: &std::path::Path,
 ) -> Result<Rgba8Image, StreamError> {
-    let rm = session.leaf_mesh(m.display_value_range());
+    let rm = session.leaf_mesh(value_range);
     let img = match gpu {
         Some((ctx, r)) => {
             let data = r.upload(ctx, &rm)?;
@@ -271,7 +271,7 @@ pub struct Streamed {
 pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, StreamError> {
     // `auto` is fitted to the manifest's histogram when the session starts (the preset until then)
     let mut tf = TransferFunction::load(&args.tf)?;
-    let fitted = std::cell::RefCell::new(None);
+    let fit_auto = args.tf == AUTO;
     let tol_spec = args.tol.trim();
     let tol = if tol_spec == "0" || tol_spec == "0px" {
         None
@@ -282,7 +282,8 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         path: args.out.clone(),
         reason: e.to_string(),
     })?;
-    let server = ServerUrl::parse(&args.url)?;
+    // a bad address fails before the renderer is set up
+    ServerUrl::parse(&args.url)?;
     let gpu = if args.cpu || args.no_render {
         None
     } else {
@@ -291,22 +292,25 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         r.warm_up(&ctx, &tf)?;
         Some((ctx, r))
     };
+    // the renderer is set up before connecting: time to first image counts from the connect
     let t0 = Instant::now();
-    let policy = NetPolicy {
-        retries: args.retries,
-        max_nodes: args.max_nodes,
-        tf_auto: args.tf == AUTO,
-    };
-    let token = args.token.clone();
-    let mut conn = if faults.none() {
-        Connection::open(server, token, policy, "tetwave-net")?
-    } else {
-        let faulty = Faulty::new(WebSocket, faults);
-        Connection::open_with(faulty, server, token, policy, "tetwave-net")?
-    };
+    let session_tol = tol.unwrap_or(Tolerance::Pixels(0.0));
+    let mut data = Data::open(
+        &Source::Url(args.url.clone()),
+        OpenOptions {
+            token: args.token.clone(),
+            tol: session_tol,
+            max_nodes: args.max_nodes,
+            retries: args.retries,
+            faults,
+        },
+        Selection {
+            args: args.select.clone(),
+            tf: tf.clone(),
+            fit_auto,
+        },
+    )?;
 
-    let mut ingest = Ingest::new(args.max_nodes);
-    let mut state: Option<Session> = None;
     let mut received_nodes: Vec<DetailNode> = Vec::new();
     let mut frames = Vec::new();
     let mut cams = Vec::new();
@@ -315,129 +319,72 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let mut previews_received = 0u64;
     let mut preview_duplicates = 0u64;
     let mut first_frame_ms = None;
-    // wire bytes of the messages the client has applied (what its frames show)
-    let mut bytes_applied = 0u64;
     let wait_base = Duration::from_secs(10);
     let mut frame = 0u32;
     let mut last_cam: Option<Camera> = None;
     // a failure past the base mesh: the frames so far are written, then the session fails
     let mut failure: Option<StreamError> = None;
-    let mut net_done = false;
-    'frames: while frame < args.frames {
-        // 1. data: wait up to one frame period for the first message, then take what is ready
-        let deadline = Instant::now() + Duration::from_millis(args.frame_ms);
-        let mut got_any = false;
-        let mut applied = 0usize;
-        loop {
-            if args.per_frame > 0 && applied >= args.per_frame {
-                break;
-            }
-            // once everything has arrived there is nothing to wait for but the level set
-            let msg = if state.is_none()
-                || (!got_any && (!ingest.ended() || ingest.levelset_pending()))
-            {
-                let left = if state.is_none() {
-                    wait_base.saturating_sub(t0.elapsed())
-                } else {
-                    deadline.saturating_duration_since(Instant::now())
-                };
-                match conn.next(left) {
-                    Next::Ready(d, n) => Some((d, n)),
-                    Next::Ended if state.is_none() => {
-                        // the network task ended before a base mesh came: report why
-                        return Err(match conn.finish() {
-                            NetError::TaskEnded | NetError::TaskFailed(_) => {
-                                NetError::NoBase(wait_base).into()
-                            }
-                            e => e.into(),
-                        });
-                    }
-                    Next::Ended => {
-                        // the network task ended (after what it delivered): a failure unless
-                        // everything has arrived
-                        if !net_done {
-                            net_done = true;
-                            ingest.network_ended();
-                            let why = conn.finish();
-                            if !state.as_ref().is_some_and(Session::is_complete) {
-                                failure = Some(why.into());
-                                break 'frames;
-                            }
-                        }
-                        None
-                    }
-                    Next::Empty => {
-                        if state.is_none() {
-                            return Err(NetError::NoBase(wait_base).into());
-                        }
-                        None
-                    }
-                }
+    while frame < args.frames {
+        // 1. data: wait up to one frame period for the first message (before the base mesh, up to
+        //    `wait_base` from the connect), then take what is ready until the frame's deadline; the
+        //    first image goes out as soon as the base mesh is there
+        let started = data.session.is_some();
+        let pump = Pump {
+            until: if started {
+                Instant::now() + Duration::from_millis(args.frame_ms)
             } else {
-                match conn.next(Duration::ZERO) {
-                    Next::Ready(d, n) => Some((d, n)),
-                    Next::Empty | Next::Ended => None,
-                }
-            };
-            let Some((msg, nbytes)) = msg else { break };
-            got_any = true;
-            bytes_applied += nbytes;
-            let start = |b: BaseMesh, m: &Manifest| {
-                let tf = TransferFunction::for_manifest(&args.tf, m)?;
-                let mut params =
-                    SelectParams::new(tol.unwrap_or(Tolerance::Pixels(0.0)), m.value_range);
-                args.select
-                    .apply(&mut params, &tf, m.display_value_range(), &b);
-                *fitted.borrow_mut() = Some(tf);
-                Session::new(b, params).map_err(NetError::BaseMesh)
-            };
-            let step = ingest
-                .apply(msg, &mut state, start, conn.sender())
-                .map_err(StreamError::from);
-            if let Some(t) = fitted.borrow_mut().take() {
-                tf = t;
-            }
-            match step {
-                Ok(Step::Nodes {
-                    nodes,
-                    duplicates: d,
-                }) => {
-                    duplicates += d as u64;
-                    applied += nodes.len();
-                    if args.psnr {
-                        received_nodes.extend(nodes);
-                    }
-                }
-                // (frames count them as nodes applied; progress counts the store's only)
-                Ok(Step::Preview { nodes, new }) => {
-                    applied += nodes;
-                    previews_received += new as u64;
-                    preview_duplicates += (nodes - new) as u64;
-                }
-                Ok(_) => {}
-                // before the base mesh there are no frames to keep
-                Err(e) if state.is_none() => return Err(e),
-                Err(e) => {
-                    failure = Some(e);
-                    break 'frames;
+                t0 + wait_base
+            },
+            wait: true,
+            max_nodes: args.per_frame,
+            stop_once_started: first_frame_ms.is_none(),
+        };
+        let pumped = data.pump(pump, session_tol, |step| match step {
+            Step::Nodes {
+                nodes,
+                duplicates: d,
+            } => {
+                duplicates += d as u64;
+                if args.psnr {
+                    received_nodes.extend(nodes);
                 }
             }
-            // the first image goes out as soon as the base mesh is there
-            if state.is_some() && (first_frame_ms.is_none() || Instant::now() >= deadline) {
+            // (frames count them as nodes applied; progress counts the store's only)
+            Step::Preview { nodes, new } => {
+                previews_received += new as u64;
+                preview_duplicates += (nodes - new) as u64;
+            }
+            _ => {}
+        });
+        match pumped {
+            // before the base mesh there are no frames to keep
+            Err(NetError::TaskEnded | NetError::TaskFailed(_)) if data.session.is_none() => {
+                return Err(NetError::NoBase(wait_base).into())
+            }
+            Err(e) if data.session.is_none() => return Err(e.into()),
+            Err(e) => {
+                failure = Some(e.into());
                 break;
             }
+            Ok(_) if data.session.is_none() => return Err(NetError::NoBase(wait_base).into()),
+            Ok(_) => {}
         }
-        let Some(session) = state.as_mut() else {
-            continue;
-        };
-        let m = ingest.manifest().expect("manifest precedes base");
+        if fit_auto && !started {
+            tf = data.selection_tf().clone();
+        }
+        // (the manifest's display range, which came before the base mesh)
+        let value_range = data.value_range;
         // 2. camera and view
-        let (lo, hi) = session.base().bounds();
+        let Some((lo, hi)) = data.session.as_ref().map(|s| s.base().bounds()) else {
+            unreachable!("a session by now")
+        };
         let mut orbit = args.camera.orbit(Camera::framing(lo, hi));
         orbit.azimuth += args.orbit * frame as f64;
         let cam = orbit.camera(args.size.0, args.size.1);
-        let view = cam.view_params(tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0));
-        conn.send_view(view);
+        data.send_view(&cam, tol.map(|t| t.pixels(cam.height)).unwrap_or(0.0));
+        let Some(session) = data.session.as_mut() else {
+            unreachable!("a session by now")
+        };
         // 3. refine
         let tr = Instant::now();
         let mode = match (tol, args.orbit != 0.0) {
@@ -454,7 +401,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             None
         } else {
             let path = args.out.join(format!("frame_{frame:04}.png"));
-            Some(draw_png(&gpu, session, m, &cam, &tf, &path)?)
+            Some(draw_png(&gpu, session, value_range, &cam, &tf, &path)?)
         };
         let render_ms = trn.elapsed().as_secs_f64() * 1e3;
         if first_frame_ms.is_none() {
@@ -464,7 +411,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         last_cam = Some(cam);
         frames.push(FrameRecord {
             frame,
-            bytes_received: bytes_applied,
+            bytes_received: data.bytes_applied,
             nodes: session.progress().0,
             tets: tets as u64,
             leaves: session.mesh().leaf_count() as u64,
@@ -481,21 +428,19 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
             images.push(img);
         }
         frame += 1;
-        if args.until_converged && view_complete && !ingest.levelset_pending() {
+        let converged = session.is_converged();
+        if args.until_converged && view_complete && !data.awaiting_levelset() {
             break;
         }
-        if args.until_complete
-            && ingest.ended()
-            && session.is_converged()
-            && !ingest.levelset_pending()
-        {
+        if args.until_complete && data.stream_ended() && converged && !data.awaiting_levelset() {
             break;
         }
     }
+    let state = data.session.take();
     if let (Some(path), Some(session), Some(cam), Some(m)) =
-        (&args.final_png, &state, last_cam, ingest.manifest())
+        (&args.final_png, &state, last_cam, data.remote_manifest())
     {
-        draw_png(&gpu, session, m, &cam, &tf, path)?;
+        draw_png(&gpu, session, m.display_value_range(), &cam, &tf, path)?;
     }
     let (nodes_received, nodes_total) = state.as_ref().map_or((0, 0), Session::progress);
     // (a base mesh of 0 levels has no nodes: it is complete as soon as it is there)
@@ -503,7 +448,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let clipped = state.as_ref().is_some_and(Session::has_levelset);
     // 5. accuracy against the full-resolution reference, once everything has arrived
     if args.psnr && failure.is_none() {
-        if let (true, Some(session), Some(m)) = (complete, &state, ingest.manifest()) {
+        if let (true, Some(session), Some(m)) = (complete, &state, data.remote_manifest()) {
             let base = session.base();
             received_nodes.sort_by_key(|n| n.id);
             received_nodes.dedup_by_key(|n| n.id);
@@ -538,7 +483,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         path: jpath,
         reason: e.to_string(),
     })?;
-    conn.close();
+    data.close();
     if let Some(e) = failure {
         return Err(e);
     }
@@ -554,12 +499,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         previews_received,
         preview_duplicates,
         duplicates,
-        bytes_received: conn.bytes(),
-        reconnects: conn.reconnects(),
+        bytes_received: data.bytes_received(),
+        reconnects: data.reconnects(),
         complete,
         first_frame_ms,
         clipped,
-        levelset_error: ingest.levelset_error().map(ToString::to_string),
+        levelset_error: data.levelset_error().map(ToString::to_string),
         tf,
     };
     Ok(Streamed {

@@ -3,7 +3,7 @@
 //! function, camera outside, inside and grazing. Needs a GPU adapter (lavapipe in CI).
 
 use glam::DVec3;
-use tetwave_client::render_cli::store_mesh;
+use tetwave_client::source::load::store_mesh;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Orbit;

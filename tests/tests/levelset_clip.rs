@@ -20,7 +20,7 @@ mod common;
 
 use common::{psnr_pixels as psnr, render_png, serve};
 use tetwave_adaptive::draw::leaf_mesh;
-use tetwave_client::render_cli::{file_mesh, store_mesh};
+use tetwave_client::source::load::{file_mesh, store_mesh};
 use tetwave_client::stream::{run_session, Faults, StreamArgs};
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;

@@ -6,7 +6,6 @@
 //! [`super::upload`]); the mesh is drawn into the offscreen target if anything it shows changed;
 //! the target (or the server's image) is copied into the view.
 
-use super::data::Data;
 use super::fly::Fly;
 use super::gpu::{Blit, BlitCallback, Target};
 use super::motion::MotionLod;
@@ -15,6 +14,7 @@ use super::plan::{DrawKind, DrawMesh, FrameInputs, FramePlan};
 use super::script::{Action, Step, WaitFor};
 use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
+use crate::source::Data;
 use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
 use eframe::egui_wgpu;
 use std::path::PathBuf;
@@ -113,7 +113,7 @@ enum TfChoiceError {
     },
     /// `auto` fitted to a store or mesh file that could not be read.
     #[error(transparent)]
-    Fit(#[from] super::data::SourceError),
+    Fit(#[from] crate::source::load::LoadError),
 }
 
 pub struct ViewerApp {
@@ -387,10 +387,10 @@ impl ViewerApp {
         let tf = if spec == AUTO {
             if !self.auto_fitted && self.data.server().is_none() {
                 // a store or a mesh file viewed with another function: fitted when first asked
-                let source = super::data::Source::parse(&self.args.source);
+                let source = crate::source::Source::parse(&self.args.source);
                 let preset =
                     TransferFunction::preset("default").expect("the default preset exists");
-                self.auto_tf = super::fit_auto(AUTO, &source, preset)?;
+                self.auto_tf = crate::source::load::fit_auto(AUTO, &source, preset)?;
                 self.auto_fitted = true;
             }
             self.auto_tf.clone()

@@ -21,7 +21,6 @@
 //! cannot be written) are shown in the panel and make the command exit with status 1.
 
 pub mod app;
-pub mod data;
 pub mod fly;
 pub mod gpu;
 pub mod motion;
@@ -36,7 +35,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::{GpuContext, RenderError};
-use tetwave_render::transfer::{TransferFunction, ValueHistogram, AUTO};
+use tetwave_render::transfer::{TransferFunction, AUTO};
 
 /// Refinement modes of the viewer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
@@ -241,36 +240,6 @@ fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-/// `tf` (loaded from `spec`) fitted to the source's data when `spec` is `auto` and the source is
-/// a store or a mesh file, as `tetwave render` fits it (the same histogram, so the same colours);
-/// a server's stream is fitted once its manifest arrives (the viewer's frame loop).
-fn fit_auto(
-    spec: &str,
-    source: &data::Source,
-    tf: TransferFunction,
-) -> Result<TransferFunction, data::SourceError> {
-    if spec != AUTO {
-        return Ok(tf);
-    }
-    let hist = match source {
-        data::Source::Store(dir) => {
-            let store = tetwave_store::Store::open(dir)?;
-            crate::render_cli::store_histogram(&store, None)?
-        }
-        data::Source::Mesh(path) => {
-            let options = tetwave_import::clean::ImportOptions {
-                scalar: None,
-                field: None,
-                nan_as: None,
-            };
-            let (mesh, _) = crate::render_cli::file_mesh(path, None, &options)?;
-            ValueHistogram::of_mesh(&mesh)
-        }
-        data::Source::Url(_) => return Ok(tf),
-    };
-    Ok(tf.fitted(&hist))
-}
-
 impl ViewArgs {
     /// The transfer function asked for (`auto` when none was).
     pub fn tf_spec(&self) -> &str {
@@ -300,10 +269,10 @@ fn with_drawable_budget(args: &ViewArgs, drawable: u64) -> ViewArgs {
 /// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
 pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let start = |s: String| ViewError::Start(one_line(&s));
-    let source = data::Source::parse(&args.source);
+    let source = crate::source::Source::parse(&args.source);
     let spec = match (&args.tf, &source) {
         (Some(spec), _) => spec.clone(),
-        (None, data::Source::Url(_)) => "default".into(),
+        (None, crate::source::Source::Url(_)) => "default".into(),
         (None, _) => AUTO.into(),
     };
     let args = &ViewArgs {
@@ -328,19 +297,23 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         ),
         e => start(format!("cannot start the viewer: {e}")),
     })?;
-    let tf = fit_auto(args.tf_spec(), &source, tf)
+    let tf = crate::source::load::fit_auto(args.tf_spec(), &source, tf)
         .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let args = &with_drawable_budget(args, PtRenderer::max_tets(&ctx));
-    let data = data::Data::open(
+    let data = crate::source::Data::open(
         &source,
-        args.token.clone(),
-        tetwave_adaptive::select::Tolerance::Pixels(args.tol),
-        args.max_nodes,
-        data::Selection {
+        crate::source::OpenOptions {
+            token: args.token.clone(),
+            tol: tetwave_adaptive::select::Tolerance::Pixels(args.tol),
+            max_nodes: args.max_nodes,
+            retries: crate::source::RECONNECT_ATTEMPTS,
+            faults: Default::default(),
+        },
+        crate::source::Selection {
             args: args.select.clone(),
             tf: tf.clone(),
+            fit_auto: args.tf_spec() == AUTO,
         },
-        args.tf_spec() == AUTO,
     )
     .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let report = Arc::new(Mutex::new(ViewReport::default()));

@@ -1,7 +1,14 @@
-//! What the viewer shows: a stream from a server (the network on its own thread, through the
-//! streaming client's network task), a local store fed to the same [`Session`] a chunk at a time,
-//! or a mesh file drawn as it is. Each frame takes what has arrived within a time budget, so the
-//! window never waits on the network or on a large arrival.
+//! The data-source seam: what a user names ([`Source`]: a server's URL, a store directory, a mesh
+//! file) and, once opened, the [`Data`] that feeds a [`Session`] within a time budget: a stream
+//! through a [`tetwave_net::Connection`], a local store a chunk at a time, or a mesh file drawn as
+//! it is (no session). Each call takes what has arrived within its budget, so a frame loop never
+//! waits on the network or on a large arrival. [`load`] reads what a source holds at once (a
+//! store's level, a mesh file, the histogram `auto` is fitted to).
+//!
+//! A new kind of source (e.g. a store read directly from object storage) is a new [`Source`]
+//! variant and a new way for [`Data`] to feed the session.
+
+pub mod load;
 
 use crate::select_args::SelectionArgs;
 use std::path::{Path, PathBuf};
@@ -10,19 +17,23 @@ use tetwave_adaptive::select::{SelectParams, Tolerance};
 use tetwave_adaptive::session::Session;
 use tetwave_net::connection::{NetPolicy, Next};
 use tetwave_net::ingest::{Ingest, Step};
-use tetwave_net::{Connection, HttpError, NetError, ServerUrl};
+use tetwave_net::transport::{Faulty, WebSocket};
+use tetwave_net::{Connection, Faults, HttpError, NetError, ServerUrl};
 use tetwave_protocol::store_format::Manifest;
 use tetwave_protocol::view::{Camera, Framing};
 use tetwave_protocol::{BaseMesh, DetailNode};
 use tetwave_render::render_mesh::RenderMesh;
-use tetwave_render::transfer::TransferFunction;
+use tetwave_render::transfer::{TransferFunction, AUTO};
 
-/// How the viewer's session selects: the command line's selection options (criterion, leaf
+/// How a source's session selects: the command line's selection options (criterion, leaf
 /// budget) and the transfer function drawn, which the image criterion weighs by.
 #[derive(Debug, Clone)]
 pub struct Selection {
     pub args: SelectionArgs,
     pub tf: TransferFunction,
+    /// The function drawn is `auto`: a stream's session selects by it fitted to the manifest's
+    /// histogram ([`TransferFunction::for_manifest`]) from its start.
+    pub fit_auto: bool,
 }
 
 impl Selection {
@@ -42,7 +53,7 @@ pub enum SourceError {
     #[error(transparent)]
     Store(#[from] tetwave_store::StoreError),
     #[error(transparent)]
-    Mesh(#[from] crate::render_cli::RenderCliError),
+    Load(#[from] load::LoadError),
     #[error("base mesh: {0}")]
     BaseMesh(#[from] tetwave_adaptive::mesh::MeshError),
     #[error(transparent)]
@@ -64,7 +75,7 @@ impl Source {
     pub fn parse(s: &str) -> Source {
         if ServerUrl::is_server(s) {
             Source::Url(s.to_string())
-        } else if crate::render_cli::is_mesh_input(Path::new(s), None) {
+        } else if load::is_mesh_input(Path::new(s), None) {
             Source::Mesh(s.into())
         } else {
             Source::Store(s.into())
@@ -75,10 +86,52 @@ impl Source {
 /// Nodes of a local store fed to the session per chunk (the clock is read between chunks).
 const LOCAL_CHUNK: usize = 512;
 
-/// Reconnect attempts without progress before a lost stream counts as failed: with the network
-/// task's linear backoff (100 ms more per attempt) about 19 s of trying, long enough for a
-/// server to restart.
-const RECONNECT_ATTEMPTS: u32 = 20;
+/// Reconnect attempts without progress before a lost stream counts as failed, by default: with
+/// the network task's linear backoff (100 ms more per attempt) about 19 s of trying, long enough
+/// for a server to restart.
+pub const RECONNECT_ATTEMPTS: u32 = 20;
+
+/// How a source is opened.
+#[derive(Debug, Clone)]
+pub struct OpenOptions {
+    /// The server's token, for a stream.
+    pub token: Option<String>,
+    /// The tolerance a store's session starts with.
+    pub tol: Tolerance,
+    /// The largest hierarchy accepted, in nodes (`--max-nodes`).
+    pub max_nodes: u64,
+    /// Reconnect attempts without progress (a stream).
+    pub retries: u32,
+    /// Transport faults to inject into a stream (tests); none by default.
+    pub faults: Faults,
+}
+
+/// How one [`Data::pump`] takes a stream's deliveries.
+#[derive(Debug, Clone, Copy)]
+pub struct Pump {
+    /// Stop taking deliveries once this instant has passed (checked after each, once a session
+    /// exists).
+    pub until: Instant,
+    /// Wait, up to `until`, for a delivery when none has come in this call and more may come
+    /// (always before the session starts); else take only what is queued.
+    pub wait: bool,
+    /// Stop after this many nodes (0: no limit).
+    pub max_nodes: usize,
+    /// Stop as soon as a session exists (its first frame goes out at once).
+    pub stop_once_started: bool,
+}
+
+impl Pump {
+    /// Take what is queued for at most `budget`, never waiting (a window's frame).
+    pub fn within(budget: Duration) -> Pump {
+        Pump {
+            until: Instant::now() + budget,
+            wait: false,
+            max_nodes: 0,
+            stop_once_started: false,
+        }
+    }
+}
 
 struct Remote {
     conn: Connection,
@@ -118,15 +171,16 @@ pub struct Data {
 
 impl Data {
     /// Opens a source: a store or mesh file is read now; a stream connects on its own thread
-    /// (`tf_auto`: it draws with `auto`, and asks the server for view order under it).
-    pub fn open(
-        source: &Source,
-        token: Option<String>,
-        tol: Tolerance,
-        max_nodes: u64,
-        select: Selection,
-        tf_auto: bool,
-    ) -> Result<Data, SourceError> {
+    /// (drawing `auto`, [`Selection::fit_auto`], it asks the server for view order under it).
+    pub fn open(source: &Source, o: OpenOptions, select: Selection) -> Result<Data, SourceError> {
+        let OpenOptions {
+            token,
+            tol,
+            max_nodes,
+            retries,
+            faults,
+        } = o;
+        let tf_auto = select.fit_auto;
         let empty = |kind| Data {
             kind,
             session: None,
@@ -142,16 +196,18 @@ impl Data {
         };
         match source {
             Source::Url(url) => {
-                let conn = Connection::open(
-                    ServerUrl::parse(url)?,
-                    token,
-                    NetPolicy {
-                        retries: RECONNECT_ATTEMPTS,
-                        max_nodes,
-                        tf_auto,
-                    },
-                    "tetwave-view-net",
-                )?;
+                let server = ServerUrl::parse(url)?;
+                let policy = NetPolicy {
+                    retries,
+                    max_nodes,
+                    tf_auto,
+                };
+                let conn = if faults.none() {
+                    Connection::open(server, token, policy, "tetwave-net")?
+                } else {
+                    let faulty = Faulty::new(WebSocket, faults);
+                    Connection::open_with(faulty, server, token, policy, "tetwave-net")?
+                };
                 Ok(empty(Kind::Remote(Box::new(Remote {
                     conn,
                     ingest: Ingest::new(max_nodes),
@@ -178,7 +234,7 @@ impl Data {
                     field: None,
                     nan_as: None,
                 };
-                let (mesh, scalar) = crate::render_cli::file_mesh(path, None, &options)?;
+                let (mesh, scalar) = load::file_mesh(path, None, &options)?;
                 let mut d = empty(Kind::Mesh);
                 d.name = scalar;
                 d.value_range = [mesh.value_range.0, mesh.value_range.1];
@@ -341,7 +397,7 @@ impl Data {
                     *next = 0;
                 }
             }
-            Kind::Remote(_) => match self.ingest_remote(t0, budget, tol) {
+            Kind::Remote(_) => match self.pump(Pump::within(budget), tol, |_| {}) {
                 Ok(n) => applied = n,
                 Err(e) => self.error = Some(e.to_string()),
             },
@@ -352,21 +408,34 @@ impl Data {
         applied
     }
 
-    fn ingest_remote(
+    /// Takes a stream's deliveries as `p` says and applies them (a session is built on the base
+    /// mesh with tolerance `tol`); each step goes to `on` after the data has taken what it keeps.
+    /// Returns the nodes applied (preview nodes included). An error ends the stream: before the
+    /// session started, nothing is left to draw; after, the frames so far stand. Not a stream:
+    /// nothing to take.
+    pub fn pump(
         &mut self,
-        t0: Instant,
-        budget: Duration,
+        p: Pump,
         tol: Tolerance,
+        mut on: impl FnMut(Step),
     ) -> Result<usize, NetError> {
         let mut applied = 0;
+        let mut got_any = false;
         loop {
             let Kind::Remote(r) = &mut self.kind else {
-                unreachable!("remote")
+                return Ok(applied);
             };
-            if t0.elapsed() >= budget {
+            if p.max_nodes > 0 && applied >= p.max_nodes {
                 return Ok(applied);
             }
-            let (msg, nbytes) = match r.conn.next(Duration::ZERO) {
+            // once everything has arrived there is nothing to wait for but the level set
+            let more = !r.ingest.ended() || r.ingest.levelset_pending();
+            let wait = if p.wait && (self.session.is_none() || (!got_any && more)) {
+                p.until.saturating_duration_since(Instant::now())
+            } else {
+                Duration::ZERO
+            };
+            let (msg, nbytes) = match r.conn.next(wait) {
                 Next::Ready(d, n) => (d, n),
                 Next::Empty => return Ok(applied),
                 Next::Ended => {
@@ -378,16 +447,26 @@ impl Data {
                     return Err(r.conn.finish());
                 }
             };
+            got_any = true;
             self.bytes_applied += nbytes;
             let select = &self.select;
+            let mut fitted = None;
             let start = |b: BaseMesh, m: &Manifest| {
-                let params = select.params(tol, m.display_value_range(), &b);
+                let mut sel = select.clone();
+                if sel.fit_auto {
+                    sel.tf = TransferFunction::for_manifest(AUTO, m)?;
+                }
+                let params = sel.params(tol, m.display_value_range(), &b);
+                fitted = Some(sel.tf);
                 Session::new(b, params).map_err(NetError::BaseMesh)
             };
             let step = r
                 .ingest
                 .apply(msg, &mut self.session, start, r.conn.sender())?;
-            match step {
+            if let Some(tf) = fitted {
+                self.select.tf = tf;
+            }
+            match &step {
                 Step::Manifest => {
                     if let Some(m) = r.ingest.manifest() {
                         self.value_range = m.display_value_range();
@@ -400,6 +479,29 @@ impl Data {
                 Step::Preview { nodes, .. } => applied += nodes,
                 Step::End | Step::Nothing => {}
             }
+            on(step);
+            if self.session.is_some() && (p.stop_once_started || Instant::now() >= p.until) {
+                return Ok(applied);
+            }
+        }
+    }
+
+    /// The transfer function the session selects by (for a stream drawing `auto`, the one fitted
+    /// to its manifest once the session started).
+    pub fn selection_tf(&self) -> &TransferFunction {
+        &self.select.tf
+    }
+
+    /// A stream whose server said every node was sent, and every node is held.
+    pub fn stream_ended(&self) -> bool {
+        matches!(&self.kind, Kind::Remote(r) if r.ingest.ended())
+    }
+
+    /// Connections lost and retried, and wire bytes received (a stream; else 0).
+    pub fn net_counts(&self) -> (u64, u64) {
+        match &self.kind {
+            Kind::Remote(r) => (r.conn.reconnects(), r.conn.bytes()),
+            _ => (0, 0),
         }
     }
 
