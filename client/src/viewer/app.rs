@@ -12,6 +12,7 @@ use super::motion::MotionLod;
 use super::perf::Perf;
 use super::plan::{DrawKind, DrawMesh, FrameInputs, FramePlan};
 use super::script::{Action, Step, WaitFor};
+use super::spread::{Progress, SpreadDraw};
 use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
 use crate::source::Data;
@@ -22,9 +23,7 @@ use std::sync::mpsc;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tetwave_adaptive::select::{Mode, Tolerance};
-use tetwave_gpu::pt::{
-    Accumulation, FrameDraw, FramePlan as SortPlan, PtRenderer, TetDrawData, VisibilityOrder,
-};
+use tetwave_gpu::pt::{Accumulation, PtRenderer, TetDrawData, VisibilityOrder};
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_net::HttpError;
 use tetwave_protocol::view::Camera;
@@ -43,39 +42,6 @@ const RESIZE_FRAMES: u64 = 600;
 
 /// Bins of the editor's histogram.
 const HISTOGRAM_BINS: usize = 64;
-/// The fewest triangles one frame of a spread draw ([`PendingDraw`]) draws.
-const MIN_PART_TRIANGLES: u32 = 4096;
-
-/// The parts a spread draw is cut into: fixed, because a part size measured from frame times
-/// would follow the frame's own work (refinement, the leaf mesh, often larger than a part), not
-/// the draw (the measurements behind the count: docs/benchmarks.md, "Whole draws at rest, spread over
-/// frames").
-const SPREAD_PARTS: u32 = 24;
-
-/// A whole draw at rest spread over frames, when whole draws are slower than `--motion-ms`: its
-/// visibility sort on a thread of its own ([`PtRenderer::plan`]), then the frame's triangles in
-/// consecutive ranges, one a frame, into a second target, which replaces the one shown once it
-/// holds every triangle (the same image as one whole draw: see [`PtRenderer::draw_range`]).
-/// Meanwhile the window answers, showing the last image. It is dropped when the camera or the
-/// view's size changes or another draw needs the renderer; a new mesh or transfer function waits
-/// for it, then is drawn.
-struct PendingDraw {
-    stage: Stage,
-    target: Target,
-    /// The mesh and transfer function it draws.
-    data: Arc<TetDrawData>,
-    tf: TransferFunction,
-    /// The first frame of it.
-    first_frame: u64,
-}
-
-enum Stage {
-    /// The visibility sort and the exit faces, on their thread.
-    Planning(std::thread::JoinHandle<SortPlan>),
-    /// Triangles drawn so far.
-    Drawing { frame: FrameDraw, next: u32 },
-}
-
 /// The transfer-function presets (what the server's `/v1/render` knows too).
 const PRESETS: [&str; 5] = ["auto", "default", "transparent", "opaque", "shells"];
 
@@ -141,7 +107,7 @@ pub struct ViewerApp {
     view_px: (u32, u32),
     target: Option<Target>,
     /// A slow whole draw in progress, and a target of the view's size for the next one.
-    pending: Option<PendingDraw>,
+    pending: Option<SpreadDraw>,
     spare: Option<Target>,
     draw_data: Option<Arc<TetDrawData>>,
     /// The coarser mesh drawn in motion when whole draws are slow (`--motion-tets`).
@@ -852,12 +818,12 @@ impl ViewerApp {
         let use_motion = plan.mesh == DrawMesh::Motion;
         let spread = plan.draw == DrawKind::Spread;
         // a spread draw is for this camera and size, and holds the renderer's uniforms
-        if self.pending.as_ref().is_some_and(|p| !sized(&p.target))
+        if self.pending.as_ref().is_some_and(|p| !sized(p.target()))
             || self.last_cam != Some(cam)
             || use_motion
         {
             if let Some(p) = self.pending.take() {
-                self.spare = Some(p.target);
+                self.spare = Some(p.into_target());
             }
         }
         if !self.target.as_ref().is_some_and(sized) {
@@ -890,21 +856,17 @@ impl ViewerApp {
                 if spread {
                     // at rest a slow whole draw is spread over frames (the parts below), its
                     // sort off the frame loop
-                    let (data, tf) = (Arc::clone(d), self.tf.clone());
-                    let plan = std::thread::spawn(move || {
-                        PtRenderer::plan(&data, &draw_cam, &tf, VisibilityOrder::Centroid)
-                    });
                     let target = match self.spare.take() {
                         Some(spare) if spare.size() == (dw, dh) => spare,
                         _ => Target::new(&self.gpu, &self.blit, self.renderer.format(), dw, dh),
                     };
-                    self.pending = Some(PendingDraw {
-                        stage: Stage::Planning(plan),
+                    self.pending = Some(SpreadDraw::start(
+                        Arc::clone(d),
+                        draw_cam,
+                        self.tf.clone(),
                         target,
-                        data: Arc::clone(d),
-                        tf: self.tf.clone(),
-                        first_frame: self.frames,
-                    });
+                        self.frames,
+                    ));
                     self.image_dirty = false;
                     self.drew_motion = false;
                 } else {
@@ -939,61 +901,38 @@ impl ViewerApp {
                 }
             }
         }
-        // a sorted spread draw goes to the renderer (no other draw holds its uniforms meanwhile)
-        if self
-            .pending
-            .as_ref()
-            .is_some_and(|p| matches!(&p.stage, Stage::Planning(h) if h.is_finished()))
-        {
-            let mut p = self.pending.take().expect("a pending draw");
-            let Stage::Planning(h) = p.stage else {
-                unreachable!("planning")
-            };
-            match h.join() {
-                Ok(plan) => {
-                    let t = Instant::now();
-                    let frame = self.renderer.finish(&self.gpu, &p.data, &p.tf, plan);
-                    self.perf.current().render_ms = t.elapsed().as_secs_f64() * 1e3;
-                    p.stage = Stage::Drawing { frame, next: 0 };
-                    self.pending = Some(p);
+        // a spread draw's step: its sort handed to the renderer once done (no other draw holds
+        // the renderer's uniforms meanwhile), and a part drawn in the same frame
+        while let Some(p) = self.pending.as_mut() {
+            match p.step(&self.renderer, &self.gpu) {
+                Ok(Progress::Sorting) => break,
+                Ok(Progress::Sorted { ms }) => self.perf.current().render_ms = ms,
+                Ok(Progress::Drew {
+                    triangles,
+                    ms,
+                    done,
+                }) => {
+                    let rec = self.perf.current();
+                    rec.render_ms += ms;
+                    rec.drew_part = triangles;
+                    if done {
+                        // the new image is shown: this frame counts as a draw at rest
+                        let p = self.pending.take().expect("a spread draw");
+                        let rec = self.perf.current();
+                        rec.drew_part_of = Some(p.first_frame());
+                        rec.drew = true;
+                        rec.draw_scale = 1;
+                        self.spare = self.target.replace(p.into_target());
+                    }
+                    break;
                 }
-                Err(_) => {
-                    self.spare = Some(p.target);
-                    self.fail("the visibility sort of a spread draw failed".into());
+                Err(e) => {
+                    let p = self.pending.take().expect("a spread draw");
+                    self.spare = Some(p.into_target());
+                    self.fail(e.to_string());
+                    break;
                 }
             }
-        }
-        let mut finished = None;
-        if let Some(PendingDraw {
-            stage: Stage::Drawing { frame, next },
-            target,
-            first_frame,
-            ..
-        }) = self.pending.as_mut()
-        {
-            let n = frame.triangles();
-            let end = next
-                .saturating_add(n.div_ceil(SPREAD_PARTS).max(MIN_PART_TRIANGLES))
-                .min(n);
-            let t = Instant::now();
-            self.renderer
-                .draw_range_into(&self.gpu, frame, *next..end, &target.view, *next == 0);
-            let rec = self.perf.current();
-            rec.render_ms += t.elapsed().as_secs_f64() * 1e3;
-            rec.drew_part = (end - *next).max(1);
-            *next = end;
-            if end >= n {
-                finished = Some(*first_frame);
-            }
-        }
-        if let Some(first) = finished {
-            // the new image is shown: this frame counts as a draw at rest
-            let p = self.pending.take().expect("a pending draw");
-            let rec = self.perf.current();
-            rec.drew_part_of = Some(first);
-            rec.drew = true;
-            rec.draw_scale = 1;
-            self.spare = self.target.replace(p.target);
         }
         self.last_cam = Some(cam);
         // the tets of the mesh drawn: the coarser one's after a draw in motion

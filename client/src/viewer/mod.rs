@@ -3,9 +3,14 @@
 //! mesh for the camera every frame under a time budget, and draws it with the projected
 //! tetrahedra renderer on the window's own wgpu device.
 //!
-//! - [`data`]: the source; a stream's network runs on its own thread (the headless client's
-//!   network task), and each frame applies what has arrived within a budget.
-//! - [`orbit`]: the camera (orbit, pan, zoom), parametrized like `tetwave render` and `/v1/render`.
+//! - [`crate::source::Data`]: the source, shared with `tetwave stream`; a stream's network runs on
+//!   its own thread, and each frame applies what has arrived within a budget.
+//! - [`tetwave_protocol::view::Orbit`]: the camera (orbit, pan, zoom), parametrized like
+//!   `tetwave render` and `/v1/render`.
+//! - [`plan`]: what each frame decides (refinement, which mesh, whole or spread draw, pixels,
+//!   upload), a pure function.
+//! - [`spread`]: a slow whole draw at rest spread over frames (sorted off the frame loop, drawn
+//!   in parts).
 //! - [`fly`]: fly mode's camera (`F`): a free eye that may enter the volume.
 //! - [`gpu`]: the offscreen target the volume is drawn into, and the copy into the window.
 //! - [`script`]: `--script` steps (camera, tolerance, mode, transfer function, waits, server image,
@@ -27,6 +32,7 @@ pub mod motion;
 pub mod perf;
 pub mod plan;
 pub mod script;
+pub mod spread;
 pub mod tf_edit;
 pub mod upload;
 
