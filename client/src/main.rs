@@ -37,44 +37,11 @@ enum Cmd {
     /// on request. Orbit/pan/zoom with the mouse and keys; `--script`, `--screenshot` and
     /// `--frames` for scripted runs. Needs a display (X11; `xvfb-run -a` headless) and a GPU
     /// adapter (lavapipe works).
-    View(tetwave_client::viewer::ViewArgs),
-    /// Benchmarks.
-    Bench {
-        #[command(subcommand)]
-        which: BenchCmd,
-    },
+    View(tetwave_viewer::ViewArgs),
 }
 
-#[derive(Subcommand)]
-enum BenchCmd {
-    /// The thesis' progressive experiment (Tables 2–3): nodes arrive per step, the camera turns,
-    /// selective refinement runs; one row (or JSON object) per tolerance.
-    Progressive(tetwave_client::progressive::BenchArgs),
-}
-
-fn bench_progressive(args: &tetwave_client::progressive::BenchArgs) -> ExitCode {
-    use tetwave_client::progressive::{bench, table_row, TABLE_HEADER};
-    if !args.json {
-        println!("{TABLE_HEADER}");
-    }
-    let res = bench(args, |r| {
-        if args.json {
-            println!("{}", serde_json::to_string(r).expect("serializes"));
-        } else {
-            println!("{}", table_row(r));
-        }
-    });
-    match res {
-        Ok(_) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
-}
-
-fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
-    use tetwave_client::viewer::{run, ViewError, ViewReport};
+fn view(args: &tetwave_viewer::ViewArgs) -> ExitCode {
+    use tetwave_viewer::{run, ViewError, ViewReport};
     let summary = |r: &ViewReport| {
         if args.json {
             println!("{}", serde_json::to_string(r).expect("serializes"));
@@ -105,7 +72,7 @@ fn view(args: &tetwave_client::viewer::ViewArgs) -> ExitCode {
 fn main() -> ExitCode {
     // before any thread: headless renders would otherwise print a Wayland probe's error
     tetwave_gpu::quiet_headless_vulkan_layers();
-    // TETWAVE_LOG (EnvFilter syntax, as the server's --log), e.g. `tetwave_client=trace` for the
+    // TETWAVE_LOG (EnvFilter syntax, as the server's --log), e.g. `tetwave_viewer=trace` for the
     // viewer's frame records
     let filter = tracing_subscriber::EnvFilter::try_from_env("TETWAVE_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,winit=error"));
@@ -142,9 +109,6 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         },
-        Cmd::Bench {
-            which: BenchCmd::Progressive(args),
-        } => bench_progressive(&args),
         Cmd::View(args) => view(&args),
         Cmd::Render(args) => match tetwave_client::render_cli::run(&args) {
             Ok(r) => {

@@ -1,6 +1,6 @@
 //! The progressive client loop without a network: detail nodes arrive in batches, the camera moves,
 //! selective refinement runs under a budget. [`run_progressive`] is the thesis' experiment (§6.4,
-//! Tables 2–3: 312 steps of +1000 nodes and a 0.05 rad turn about the vertical axis); `tetwave bench
+//! Tables 2–3: 312 steps of +1000 nodes and a 0.05 rad turn about the vertical axis); `tetwave-bench
 //! progressive` prints its rows. The buffer, mesh and selector are a [`Session`]'s.
 
 use crate::render_probe::{RenderProbe, RenderSummary};
@@ -265,7 +265,7 @@ pub fn run_progressive(
 }
 
 /// [`run_progressive`], calling `observe(step, mesh, camera)` after each step's refinement and
-/// outside its timings (`tetwave bench progressive --render-every` draws there).
+/// outside its timings (`tetwave-bench progressive --render-every` draws there).
 pub fn run_progressive_with(
     base: &BaseMesh,
     nodes: &[DetailNode],
@@ -426,9 +426,9 @@ pub fn run_progressive_with(
     })
 }
 
-// ------------------------------------------------------------------ `tetwave bench progressive`
+// ------------------------------------------------------------------ `tetwave-bench progressive`
 
-/// Arguments of `tetwave bench progressive`.
+/// Arguments of `tetwave-bench progressive`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchArgs {
     /// Store directory (`tetwave-server prepare … --out DIR`).
@@ -440,20 +440,20 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1000)]
     pub per_step: usize,
     /// Radians per step about the vertical axis.
-    #[arg(long, default_value_t = 0.05, value_parser = crate::camera_arg::angle)]
+    #[arg(long, default_value_t = 0.05, value_parser = tetwave_source::options::angle)]
     pub rotate: f64,
     /// Camera distance from the volume's centre (thesis: 30 for Harmonic, 269 for Head256).
-    #[arg(long, default_value_t = 30.0, value_parser = crate::camera_arg::distance)]
+    #[arg(long, default_value_t = 30.0, value_parser = tetwave_source::options::distance)]
     pub distance: f64,
-    #[arg(long, default_value_t = 0.0, value_parser = crate::camera_arg::elevation)]
+    #[arg(long, default_value_t = 0.0, value_parser = tetwave_source::options::elevation)]
     pub elevation: f64,
-    #[arg(long, default_value_t = 45.0, value_parser = crate::camera_arg::fov)]
+    #[arg(long, default_value_t = 45.0, value_parser = tetwave_source::options::fov)]
     pub fovy: f64,
     /// Viewport width in pixels (1..=8192).
-    #[arg(long, default_value_t = 512, value_parser = crate::render_cli::parse_side)]
+    #[arg(long, default_value_t = 512, value_parser = tetwave_source::options::parse_side)]
     pub width: u32,
     /// Viewport height in pixels (1..=8192); `%` tolerances are of this height.
-    #[arg(long, default_value_t = 512, value_parser = crate::render_cli::parse_side)]
+    #[arg(long, default_value_t = 512, value_parser = tetwave_source::options::parse_side)]
     pub height: u32,
     /// Tolerances, comma-separated: `20%` (of the viewport height) or `12px`.
     #[arg(long, default_value = "20%,15%,12.5%,10%,6.25%", value_delimiter = ',')]
@@ -484,7 +484,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub data_aware: Option<f32>,
     #[command(flatten)]
-    pub select: crate::select_args::SelectionArgs,
+    pub select: tetwave_source::options::SelectionArgs,
     /// Skip the settle-and-compare phase after the steps.
     #[arg(long)]
     pub no_settle: bool,
@@ -514,14 +514,14 @@ pub struct BenchArgs {
 }
 
 /// A count of at least 1 (`--render-every`).
-fn at_least_one(s: &str) -> Result<usize, crate::arg_error::ArgError> {
+fn at_least_one(s: &str) -> Result<usize, tetwave_source::options::ArgError> {
     match s.parse::<usize>() {
         Ok(n) if n >= 1 => Ok(n),
         _ => Err(format!("expected a whole number of at least 1, got {s:?}").into()),
     }
 }
 
-/// Runs `tetwave bench progressive`: one [`RunReport`] per tolerance (and the simple run).
+/// Runs `tetwave-bench progressive`: one [`RunReport`] per tolerance (and the simple run).
 pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Result<Vec<RunReport>> {
     let store = tetwave_store::Store::open_with(
         &args.store,
@@ -549,7 +549,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
     let mut probe = match args.render_every {
         Some(every) => {
             let tf = tf.clone();
-            let (full, _) = crate::source::load::store_mesh(&store, None)?;
+            let (full, _) = tetwave_source::load::store_mesh(&store, None)?;
             let probe =
                 RenderProbe::new(full, m.value_range, every, args.render_cpu, tf).map_err(|e| {
                     anyhow::anyhow!("--render-every: {e} (--render-cpu draws on the CPU instead)")

@@ -11,7 +11,6 @@
 //! range, which lies within). A store with a level set (`levelset.f32`) is drawn clipped to it:
 //! tets that straddle the input's boundary draw only their inside part.
 
-use crate::source::load::{file_mesh, is_mesh_input, store_histogram, store_mesh, LoadError};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -25,6 +24,7 @@ use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction, ValueHistogram, AUTO};
+use tetwave_source::load::{file_mesh, is_mesh_input, store_histogram, store_mesh, LoadError};
 use tetwave_store::{OpenOptions, Store, StoreError};
 
 /// What to render and how.
@@ -52,9 +52,9 @@ pub struct RenderArgs {
     #[arg(long)]
     pub format: Option<MeshFormat>,
     #[command(flatten)]
-    pub camera: crate::camera_arg::CameraArgs,
+    pub camera: tetwave_source::options::CameraArgs,
     /// Image size `WxH`.
-    #[arg(long, default_value = "512x512", value_parser = parse_size)]
+    #[arg(long, default_value = "512x512", value_parser = tetwave_source::options::parse_size)]
     pub size: (u32, u32),
     /// Transfer function: `auto` (the `default` preset fitted to the data: its control points moved
     /// to the data's value quantiles over its volume, so that each colour band covers the share of
@@ -90,44 +90,6 @@ pub struct RenderArgs {
     /// and the structure are always checked).
     #[arg(long)]
     pub verify: bool,
-}
-
-/// Image widths and heights the CLIs accept, in pixels.
-pub const IMAGE_SIDES: std::ops::RangeInclusive<u32> = 1..=8192;
-
-/// One image side in pixels (`--width`, `--height`), within [`IMAGE_SIDES`].
-pub fn parse_side(s: &str) -> Result<u32, crate::arg_error::ArgError> {
-    let v: u32 = s
-        .parse()
-        .map_err(|_| format!("expected a whole number of pixels, got {s:?}"))?;
-    if IMAGE_SIDES.contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!(
-            "{v} pixels is outside {}..={}",
-            IMAGE_SIDES.start(),
-            IMAGE_SIDES.end()
-        )
-        .into())
-    }
-}
-
-pub fn parse_size(s: &str) -> Result<(u32, u32), crate::arg_error::ArgError> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WxH, got {s:?}"))?;
-    let w: u32 = w
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad width in {s:?}"))?;
-    let h: u32 = h
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad height in {s:?}"))?;
-    if !IMAGE_SIDES.contains(&w) || !IMAGE_SIDES.contains(&h) {
-        return Err(format!("size {w}x{h} outside 1..={}", IMAGE_SIDES.end()).into());
-    }
-    Ok((w, h))
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -1,4 +1,4 @@
-//! Rendering inside `tetwave bench progressive` (`--render-every K`): the leaf mesh of every K-th
+//! Rendering inside `tetwave-bench progressive` (`--render-every K`): the leaf mesh of every K-th
 //! step (and of the last) is drawn, timed, and compared with the CPU reference image of the
 //! full-resolution mesh seen from the same camera, so that the thesis' FPS column comes with an
 //! image error. The reference images depend on the step's camera only, so one set serves every

@@ -8,7 +8,6 @@
 //! the network's pace, not the frames'; the frame loop takes whatever is queued each frame and never
 //! waits on the network longer than its frame period (not at all once everything has arrived).
 
-use crate::source::{Data, OpenOptions, Pump, Selection, Source, SourceError};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -29,6 +28,7 @@ use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction, AUTO};
+use tetwave_source::{Data, OpenOptions, Pump, Selection, Source, SourceError};
 
 /// `tetwave stream` options.
 #[derive(Debug, Clone, clap::Args)]
@@ -45,7 +45,7 @@ pub struct StreamArgs {
     #[arg(long, default_value = "out/stream")]
     pub out: PathBuf,
     /// Camera rotation per frame, degrees (about the vertical axis).
-    #[arg(long, default_value_t = 0.0, value_parser = crate::camera_arg::angle)]
+    #[arg(long, default_value_t = 0.0, value_parser = tetwave_source::options::angle)]
     pub orbit: f64,
     /// Screen-space tolerance (`2`, `2px` or `10%` of the height); `0`: everything that arrived.
     #[arg(long, default_value = "0")]
@@ -54,7 +54,7 @@ pub struct StreamArgs {
     /// stream completes; frames must be rendered).
     #[arg(long, conflicts_with = "no_render")]
     pub psnr: bool,
-    #[arg(long, default_value = "256x256", value_parser = crate::render_cli::parse_size)]
+    #[arg(long, default_value = "256x256", value_parser = tetwave_source::options::parse_size)]
     pub size: (u32, u32),
     /// Transfer function: a preset (default, transparent, opaque, shells), a .json file, or
     /// `auto` (the `default` preset fitted to the store's value histogram, as `tetwave render`
@@ -63,7 +63,7 @@ pub struct StreamArgs {
     #[arg(long, default_value = "default")]
     pub tf: String,
     #[command(flatten)]
-    pub camera: crate::camera_arg::CameraArgs,
+    pub camera: tetwave_source::options::CameraArgs,
     #[arg(long)]
     pub token: Option<String>,
     /// Wait at most this long per frame for new data (at most 60,000 ms).
@@ -104,11 +104,10 @@ pub struct StreamArgs {
     #[arg(long)]
     pub final_png: Option<PathBuf>,
     #[command(flatten)]
-    pub select: crate::select_args::SelectionArgs,
+    pub select: tetwave_source::options::SelectionArgs,
 }
 
-/// `--max-nodes`' default: see [`StreamArgs::max_nodes`].
-pub const DEFAULT_MAX_NODES: u64 = 1 << 27;
+pub use tetwave_net::DEFAULT_MAX_NODES;
 
 impl StreamArgs {
     /// The CLI defaults, for `url`, writing into `out`.

@@ -3,11 +3,13 @@
 
 use std::process::Command;
 
+/// `tetwave ARGS`, or `tetwave-bench REST` for `bench REST` (the benchmarks' own binary).
 fn tetwave(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_tetwave"))
-        .args(args)
-        .output()
-        .expect("tetwave runs");
+    let (exe, args) = match args {
+        ["bench", rest @ ..] => (env!("CARGO_BIN_EXE_tetwave-bench"), rest),
+        _ => (env!("CARGO_BIN_EXE_tetwave"), args),
+    };
+    let out = Command::new(exe).args(args).output().expect("tetwave runs");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stderr).into_owned(),

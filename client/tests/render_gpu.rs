@@ -292,7 +292,7 @@ fn accumulation_precisions_are_ordered_and_bounded() {
     );
 }
 
-/// `tetwave bench progressive --render-every` on the GPU: the simple run's last frame (every detail
+/// `tetwave-bench progressive --render-every` on the GPU: the simple run's last frame (every detail
 /// arrived) agrees with the CPU reference of the full-resolution mesh.
 #[test]
 fn render_probe_on_the_gpu() {

@@ -20,3 +20,6 @@ pub use url::ServerUrl;
 /// `Want` rounds after an `End` with nodes missing before the session fails
 /// ([`NetError::Unavailable`]).
 pub const MAX_WANT_ROUNDS: u32 = 8;
+
+/// `--max-nodes`' default: see `--max-nodes` of `tetwave stream` and `tetwave view`.
+pub const DEFAULT_MAX_NODES: u64 = 1 << 27;

@@ -1,4 +1,4 @@
-//! `tetwave bench progressive --render-every` on a store the server prepared, then
+//! `tetwave-bench progressive --render-every` on a store the server prepared, then
 //! `scripts/charts.py` and `scripts/progressive-table.py` on its JSON lines: every run carries its
 //! drawn frames (render ms, PSNR against the full-resolution reference), the chart script turns them
 //! into SVG charts and the table script prints the memory per tet by part.

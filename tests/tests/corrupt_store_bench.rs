@@ -1,4 +1,4 @@
-//! `tetwave bench progressive` on a store whose blocks were re-coded with tampered nodes,
+//! `tetwave-bench progressive` on a store whose blocks were re-coded with tampered nodes,
 //! consistently enough that the store still opens (every block decodes, the same coefficient
 //! count): one owned vertex bit moved from one node to another, so two nodes claim one vertex. The
 //! run stops with an error that names the store and the node, instead of panicking or dropping the

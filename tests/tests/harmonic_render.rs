@@ -3,7 +3,6 @@
 //! function, camera outside, inside and grazing. Needs a GPU adapter (lavapipe in CI).
 
 use glam::DVec3;
-use tetwave_client::source::load::store_mesh;
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Orbit;
@@ -11,6 +10,7 @@ use tetwave_render::image_metrics::psnr;
 use tetwave_render::reference::render_reference;
 use tetwave_render::transfer::TransferFunction;
 use tetwave_server::prepare::{prepare, PrepareOptions};
+use tetwave_source::load::store_mesh;
 use tetwave_store::Store;
 
 #[test]

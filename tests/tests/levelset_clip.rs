@@ -20,7 +20,6 @@ mod common;
 
 use common::{psnr_pixels as psnr, render_png, serve};
 use tetwave_adaptive::draw::leaf_mesh;
-use tetwave_client::source::load::{file_mesh, store_mesh};
 use tetwave_client::stream::{run_session, Faults, StreamArgs};
 use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::GpuContext;
@@ -33,6 +32,7 @@ use tetwave_render::transfer::TransferFunction;
 use tetwave_server::prepare::{prepare, PrepareOptions, Summary};
 use tetwave_server::render_service::{RenderParams, RenderService};
 use tetwave_server::resample::unstructured::ImportOptions;
+use tetwave_source::load::{file_mesh, store_mesh};
 use tetwave_store::Store;
 
 const SIZE: u32 = 96;

@@ -469,7 +469,7 @@ fn mpvo_breaks_cycles_and_tetwave_meshes_have_none() {
 
     let (_d, store) = common::harmonic_store(3);
     let store = tetwave_store::Store::open(&store).unwrap();
-    let (mesh, _) = tetwave_client::source::load::store_mesh(&store, None).unwrap();
+    let (mesh, _) = tetwave_source::load::store_mesh(&store, None).unwrap();
     let nb = face_neighbors(&mesh.tets);
     let origin = mesh.center();
     let planes: Vec<[[f32; 4]; 4]> = (0..mesh.tets.len())

@@ -138,7 +138,7 @@ fn tolerance_zero_on_a_store_over_the_leaf_budget() {
     // elevation 25, 1.6 diagonals away, 40° at 48×48)
     let store = tetwave_store::Store::open(&store).unwrap();
     let image = |level: u8| {
-        let (mesh, _) = tetwave_client::source::load::store_mesh(&store, Some(level)).unwrap();
+        let (mesh, _) = tetwave_source::load::store_mesh(&store, Some(level)).unwrap();
         let cam = tetwave_protocol::view::Orbit {
             target: mesh.center(),
             distance: 1.6 * mesh.diagonal(),

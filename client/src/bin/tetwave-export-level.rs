@@ -10,7 +10,7 @@
 //! refused: its image is clipped inside the tets, which a plain unstructured grid cannot say.
 
 use anyhow::{bail, Context, Result};
-use tetwave_client::source::load::store_mesh;
+use tetwave_source::load::store_mesh;
 use tetwave_store::Store;
 
 fn main() -> Result<()> {

@@ -1,4 +1,4 @@
-//! Helpers shared by the cross-crate tests: stores, `tetwave bench progressive` arguments and
+//! Helpers shared by the cross-crate tests: stores, `tetwave-bench progressive` arguments and
 //! `tetwave render` runs.
 #![allow(dead_code)] // each test binary uses some of the helpers
 
@@ -74,7 +74,7 @@ pub fn harmonic_store_with(
     (d, store)
 }
 
-/// `tetwave bench progressive` arguments, parsed as the CLI parses them (`args` without the
+/// `tetwave-bench progressive` arguments, parsed as the CLI parses them (`args` without the
 /// subcommand's name).
 pub fn bench_args(args: &[&str]) -> BenchArgs {
     let all = std::iter::once("bench").chain(args.iter().copied());

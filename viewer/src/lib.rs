@@ -3,7 +3,7 @@
 //! mesh for the camera every frame under a time budget, and draws it with the projected
 //! tetrahedra renderer on the window's own wgpu device.
 //!
-//! - [`crate::source::Data`]: the source, shared with `tetwave stream`; a stream's network runs on
+//! - [`tetwave_source::Data`]: the source, shared with `tetwave stream`; a stream's network runs on
 //!   its own thread, and each frame applies what has arrived within a budget.
 //! - [`tetwave_protocol::view::Orbit`]: the camera (orbit, pan, zoom), parametrized like
 //!   `tetwave render` and `/v1/render`.
@@ -81,7 +81,7 @@ pub struct ViewArgs {
     #[arg(value_name = "URL|STORE|MESH")]
     pub source: String,
     /// Size of the view (the window adds the side panel), `WxH` pixels.
-    #[arg(long, default_value = "640x480", value_parser = crate::render_cli::parse_size)]
+    #[arg(long, default_value = "640x480", value_parser = tetwave_source::options::parse_size)]
     pub size: (u32, u32),
     /// Transfer function: `auto` (the `default` preset fitted to the data as `tetwave render`
     /// fits it: a store's or a stream's to the histogram its manifest carries), a preset (default,
@@ -114,7 +114,7 @@ pub struct ViewArgs {
     #[arg(long)]
     pub motion_lod: bool,
     #[command(flatten)]
-    pub camera: crate::camera_arg::CameraArgs,
+    pub camera: tetwave_source::options::CameraArgs,
     /// A JSON script of timestamped steps (see `viewer::script`).
     #[arg(long)]
     pub script: Option<PathBuf>,
@@ -131,20 +131,20 @@ pub struct ViewArgs {
     #[arg(long, env = "TETWAVE_TOKEN")]
     pub token: Option<String>,
     /// Refuse a stream whose hierarchy has more detail nodes than this (as `tetwave stream`).
-    #[arg(long, default_value_t = crate::stream::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, default_value_t = tetwave_net::DEFAULT_MAX_NODES, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_nodes: u64,
     #[command(flatten)]
-    pub select: crate::select_args::SelectionArgs,
+    pub select: tetwave_source::options::SelectionArgs,
 }
 
-fn motion_ms(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+fn motion_ms(s: &str) -> Result<f64, tetwave_source::options::ArgError> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && (0.0..=10_000.0).contains(&v) => Ok(v),
         _ => Err(format!("expected milliseconds within 0..=10000, got {s:?}").into()),
     }
 }
 
-fn tol_px(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+fn tol_px(s: &str) -> Result<f64, tetwave_source::options::ArgError> {
     let s = s.trim();
     let v: f64 = s
         .strip_suffix("px")
@@ -275,10 +275,10 @@ fn with_drawable_budget(args: &ViewArgs, drawable: u64) -> ViewArgs {
 /// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
 pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let start = |s: String| ViewError::Start(one_line(&s));
-    let source = crate::source::Source::parse(&args.source);
+    let source = tetwave_source::Source::parse(&args.source);
     let spec = match (&args.tf, &source) {
         (Some(spec), _) => spec.clone(),
-        (None, crate::source::Source::Url(_)) => "default".into(),
+        (None, tetwave_source::Source::Url(_)) => "default".into(),
         (None, _) => AUTO.into(),
     };
     let args = &ViewArgs {
@@ -303,19 +303,19 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         ),
         e => start(format!("cannot start the viewer: {e}")),
     })?;
-    let tf = crate::source::load::fit_auto(args.tf_spec(), &source, tf)
+    let tf = tetwave_source::load::fit_auto(args.tf_spec(), &source, tf)
         .map_err(|e| start(format!("{}: {e}", args.source)))?;
     let args = &with_drawable_budget(args, PtRenderer::max_tets(&ctx));
-    let data = crate::source::Data::open(
+    let data = tetwave_source::Data::open(
         &source,
-        crate::source::OpenOptions {
+        tetwave_source::OpenOptions {
             token: args.token.clone(),
             tol: tetwave_adaptive::select::Tolerance::Pixels(args.tol),
             max_nodes: args.max_nodes,
-            retries: crate::source::RECONNECT_ATTEMPTS,
+            retries: tetwave_source::RECONNECT_ATTEMPTS,
             faults: Default::default(),
         },
-        crate::source::Selection {
+        tetwave_source::Selection {
             args: args.select.clone(),
             tf: tf.clone(),
             fit_auto: args.tf_spec() == AUTO,

@@ -1,3 +1,5 @@
+//! # tetwave-source
+//!
 //! The data-source seam: what a user names ([`Source`]: a server's URL, a store directory, a mesh
 //! file) and, once opened, the [`Data`] that feeds a [`Session`] within a time budget: a stream
 //! through a [`tetwave_net::Connection`], a local store a chunk at a time, or a mesh file drawn as
@@ -6,11 +8,13 @@
 //! store's level, a mesh file, the histogram `auto` is fitted to).
 //!
 //! A new kind of source (e.g. a store read directly from object storage) is a new [`Source`]
-//! variant and a new way for [`Data`] to feed the session.
+//! variant and a new way for [`Data`] to feed the session. [`options`] are the option groups
+//! every client command shares (camera, selection, image size).
 
 pub mod load;
+pub mod options;
 
-use crate::select_args::SelectionArgs;
+use crate::options::SelectionArgs;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use tetwave_adaptive::select::{SelectParams, Tolerance};

@@ -121,15 +121,15 @@ pub fn file_mesh(
 /// is fitted to its manifest once it arrives ([`TransferFunction::for_manifest`]).
 pub fn fit_auto(
     spec: &str,
-    source: &super::Source,
+    source: &crate::Source,
     tf: TransferFunction,
 ) -> Result<TransferFunction, LoadError> {
     if spec != AUTO {
         return Ok(tf);
     }
     let hist = match source {
-        super::Source::Store(dir) => store_histogram(&Store::open(dir)?, None)?,
-        super::Source::Mesh(path) => {
+        crate::Source::Store(dir) => store_histogram(&Store::open(dir)?, None)?,
+        crate::Source::Mesh(path) => {
             let options = ImportOptions {
                 scalar: None,
                 field: None,
@@ -137,7 +137,7 @@ pub fn fit_auto(
             };
             ValueHistogram::of_mesh(&file_mesh(path, None, &options)?.0)
         }
-        super::Source::Url(_) => return Ok(tf),
+        crate::Source::Url(_) => return Ok(tf),
     };
     Ok(tf.fitted(&hist))
 }

@@ -15,7 +15,6 @@ use super::script::{Action, Step, WaitFor};
 use super::spread::{Progress, SpreadDraw};
 use super::upload::Uploader;
 use super::{ViewArgs, ViewMode, ViewReport};
-use crate::source::Data;
 use eframe::egui::{self, Color32, PointerButton, Rect, Sense};
 use eframe::egui_wgpu;
 use std::path::PathBuf;
@@ -30,6 +29,7 @@ use tetwave_protocol::view::Camera;
 use tetwave_protocol::view::Orbit;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::transfer::{TransferFunction, AUTO};
+use tetwave_source::Data;
 
 /// Width of the side panel, in points.
 pub const PANEL_WIDTH: f32 = 260.0;
@@ -79,7 +79,7 @@ enum TfChoiceError {
     },
     /// `auto` fitted to a store or mesh file that could not be read.
     #[error(transparent)]
-    Fit(#[from] crate::source::load::LoadError),
+    Fit(#[from] tetwave_source::load::LoadError),
 }
 
 pub struct ViewerApp {
@@ -353,10 +353,10 @@ impl ViewerApp {
         let tf = if spec == AUTO {
             if !self.auto_fitted && self.data.server().is_none() {
                 // a store or a mesh file viewed with another function: fitted when first asked
-                let source = crate::source::Source::parse(&self.args.source);
+                let source = tetwave_source::Source::parse(&self.args.source);
                 let preset =
                     TransferFunction::preset("default").expect("the default preset exists");
-                self.auto_tf = crate::source::load::fit_auto(AUTO, &source, preset)?;
+                self.auto_tf = tetwave_source::load::fit_auto(AUTO, &source, preset)?;
                 self.auto_fitted = true;
             }
             self.auto_tf.clone()
@@ -1086,7 +1086,7 @@ impl ViewerApp {
         } else {
             &self.data.name
         };
-        crate::legend::legend_text(name, self.data.value_range)
+        tetwave_render::legend::legend_text(name, self.data.value_range)
     }
 
     fn panel(&mut self, ui: &mut egui::Ui) {

@@ -1,4 +1,4 @@
-//! The selection options `tetwave stream`, `tetwave view` and `tetwave bench progressive` share:
+//! The selection options `tetwave stream`, `tetwave view` and `tetwave-bench progressive` share:
 //! which criterion decides a split, the image criterion's threshold, and the leaf budget.
 
 use serde::Serialize;
@@ -19,7 +19,7 @@ pub enum Criterion {
 }
 
 /// Client bytes per leaf the default leaf budget allows for: the mesh's 51 B a leaf tet and the
-/// selector's caches, measured by `tetwave bench progressive` (B/leaf (+sel) columns), rounded up
+/// selector's caches, measured by `tetwave-bench progressive` (B/leaf (+sel) columns), rounded up
 /// with room for the detail buffer.
 pub const BYTES_PER_LEAF: u64 = 200;
 
@@ -52,7 +52,7 @@ impl Default for SelectionArgs {
     }
 }
 
-fn positive(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+fn positive(s: &str) -> Result<f64, crate::options::ArgError> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         _ => Err(format!("expected a positive number, got {s:?}").into()),

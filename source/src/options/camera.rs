@@ -44,7 +44,7 @@ impl CameraArgs {
     }
 }
 
-fn number(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+fn number(s: &str) -> Result<f64, crate::options::ArgError> {
     let x: f64 = s
         .trim()
         .parse()
@@ -57,7 +57,7 @@ fn number(s: &str) -> Result<f64, crate::arg_error::ArgError> {
 }
 
 /// An angle or a rotation in degrees or radians: finite, magnitude at most 10^6.
-pub fn angle(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+pub fn angle(s: &str) -> Result<f64, crate::options::ArgError> {
     let x = number(s)?;
     if x.abs() <= 1e6 {
         Ok(x)
@@ -67,7 +67,7 @@ pub fn angle(s: &str) -> Result<f64, crate::arg_error::ArgError> {
 }
 
 /// An elevation in degrees, within ±90.
-pub fn elevation(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+pub fn elevation(s: &str) -> Result<f64, crate::options::ArgError> {
     let x = number(s)?;
     if (-90.0..=90.0).contains(&x) {
         Ok(x)
@@ -77,7 +77,7 @@ pub fn elevation(s: &str) -> Result<f64, crate::arg_error::ArgError> {
 }
 
 /// An eye distance: finite and positive.
-pub fn distance(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+pub fn distance(s: &str) -> Result<f64, crate::options::ArgError> {
     let x = number(s)?;
     if x > 0.0 {
         Ok(x)
@@ -87,7 +87,7 @@ pub fn distance(s: &str) -> Result<f64, crate::arg_error::ArgError> {
 }
 
 /// A vertical field of view in degrees, strictly between 0 and 180.
-pub fn fov(s: &str) -> Result<f64, crate::arg_error::ArgError> {
+pub fn fov(s: &str) -> Result<f64, crate::options::ArgError> {
     let x = number(s)?;
     if x > 0.0 && x < 180.0 {
         Ok(x)

@@ -21,9 +21,9 @@
 //! image is written. Unknown keys and steps with no action or several are refused when the file
 //! is read, with the step's index.
 
-use crate::arg_error::ArgError;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
+use tetwave_source::options::ArgError;
 
 /// A camera set absolutely; missing fields keep their value.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
@@ -267,7 +267,7 @@ fn step(r: RawStep) -> Result<Step, ArgError> {
         actions.push(Action::Mode(m));
     }
     if let Some(sz) = r.size {
-        let (w, h) = crate::render_cli::parse_size(&sz).map_err(|e| format!("size: {e}"))?;
+        let (w, h) = tetwave_source::options::parse_size(&sz).map_err(|e| format!("size: {e}"))?;
         actions.push(Action::Size(w, h));
     }
     if let Some(w) = r.wait {
@@ -301,7 +301,7 @@ fn step(r: RawStep) -> Result<Step, ArgError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::viewer::ViewMode;
+    use crate::ViewMode;
 
     #[test]
     fn parses_every_action() {
