@@ -52,7 +52,9 @@ pub struct Faults {
     pub duplicate_every: Option<u64>,
     /// Lose every k-th node batch (the client re-requests what is missing after `End`).
     pub lose_every: Option<u64>,
-    /// Deliver node batches in reversed groups of this many.
+    /// Deliver node batches in reversed groups of this many. The transport holds a group until
+    /// it is whole (or another server message comes): a connection dropped meanwhile does not
+    /// name the held nodes in its next `Hello`, so the server sends them again (duplicates).
     pub reverse_groups: Option<usize>,
 }
 
@@ -144,14 +146,16 @@ impl<C> FaultyConn<C> {
                     }
                 }
             }
-            other => {
-                if matches!(other, Some(ServerMsg::Preview { .. })) {
+            Some(other) => {
+                if matches!(other, ServerMsg::Preview { .. }) {
                     st.previews += 1;
                 }
-                // anything else flushes what was held back, in order of arrival
+                // any other server message flushes what was held back, in order of arrival
                 self.ready.extend(st.held.drain(..));
                 self.ready.push_back(m);
             }
+            // a WebSocket control frame (Close, Ping, Pong) or what does not decode: as it is
+            None => self.ready.push_back(m),
         }
         let delivered = st.batches + st.previews;
         if !st.dropped && f.drop_after_batches.is_some_and(|n| delivered >= n) {
@@ -253,7 +257,8 @@ mod tests {
         Message::Binary(encode(&ServerMsg::End { nodes_sent: 0 }).unwrap().into())
     }
 
-    /// What a faulty connection over `incoming` hands out: batch seqs, and `0` for the end.
+    /// What a faulty connection over `incoming` hands out: batch seqs, `0` for the end and
+    /// `u64::MAX` for a WebSocket control frame.
     fn through(faults: Faults, state: &Arc<Mutex<FaultState>>, incoming: Vec<Message>) -> Vec<u64> {
         let conn = FaultyConn {
             inner: Scripted(incoming.into()),
@@ -267,9 +272,12 @@ mod tests {
             .unwrap();
         let got: Vec<Message> = rt.block_on(conn.map(|m| m.unwrap()).collect::<Vec<_>>());
         got.iter()
-            .map(|m| match decode_server(&m.clone().into_data()).unwrap() {
-                ServerMsg::Nodes { seq, .. } => seq,
-                _ => 0,
+            .map(|m| match m {
+                Message::Binary(b) => match decode_server(b).unwrap() {
+                    ServerMsg::Nodes { seq, .. } => seq,
+                    _ => 0,
+                },
+                _ => u64::MAX,
             })
             .collect()
     }
@@ -298,6 +306,12 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(through(rev, &fresh(), batches(5)), [2, 1, 4, 3, 5, 0]);
+        // a control frame passes and flushes nothing: the held batch waits for the next
+        // connection's first server message
+        let session = fresh();
+        let closing = vec![nodes(1), nodes(2), nodes(3), Message::Close(None)];
+        assert_eq!(through(rev, &session, closing), [2, 1, u64::MAX]);
+        assert_eq!(through(rev, &session, vec![end()]), [3, 0]);
         // cut once after 2 batches; the next connection (same session) is not cut again
         let cut = Faults {
             drop_after_batches: Some(2),

@@ -434,7 +434,8 @@ impl Data {
             }
             // once everything has arrived there is nothing to wait for but the level set
             let more = !r.ingest.ended() || r.ingest.levelset_pending();
-            let wait = if p.wait && (self.session.is_none() || (!got_any && more)) {
+            let waiting = p.wait && (self.session.is_none() || (!got_any && more));
+            let wait = if waiting {
                 p.until.saturating_duration_since(Instant::now())
             } else {
                 Duration::ZERO
@@ -442,6 +443,9 @@ impl Data {
             let (msg, nbytes) = match r.conn.next(wait) {
                 Next::Ready(d, n) => (d, n),
                 Next::Empty => return Ok(applied),
+                // a waiting pump that has taken what came draws it first; the next call, which
+                // waits, says why the stream ended
+                Next::Ended if p.wait && !waiting => return Ok(applied),
                 Next::Ended => {
                     r.ingest.network_ended();
                     if self.session.as_ref().is_some_and(Session::is_complete) {
