@@ -30,7 +30,7 @@ pub enum PrepareError {
     UnknownInput(String),
     #[error("unknown synthetic field {0:?} (known: harmonic, linear)")]
     UnknownSynthetic(String),
-    #[error("unknown --dtype {0:?} (u8, u16, f32)")]
+    #[error("unknown --dtype {0:?} (u8, u16, i16, f32)")]
     UnknownDtype(String),
     #[error("{path}: {count} NaN/Inf samples (first at index {first}); pass --nan-as VALUE to replace them")]
     NonFiniteRaw {
@@ -68,7 +68,7 @@ pub struct GridArgs {
     /// Raw grid dimensions `X,Y,Z` (x fastest).
     #[arg(long, value_parser = parse_dims)]
     pub dims: Option<[usize; 3]>,
-    /// Raw sample type: u8, u16 (little-endian) or f32 (little-endian).
+    /// Raw sample type: u8, u16, i16 (CT Hounsfield units) or f32, little-endian.
     #[arg(long, default_value = "u8")]
     pub dtype: String,
     /// Raw grid spacing `sx,sy,sz`.

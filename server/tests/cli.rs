@@ -381,6 +381,68 @@ fn raw_ok_and_u16() {
     assert_eq!(j["max_abs_error"].as_f64().unwrap(), 0.0);
 }
 
+/// A signed 16-bit grid (CT Hounsfield units, air at -1024): prepared voxel-exact without loss,
+/// with the signed value range, and `verify --input` checks every voxel against the store.
+#[test]
+fn raw_i16_ct_grid_is_exact() {
+    let d = tmp();
+    let dims = [9usize, 8, 7];
+    let mut b = Vec::new();
+    let mut v = Vec::new();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                // air outside a ball of "tissue", a bright "bone" core and noise
+                let r2 = [i as f64 - 4.0, j as f64 - 3.5, k as f64 - 3.0]
+                    .iter()
+                    .map(|x| x * x)
+                    .sum::<f64>();
+                let noise = ((i * 7 + j * 13 + k * 29) % 11) as i16 - 5;
+                let hu: i16 = if r2 > 9.0 {
+                    -1024
+                } else if r2 > 2.0 {
+                    40 + noise
+                } else {
+                    1200 + noise
+                };
+                v.push(hu);
+                b.extend_from_slice(&hu.to_le_bytes());
+            }
+        }
+    }
+    let p = write_raw(d.path(), "ct.raw", &b);
+    let o = d.path().join("o");
+    let grid = ["--dims", "9,8,7", "--dtype", "i16"];
+    let j = prepare_json(&then(
+        &then(&["prepare", s(&p)], &grid),
+        &["--out", s(&o), "--json"],
+    ));
+    let (lo, hi) = (*v.iter().min().unwrap(), *v.iter().max().unwrap());
+    assert_eq!(lo, -1024);
+    assert_eq!(j["value_range"][0].as_f64().unwrap(), lo as f64);
+    assert_eq!(j["value_range"][1].as_f64().unwrap(), hi as f64);
+    assert_eq!(j["max_abs_error"].as_f64().unwrap(), 0.0);
+    let r = run(&then(
+        &then(&["verify", s(&o), "--input", s(&p)], &grid),
+        &["--json"],
+    ));
+    assert!(r.ok, "verify --input: {}", r.stderr);
+    // a grid of another type is refused with the types that exist
+    expect_error(
+        &[
+            "prepare",
+            s(&p),
+            "--dims",
+            "9,8,7",
+            "--dtype",
+            "i12",
+            "--out",
+            s(&o),
+        ],
+        &["i12", "i16"],
+    );
+}
+
 #[test]
 fn nan_in_raw_is_refused_or_replaced() {
     let d = tmp();

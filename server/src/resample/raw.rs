@@ -1,4 +1,5 @@
-//! Raw scalar grids (`--dims X,Y,Z --dtype u8|u16|f32 [--spacing sx,sy,sz]`), x fastest, little-endian,
+//! Raw scalar grids (`--dims X,Y,Z --dtype u8|u16|i16|f32 [--spacing sx,sy,sz]`), x fastest,
+//! little-endian (`i16`: two's complement, as CT scanners write Hounsfield units),
 //! sampled by trilinear interpolation.
 //!
 //! **Voxel-exact placement** ([`VoxelLattice`], `prepare`'s default for a grid): the base mesh is
@@ -13,6 +14,7 @@ use std::path::{Path, PathBuf};
 pub enum RawType {
     U8,
     U16,
+    I16,
     F32,
 }
 
@@ -21,6 +23,7 @@ impl RawType {
         match s {
             "u8" => Some(RawType::U8),
             "u16" => Some(RawType::U16),
+            "i16" => Some(RawType::I16),
             "f32" => Some(RawType::F32),
             _ => None,
         }
@@ -28,7 +31,7 @@ impl RawType {
     pub fn bytes(&self) -> usize {
         match self {
             RawType::U8 => 1,
-            RawType::U16 => 2,
+            RawType::U16 | RawType::I16 => 2,
             RawType::F32 => 4,
         }
     }
@@ -41,7 +44,7 @@ pub enum RawError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("raw grid needs --dims X,Y,Z and --dtype u8|u16|f32")]
+    #[error("raw grid needs --dims X,Y,Z and --dtype u8|u16|i16|f32")]
     MissingDims,
     #[error(
         "{path}: size {actual} bytes does not match --dims {dims:?} × {dtype:?} = {expected} bytes"
@@ -70,6 +73,7 @@ pub struct RawGrid {
 enum RawData {
     U8(Vec<u8>),
     U16(Vec<u16>),
+    I16(Vec<i16>),
     F32(Vec<f32>),
 }
 
@@ -112,6 +116,12 @@ impl RawGrid {
                     .map(|c| u16::from_le_bytes([c[0], c[1]]))
                     .collect(),
             ),
+            RawType::I16 => RawData::I16(
+                bytes
+                    .chunks_exact(2)
+                    .map(|c| i16::from_le_bytes([c[0], c[1]]))
+                    .collect(),
+            ),
             RawType::F32 => RawData::F32(
                 bytes
                     .chunks_exact(4)
@@ -137,6 +147,7 @@ impl RawGrid {
         match &self.data {
             RawData::U8(v) => fold(&mut v.iter().map(|&x| x as f32)),
             RawData::U16(v) => fold(&mut v.iter().map(|&x| x as f32)),
+            RawData::I16(v) => fold(&mut v.iter().map(|&x| x as f32)),
             RawData::F32(v) => fold(&mut v.iter().copied()),
         }
     }
@@ -175,6 +186,7 @@ impl RawGrid {
         match &self.data {
             RawData::U8(v) => v[idx] as f64,
             RawData::U16(v) => v[idx] as f64,
+            RawData::I16(v) => v[idx] as f64,
             RawData::F32(v) => v[idx] as f64,
         }
     }
