@@ -70,16 +70,7 @@ fn view(args: &tetwave_viewer::ViewArgs) -> ExitCode {
 }
 
 fn main() -> ExitCode {
-    // before any thread: headless renders would otherwise print a Wayland probe's error
-    tetwave_gpu::quiet_headless_vulkan_layers();
-    // TETWAVE_LOG (EnvFilter syntax, as the server's --log), e.g. `tetwave_viewer=trace` for the
-    // viewer's frame records
-    let filter = tracing_subscriber::EnvFilter::try_from_env("TETWAVE_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,winit=error"));
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(filter)
-        .init();
+    tetwave_client::init_process("warn,winit=error");
     match Cli::parse().cmd {
         Cmd::Stream(args) => match tetwave_client::stream::run(&args) {
             Ok(r) => {

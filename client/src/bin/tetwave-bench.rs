@@ -43,14 +43,7 @@ fn bench_progressive(args: &tetwave_client::progressive::BenchArgs) -> ExitCode 
 }
 
 fn main() -> ExitCode {
-    // before any thread: headless renders would otherwise print a Wayland probe's error
-    tetwave_gpu::quiet_headless_vulkan_layers();
-    let filter = tracing_subscriber::EnvFilter::try_from_env("TETWAVE_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(filter)
-        .init();
+    tetwave_client::init_process("warn");
     match Cli::parse().which {
         BenchCmd::Progressive(args) => bench_progressive(&args),
     }
