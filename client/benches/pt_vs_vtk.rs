@@ -67,14 +67,7 @@ fn main() {
     std::fs::create_dir_all(&out).expect("output directory");
     let mesh = RenderMesh::kuhn_cube(n, 1.0, field);
     let tf = TransferFunction::preset("default").unwrap();
-    let cam = Orbit {
-        target: mesh.center(),
-        distance: 1.6 * mesh.diagonal(),
-        azimuth: 35.0,
-        elevation: 25.0,
-        fov: 40.0,
-    }
-    .camera(size, size);
+    let cam = Orbit::around(mesh.center(), 1.6 * mesh.diagonal()).camera(size, size);
     let ctx =
         GpuContext::new().expect("a GPU adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let r = PtRenderer::new(&ctx);

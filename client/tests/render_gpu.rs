@@ -56,17 +56,7 @@ fn gpu_matches_reference_45db() {
         let c = mesh.center();
         let d = mesh.diagonal();
         let cams = [
-            (
-                "outside",
-                Orbit {
-                    target: c,
-                    distance: 2.0 * d,
-                    azimuth: 35.0,
-                    elevation: 25.0,
-                    fov: 40.0,
-                }
-                .camera(256, 256),
-            ),
+            ("outside", Orbit::around(c, 2.0 * d).camera(256, 256)),
             (
                 "inside",
                 Orbit {
@@ -118,14 +108,7 @@ fn mpvo_order_matches_reference() {
     let c = mesh.center();
     let d = mesh.diagonal();
     for cam in [
-        Orbit {
-            target: c,
-            distance: 2.0 * d,
-            azimuth: 35.0,
-            elevation: 25.0,
-            fov: 40.0,
-        }
-        .camera(192, 192),
+        Orbit::around(c, 2.0 * d).camera(192, 192),
         Orbit {
             target: c + DVec3::new(0.05, 0.02, 0.01) * d,
             distance: 0.1 * d,
@@ -225,14 +208,7 @@ fn refinement_converges() {
     let tf = TransferFunction::preset("default").unwrap();
     let smooth = |p: [f64; 3]| (p[0] * 2.0).sin() + (p[1] * 3.0).cos() * p[2];
     let finest = RenderMesh::kuhn_cube(32, 1.0, smooth);
-    let cam = Orbit {
-        target: finest.center(),
-        distance: 2.0 * finest.diagonal(),
-        azimuth: 35.0,
-        elevation: 25.0,
-        fov: 40.0,
-    }
-    .camera(128, 128);
+    let cam = Orbit::around(finest.center(), 2.0 * finest.diagonal()).camera(128, 128);
     let reference = render_reference(&finest, &cam, &tf);
     let mut psnrs = Vec::new();
     for n in [2usize, 4, 8, 16] {
@@ -256,14 +232,7 @@ fn accumulation_precisions_are_ordered_and_bounded() {
     use tetwave_gpu::pt::Accumulation;
     let ctx = ctx();
     let mesh = RenderMesh::kuhn_cube(32, 1.0, harmonic_unit);
-    let cam = Orbit {
-        target: mesh.center(),
-        distance: 1.6 * mesh.diagonal(),
-        azimuth: 35.0,
-        elevation: 25.0,
-        fov: 40.0,
-    }
-    .camera(192, 192);
+    let cam = Orbit::around(mesh.center(), 1.6 * mesh.diagonal()).camera(192, 192);
     let tf = TransferFunction::preset("default").unwrap();
     let reference = render_reference(&mesh, &cam, &tf);
     let mut out = Vec::new();

@@ -60,12 +60,6 @@ impl ServerUrl {
     }
 }
 
-impl std::fmt::Display for ServerUrl {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.http())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

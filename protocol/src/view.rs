@@ -63,16 +63,20 @@ pub struct Orbit {
 }
 
 impl Orbit {
-    /// The default orbit of a framed box: its centre, the framing's distance, the default angles
-    /// and field of view.
-    pub fn framed(f: Framing) -> Orbit {
+    /// An orbit around `target` at `distance`, with the default angles and field of view.
+    pub fn around(target: DVec3, distance: f64) -> Orbit {
         Orbit {
-            target: f.center,
+            target,
             azimuth: DEFAULT_AZIMUTH,
             elevation: DEFAULT_ELEVATION,
-            distance: f.distance,
+            distance,
             fov: DEFAULT_FOV,
         }
+    }
+
+    /// The default orbit of a framed box: around its centre at the framing's distance.
+    pub fn framed(f: Framing) -> Orbit {
+        Orbit::around(f.center, f.distance)
     }
 
     /// The camera for a `width`×`height` view.

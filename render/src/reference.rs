@@ -261,14 +261,7 @@ mod tests {
     fn bands_of_rows_change_nothing() {
         let mesh = RenderMesh::kuhn_cube(4, 2.0, |p| (p[0] * 1.3 + p[1] * p[2]).sin());
         let tf = TransferFunction::preset("default").unwrap();
-        let cam = Orbit {
-            target: mesh.center(),
-            distance: 5.0,
-            azimuth: 35.0,
-            elevation: 25.0,
-            fov: 40.0,
-        }
-        .camera(40, 33);
+        let cam = Orbit::around(mesh.center(), 5.0).camera(40, 33);
         let whole = trace(&mesh, &cam, &tf, None, usize::MAX, |p| p).unwrap();
         for band_tets in [1, 7, 100] {
             let banded = trace(&mesh, &cam, &tf, None, band_tets, |p| p).unwrap();
@@ -421,14 +414,7 @@ mod tests {
         let mut mesh = one_tet(0.5);
         mesh.values = vec![0.0, 0.3, 0.6, 1.0];
         mesh.value_range = (0.0, 1.0);
-        let cam = Orbit {
-            target: mesh.center(),
-            distance: 3.0,
-            azimuth: 35.0,
-            elevation: 25.0,
-            fov: 40.0,
-        }
-        .camera(24, 20);
+        let cam = Orbit::around(mesh.center(), 3.0).camera(24, 20);
         let tf = TransferFunction::preset("default").unwrap();
         let keep = AtomicBool::new(false);
         let a = render_reference(&mesh, &cam, &tf);

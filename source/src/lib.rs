@@ -505,14 +505,6 @@ impl Data {
         matches!(&self.kind, Kind::Remote(r) if r.ingest.ended())
     }
 
-    /// Connections lost and retried, and wire bytes received (a stream; else 0).
-    pub fn net_counts(&self) -> (u64, u64) {
-        match &self.kind {
-            Kind::Remote(r) => (r.conn.reconnects(), r.conn.bytes()),
-            _ => (0, 0),
-        }
-    }
-
     /// Stops the network task (the viewer is closing).
     pub fn close(&mut self) {
         if let Kind::Remote(r) = &mut self.kind {

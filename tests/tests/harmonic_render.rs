@@ -54,17 +54,7 @@ fn harmonic_level3_gpu_matches_reference() {
     let c = mesh.center();
     let diag = mesh.diagonal();
     let cams = [
-        (
-            "outside",
-            Orbit {
-                target: c,
-                distance: 1.6 * diag,
-                azimuth: 35.0,
-                elevation: 25.0,
-                fov: 40.0,
-            }
-            .camera(256, 256),
-        ),
+        ("outside", Orbit::around(c, 1.6 * diag).camera(256, 256)),
         (
             "inside",
             Orbit {

@@ -540,14 +540,7 @@ fn value_spikes() {
     let mut spiked = smooth.clone();
     spiked.values[spike_at] = lo + 1e6 * (hi - lo);
     spiked.value_range = (lo, spiked.values[spike_at]);
-    let cam = Orbit {
-        target: smooth.center(),
-        distance: 2.0 * smooth.diagonal(),
-        azimuth: 35.0,
-        elevation: 25.0,
-        fov: 40.0,
-    }
-    .camera(128, 128);
+    let cam = Orbit::around(smooth.center(), 2.0 * smooth.diagonal()).camera(128, 128);
     let tf = TransferFunction::preset("default").unwrap();
     let bulk = render_reference(&smooth, &cam, &tf);
     let f = measure(

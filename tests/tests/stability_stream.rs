@@ -139,14 +139,8 @@ fn tolerance_zero_on_a_store_over_the_leaf_budget() {
     let store = tetwave_store::Store::open(&store).unwrap();
     let image = |level: u8| {
         let (mesh, _) = tetwave_source::load::store_mesh(&store, Some(level)).unwrap();
-        let cam = tetwave_protocol::view::Orbit {
-            target: mesh.center(),
-            distance: 1.6 * mesh.diagonal(),
-            azimuth: 35.0,
-            elevation: 25.0,
-            fov: 40.0,
-        }
-        .camera(48, 48);
+        let cam = tetwave_protocol::view::Orbit::around(mesh.center(), 1.6 * mesh.diagonal())
+            .camera(48, 48);
         let tf = tetwave_render::transfer::TransferFunction::preset("default").unwrap();
         let img = tetwave_render::reference::render_reference(&mesh, &cam, &tf);
         (img, mesh.tets.len())

@@ -103,11 +103,6 @@ impl SpreadDraw {
         self.first_frame
     }
 
-    /// Still sorting (no renderer state of its own yet).
-    pub fn sorting(&self) -> bool {
-        matches!(self.stage, Some(Stage::Sorting(_)))
-    }
-
     /// This frame's step: hands a finished sort to `renderer`, or draws the next part.
     pub fn step(
         &mut self,
