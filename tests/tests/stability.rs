@@ -137,20 +137,25 @@ fn sliver_layer(n: usize, layer: usize, ratio: f64) -> RenderMesh {
 /// Projected tetrahedra draw each sliver's exit faces with planes in f32; the reference computes
 /// each chord in f64. Floor: 45 dB (the renderer's floor on well-shaped meshes) at every height
 /// (measured 64.4–65.1 dB on lavapipe).
+/// A 128×128 view of `mesh` from azimuth `az`, elevation `el` (degrees), two diagonals away.
+fn orbit_view(mesh: &RenderMesh, az: f64, el: f64) -> Camera {
+    Orbit {
+        target: mesh.center(),
+        distance: 2.0 * mesh.diagonal(),
+        azimuth: az,
+        elevation: el,
+        fov: 40.0,
+    }
+    .camera(128, 128)
+}
+
 #[test]
 fn slivers_stay_within_the_floor() {
     let g = gpu();
     for ratio in [1e-2, 1e-4, 1e-6] {
         let mesh = sliver_layer(8, 4, ratio);
         for (az, el) in [(35.0, 25.0), (10.0, 2.0)] {
-            let cam = Orbit {
-                target: mesh.center(),
-                distance: 2.0 * mesh.diagonal(),
-                azimuth: az,
-                elevation: el,
-                fov: 40.0,
-            }
-            .camera(128, 128);
+            let cam = orbit_view(&mesh, az, el);
             for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
                 let f = measure(
                     &g,
@@ -221,14 +226,7 @@ fn grazing_views() {
         (0.0, 0.5, 45.0),
         (90.0, 89.99, 45.0),
     ] {
-        let cam = Orbit {
-            target: mesh.center(),
-            distance: 2.0 * mesh.diagonal(),
-            azimuth: az,
-            elevation: el,
-            fov: 40.0,
-        }
-        .camera(128, 128);
+        let cam = orbit_view(&mesh, az, el);
         for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
             let f = measure(&g, &mesh, &cam, order, &format!("grazing az {az} el {el}"));
             let off = off_pixels(&f);
@@ -389,14 +387,7 @@ fn non_convex_meshes_and_visibility_cycles() {
         assert_eq!(is_convex(&m.positions, &m.tets, &nb), convex, "{name}");
         // looking into the notch from its side, and across the gap
         for (az, el) in [(45.0, 35.0), (200.0, 20.0), (0.0, 10.0)] {
-            let cam = Orbit {
-                target: m.center(),
-                distance: 2.0 * m.diagonal(),
-                azimuth: az,
-                elevation: el,
-                fov: 40.0,
-            }
-            .camera(128, 128);
+            let cam = orbit_view(m, az, el);
             for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
                 let f = measure(&g, m, &cam, order, &format!("{name} az {az} el {el}"));
                 assert!(f.gpu.coverage() > 0.05, "{name}: blank");
@@ -824,14 +815,7 @@ fn inverted_and_degenerate_tets_are_drawn_as_the_reference() {
     let mut oriented = mesh.clone();
     oriented.orient_positive();
     for (az, el) in [(35.0, 25.0), (250.0, -40.0)] {
-        let cam = Orbit {
-            target: mesh.center(),
-            distance: 2.0 * mesh.diagonal(),
-            azimuth: az,
-            elevation: el,
-            fov: 40.0,
-        }
-        .camera(128, 128);
+        let cam = orbit_view(&mesh, az, el);
         for order in [VisibilityOrder::Centroid, VisibilityOrder::Mpvo] {
             let f = measure(
                 &g,
