@@ -483,9 +483,11 @@ impl Selector {
         buf: &DetailBuffer,
         cam: &Camera,
         mode: Mode,
-    ) -> Result<usize, String> {
+    ) -> Result<usize, RememberedMismatch> {
         if self.seen != mesh.change_seq() {
-            return Err("the mesh changed since the last frame".into());
+            return Err(RememberedMismatch(
+                "the mesh changed since the last frame".into(),
+            ));
         }
         let view = View::new(cam, self.params.tol);
         let cx = FrameCtx {
@@ -505,9 +507,9 @@ impl Selector {
             let fresh = self.eval_cert(mesh, &cx, slot, false).0;
             if kept != fresh {
                 self.evals = evals;
-                return Err(format!(
+                return Err(RememberedMismatch(format!(
                     "slot {slot}: remembered {kept:?}, evaluated {fresh:?}"
-                ));
+                )));
             }
             n += 1;
         }
@@ -547,3 +549,8 @@ impl Selector {
         self.run(mesh, buf, cam, mode, Budget::UNLIMITED)
     }
 }
+/// What [`Selector::verify_remembered`] found that differs from a fresh evaluation.
+#[cfg(any(test, feature = "testing"))]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct RememberedMismatch(pub String);
