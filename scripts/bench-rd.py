@@ -410,6 +410,8 @@ def prepare(bindir, raw, n, spacing, levels, store, max_error=None, predictor="p
         store,
         "--predictor",
         predictor,
+        # check_samples and verify compare with the samples the store keeps
+        "--keep-reference",
         "--json",
     ]
     if max_error is not None:

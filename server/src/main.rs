@@ -3,7 +3,7 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use tetwave_server::prepare::{prepare, verify, verify_input, GridArgs, PrepareOptions};
+use tetwave_server::prepare::{prepare, verify, verify_source, PrepareOptions, ReadArgs};
 
 #[derive(Parser)]
 #[command(
@@ -29,21 +29,21 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Re-run synthesis from a store and compare with its samples; fails beyond the manifest's bound.
-    /// With --input (a raw grid, read with the --dims/--dtype/--spacing it was prepared with):
-    /// also every voxel of the input against the store, and the value ranges.
+    /// Re-run synthesis from a store and check it: against the samples it keeps
+    /// (`prepare --keep-reference`), else against its bound (finite values within the value
+    /// range); fails beyond the manifest's bound. With --input (what the store was prepared from,
+    /// read with the options it was prepared with: --dims/--dtype/--spacing for a raw grid,
+    /// --scalar for a mesh): also every voxel of a grid, or every vertex where the input has data,
+    /// against the store, and the value ranges.
     Verify {
         store: PathBuf,
         #[arg(long)]
         json: bool,
-        /// The raw grid the store was prepared from.
+        /// The input the store was prepared from (a raw grid, `synthetic:NAME`, a mesh file).
         #[arg(long)]
-        input: Option<PathBuf>,
+        input: Option<String>,
         #[command(flatten)]
-        grid: GridArgs,
-        /// As given to prepare: NaN/Inf voxels stand for this value.
-        #[arg(long, allow_negative_numbers = true)]
-        nan_as: Option<f64>,
+        read: ReadArgs,
     },
     /// Serve a store: manifest, base mesh and nodes over HTTP, the progressive stream over
     /// WebSocket (`/v1/stream`), fallback images (`/v1/render`) and a viewer page (`/`).
@@ -194,12 +194,11 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             store,
             json,
             input,
-            grid,
-            nan_as,
+            read,
         } => {
             let r = match &input {
-                Some(path) => verify_input(&store, &grid.read(path, nan_as)?)?,
-                None if grid.dims.is_some() => {
+                Some(input) => verify_source(&store, input, &read)?,
+                None if read.grid.dims.is_some() => {
                     return Err("--dims describes the grid of --input; give --input too".into())
                 }
                 None => verify(&store)?,
@@ -207,14 +206,21 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             if json {
                 println!("{}", serde_json::to_string(&r)?);
             } else {
-                println!(
-                    "ok: {} vertices from {} nodes, max abs error {:e} (bound {:e}), {} bit-exact, {:.3} s",
-                    r.vertices, r.nodes, r.max_abs_error, r.max_error_bound, r.exact_vertices, r.seconds
-                );
+                match (r.max_abs_error, r.exact_vertices) {
+                    (Some(e), Some(exact)) => println!(
+                        "ok: {} vertices from {} nodes against the kept samples, max abs error {e:e} (bound {:e}), {exact} bit-exact, {:.3} s",
+                        r.vertices, r.nodes, r.max_error_bound, r.seconds
+                    ),
+                    _ => println!(
+                        "ok: {} vertices from {} nodes synthesize to finite values within the value range and the bound {:e}, {:.3} s{}",
+                        r.vertices, r.nodes, r.max_error_bound, r.seconds,
+                        if r.input.is_none() { " (the store keeps no samples: give --input to compare with the input)" } else { "" }
+                    ),
+                }
                 if let Some(c) = &r.input {
                     println!(
-                        "input: {} voxels, max abs error {:e} (bound {:e}), {} bit-exact; values in [{}, {}], store [{}, {}]",
-                        c.voxels, c.max_abs_error, r.max_error_bound, c.exact_voxels,
+                        "input: {} {}, max abs error {:e} (bound {:e}), {} bit-exact; values in [{}, {}], store [{}, {}]",
+                        c.points, c.points_are, c.max_abs_error, r.max_error_bound, c.exact_points,
                         c.input_range[0], c.input_range[1], c.store_range[0], c.store_range[1]
                     );
                 }

@@ -20,6 +20,7 @@ use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
 use tetwave_store::{
     self as store, Preview, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE,
+    REFERENCE_FILE,
 };
 
 #[derive(Debug, thiserror::Error)]
@@ -113,6 +114,28 @@ impl GridArgs {
     }
 }
 
+/// How to read an input (`prepare`, and `verify --input`, which reads it as `prepare` did).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ReadArgs {
+    #[command(flatten)]
+    pub grid: GridArgs,
+    /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
+    /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
+    /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
+    /// averaged to the points, weighted by volume. Default: the first point scalar.
+    #[arg(long)]
+    pub scalar: Option<String>,
+    /// A geometric scalar instead of an array, for a bare mesh: `distance` (to the boundary).
+    #[arg(long)]
+    pub field: Option<String>,
+    /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
+    #[arg(long)]
+    pub format: Option<MeshFormat>,
+    /// Replace NaN/Inf input values by this value instead of refusing the input.
+    #[arg(long, allow_negative_numbers = true)]
+    pub nan_as: Option<f64>,
+}
+
 /// What `tetwave-server prepare` is asked to do (its command-line arguments, which are also the
 /// library's options).
 #[derive(Debug, Clone, clap::Args)]
@@ -156,22 +179,12 @@ pub struct PrepareOptions {
     #[arg(long, value_enum, default_value_t = PredictorChoice::Auto)]
     pub predictor: PredictorChoice,
     #[command(flatten)]
-    pub grid: GridArgs,
-    /// Array to use from a mesh file: a point or cell array `NAME`; for a vector array its
-    /// magnitude `NAME:mag` (the default for vectors; the Frobenius norm of a tensor, a
-    /// 6-component one read as symmetric xx yy zz xy yz xz) or a component `NAME:0`. Cell arrays are
-    /// averaged to the points, weighted by volume. Default: the first point scalar.
+    pub read: ReadArgs,
+    /// Also write `reference.f32`: the sampled value of every vertex, 4 bytes each, as large as
+    /// the input and never streamed. Without it, `verify --input` checks the store against its
+    /// input.
     #[arg(long)]
-    pub scalar: Option<String>,
-    /// A geometric scalar instead of an array, for a bare mesh: `distance` (to the boundary).
-    #[arg(long)]
-    pub field: Option<String>,
-    /// Mesh format, whatever the content and the extension say: vtu, vtk, msh or mesh.
-    #[arg(long)]
-    pub format: Option<MeshFormat>,
-    /// Replace NaN/Inf input values by this value instead of refusing the input.
-    #[arg(long, allow_negative_numbers = true)]
-    pub nan_as: Option<f64>,
+    pub keep_reference: bool,
     /// Show progress bars (on a terminal, without --json).
     #[arg(skip)]
     pub progress: bool,
@@ -188,11 +201,8 @@ impl PrepareOptions {
             max_error: None,
             preview: None,
             predictor: PredictorChoice::Auto,
-            grid: GridArgs::default(),
-            scalar: None,
-            field: None,
-            format: None,
-            nan_as: None,
+            read: ReadArgs::default(),
+            keep_reference: false,
             progress: false,
         }
     }
@@ -213,7 +223,7 @@ pub struct Summary {
     pub coefficients: u64,
     /// Bytes of what is streamed: base mesh, node records, coefficients and index.
     pub bytes: u64,
-    /// Bytes of the verification reference (`reference.f32`, not streamed).
+    /// Bytes of the verification reference (`reference.f32`, `--keep-reference`; not streamed).
     pub reference_bytes: u64,
     /// Bytes of the preview (`preview.bin`, `--preview`; a server sends part of it to new
     /// sessions; not counted in `bytes`).
@@ -261,7 +271,7 @@ struct Loaded {
     boundary: Option<BoundaryDistance>,
 }
 
-fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
+fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
     if let Some(v) = o.nan_as {
         if !(v.is_finite() && (v as f32).is_finite()) {
             return Err(PrepareError::Usage(format!(
@@ -269,12 +279,12 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
             )));
         }
     }
-    let path = PathBuf::from(&o.input);
+    let path = PathBuf::from(input);
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
-    let grid = o.input.starts_with("synthetic:") || o.grid.dims.is_some() || ext == "raw";
+    let grid = input.starts_with("synthetic:") || o.grid.dims.is_some() || ext == "raw";
     let mesh_only = [
         ("--scalar", o.scalar.is_some()),
         ("--field", o.field.is_some()),
@@ -283,10 +293,10 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
     if let (true, Some((flag, _))) = (grid, mesh_only.iter().find(|(_, given)| *given)) {
         return Err(PrepareError::Usage(format!(
             "{flag} applies to mesh files (.vtu, .vtk, .msh); {} is a grid",
-            o.input
+            input
         )));
     }
-    if let Some(name) = o.input.strip_prefix("synthetic:") {
+    if let Some(name) = input.strip_prefix("synthetic:") {
         let s = Synthetic::parse(name)
             .ok_or_else(|| PrepareError::UnknownSynthetic(name.to_string()))?;
         return Ok(Loaded {
@@ -300,7 +310,7 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_else(|| o.input.clone());
+        .unwrap_or_else(|| input.to_string());
     if o.grid.dims.is_some() || ext == "raw" {
         let grid = o.grid.read(&path, o.nan_as)?;
         return Ok(Loaded {
@@ -350,7 +360,7 @@ fn load_source(o: &PrepareOptions) -> Result<Loaded, PrepareError> {
             boundary: Some(boundary),
         });
     }
-    Err(PrepareError::UnknownInput(o.input.clone()))
+    Err(PrepareError::UnknownInput(input.to_string()))
 }
 
 /// `--base auto` for a raw grid: the Kuhn boxes whose finest vertices are its voxels
@@ -387,7 +397,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         import,
         source_range,
         boundary,
-    } = load_source(o)?;
+    } = load_source(&o.input, &o.read)?;
     let (base, levels, domain) = match (&o.base, &source) {
         (BaseSpec::Auto, Source::Raw(g)) => voxel_base(g, o.levels)?,
         (spec, source) => {
@@ -475,12 +485,13 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         levelset,
         levelset_near,
         preview,
+        keep_reference: o.keep_reference,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
     let bytes = m
         .files
         .iter()
-        .filter(|(k, _)| !matches!(k.as_str(), "reference.f32" | "levelset.f32" | PREVIEW_FILE))
+        .filter(|(k, _)| !matches!(k.as_str(), REFERENCE_FILE | "levelset.f32" | PREVIEW_FILE))
         .map(|(_, f)| f.bytes)
         .sum();
     Ok(Summary {
@@ -495,7 +506,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         vertices: m.counts.vertices,
         coefficients: m.counts.coefficients,
         bytes,
-        reference_bytes: m.files.get("reference.f32").map(|f| f.bytes).unwrap_or(0),
+        reference_bytes: m.files.get(REFERENCE_FILE).map(|f| f.bytes).unwrap_or(0),
         preview_bytes: m.files.get(PREVIEW_FILE).map(|f| f.bytes).unwrap_or(0),
         levelset_bytes: m.files.get("levelset.f32").map(|f| f.bytes).unwrap_or(0),
         levelset_near_bytes: m
@@ -525,70 +536,196 @@ pub struct VerifyReport {
     pub store: String,
     pub vertices: u64,
     pub nodes: u64,
-    pub max_abs_error: f64,
+    /// What synthesis was compared with: `reference` (the samples the store keeps,
+    /// `--keep-reference`), `input` (the input read and sampled again as `prepare` did), or
+    /// `bound` (neither: every vertex synthesizes to a finite value, and where the input has
+    /// data everywhere, within the value range widened by the bound).
+    pub against: &'static str,
+    /// Max |synthesis − sample| over the vertices compared; `None` against `bound`.
+    pub max_abs_error: Option<f64>,
     pub max_error_bound: f64,
-    /// Root-mean-square of synthesis − sample over every vertex (for PSNR against the samples).
-    pub rms_error: f64,
-    pub exact_vertices: u64,
-    /// The check against the input grid (`verify --input`).
+    /// Root-mean-square of synthesis − sample over the vertices compared (for PSNR against the
+    /// samples); `None` against `bound`.
+    pub rms_error: Option<f64>,
+    /// Vertices whose synthesis equals their sample bit for bit; `None` against `bound`.
+    pub exact_vertices: Option<u64>,
+    /// The check against the input (`verify --input`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub input: Option<InputCheck>,
     pub seconds: f64,
 }
 
-/// `verify --input`: the store's reconstruction at every voxel of the raw grid it was prepared
-/// from, against the voxel's value in the file.
+/// `verify --input`: the store's reconstruction against the input it was prepared from: at every
+/// voxel of a raw grid whose voxels are the store's vertices, or at every vertex where the input
+/// (a synthetic field, a mesh) has data, sampled again on the store's base mesh as `prepare` did.
 #[derive(Debug, Clone, Serialize)]
 pub struct InputCheck {
-    pub voxels: u64,
+    /// `voxels` (of the raw grid) or `vertices` (of the store, inside the input's domain).
+    pub points_are: &'static str,
+    /// How many were compared.
+    pub points: u64,
     pub max_abs_error: f64,
     pub rms_error: f64,
-    /// Voxels whose reconstruction is bit-exact.
-    pub exact_voxels: u64,
+    /// Points whose reconstruction is bit-exact.
+    pub exact_points: u64,
     /// The input's value range, and the store's (`value_range` of its manifest).
     pub input_range: [f32; 2],
     pub store_range: [f32; 2],
 }
 
-/// Re-runs synthesis from the store's base mesh and nodes and compares every vertex with the stored
-/// samples. Fails if a checksum is wrong, a node is malformed, or the error exceeds the manifest's bound.
-pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
-    let t0 = Instant::now();
-    let store = Store::open(dir)?;
-    store.check_sums()?;
-    let values = store.synthesize_all()?;
-    let (n, nodes) = (values.len(), store.manifest.counts.nodes);
-    let reference = store.read_reference()?;
-    let mut max_err = 0f64;
-    let mut sum_sq = 0f64;
-    let mut exact = 0u64;
-    for (a, b) in values.iter().zip(&reference) {
-        if a == b {
-            exact += 1;
+/// Max, sum of squares and bit-exact count of synthesis − sample over the points compared.
+#[derive(Default)]
+struct Errors {
+    points: u64,
+    max: f64,
+    sum_sq: f64,
+    exact: u64,
+}
+
+impl Errors {
+    fn add(&mut self, got: f32, want: f64) {
+        self.points += 1;
+        if got as f64 == want {
+            self.exact += 1;
         }
-        let d = *a as f64 - *b as f64;
-        max_err = max_err.max(d.abs());
-        sum_sq += d * d;
+        let d = got as f64 - want;
+        // NaN (a synthesis that is not finite) poisons the max
+        self.max = if d.is_nan() {
+            f64::NAN
+        } else {
+            self.max.max(d.abs())
+        };
+        self.sum_sq += d * d;
     }
-    let bound = store.manifest.max_error_bound;
-    if max_err > bound || max_err.is_nan() {
-        return Err(PrepareError::VerifyFailed {
-            what: dir.display().to_string(),
-            error: max_err,
-            bound,
-        });
+
+    fn rms(&self) -> f64 {
+        (self.sum_sq / self.points.max(1) as f64).sqrt()
     }
-    Ok(VerifyReport {
-        store: dir.display().to_string(),
-        vertices: n as u64,
-        nodes,
-        max_abs_error: max_err,
-        max_error_bound: bound,
-        rms_error: (sum_sq / n.max(1) as f64).sqrt(),
-        exact_vertices: exact,
-        input: None,
-        seconds: t0.elapsed().as_secs_f64(),
-    })
+
+    /// Fails when the max exceeds `bound` (or is NaN).
+    fn within(&self, bound: f64, what: impl FnOnce() -> String) -> Result<(), PrepareError> {
+        if self.max > bound || self.max.is_nan() {
+            return Err(PrepareError::VerifyFailed {
+                what: what(),
+                error: self.max,
+                bound,
+            });
+        }
+        Ok(())
+    }
+
+    fn input_check(
+        &self,
+        points_are: &'static str,
+        input: [f32; 2],
+        store: [f32; 2],
+    ) -> InputCheck {
+        InputCheck {
+            points_are,
+            points: self.points,
+            max_abs_error: self.max,
+            rms_error: self.rms(),
+            exact_points: self.exact,
+            input_range: input,
+            store_range: store,
+        }
+    }
+}
+
+/// A store whose checksums hold, with every vertex synthesized from its nodes.
+struct Synthesized {
+    store: Store,
+    values: Vec<f32>,
+    t0: Instant,
+}
+
+impl Synthesized {
+    fn of(dir: &Path) -> Result<Self, PrepareError> {
+        let t0 = Instant::now();
+        let store = Store::open(dir)?;
+        store.check_sums()?;
+        let values = store.synthesize_all()?;
+        Ok(Synthesized { store, values, t0 })
+    }
+
+    fn what(&self) -> String {
+        self.store.dir.display().to_string()
+    }
+
+    /// Compares with the kept samples, or checks the values against the manifest's range and
+    /// bound when the store keeps none.
+    fn report(&self) -> Result<VerifyReport, PrepareError> {
+        let m = &self.store.manifest;
+        let bound = m.max_error_bound;
+        let mut report = VerifyReport {
+            store: self.what(),
+            vertices: self.values.len() as u64,
+            nodes: m.counts.nodes,
+            against: "bound",
+            max_abs_error: None,
+            max_error_bound: bound,
+            rms_error: None,
+            exact_vertices: None,
+            input: None,
+            seconds: 0.0,
+        };
+        match self.store.read_reference()? {
+            Some(reference) => {
+                let mut e = Errors::default();
+                for (&a, &b) in self.values.iter().zip(&reference) {
+                    e.add(a, b as f64);
+                }
+                e.within(bound, || self.what())?;
+                report.against = "reference";
+                report.max_abs_error = Some(e.max);
+                report.rms_error = Some(e.rms());
+                report.exact_vertices = Some(e.exact);
+            }
+            None => {
+                // inside samples lie in the value range, so their synthesis lies within the bound
+                // of it; outside vertices (a mesh's) carry predictions, which may lie beyond
+                let [lo, hi] = m.value_range.map(|v| v as f64);
+                let everywhere = m.counts.outside_vertices == 0;
+                let bad = self.values.iter().position(|&v| {
+                    let v = v as f64;
+                    !v.is_finite() || (everywhere && (v < lo - bound || v > hi + bound))
+                });
+                if let Some(k) = bad {
+                    // its sample lies in the range: the error is at least the distance to it
+                    let v = self.values[k] as f64;
+                    return Err(PrepareError::VerifyFailed {
+                        what: format!(
+                            "{}: vertex key {k} synthesizes to {v}, outside the value range \
+                             [{lo}, {hi}] (so at least this far from its sample)",
+                            self.what(),
+                        ),
+                        error: if v.is_finite() {
+                            (lo - v).max(v - hi)
+                        } else {
+                            v
+                        },
+                        bound,
+                    });
+                }
+            }
+        }
+        Ok(report)
+    }
+
+    fn finish(&self, mut report: VerifyReport) -> VerifyReport {
+        report.seconds = self.t0.elapsed().as_secs_f64();
+        report
+    }
+}
+
+/// Re-runs synthesis from the store's base mesh and nodes and compares every vertex with the
+/// samples it keeps (`--keep-reference`); a store without them is checked against its bound
+/// ([`VerifyReport::against`]). Fails if a checksum is wrong, a node is malformed, or the error
+/// exceeds the manifest's bound.
+pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
+    let s = Synthesized::of(dir)?;
+    let report = s.report()?;
+    Ok(s.finish(report))
 }
 
 /// [`verify`], and then every voxel of `grid` (the raw grid the store was prepared from, as
@@ -596,10 +733,9 @@ pub fn verify(dir: &Path) -> Result<VerifyReport, PrepareError> {
 /// a vertex (a store resampled with an explicit `--base`), when the store holds values at
 /// points between voxels, or when a voxel's error exceeds the manifest's bound.
 pub fn verify_input(dir: &Path, grid: &RawGrid) -> Result<VerifyReport, PrepareError> {
-    let t0 = Instant::now();
-    let mut report = verify(dir)?;
-    let store = Store::open(dir)?;
-    let values = store.synthesize_all()?;
+    let s = Synthesized::of(dir)?;
+    let mut report = s.report()?;
+    let (store, values) = (&s.store, &s.values);
     let keys = store.base.vertex_keys();
     let [nx, ny, nz] = grid.dims;
     let total = nx * ny * nz;
@@ -613,7 +749,7 @@ pub fn verify_input(dir: &Path, grid: &RawGrid) -> Result<VerifyReport, PrepareE
     // per voxel: seen (the base mesh's shared vertices have one key, so twice is an error)
     let mut seen = vec![false; total];
     let mut stray: Option<[f64; 3]> = None;
-    let (mut max_err, mut sum_sq, mut exact) = (0f64, 0f64, 0u64);
+    let mut e = Errors::default();
     for (entity, _) in keys.entities() {
         keys.for_each_in(entity, |key, tet, w| {
             let p = store.base.position(tet, &w);
@@ -634,15 +770,8 @@ pub fn verify_input(dir: &Path, grid: &RawGrid) -> Result<VerifyReport, PrepareE
                 stray.get_or_insert(p);
                 return;
             }
-            let i = idx[0] + nx * (idx[1] + ny * idx[2]);
-            seen[i] = true;
-            let (got, want) = (values[key as usize], grid.voxel(idx));
-            if got as f64 == want {
-                exact += 1;
-            }
-            let d = got as f64 - want;
-            max_err = max_err.max(d.abs());
-            sum_sq += d * d;
+            seen[idx[0] + nx * (idx[1] + ny * idx[2])] = true;
+            e.add(values[key as usize], grid.voxel(idx));
         });
     }
     if let Some(p) = stray {
@@ -652,25 +781,50 @@ pub fn verify_input(dir: &Path, grid: &RawGrid) -> Result<VerifyReport, PrepareE
         let (x, y, z) = (i % nx, i / nx % ny, i / (nx * ny));
         return Err(not_exact(format!("voxel ({x}, {y}, {z}) is no vertex")));
     }
-    let bound = store.manifest.max_error_bound;
-    if max_err > bound || max_err.is_nan() {
-        return Err(PrepareError::VerifyFailed {
-            what: format!("{} against the input's voxels", dir.display()),
-            error: max_err,
-            bound,
-        });
-    }
+    e.within(store.manifest.max_error_bound, || {
+        format!("{} against the input's voxels", dir.display())
+    })?;
     let (lo, hi) = grid.value_range().unwrap_or((f32::NAN, f32::NAN));
-    report.input = Some(InputCheck {
-        voxels: total as u64,
-        max_abs_error: max_err,
-        rms_error: (sum_sq / total as f64).sqrt(),
-        exact_voxels: exact,
-        input_range: [lo, hi],
-        store_range: store.manifest.value_range,
-    });
-    report.seconds += t0.elapsed().as_secs_f64();
-    Ok(report)
+    report.input = Some(e.input_check("voxels", [lo, hi], store.manifest.value_range));
+    Ok(s.finish(report))
+}
+
+/// [`verify`], and then the input (`input` read with `read`, as `prepare` took it): a raw grid
+/// voxel by voxel ([`verify_input`]); anything else (a synthetic field, a mesh) sampled again on
+/// the store's base mesh, every vertex where it has data against the store's reconstruction.
+pub fn verify_source(
+    dir: &Path,
+    input: &str,
+    read: &ReadArgs,
+) -> Result<VerifyReport, PrepareError> {
+    let loaded = load_source(input, read)?;
+    if let Source::Raw(grid) = &loaded.source {
+        return verify_input(dir, grid);
+    }
+    let s = Synthesized::of(dir)?;
+    let mut report = s.report()?;
+    let base = &s.store.base;
+    tracing::info!(input, "sampling the input again on the store's base mesh");
+    let r = crate::resample::resample_onto(
+        &loaded.source,
+        (base.positions.clone(), base.tets.clone()),
+        base.levels,
+    )?;
+    let mut e = Errors::default();
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for (&got, &want) in s.values.iter().zip(&r.samples) {
+        if !want.is_nan() {
+            e.add(got, want as f64);
+            lo = lo.min(want);
+            hi = hi.max(want);
+        }
+    }
+    e.within(s.store.manifest.max_error_bound, || {
+        format!("{} against its input {input}", dir.display())
+    })?;
+    let range = loaded.source_range.map_or([lo, hi], |(a, b)| [a, b]);
+    report.input = Some(e.input_check("vertices", range, s.store.manifest.value_range));
+    Ok(s.finish(report))
 }
 
 fn parse_triple<T: std::str::FromStr>(s: &str) -> Result<[T; 3], String> {

@@ -1,7 +1,7 @@
 //! `tetwave-server prepare` / `verify` end to end: the thesis' counts, the error bounds, and one test
 //! per kind of bad input (clear one-line error, non-zero exit, never a panic).
 
-use serde_json::Value;
+use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use tetwave_protocol::shapes::box6;
@@ -82,10 +82,27 @@ fn harmonic_level5_matches_thesis_table_and_verifies() {
     }
     let range = j["value_range"][1].as_f64().unwrap() - j["value_range"][0].as_f64().unwrap();
     assert!(j["max_abs_error"].as_f64().unwrap() <= 1e-6 * range);
+    // the store keeps no copy of its samples: `verify` checks its bound, `--input` the field
     let r = run(&["verify", s(&store), "--json"]);
     assert!(r.ok, "{}", r.stderr);
     let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
-    assert!(v["max_abs_error"].as_f64().unwrap() <= 1e-6 * range);
+    assert_eq!(
+        (&v["against"], &v["max_abs_error"]),
+        (&json!("bound"), &Value::Null)
+    );
+    assert!(!store.join("reference.f32").exists());
+    let r = run(&[
+        "verify",
+        s(&store),
+        "--input",
+        "synthetic:harmonic",
+        "--json",
+    ]);
+    assert!(r.ok, "{}", r.stderr);
+    let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
+    assert_eq!(v["input"]["points_are"], "vertices");
+    assert_eq!(v["input"]["points"], 30_481);
+    assert!(v["input"]["max_abs_error"].as_f64().unwrap() <= 1e-6 * range);
 }
 
 #[test]
@@ -106,15 +123,29 @@ fn quantized_12_bits_within_manifest_bound() {
     let err = j["max_abs_error"].as_f64().unwrap();
     let bound = j["max_error_bound"].as_f64().unwrap();
     assert!(err > 0.0 && err <= bound, "err {err} bound {bound}");
-    let r = run(&["verify", s(&store), "--json"]);
+    let r = run(&[
+        "verify",
+        s(&store),
+        "--input",
+        "synthetic:harmonic",
+        "--json",
+    ]);
     assert!(r.ok, "{}", r.stderr);
     let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
-    assert!(v["max_abs_error"].as_f64().unwrap() <= bound);
+    let c = &v["input"];
+    assert!(c["max_abs_error"].as_f64().unwrap() <= bound);
     // the RMS error (PSNR's) is positive for a quantized store and at most the largest error
-    let rms = v["rms_error"].as_f64().unwrap();
+    let rms = c["rms_error"].as_f64().unwrap();
     assert!(
-        rms > 0.0 && rms <= v["max_abs_error"].as_f64().unwrap(),
+        rms > 0.0 && rms <= c["max_abs_error"].as_f64().unwrap(),
         "{v}"
+    );
+    // another field than the store's is refused past the bound
+    let r = run(&["verify", s(&store), "--input", "synthetic:linear"]);
+    assert!(
+        !r.ok && r.stderr.contains("exceeds the manifest's bound"),
+        "{}",
+        r.stderr
     );
     // coded 12-bit codes: the whole of blocks.bin (masks, bounds and codes) is smaller than the
     // 30,473 codes alone took at a fixed 2 bytes each in store format 1
@@ -166,6 +197,7 @@ fn verify_fails_on_a_corrupted_store() {
         "synthetic:harmonic",
         "--levels",
         "3",
+        "--keep-reference",
         "--out",
         s(&store),
         "--json",
@@ -550,15 +582,19 @@ fn a_lattice_too_coarse_for_the_mesh_asks_for_more_levels() {
         ],
         &["0 levels", "raise --levels"],
     );
-    prepare_json(&[
-        "prepare",
-        s(&p),
-        "--levels",
-        "2",
-        "--out",
-        s(&d.path().join("o2")),
-        "--json",
-    ]);
+    let o2 = d.path().join("o2");
+    let j = prepare_json(&["prepare", s(&p), "--levels", "2", "--out", s(&o2), "--json"]);
+    // `verify --input` samples the mesh again on the store's base mesh: the vertices inside it
+    // (the others are outside, with no sample to compare) are within the bound
+    let r = run(&["verify", s(&o2), "--input", s(&p), "--json"]);
+    assert!(r.ok, "{}", r.stderr);
+    let v: Value = serde_json::from_str(r.stdout.trim()).unwrap();
+    let inside = j["vertices"].as_u64().unwrap() - j["outside_vertices"].as_u64().unwrap();
+    assert_eq!(v["input"]["points"].as_u64(), Some(inside));
+    assert!(
+        v["input"]["max_abs_error"].as_f64().unwrap() <= j["max_error_bound"].as_f64().unwrap()
+    );
+    assert_eq!(v["input"]["input_range"], j["source_value_range"]);
     // the axes predictor needs data at every vertex: refused on this mesh, and `auto` takes the
     // parent predictor instead
     let o3 = d.path().join("o3");

@@ -9,6 +9,7 @@ fn make_store(dir: &std::path::Path, levels: u8, bits: Option<u8>) -> Store {
     let mut o = PrepareOptions::new("synthetic:harmonic", dir);
     o.levels = Some(levels);
     o.bits = bits;
+    o.keep_reference = true;
     prepare(&o).unwrap();
     Store::open(dir).unwrap()
 }
@@ -69,7 +70,7 @@ fn quantized_widths_round_trip() {
             "bits {bits}: {coded} vs {fixed}"
         );
         let r = verify(d.path()).unwrap();
-        assert!(r.max_abs_error <= r.max_error_bound, "bits {bits}");
+        assert!(r.max_abs_error.unwrap() <= r.max_error_bound, "bits {bits}");
         // more bits, smaller bound
         assert!(
             r.max_error_bound < 1.0 / (1u64 << (bits - 8)) as f64,
@@ -196,18 +197,18 @@ fn rewrite_over_a_directory(
 }
 
 /// Preparing over an existing store that fails while its files are written (here
-/// `reference.f32.partial` cannot be created) leaves the old store as it was, and no partial
+/// `block_index.bin.partial` cannot be created) leaves the old store as it was, and no partial
 /// files.
 #[test]
 fn a_failed_rewrite_keeps_the_old_store() {
     let d = tempfile::tempdir().unwrap();
-    let blocked = d.path().join("reference.f32.partial");
+    let blocked = d.path().join("block_index.bin.partial");
     let e = rewrite_over_a_directory(d.path(), &blocked);
-    assert!(e.to_string().contains("reference.f32"), "{e}");
+    assert!(e.to_string().contains("block_index.bin"), "{e}");
     let old = Store::open(d.path()).expect("the old store is still there");
     assert_eq!(old.manifest.levels, 2);
     verify(d.path()).unwrap();
-    for name in ["base.bin", "blocks.bin", "block_index.bin"] {
+    for name in ["base.bin", "blocks.bin"] {
         assert!(!d.path().join(format!("{name}.partial")).exists(), "{name}");
     }
     std::fs::remove_dir(&blocked).unwrap();
@@ -275,8 +276,9 @@ proptest! {
         std::fs::write(&raw, bytes).unwrap();
         let out = d.path().join("store");
         let mut o = PrepareOptions::new(raw.to_str().unwrap(), &out);
-        o.grid.dims = Some([n, n, n]);
-        o.grid.dtype = "f32".into();
+        o.read.grid.dims = Some([n, n, n]);
+        o.read.grid.dtype = "f32".into();
+        o.keep_reference = true;
         o.levels = Some(levels);
         // the axes predictor (`--predictor auto` on a box6 grid), or the parent's on box5
         o.base = if box6 {
@@ -301,7 +303,7 @@ proptest! {
         }
         let store = Store::open(&out).unwrap();
         let values = store.synthesize_all().unwrap();
-        let reference = store.read_reference().unwrap();
+        let reference = store.read_reference().unwrap().expect("kept");
         let (lo, hi) = (store.manifest.value_range[0] as f64, store.manifest.value_range[1] as f64);
         let e = match bound {
             ErrorBound::Absolute(e) => e,
@@ -340,4 +342,55 @@ fn max_error_refuses_what_it_cannot_keep() {
     for bad in ["", "-1", "0", "inf", "abc%", "nan"] {
         assert!(ErrorBound::parse(bad).is_err(), "{bad:?}");
     }
+}
+
+/// A store holds what it streams and little else: no copy of the samples unless asked
+/// (`--keep-reference`), so a grid store's directory is at most 1.2× its streamable bytes; with
+/// the copy, 4 bytes a vertex more, which `verify` then compares with.
+#[test]
+fn a_store_keeps_no_copy_of_its_samples_unless_asked() {
+    use tetwave_server::analysis::ErrorBound;
+    let d = tempfile::tempdir().unwrap();
+    let dir_bytes = |p: &std::path::Path| -> u64 {
+        std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| e.unwrap().metadata().unwrap().len())
+            .sum()
+    };
+    let mut o = PrepareOptions::new("synthetic:harmonic", &d.path().join("s"));
+    o.levels = Some(6);
+    o.base = "box6".parse().unwrap();
+    o.max_error = Some(ErrorBound::parse("0.1%").unwrap());
+    let s = prepare(&o).unwrap();
+    let on_disk = dir_bytes(&o.out);
+    eprintln!(
+        "harmonic box6 level 6 at 0.1%: {} vertices, {} streamable bytes, {on_disk} on disk",
+        s.vertices, s.bytes
+    );
+    assert_eq!(s.reference_bytes, 0);
+    assert!(!o.out.join("reference.f32").exists());
+    assert!(
+        on_disk as f64 <= 1.2 * s.bytes as f64,
+        "{on_disk} bytes on disk for {} streamable",
+        s.bytes
+    );
+    assert_eq!(verify(&o.out).unwrap().against, "bound");
+    // asked: the copy is there, and verify compares with it
+    o.keep_reference = true;
+    let k = prepare(&o).unwrap();
+    assert_eq!(k.reference_bytes, 4 * k.vertices);
+    // (and the manifest's line for it)
+    let more = dir_bytes(&o.out) - on_disk;
+    assert!(
+        (k.reference_bytes..k.reference_bytes + 200).contains(&more),
+        "{more}"
+    );
+    let r = verify(&o.out).unwrap();
+    assert_eq!(r.against, "reference");
+    assert!(r.max_abs_error.unwrap() <= r.max_error_bound);
+    // prepared again without it, the old copy goes: it is not this store's
+    o.keep_reference = false;
+    prepare(&o).unwrap();
+    assert!(!o.out.join("reference.f32").exists());
+    assert_eq!(dir_bytes(&o.out), on_disk);
 }

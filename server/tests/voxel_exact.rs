@@ -53,7 +53,7 @@ fn grid_args(dims: [usize; 3], dtype: &str, spacing: [f64; 3]) -> GridArgs {
 
 fn options(raw: &Path, out: &Path, grid: &GridArgs, max_error: &str) -> PrepareOptions {
     let mut o = PrepareOptions::new(raw.to_str().unwrap(), out);
-    o.grid = grid.clone();
+    o.read.grid = grid.clone();
     o.max_error = Some(ErrorBound::parse(max_error).unwrap());
     o
 }
@@ -81,7 +81,7 @@ fn every_voxel_is_kept_within_the_bound_and_the_range_is_the_inputs() {
             let r = verify_input(&out, &input).unwrap();
             let c = r.input.as_ref().unwrap();
             let voxels: usize = dims.iter().product();
-            assert_eq!(c.voxels, voxels as u64);
+            assert_eq!((c.points_are, c.points), ("voxels", voxels as u64));
             assert!(
                 c.max_abs_error <= s.max_error_bound,
                 "{dims:?} {bound}: {c:?}"
@@ -98,7 +98,7 @@ fn every_voxel_is_kept_within_the_bound_and_the_range_is_the_inputs() {
             eprintln!(
                 "{dims:?} at {bound}: base {} at {} levels, {} vertices for {voxels} voxels, \
                  voxels within {:e} (bound {:e}), {} bit-exact",
-                s.base, s.levels, s.vertices, c.max_abs_error, s.max_error_bound, c.exact_voxels
+                s.base, s.levels, s.vertices, c.max_abs_error, s.max_error_bound, c.exact_points
             );
         }
     }
@@ -213,7 +213,8 @@ fn verify_input_on_the_command_line() {
         .unwrap();
     assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
     let j: serde_json::Value = serde_json::from_slice(&v.stdout).unwrap();
-    assert_eq!(j["input"]["voxels"], 20 * 12 * 7);
+    assert_eq!(j["input"]["points"], 20 * 12 * 7);
+    assert_eq!(j["input"]["points_are"], "voxels");
     assert_eq!(j["input"]["input_range"], serde_json::json!([0.0, 250.0]));
     assert_eq!(j["input"]["store_range"], j["input"]["input_range"]);
     assert!(j["input"]["max_abs_error"].as_f64().unwrap() <= 0.25 + 1e-9);

@@ -66,7 +66,7 @@ pub fn store_histogram(
     match drawn {
         Some((mesh, l)) if l == finest => Ok(ValueHistogram::of_mesh(mesh)),
         _ if store.base.forest().level_len(finest) > MOST_HISTOGRAM_LEAVES => {
-            let values = store.read_reference()?;
+            let values = store.synthesize_all()?;
             let levelset = store.read_levelset()?;
             let [lo, hi] = store.manifest.display_value_range();
             Ok(ValueHistogram::of_samples(

@@ -5,7 +5,7 @@
 //! - the counts of the manifest agree with the base mesh's hierarchy (tets, leaves, vertices);
 //! - `block_index.bin` has `nblocks + 1` entries, starts at 0 and never decreases (checked by
 //!   [`StoreHead::decode`]), and its last entry is `blocks.bin`'s length;
-//! - `reference.f32` holds 4 bytes a vertex, and so does `levelset.f32` when the manifest lists it
+//! - `reference.f32` holds 4 bytes a vertex when present, and so does `levelset.f32` when the manifest lists it
 //!   (with `levelset_near.bin`: one without the other is refused, but for a box domain's band);
 //! - every block decodes to exactly its node count, its ids in order, each node valid with a finite
 //!   subtree bound (the finest node level has none: its parent's stands in), and the blocks together own the manifest's coefficient count.

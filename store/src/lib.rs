@@ -11,7 +11,8 @@
 //! | `blocks.bin`      | the nodes in blocks of [`BLOCK`] consecutive ids, each block's bytes those |
 //! |                   | of [`BlockCoder::encode`](tetwave_protocol::block::BlockCoder::encode)      |
 //! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then the file's length  |
-//! | `reference.f32`   | the sampled value of every vertex (for `verify`; not streamed)             |
+//! | `reference.f32`   | optional: the sampled value of every vertex (`--keep-reference`; for     |
+//! |                   | `verify`, not streamed)                                                   |
 //! | `levelset.f32`    | optional: per vertex key, the signed distance to the input domain's        |
 //! |                   | boundary (positive inside), for clipping straddling tets; not streamed     |
 //! | `levelset_near.bin` | with `levelset.f32`: its near band, coded                                 |
@@ -37,11 +38,21 @@ pub use read::{OpenOptions, Store};
 pub use write::{write, PreviewNodes, StoreContent, StoreMeta};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
-pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin", "reference.f32"];
+pub const STORE_FILES: [&str; 3] = ["base.bin", "blocks.bin", "block_index.bin"];
 
 /// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
 /// with their size and CRC-32 like the others.
-pub const OPTIONAL_STORE_FILES: [&str; 3] = ["levelset.f32", LEVELSET_BAND_FILE, PREVIEW_FILE];
+pub const OPTIONAL_STORE_FILES: [&str; 4] = [
+    REFERENCE_FILE,
+    "levelset.f32",
+    LEVELSET_BAND_FILE,
+    PREVIEW_FILE,
+];
+
+/// The sampled value of every vertex, written only when asked (`prepare --keep-reference`): a
+/// copy of the samples, as large as the input, that nothing streams; `verify --input` checks a
+/// store against its input instead.
+pub const REFERENCE_FILE: &str = "reference.f32";
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {

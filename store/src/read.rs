@@ -1,6 +1,6 @@
 //! Reading a store: the manifest, base mesh and block index at open, coded blocks on demand.
 
-use crate::{io_err, StoreError, OPTIONAL_STORE_FILES, STORE_FILES};
+use crate::{io_err, StoreError, OPTIONAL_STORE_FILES, REFERENCE_FILE, STORE_FILES};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -270,9 +270,13 @@ impl Store {
         Ok(out)
     }
 
-    /// The sampled values `verify` compares synthesis with.
-    pub fn read_reference(&self) -> Result<Vec<f32>, StoreError> {
-        let p = self.dir.join("reference.f32");
+    /// The sampled values `verify` compares synthesis with, when the store keeps them
+    /// ([`REFERENCE_FILE`]: the manifest lists it).
+    pub fn read_reference(&self) -> Result<Option<Vec<f32>>, StoreError> {
+        if !self.manifest.files.contains_key(REFERENCE_FILE) {
+            return Ok(None);
+        }
+        let p = self.dir.join(REFERENCE_FILE);
         let b = std::fs::read(&p).map_err(io_err(&p))?;
         if b.len() as u64 != self.manifest.counts.vertices * 4 {
             return Err(StoreError::Corrupt {
@@ -280,9 +284,11 @@ impl Store {
                 reason: "size disagrees with the vertex count".into(),
             });
         }
-        Ok(b.chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect())
+        Ok(Some(
+            b.chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+        ))
     }
 
     /// The signed distance to the input domain's boundary at every finest-level vertex (by vertex

@@ -1,6 +1,8 @@
 //! Writing a store: every file with its size and CRC-32, the manifest last.
 
-use crate::{io_err, StoreError, BLOCK, MAX_BLOCK_BYTES, STORE_FORMAT, STORE_VERSION};
+use crate::{
+    io_err, StoreError, BLOCK, MAX_BLOCK_BYTES, REFERENCE_FILE, STORE_FORMAT, STORE_VERSION,
+};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -153,7 +155,8 @@ pub struct StoreContent<'a> {
     pub coeffs: &'a [f32],
     /// The finest level's quantizer, when quantized, and how coarser levels' steps shrink.
     pub quantizer: Option<(Quantizer, LevelSteps)>,
-    /// The sampled value of every vertex: what `verify` compares synthesis with.
+    /// The sampled value of every vertex (outside ones as analysis filled them): the manifest's
+    /// histogram, and `reference.f32` when [`StoreMeta::keep_reference`].
     pub reference: &'a [f32],
     /// Inside samples' range.
     pub value_range: (f32, f32),
@@ -254,6 +257,8 @@ pub struct StoreMeta {
     pub levelset_near: Option<NearLevelSet>,
     /// Written as `preview.bin` when given.
     pub preview: Option<PreviewNodes>,
+    /// Write the samples as `reference.f32` ([`REFERENCE_FILE`]).
+    pub keep_reference: bool,
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. The files are written
@@ -335,11 +340,16 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     }
     files.insert("block_index.bin".into(), w.finish()?);
 
-    let mut w = staged.create("reference.f32")?;
-    for &x in a.reference {
-        w.put(&x.to_le_bytes())?;
+    if meta.keep_reference {
+        let mut w = staged.create(REFERENCE_FILE)?;
+        for &x in a.reference {
+            w.put(&x.to_le_bytes())?;
+        }
+        files.insert(REFERENCE_FILE.into(), w.finish()?);
+    } else {
+        // a copy left by an earlier store in this directory is not this store's
+        staged.remove(REFERENCE_FILE);
     }
-    files.insert("reference.f32".into(), w.finish()?);
 
     let path = dir.join("levelset.f32");
     match &meta.levelset {

@@ -93,6 +93,7 @@ fn make_store_full(
         }),
         levelset,
         preview: preview_step.map(|step| preview_of(&nodes, levels, step)),
+        keep_reference: true,
     };
     write(dir, &content, meta).unwrap();
     // as the store codes them: lossless subtree bounds rounded up to powers of two, none on the

@@ -19,6 +19,7 @@ fn client_reads_the_servers_store_identically() {
     let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
     o.levels = Some(4);
     o.bits = Some(12);
+    o.keep_reference = true;
     prepare(&o).unwrap();
     let server = Store::open(d.path()).unwrap();
     let client = Store::open(d.path()).unwrap();
@@ -30,7 +31,7 @@ fn client_reads_the_servers_store_identically() {
     assert_eq!(&server.base, &client.base);
     // the client's synthesis equals the stored samples within the manifest's bound
     let values = client.synthesize_all().unwrap();
-    let reference = server.read_reference().unwrap();
+    let reference = server.read_reference().unwrap().expect("kept");
     let err = values
         .iter()
         .zip(&reference)

@@ -340,8 +340,8 @@ fn a_padded_grid_streams_its_box_and_clips_as_its_whole_level_set() {
     std::fs::write(&raw, bytes).unwrap();
     let store = d.path().join("g.store");
     let mut o = PrepareOptions::new(raw.to_str().unwrap(), &store);
-    o.grid.dims = Some(dims);
-    o.grid.dtype = "f32".into();
+    o.read.grid.dims = Some(dims);
+    o.read.grid.dtype = "f32".into();
     let summary = prepare(&o).unwrap();
     assert_eq!((summary.base.as_str(), summary.levels), ("box6", 5));
     assert_eq!(summary.levelset_near_bytes, 56);

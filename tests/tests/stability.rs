@@ -629,6 +629,7 @@ fn value_spikes() {
         "4",
         "--max-error",
         "0.1%",
+        "--keep-reference",
         "--out",
         out.to_str().unwrap(),
     ]);
@@ -637,7 +638,7 @@ fn value_spikes() {
     let secs = t.elapsed().as_secs_f64();
     let store = tetwave_store::Store::open(&d.path().join("s")).unwrap();
     let values = store.synthesize_all().unwrap();
-    let reference = store.read_reference().unwrap();
+    let reference = store.read_reference().unwrap().expect("kept");
     let (mut worst_bulk, mut bulk_lo, mut bulk_hi) = (0f64, f32::INFINITY, f32::NEG_INFINITY);
     for (a, b) in values.iter().zip(&reference) {
         if *b < 1e3 {
@@ -671,7 +672,16 @@ fn value_spikes() {
         ]
         .map(String::from)
         .to_vec();
-        a.extend(["--levels", "4", "--out", out.to_str().unwrap()].map(String::from));
+        a.extend(
+            [
+                "--levels",
+                "4",
+                "--keep-reference",
+                "--out",
+                out.to_str().unwrap(),
+            ]
+            .map(String::from),
+        );
         if let Some(b) = bound {
             a.extend(["--max-error".to_string(), b.to_string()]);
         }
@@ -691,7 +701,7 @@ fn value_spikes() {
     let s = tetwave_server::prepare::prepare(&o).unwrap();
     let store = tetwave_store::Store::open(&out).unwrap();
     let values = store.synthesize_all().unwrap();
-    let reference = store.read_reference().unwrap();
+    let reference = store.read_reference().unwrap().expect("kept");
     let err = |bulk: bool| {
         values
             .iter()

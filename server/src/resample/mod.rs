@@ -197,6 +197,20 @@ pub fn resample(source: &Source, spec: &BaseSpec, levels: u8) -> Result<Resample
         return Err(ResampleError::TooManyLevels(levels));
     }
     let (positions, tets) = base_mesh(spec, source.bounds())?;
+    resample_onto(source, (positions, tets), levels)
+}
+
+/// Samples `source` at every vertex of the base mesh `(positions, tets)` refined `levels` times:
+/// [`resample`] on a base mesh already built (`verify --input` samples the input again on a
+/// store's own base mesh, as `prepare` did).
+pub fn resample_onto(
+    source: &Source,
+    (positions, tets): base::PointsAndTets,
+    levels: u8,
+) -> Result<Resampled, ResampleError> {
+    if levels > MAX_LEVELS {
+        return Err(ResampleError::TooManyLevels(levels));
+    }
     let mut base = BaseMesh {
         levels,
         positions,

@@ -30,8 +30,8 @@ pub(super) struct Geometry {
     /// Bounding-sphere radius ([`tet_sphere`]).
     pub(super) radius: Vec<f32>,
     /// Every node's [`ImageCriterion::node_weight`] under the `default` transfer function over
-    /// the store's value range, read off the store's reference samples (within the store's bound
-    /// of what a client synthesizes); `None` under [`ViewCriterion::Data`] or without a reference.
+    /// the store's value range, read off what the store's nodes synthesize; `None` under
+    /// [`ViewCriterion::Data`].
     pub(super) image: Option<Vec<f32>>,
     /// The same under `auto` (`default` fitted to the manifest's histogram), when the manifest
     /// has one: it is steeper where most of the data lies, so its clients need other nodes first.
@@ -47,14 +47,14 @@ fn default_tf() -> TransferFunction {
 /// Ids per parallel task when the per-node geometry is computed.
 const GEOMETRY_CHUNK: u64 = 1 << 14;
 
-/// [`Geometry::image`]: per level, the parents' 10 split points' reference values give each
+/// [`Geometry::image`]: per level, the parents' 10 split points' values give each
 /// child its corners and the midpoint deviation of its corners created at its level.
 fn image_weights(
     store: &Store,
     forest: Forest,
     smax: &[f32],
     radius: &[f32],
-    reference: &[f32],
+    values: &[f32],
     tf: &TransferFunction,
 ) -> Vec<f32> {
     use rayon::prelude::*;
@@ -79,7 +79,7 @@ fn image_weights(
                 for (j, (pid, t)) in LevelWalker::new(forest, l - 1, a..b).enumerate() {
                     let pts = t.split_points();
                     let v: [f32; 10] =
-                        std::array::from_fn(|i| reference[keys.key(t.base, &pts[i]) as usize]);
+                        std::array::from_fn(|i| values[keys.key(t.base, &pts[i]) as usize]);
                     for (i, corners) in BEY_CHILDREN.iter().enumerate() {
                         let id = forest.child(pid, i) as usize;
                         let mut curvature = 0.0f64;
@@ -393,23 +393,23 @@ impl Shared {
         auto.as_deref().or(default)
     }
 
-    /// Every node's image weight under `tf`, read off the store's reference samples; `None` (and
-    /// a warning) without readable ones.
+    /// Every node's image weight under `tf`, read off the values the store's own nodes
+    /// synthesize (what a client that has every node draws; a store keeps no copy of its
+    /// samples); `None` (and a warning) when the store does not synthesize.
     fn tf_weights(&self, radius: &[f32], tf: &TransferFunction) -> Option<Vec<f32>> {
-        let n = self.store.base.vertex_keys().vertex_count();
-        match self.store.read_reference() {
-            Ok(r) if r.len() as u64 == n => Some(image_weights(
+        match self.store.synthesize_all() {
+            Ok(values) => Some(image_weights(
                 &self.store,
                 self.forest,
                 &self.smax,
                 radius,
-                &r,
+                &values,
                 tf,
             )),
-            Ok(_) | Err(_) => {
+            Err(e) => {
                 tracing::warn!(
-                    "the store has no readable reference samples: view order weighs nodes by \
-                     their details alone"
+                    "the store does not synthesize ({e}): view order weighs nodes by their \
+                     details alone"
                 );
                 None
             }
