@@ -131,7 +131,9 @@ impl Forest {
 
     /// First id of level `k` (`k` may be `levels + 1`, giving the total count).
     pub fn level_start(&self, k: u8) -> u64 {
-        self.n_base * ((1u64 << (3 * k as u32)) - 1) / 7
+        // 7 divides 8^k − 1 (8 ≡ 1 mod 7): dividing first, the only product is the count itself,
+        // which cannot overflow where the count fits
+        self.n_base * (((1u64 << (3 * k as u32)) - 1) / 7)
     }
 
     /// Number of tets at level `k`.
@@ -500,6 +502,25 @@ mod tests {
         assert_eq!(edge.checked_nodes(), Some(edge.nodes()));
         assert_eq!(edge.checked_total_tets(), None);
         assert_eq!(Forest::new(u64::MAX, 1).checked_total_tets(), None);
+    }
+
+    /// `level_start` is exact wherever the count fits in a u64, also where `n · (8^k − 1)` alone
+    /// would not (2^20 base tets at 15 levels; 2^21 at 15 and 3 · 2^20 at 15 just below 2^64).
+    #[test]
+    fn level_start_is_exact_wherever_it_fits() {
+        for (n, k) in [
+            (1u64 << 20, 15u8),
+            (1 << 21, 15),
+            (3 << 20, 15),
+            (1 << 16, 16),
+            (6 << 12, 16),
+            (u32::MAX as u64, 10),
+        ] {
+            let f = Forest::new(n, MAX_LEVELS);
+            let exact = n as u128 * ((1u128 << (3 * k as u32)) - 1) / 7;
+            assert_eq!(f.checked_level_start(k).map(u128::from), Some(exact));
+            assert_eq!(f.level_start(k) as u128, exact, "n {n} k {k}");
+        }
     }
 
     #[test]
