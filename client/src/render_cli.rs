@@ -125,6 +125,10 @@ pub struct RenderReport {
     pub ms: f64,
     pub psnr_db: Option<f64>,
     pub reference_ms: Option<f64>,
+    /// GPU: the time to upload the mesh, and the chunks it is drawn in (1 when it fits one
+    /// storage binding of the adapter).
+    pub upload_ms: Option<f64>,
+    pub gpu_chunks: Option<usize>,
     pub output: String,
     /// The transfer function drawn with (for `auto`, the fitted one: save it as a `.json` file to
     /// draw another input with the same colours).
@@ -198,6 +202,8 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         let img = render_reference(mesh, &cam, &tf);
         (img, t.elapsed().as_secs_f64() * 1e3)
     };
+    // the GPU's upload: its time and the chunks the mesh is drawn in
+    let mut upload: Option<(f64, usize)> = None;
     let (img, ms, renderer, refimg): (Rgba8Image, f64, String, Option<(Rgba8Image, f64)>) =
         if a.reference {
             let (img, ms) = reference(&mesh);
@@ -208,7 +214,9 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             }
             let ctx = GpuContext::new()?;
             let r = PtRenderer::with_accumulation(&ctx, a.accumulation);
+            let t = Instant::now();
             let data = r.upload_with(&ctx, &mesh, a.order == VisibilityOrder::Mpvo)?;
+            upload = Some((t.elapsed().as_secs_f64() * 1e3, data.chunks()));
             // first frame warms the pipeline up; time the second
             r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
             let (img, times) = r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
@@ -244,6 +252,8 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         ms,
         psnr_db,
         reference_ms: refimg.as_ref().map(|(_, ms)| *ms),
+        upload_ms: upload.map(|(ms, _)| ms),
+        gpu_chunks: upload.map(|(_, c)| c),
         output: a.output.display().to_string(),
         tf,
     })

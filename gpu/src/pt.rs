@@ -115,8 +115,17 @@ struct FrameCache {
 }
 
 /// One mesh on the GPU. Valid for the mesh it was built from; positions are relative to `origin`.
+///
+/// **Chunks.** A mesh whose per-tet data exceeds one storage binding of the adapter is split into
+/// chunks that each fit ([`ChunkTree`]: a k-d tree of the tets' centroids, split at the median of
+/// the longest axis until every leaf fits), each with its own buffers of the vertices it uses.
+/// A frame draws the chunks far to near (the k-d tree's order for the eye, exact between the
+/// cells of the tree) and each chunk's tets in the chosen order within it: one visibility order
+/// across chunks, drawn with one bind group per chunk. The only size limit is memory. The tets are
+/// held in chunk order (a permutation of the mesh's), which every per-tet array below follows.
 pub struct TetDrawData {
-    /// Face adjacency, present when uploaded for MPVO ordering.
+    /// Face adjacency, present when uploaded for MPVO ordering (one chunk only: across chunks the
+    /// order is the tree's).
     neighbors: Option<Vec<[u32; 4]>>,
     /// CPU copies of the outward face planes (`n·x = w`, relative to `origin`): each frame draws
     /// only the faces the eye sees from inside (the exit faces), and MPVO orders by them.
@@ -127,9 +136,8 @@ pub struct TetDrawData {
     s_range: Vec<f32>,
     /// The largest of `s_range`.
     max_s_range: f32,
-    positions: wgpu::Buffer,
-    tets: wgpu::Buffer,
-    geo: wgpu::Buffer,
+    chunks: Vec<Chunk>,
+    tree: ChunkTree,
     centroids: Vec<[f32; 3]>,
     origin: DVec3,
     diagonal: f64,
@@ -137,24 +145,156 @@ pub struct TetDrawData {
     pub tet_count: u32,
 }
 
-/// The CPU half of a frame's draw data ([`PtRenderer::plan`]): the exit faces in visibility
-/// order, the shader runs and the uniforms, for [`PtRenderer::finish`].
-pub struct FramePlan {
+/// Tets `range` of a [`TetDrawData`] (in its chunk order) on the GPU, with the vertices they use:
+/// `tets` holds indices into this chunk's `positions`.
+struct Chunk {
+    range: std::ops::Range<u32>,
+    positions: wgpu::Buffer,
+    tets: wgpu::Buffer,
+    geo: wgpu::Buffer,
+}
+
+/// The k-d tree whose leaves are the chunks: node 0 is the root; a split sends centroids below
+/// `at` on `axis` to `below`, the others to `above`.
+#[derive(Debug, Clone)]
+enum KdNode {
+    Leaf(u32),
+    Split {
+        axis: usize,
+        at: f32,
+        below: u32,
+        above: u32,
+    },
+}
+
+/// The chunks' k-d tree ([`TetDrawData`]).
+#[derive(Debug, Clone)]
+struct ChunkTree(Vec<KdNode>);
+
+impl ChunkTree {
+    /// Splits `ids` (tets, by centroid) at the median of the longest axis until each part holds at
+    /// most `most`; `ids` is left in leaf order, and the leaves' ranges of it are returned in order.
+    fn build(
+        ids: &mut [u32],
+        centroids: &[[f32; 3]],
+        most: usize,
+    ) -> (Self, Vec<std::ops::Range<u32>>) {
+        let mut tree = ChunkTree(Vec::new());
+        let mut leaves = Vec::new();
+        tree.split(ids, 0, centroids, most.max(1), &mut leaves);
+        (tree, leaves)
+    }
+
+    fn split(
+        &mut self,
+        ids: &mut [u32],
+        offset: u32,
+        centroids: &[[f32; 3]],
+        most: usize,
+        leaves: &mut Vec<std::ops::Range<u32>>,
+    ) -> u32 {
+        let me = self.0.len() as u32;
+        if ids.len() <= most {
+            self.0.push(KdNode::Leaf(leaves.len() as u32));
+            leaves.push(offset..offset + ids.len() as u32);
+            return me;
+        }
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for &t in ids.iter() {
+            let c = centroids[t as usize];
+            for a in 0..3 {
+                lo[a] = lo[a].min(c[a]);
+                hi[a] = hi[a].max(c[a]);
+            }
+        }
+        let axis = (0..3)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let mid = ids.len() / 2;
+        let key = |t: &u32| centroids[*t as usize][axis];
+        ids.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)));
+        let at = key(&ids[mid]);
+        self.0.push(KdNode::Leaf(u32::MAX)); // placeholder, set below
+        let (first, second) = ids.split_at_mut(mid);
+        let below = self.split(first, offset, centroids, most, leaves);
+        let above = self.split(second, offset + mid as u32, centroids, most, leaves);
+        self.0[me as usize] = KdNode::Split {
+            axis,
+            at,
+            below,
+            above,
+        };
+        me
+    }
+
+    /// The chunks far to near from `eye`: at each split the side without the eye first.
+    fn far_to_near(&self, eye: [f32; 3]) -> Vec<u32> {
+        let mut out = Vec::new();
+        let mut stack = vec![0u32];
+        while let Some(n) = stack.pop() {
+            match self.0[n as usize] {
+                KdNode::Leaf(c) => out.push(c),
+                KdNode::Split {
+                    axis,
+                    at,
+                    below,
+                    above,
+                } => {
+                    // pushed near first: popped (drawn) far first
+                    let (near, far) = if eye[axis] < at {
+                        (below, above)
+                    } else {
+                        (above, below)
+                    };
+                    stack.push(near);
+                    stack.push(far);
+                }
+            }
+        }
+        out
+    }
+}
+
+/// The exit faces of one chunk's tets in drawing order ([`FramePlan`]), with runs of (adaptive
+/// shader, triangle count).
+struct PartPlan {
+    chunk: u32,
     indices: Vec<[u32; 3]>,
     runs: Vec<(bool, u32)>,
+}
+
+impl TetDrawData {
+    /// How many chunks the mesh is drawn in (1 when it fits one storage binding).
+    pub fn chunks(&self) -> usize {
+        self.chunks.len()
+    }
+}
+
+/// The CPU half of a frame's draw data ([`PtRenderer::plan`]): the exit faces in visibility
+/// order, chunk by chunk, the shader runs and the uniforms, for [`PtRenderer::finish`].
+pub struct FramePlan {
+    parts: Vec<PartPlan>,
     globals: Globals,
     sort_ms: f64,
+}
+
+/// One chunk's share of a [`FrameDraw`].
+struct FramePart {
+    chunk: u32,
+    indices: wgpu::Buffer,
+    triangles: u32,
+    /// Runs of (adaptive shader, triangle count) in drawing order.
+    runs: Vec<(bool, u32)>,
 }
 
 /// One frame's draw data ([`PtRenderer::prepare`]): the exit faces of the tets in visibility
 /// order and the bindings to draw them with. Valid for the frame it was prepared for, until the
 /// renderer prepares another.
 pub struct FrameDraw {
-    indices: wgpu::Buffer,
+    parts: Vec<FramePart>,
     triangles: u32,
-    /// Runs of (adaptive shader, triangle count) in drawing order.
-    runs: Vec<(bool, u32)>,
-    bind: wgpu::BindGroup,
+    /// One bind group per chunk of the data.
+    binds: Vec<wgpu::BindGroup>,
     sort_ms: f64,
 }
 
@@ -306,9 +446,12 @@ impl PtRenderer {
         }
     }
 
-    /// The most tets one draw of this context holds (one storage buffer of per-tet geometry).
-    pub fn max_tets(ctx: &GpuContext) -> u64 {
-        ctx.device.limits().max_storage_buffer_binding_size / std::mem::size_of::<TetGeo>() as u64
+    /// The most tets one chunk of this context holds: one storage binding (and one buffer) of
+    /// per-tet geometry. A larger mesh is drawn in several chunks ([`TetDrawData`]).
+    pub fn chunk_tets(ctx: &GpuContext) -> u64 {
+        let l = ctx.device.limits();
+        l.max_storage_buffer_binding_size.min(l.max_buffer_size)
+            / std::mem::size_of::<TetGeo>() as u64
     }
 
     /// Uploads a mesh (centroid ordering only).
@@ -317,30 +460,67 @@ impl PtRenderer {
     }
 
     /// Uploads a mesh; with `mpvo`, also keeps its face adjacency for [`VisibilityOrder::Mpvo`].
+    /// A mesh of more than [`Self::chunk_tets`] tets goes up in chunks.
     pub fn upload_with(
         &self,
         ctx: &GpuContext,
         mesh: &RenderMesh,
         mpvo: bool,
     ) -> Result<TetDrawData, RenderError> {
+        self.upload_in_chunks(ctx, mesh, mpvo, Self::chunk_tets(ctx))
+    }
+
+    /// [`Self::upload_with`] in chunks of at most `most` tets (at most [`Self::chunk_tets`]; a
+    /// smaller bound draws a small mesh the way a large one is drawn).
+    pub fn upload_in_chunks(
+        &self,
+        ctx: &GpuContext,
+        mesh: &RenderMesh,
+        mpvo: bool,
+        most: u64,
+    ) -> Result<TetDrawData, RenderError> {
         let origin = mesh.center();
-        let limit = ctx.device.limits().max_storage_buffer_binding_size;
-        let needed = mesh.tets.len() as u64 * std::mem::size_of::<TetGeo>() as u64;
-        if needed > limit {
-            return Err(RenderError::TooLarge { needed, limit });
+        let n = mesh.tets.len();
+        if n as u64 >= u32::MAX as u64 / 4 {
+            // vertex indices of the draw are 4 × tet + corner within a chunk, but tets are
+            // counted in u32 across the mesh
+            return Err(RenderError::TooLarge {
+                needed: n as u64,
+                limit: u32::MAX as u64 / 4,
+            });
         }
-        let positions: Vec<[f32; 4]> = mesh
+        let most = most.clamp(1, Self::chunk_tets(ctx).max(1)) as usize;
+        let rel: Vec<[f32; 3]> = mesh
             .positions
-            .iter()
+            .par_iter()
             .map(|p| {
                 let r = DVec3::from_array(*p) - origin;
-                [r.x as f32, r.y as f32, r.z as f32, 1.0]
+                [r.x as f32, r.y as f32, r.z as f32]
             })
             .collect();
-        let tets: Vec<[u32; 4]> = mesh.tets.clone();
-        let geo: Vec<TetGeo> = (0..mesh.tets.len())
-            .into_par_iter()
-            .map(|t| {
+        let centroid = |t: &[u32; 4]| {
+            let mut c = [0f32; 3];
+            for &v in t {
+                for k in 0..3 {
+                    c[k] += rel[v as usize][k] * 0.25;
+                }
+            }
+            c
+        };
+        // chunk order: the mesh's own order when it fits in one chunk
+        let mut ids: Vec<u32> = (0..n as u32).collect();
+        let (tree, ranges) = if n <= most {
+            let whole = std::iter::once(0..n as u32).collect();
+            (ChunkTree(vec![KdNode::Leaf(0)]), whole)
+        } else {
+            let c: Vec<[f32; 3]> = mesh.tets.par_iter().map(centroid).collect();
+            ChunkTree::build(&mut ids, &c, most)
+        };
+        let tets: Vec<[u32; 4]> = ids.iter().map(|&t| mesh.tets[t as usize]).collect();
+        let geo: Vec<TetGeo> = ids
+            .par_iter()
+            .map(|&t| {
+                let t = t as usize;
                 let (planes, g, c) = mesh.tet_geometry(t, origin);
                 let (lg, lc) = mesh.tet_levelset(t, origin);
                 TetGeo {
@@ -350,19 +530,7 @@ impl PtRenderer {
                 }
             })
             .collect();
-        let centroids = mesh
-            .tets
-            .iter()
-            .map(|t| {
-                let mut c = [0f32; 3];
-                for &v in t {
-                    for k in 0..3 {
-                        c[k] += positions[v as usize][k] * 0.25;
-                    }
-                }
-                c
-            })
-            .collect();
+        let centroids: Vec<[f32; 3]> = tets.par_iter().map(centroid).collect();
         let make = |label: &str, contents: &[u8]| {
             ctx.device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -375,10 +543,60 @@ impl PtRenderer {
                     usage: wgpu::BufferUsages::STORAGE,
                 })
         };
-        let neighbors = mpvo.then(|| face_neighbors(&mesh.tets));
-        let s_range: Vec<f32> = mesh
-            .tets
-            .iter()
+        // each chunk with the vertices its tets use, renumbered in first-use order
+        let mut local = vec![u32::MAX; mesh.positions.len()];
+        let chunks = ranges
+            .into_iter()
+            .map(|range| {
+                let mine = &tets[range.start as usize..range.end as usize];
+                let mut used: Vec<u32> = Vec::new();
+                let tets_local: Vec<[u32; 4]> = mine
+                    .iter()
+                    .map(|t| {
+                        t.map(|v| {
+                            let l = &mut local[v as usize];
+                            if *l == u32::MAX {
+                                *l = used.len() as u32;
+                                used.push(v);
+                            }
+                            *l
+                        })
+                    })
+                    .collect();
+                let positions: Vec<[f32; 4]> = used
+                    .iter()
+                    .map(|&v| {
+                        local[v as usize] = u32::MAX;
+                        let [x, y, z] = rel[v as usize];
+                        [x, y, z, 1.0]
+                    })
+                    .collect();
+                let g = &geo[range.start as usize..range.end as usize];
+                Chunk {
+                    positions: make("positions", bytemuck::cast_slice(&positions)),
+                    tets: make("tets", bytemuck::cast_slice(&tets_local)),
+                    geo: make("geo", bytemuck::cast_slice(g)),
+                    range,
+                }
+            })
+            .collect::<Vec<_>>();
+        if chunks.len() > 1 {
+            tracing::info!(
+                tets = n,
+                chunks = chunks.len(),
+                "the mesh is drawn in chunks of at most {most} tets"
+            );
+            if mpvo {
+                tracing::warn!(
+                    "MPVO orders the tets of one chunk: across {} chunks the order is the chunks' \
+                     (far to near), each chunk's tets by centroid",
+                    chunks.len()
+                );
+            }
+        }
+        let neighbors = (mpvo && chunks.len() == 1).then(|| face_neighbors(&tets));
+        let s_range: Vec<f32> = tets
+            .par_iter()
             .map(|t| {
                 let s = t.map(|v| mesh.normalize(mesh.values[v as usize] as f64));
                 let (lo, hi) = s
@@ -391,9 +609,8 @@ impl PtRenderer {
             .collect();
         let max_s_range = s_range.iter().copied().fold(0.0, f32::max);
         let planes = geo.iter().map(|g| g.planes).collect();
-        let positive = mesh
-            .tets
-            .iter()
+        let positive = tets
+            .par_iter()
             .map(|t| {
                 let p = |k: usize| mesh.positions[t[k] as usize];
                 tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)) >= 0.0
@@ -405,14 +622,13 @@ impl PtRenderer {
             positive,
             s_range,
             max_s_range,
-            positions: make("positions", bytemuck::cast_slice(&positions)),
-            tets: make("tets", bytemuck::cast_slice(&tets)),
-            geo: make("geo", bytemuck::cast_slice(&geo)),
+            chunks,
+            tree,
             centroids,
             origin,
             diagonal: mesh.diagonal(),
             far: 0.0,
-            tet_count: mesh.tets.len() as u32,
+            tet_count: n as u32,
         })
     }
 
@@ -480,11 +696,22 @@ impl PtRenderer {
         let t0 = std::time::Instant::now();
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
-        let order: Vec<u32> = match (&data.neighbors, visibility) {
+        // per chunk far to near, its tets (indices into the data's chunk order) back to front
+        let ordered: Vec<(u32, Vec<u32>)> = match (&data.neighbors, visibility) {
             (Some(nb), VisibilityOrder::Mpvo) => {
-                mpvo_order(&data.planes, nb, &data.centroids, eye32).0
+                vec![(0, mpvo_order(&data.planes, nb, &data.centroids, eye32).0)]
             }
-            _ => centroid_order(&data.centroids, eye32),
+            _ => data
+                .tree
+                .far_to_near(eye32)
+                .into_iter()
+                .map(|c| {
+                    let r = &data.chunks[c as usize].range;
+                    let within =
+                        centroid_order(&data.centroids[r.start as usize..r.end as usize], eye32);
+                    (c, within.into_iter().map(|t| t + r.start).collect())
+                })
+                .collect(),
         };
         let sort_ms = t0.elapsed().as_secs_f64() * 1e3;
         let far = (eye.length() + data.diagonal) * 2.0 + data.far;
@@ -515,9 +742,10 @@ impl PtRenderer {
         };
         // only the exit faces (the eye on the inner side of the face plane; none for a zero-volume
         // tet), outward winding counter-clockwise (reversed for negatively oriented tets); the
-        // rasterizer still culls front faces, so a face misjudged at a grazing angle draws nothing
-        let exit_faces = |t: u32| {
-            let b = t * 4;
+        // rasterizer still culls front faces, so a face misjudged at a grazing angle draws nothing.
+        // A face's vertices are 4 × (the tet's index in its chunk) + corner.
+        let exit_faces = |t: u32, first: u32| {
+            let b = (t - first) * 4;
             let f = if data.positive[t as usize] {
                 FACES_POS
             } else {
@@ -533,19 +761,27 @@ impl PtRenderer {
         // tets whose scalar range needs more than FAST_MAX_STEPS sub-steps are drawn with the
         // adaptive shader: runs of (adaptive, triangle count) in drawing order
         let fast_limit = FAST_MAX_STEPS * s_res as f32;
-        let (indices, runs): (Vec<[u32; 3]>, Vec<(bool, u32)>) = if data.max_s_range <= fast_limit {
-            let indices: Vec<[u32; 3]> =
-                order.par_iter().flat_map_iter(|&t| exit_faces(t)).collect();
-            let n = indices.len() as u32;
-            (indices, vec![(false, n)])
-        } else {
+        let part = |(chunk, order): (u32, Vec<u32>)| {
+            let first = data.chunks[chunk as usize].range.start;
+            if data.max_s_range <= fast_limit {
+                let indices: Vec<[u32; 3]> = order
+                    .par_iter()
+                    .flat_map_iter(|&t| exit_faces(t, first))
+                    .collect();
+                let n = indices.len() as u32;
+                return PartPlan {
+                    chunk,
+                    indices,
+                    runs: vec![(false, n)],
+                };
+            }
             let mut indices = Vec::with_capacity(order.len() * 2);
             let mut runs: Vec<(bool, u32)> = Vec::new();
             for &t in &order {
                 let before = indices.len();
-                indices.extend(exit_faces(t));
+                indices.extend(exit_faces(t, first));
                 let added = (indices.len() - before) as u32;
-                // (past MAX_RUNS the frame is drawn as one adaptive run: no more runs to track)
+                // (past MAX_RUNS the part is drawn as one adaptive run: no more runs to track)
                 if added == 0 || runs.len() > MAX_RUNS {
                     continue;
                 }
@@ -559,11 +795,14 @@ impl PtRenderer {
                 let n = indices.len() as u32;
                 runs = vec![(true, n)];
             }
-            (indices, runs)
+            PartPlan {
+                chunk,
+                indices,
+                runs,
+            }
         };
         FramePlan {
-            indices,
-            runs,
+            parts: ordered.into_iter().map(part).collect(),
             globals,
             sort_ms,
         }
@@ -579,8 +818,7 @@ impl PtRenderer {
         plan: FramePlan,
     ) -> FrameDraw {
         let FramePlan {
-            indices,
-            runs,
+            parts,
             globals,
             sort_ms,
         } = plan;
@@ -600,46 +838,59 @@ impl PtRenderer {
                 .write_buffer(tfbuf, 0, bytemuck::cast_slice(&tf_gpu));
             cache.tf_points = Some(tf.points.clone());
         }
-        let ibuf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("faces"),
-            contents: if indices.is_empty() {
-                &[0u8; 12]
-            } else {
-                bytemuck::cast_slice(&indices)
-            },
-            usage: wgpu::BufferUsages::INDEX,
-        });
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("pt"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: gbuf.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: data.positions.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: data.tets.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: data.geo.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: tfbuf.as_entire_binding(),
-                },
-            ],
-        });
+        let parts: Vec<FramePart> = parts
+            .into_iter()
+            .map(|p| FramePart {
+                chunk: p.chunk,
+                indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("faces"),
+                    contents: if p.indices.is_empty() {
+                        &[0u8; 12]
+                    } else {
+                        bytemuck::cast_slice(&p.indices)
+                    },
+                    usage: wgpu::BufferUsages::INDEX,
+                }),
+                triangles: p.indices.len() as u32,
+                runs: p.runs,
+            })
+            .collect();
+        let binds = data
+            .chunks
+            .iter()
+            .map(|c| {
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("pt"),
+                    layout: &self.layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: gbuf.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: c.positions.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: c.tets.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: c.geo.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 5,
+                            resource: tfbuf.as_entire_binding(),
+                        },
+                    ],
+                })
+            })
+            .collect();
         FrameDraw {
-            indices: ibuf,
-            triangles: indices.len() as u32,
-            runs,
-            bind,
+            triangles: parts.iter().map(|p| p.triangles).sum(),
+            parts,
+            binds,
             sort_ms,
         }
     }
@@ -664,21 +915,31 @@ impl PtRenderer {
         if tris.start >= end {
             return;
         }
-        pass.set_bind_group(0, &frame.bind, &[]);
-        pass.set_index_buffer(frame.indices.slice(..), wgpu::IndexFormat::Uint32);
+        // `first`: the frame's triangles before the current run
         let mut first = 0;
-        for &(slow, n) in &frame.runs {
-            let (a, b) = (first.max(tris.start), (first + n).min(end));
-            first += n;
-            if a >= b {
+        for part in &frame.parts {
+            let part_end = first + part.triangles;
+            if part_end <= tris.start || first >= end {
+                first = part_end;
                 continue;
             }
-            pass.set_pipeline(if slow {
-                &self.pipeline_steps
-            } else {
-                &self.pipeline
-            });
-            pass.draw_indexed(3 * a..3 * b, 0, 0..1);
+            pass.set_bind_group(0, &frame.binds[part.chunk as usize], &[]);
+            pass.set_index_buffer(part.indices.slice(..), wgpu::IndexFormat::Uint32);
+            let base = first;
+            for &(slow, n) in &part.runs {
+                let (a, b) = (first.max(tris.start), (first + n).min(end));
+                first += n;
+                if a >= b {
+                    continue;
+                }
+                pass.set_pipeline(if slow {
+                    &self.pipeline_steps
+                } else {
+                    &self.pipeline
+                });
+                pass.draw_indexed(3 * (a - base)..3 * (b - base), 0, 0..1);
+            }
+            first = part_end;
         }
     }
 

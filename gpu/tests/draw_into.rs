@@ -2,18 +2,28 @@
 //! renders offscreen. Needs a GPU adapter (`scripts/setup` installs Mesa's lavapipe); without one
 //! it fails with the renderer's "no GPU adapter" message rather than skip.
 
-use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
+use tetwave_gpu::pt::{Accumulation, PtRenderer, TetDrawData, VisibilityOrder};
 use tetwave_gpu::GpuContext;
 use tetwave_protocol::view::Orbit;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 
+/// In one buffer, and in chunks of 100 tets (a frame's ranges then cross chunks).
 #[test]
 fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     let ctx = GpuContext::new().unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"));
     let r = PtRenderer::with_accumulation(&ctx, Accumulation::U8);
     let mesh = RenderMesh::kuhn_cube(6, 1.0, |p| (p[0] * 3.0).sin() * p[1] + p[2]);
-    let data = r.upload(&ctx, &mesh).unwrap();
+    check(&ctx, &r, &mesh, r.upload(&ctx, &mesh).unwrap());
+    check(
+        &ctx,
+        &r,
+        &mesh,
+        r.upload_in_chunks(&ctx, &mesh, false, 100).unwrap(),
+    );
+}
+
+fn check(ctx: &GpuContext, r: &PtRenderer, mesh: &RenderMesh, data: TetDrawData) {
     let tf = TransferFunction::preset("default").unwrap();
     let (w, h) = (96, 72);
     let cam = Orbit {
@@ -25,7 +35,7 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     }
     .camera(w, h);
     let (offscreen, _) = r
-        .render_ordered(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid)
+        .render_ordered(ctx, &data, &cam, &tf, VisibilityOrder::Centroid)
         .unwrap();
     assert!(offscreen.coverage() > 0.05, "the cube is drawn");
 
@@ -46,7 +56,7 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     let view = texture.create_view(&Default::default());
     let draw = |clear| {
         r.draw_into(
-            &ctx,
+            ctx,
             &data,
             &cam,
             &tf,
@@ -54,7 +64,7 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
             &view,
             clear,
         );
-        r.read_texture(&ctx, &texture).unwrap()
+        r.read_texture(ctx, &texture).unwrap()
     };
     let drawn = draw(true);
     assert!(
@@ -71,19 +81,19 @@ fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
 
     // one frame spread over uneven ranges of its triangles, one submission each (as the viewer
     // spreads a slow draw over several window frames): the same image
-    let frame = r.prepare(&ctx, &data, &cam, &tf, VisibilityOrder::Centroid);
+    let frame = r.prepare(ctx, &data, &cam, &tf, VisibilityOrder::Centroid);
     let n = frame.triangles();
     assert!(n > 1000, "{n} triangles");
     let cuts = [0, 1, n / 7, n / 3, n / 3, n / 2 + 5, n - 1, n + 50];
     for (i, w) in cuts.windows(2).enumerate() {
-        r.draw_range_into(&ctx, &frame, w[0]..w[1], &view, i == 0);
+        r.draw_range_into(ctx, &frame, w[0]..w[1], &view, i == 0);
     }
-    let ranged = r.read_texture(&ctx, &texture).unwrap();
+    let ranged = r.read_texture(ctx, &texture).unwrap();
     assert!(
         ranged == offscreen,
         "a frame drawn in ranges differs from the frame drawn at once"
     );
     // a range short of the end leaves part of the image undrawn
-    r.draw_range_into(&ctx, &frame, 0..n / 2, &view, true);
-    assert!(r.read_texture(&ctx, &texture).unwrap() != offscreen);
+    r.draw_range_into(ctx, &frame, 0..n / 2, &view, true);
+    assert!(r.read_texture(ctx, &texture).unwrap() != offscreen);
 }

@@ -39,7 +39,6 @@ pub mod upload;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use tetwave_gpu::pt::PtRenderer;
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_render::transfer::{TransferFunction, AUTO};
 
@@ -253,25 +252,6 @@ impl ViewArgs {
     }
 }
 
-/// `args` with a leaf budget this adapter can draw: the drawn mesh adds green pieces to the red
-/// leaves the budget counts (at most 4 a leaf, far fewer in practice), so at most half of the
-/// `drawable` tets one draw holds; lowered with one line when the budget asked (or the
-/// machine's default) is larger.
-fn with_drawable_budget(args: &ViewArgs, drawable: u64) -> ViewArgs {
-    let mut args = args.clone();
-    let most = (drawable / 2).max(1);
-    let budget = args.select.leaf_budget() as u64;
-    if budget > most {
-        tracing::info!(
-            budget,
-            most,
-            "leaf budget lowered: this adapter draws at most {drawable} tets at once"
-        );
-        args.select.max_tets = Some(most);
-    }
-    args
-}
-
 /// Opens the window and runs until it is closed, `--frames` ran out or the script quit.
 pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let start = |s: String| ViewError::Start(one_line(&s));
@@ -305,7 +285,6 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     })?;
     let tf = tetwave_source::load::fit_auto(args.tf_spec(), &source, tf)
         .map_err(|e| start(format!("{}: {e}", args.source)))?;
-    let args = &with_drawable_budget(args, PtRenderer::max_tets(&ctx));
     let data = tetwave_source::Data::open(
         &source,
         tetwave_source::OpenOptions {
@@ -357,34 +336,5 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         Ok(report)
     } else {
         Err(ViewError::Run(report.errors.clone(), Box::new(report)))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        view: ViewArgs,
-    }
-
-    fn args(extra: &[&str]) -> ViewArgs {
-        let all = ["view", "store"].iter().chain(extra);
-        Cli::try_parse_from(all).unwrap().view
-    }
-
-    /// The leaf budget never asks for more tets than one draw of the adapter holds (half of them:
-    /// room for the green pieces); a smaller one is kept.
-    #[test]
-    fn the_leaf_budget_fits_one_draw() {
-        let lowered = with_drawable_budget(&args(&[]), 1_000);
-        assert_eq!(lowered.select.leaf_budget(), 500);
-        let lowered = with_drawable_budget(&args(&["--max-tets", "100000"]), 1_000);
-        assert_eq!(lowered.select.leaf_budget(), 500);
-        let kept = with_drawable_budget(&args(&["--max-tets", "300"]), 1_000);
-        assert_eq!(kept.select.leaf_budget(), 300);
     }
 }
