@@ -146,8 +146,10 @@ pub struct PrepareOptions {
     /// Store directory to write.
     #[arg(long)]
     pub out: PathBuf,
-    /// Levels of Bey refinement. Default: 5; for a raw grid, the most levels whose voxel lattice
-    /// pads the grid by at most half its points (see --base).
+    /// Levels of Bey refinement. Default: for a mesh, the fewest whose finest leaves are on
+    /// average no larger than its tets, within --memory; for a raw grid, the most levels whose
+    /// voxel lattice pads the grid by at most half its points (see --base); 5 for a synthetic
+    /// field.
     #[arg(long)]
     pub levels: Option<u8>,
     /// Base mesh: `auto`, `box5` (bounding box in 5 tets), `box6` (6 Kuhn tets) or a coarse tet
@@ -180,6 +182,11 @@ pub struct PrepareOptions {
     pub predictor: PredictorChoice,
     #[command(flatten)]
     pub read: ReadArgs,
+    /// Memory `prepare` may use, e.g. `4G`, `512M` (default: a sixth of this machine's memory).
+    /// Bounds the default levels of a mesh: the most whose samples and analysis fit (at
+    /// [`PREPARE_BYTES_PER_VERTEX`] a vertex).
+    #[arg(long, value_parser = parse_bytes)]
+    pub memory: Option<u64>,
     /// Also write `reference.f32`: the sampled value of every vertex, 4 bytes each, as large as
     /// the input and never streamed. Without it, `verify --input` checks the store against its
     /// input.
@@ -202,6 +209,7 @@ impl PrepareOptions {
             preview: None,
             predictor: PredictorChoice::Auto,
             read: ReadArgs::default(),
+            memory: None,
             keep_reference: false,
             progress: false,
         }
@@ -269,6 +277,9 @@ struct Loaded {
     source_range: Option<(f32, f32)>,
     /// A mesh's boundary surface, for the level set (`None`: the input has no outside).
     boundary: Option<BoundaryDistance>,
+    /// A mesh's tet count and volume (`None` for grids and synthetic fields): what its default
+    /// levels follow ([`mesh_levels`]).
+    resolution: Option<(u64, f64)>,
 }
 
 fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
@@ -305,6 +316,7 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
             import: None,
             source_range: None,
             boundary: None,
+            resolution: None,
         });
     }
     let stem = path
@@ -319,6 +331,7 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
             dataset: stem,
             import: None,
             boundary: None,
+            resolution: None,
         });
     }
     if o.format.is_some() || import::format_of(&path).is_some() || path.exists() {
@@ -352,15 +365,124 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
             })
             .flatten();
         let boundary = BoundaryDistance::new(&clean.points, &clean.tets);
+        let volume: f64 = clean
+            .tets
+            .iter()
+            .map(|t| {
+                let p = |k: usize| clean.points[t[k] as usize];
+                tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
+            })
+            .sum();
+        let resolution = Some((clean.tets.len() as u64, volume));
         return Ok(Loaded {
             source: Source::Mesh(Box::new(loc), bounds),
             dataset: stem,
             import: Some(report),
             source_range,
             boundary: Some(boundary),
+            resolution,
         });
     }
     Err(PrepareError::UnknownInput(input.to_string()))
+}
+
+/// What `prepare` holds a vertex of the semi-regular mesh with: measured 31 bytes at 513³
+/// (`prepare` of a grid: samples, reference values, the analysis' cells, details and
+/// coefficients); a mesh adds its level set, 4 more.
+pub const PREPARE_BYTES_PER_VERTEX: u64 = 40;
+
+/// `--memory`'s default: a sixth of this machine's memory (4 GiB on 24 GiB).
+pub fn default_memory() -> u64 {
+    store::machine_memory() / 6
+}
+
+/// A mesh's default levels: the fewest whose finest leaves are, on average, no larger than the
+/// input's tets (the mean leaf volume of `spec`'s base over `bounds` at most the mesh's `volume`
+/// over its `tets`), so that the store is as fine as the mesh is, on the whole, and no finer;
+/// at least 1, and at most what `memory` holds at [`PREPARE_BYTES_PER_VERTEX`] a vertex (and
+/// the analysis can index), with a warning when that caps it.
+pub fn mesh_levels(
+    spec: &BaseSpec,
+    bounds: ([f64; 3], [f64; 3]),
+    tets: u64,
+    volume: f64,
+    memory: u64,
+) -> Result<u8, PrepareError> {
+    let (positions, base_tets) = crate::resample::base_mesh(spec, bounds)?;
+    let base_volume: f64 = base_tets
+        .iter()
+        .map(|t| {
+            let p = |k: usize| positions[t[k] as usize];
+            tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
+        })
+        .sum();
+    let n_base = base_tets.len() as f64;
+    let input_tet = volume / tets.max(1) as f64;
+    let mut base = tetwave_protocol::BaseMesh {
+        levels: 0,
+        positions,
+        tets: base_tets,
+        values: Vec::new(),
+        empty: Vec::new(),
+        predictor: Default::default(),
+    };
+    let fits = |base: &mut tetwave_protocol::BaseMesh, l: u8| {
+        base.levels = l;
+        base.forest().nodes() <= MAX_NODES
+            && base.vertex_keys().vertex_count() * PREPARE_BYTES_PER_VERTEX <= memory
+    };
+    let mut levels = 1;
+    while levels < tetwave_protocol::hierarchy::MAX_LEVELS
+        && base_volume / (n_base * 8f64.powi(levels as i32)) > input_tet
+    {
+        if !fits(&mut base, levels + 1) {
+            tracing::warn!(
+                levels,
+                memory,
+                "the mesh's {tets} tets ask for more levels than --memory holds (at \
+                 {PREPARE_BYTES_PER_VERTEX} bytes a vertex): its store is coarser than the mesh"
+            );
+            return Ok(levels);
+        }
+        levels += 1;
+    }
+    tracing::info!(
+        levels,
+        input_tets = tets,
+        leaves = (n_base * 8f64.powi(levels as i32)) as u64,
+        "levels for the mesh: the fewest whose leaves are on average no larger than its tets \
+         (--levels to choose)"
+    );
+    Ok(levels)
+}
+
+/// A byte count: `N`, or `N` with `K`, `M`, `G`, `T` (powers of 1024; `KiB`, `GB` … read alike).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let x: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?}: give a size such as 4G, 512M or 1073741824"))?;
+    let shift = match unit
+        .trim()
+        .to_ascii_uppercase()
+        .trim_end_matches(['B', 'I'])
+    {
+        "" => 0,
+        "K" => 10,
+        "M" => 20,
+        "G" => 30,
+        "T" => 40,
+        _ => return Err(format!("{s:?}: unknown unit (K, M, G or T)")),
+    };
+    let bytes = x * (1u64 << shift) as f64;
+    if !(bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("{s:?}: give a positive size"));
+    }
+    Ok(bytes as u64)
 }
 
 /// `--base auto` for a raw grid: the Kuhn boxes whose finest vertices are its voxels
@@ -397,6 +519,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         import,
         source_range,
         boundary,
+        resolution,
     } = load_source(&o.input, &o.read)?;
     let (base, levels, domain) = match (&o.base, &source) {
         (BaseSpec::Auto, Source::Raw(g)) => voxel_base(g, o.levels)?,
@@ -409,7 +532,15 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
                 );
             }
             let domain = boundary.map(Domain::Mesh);
-            (spec.clone(), o.levels.unwrap_or(5), domain)
+            let levels = match (o.levels, resolution) {
+                (Some(l), _) => l,
+                (None, Some((tets, volume))) => {
+                    let memory = o.memory.unwrap_or_else(default_memory);
+                    mesh_levels(spec, source.bounds(), tets, volume, memory)?
+                }
+                (None, None) => 5,
+            };
+            (spec.clone(), levels, domain)
         }
     };
     tracing::info!(input = %o.input, levels, "resampling");

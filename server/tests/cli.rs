@@ -1036,3 +1036,55 @@ fn a_preview_is_written_beside_the_store() {
     );
     assert!(!fine.join("manifest.json").exists());
 }
+
+/// Without --levels, a mesh gets the fewest levels whose leaves are on average no larger than its
+/// tets: 1 for a cube of 6 tets, 4 for one of 12³ Kuhn cells (10,368 tets: box5 at 4 levels has
+/// 20,480 leaves, at 3 levels 2,560), and fewer when --memory cannot hold them, with a warning.
+#[test]
+fn a_meshs_default_levels_follow_its_resolution() {
+    let d = tmp();
+    let mesh = |name: &str, n: usize| {
+        let (pts, tets) = tetwave_protocol::shapes::kuhn_boxes([0.0; 3], [1.0; 3], [n; 3]);
+        let cells: Vec<(u8, Vec<u32>)> = tets.iter().map(|t| (10, t.to_vec())).collect();
+        write_vtk(
+            d.path(),
+            name,
+            &pts,
+            &cells,
+            &[("f", pts.iter().map(lin).collect())],
+        )
+    };
+    let levels_of = |p: &Path, extra: &[&str]| {
+        let out = d.path().join(format!(
+            "{}-{}",
+            p.file_name().unwrap().to_string_lossy(),
+            extra.len()
+        ));
+        let j = prepare_json(&then(&["prepare", s(p), "--out", s(&out), "--json"], extra));
+        j["levels"].as_u64().unwrap()
+    };
+    let coarse = mesh("coarse.vtk", 1);
+    assert_eq!(levels_of(&coarse, &[]), 1);
+    let fine = mesh("fine.vtk", 12);
+    assert_eq!(levels_of(&fine, &[]), 4);
+    // box5 at 3 levels has 9³ vertices (729 × 40 bytes), at 4 levels 17³ (4,913 × 40)
+    let r = run(&then(
+        &["prepare", s(&fine), "--memory", "100K", "--json"],
+        &["--out", s(&d.path().join("capped"))],
+    ));
+    assert!(r.ok, "{}", r.stderr);
+    let j: Value = serde_json::from_str(r.stdout.trim()).unwrap();
+    assert_eq!(j["levels"], 3);
+    assert!(r.stderr.contains("--memory"), "{}", r.stderr);
+    expect_error(
+        &[
+            "prepare",
+            s(&fine),
+            "--memory",
+            "lots",
+            "--out",
+            s(&d.path().join("x")),
+        ],
+        &["--memory", "4G"],
+    );
+}

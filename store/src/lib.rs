@@ -83,6 +83,21 @@ impl From<FormatError> for StoreError {
     }
 }
 
+/// This machine's memory in bytes (`MemTotal` of `/proc/meminfo`; 4 GiB assumed where it cannot
+/// be read): what the default memory bounds of both sides (`prepare --memory`, a client's leaf
+/// budget) are shares of.
+pub fn machine_memory() -> u64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("MemTotal:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        })
+        .map(|kb| kb * 1024)
+        .unwrap_or(4 << 30)
+}
+
 pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
         path: path.to_path_buf(),

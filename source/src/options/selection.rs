@@ -87,14 +87,5 @@ impl SelectionArgs {
 /// A quarter of this machine's memory at [`BYTES_PER_LEAF`] a leaf (4 GiB assumed where
 /// `/proc/meminfo` cannot be read).
 pub fn default_max_tets() -> usize {
-    let total = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("MemTotal:"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
-        })
-        .map(|kb| kb * 1024)
-        .unwrap_or(4 << 30);
-    (total / 4 / BYTES_PER_LEAF).min(u32::MAX as u64) as usize
+    (tetwave_store::machine_memory() / 4 / BYTES_PER_LEAF).min(u32::MAX as u64) as usize
 }
