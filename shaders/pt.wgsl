@@ -71,8 +71,30 @@ struct VsOut {
 // rasterizer also culls front faces, so only exit faces reach the fragment stage.
 @vertex
 fn vs_main(@builtin(vertex_index) vi: u32) -> VsOut {
-    let t = vi / 4u;
-    let p = positions[tets[t][vi % 4u]].xyz;
+    return tet_vertex(vi / 4u, vi % 4u);
+}
+
+// The GPU's visibility order (gpu/src/sort.rs): the chunk's tets back to front, and a bit per tet
+// set when it is negatively oriented (its faces wind the other way).
+@group(1) @binding(0) var<storage, read> order: array<u32>;
+@group(1) @binding(1) var<storage, read> negative: array<u32>;
+
+// Non-indexed draw in the GPU's order: vertex `v` is corner `k` of face `(v % 12) / 3` of the tet
+// at `order[v / 12]`, every face of every tet drawn; front-face culling drops the entry faces, as
+// the CPU drops them before drawing (`FACES_POS`/`FACES_NEG` in pt.rs).
+@vertex
+fn vs_sorted(@builtin(vertex_index) vi: u32) -> VsOut {
+    let t = order[vi / 12u];
+    var pos = array<u32, 12>(1u, 2u, 3u, 0u, 3u, 2u, 0u, 1u, 3u, 0u, 2u, 1u);
+    var neg = array<u32, 12>(1u, 3u, 2u, 0u, 2u, 3u, 0u, 3u, 1u, 0u, 1u, 2u);
+    let k = vi % 12u;
+    let flip = ((negative[t >> 5u] >> (t & 31u)) & 1u) == 1u;
+    return tet_vertex(t, select(pos[k], neg[k], flip));
+}
+
+// Corner `corner` of tet `t`, with what the fragment stage needs of the tet.
+fn tet_vertex(t: u32, corner: u32) -> VsOut {
+    let p = positions[tets[t][corner]].xyz;
     let eye = globals.eye.xyz;
     let g = geo[t];
     let pl = g.planes;

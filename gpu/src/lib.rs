@@ -6,6 +6,7 @@
 
 pub mod order;
 pub mod pt;
+mod sort;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {

@@ -10,6 +10,7 @@
 //! pixels; the image tests bound them against the exact reference.
 
 use super::order::{centroid_order, face_neighbors, mpvo_order};
+use super::sort::{GpuSort, SortBuffers};
 use super::{GpuContext, RenderError};
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
@@ -29,6 +30,9 @@ pub enum VisibilityOrder {
     Centroid,
     /// Williams' MPVO over face adjacency (exact for convex, acyclic meshes).
     Mpvo,
+    /// Centroid order computed on the GPU ([`crate::sort`]: a compute pass of depth keys and a
+    /// radix sort); the CPU only orders the chunks.
+    Gpu,
 }
 
 const SHADER: &str = include_str!("../../shaders/pt.wgsl");
@@ -96,7 +100,13 @@ pub struct PtRenderer {
     pipeline: wgpu::RenderPipeline,
     /// Adaptive sub-steps (`fs_steps`), for tets with a large scalar range.
     pipeline_steps: wgpu::RenderPipeline,
+    /// The same two drawing every face of each tet in the GPU's order (`vs_sorted`).
+    sorted: wgpu::RenderPipeline,
+    sorted_steps: wgpu::RenderPipeline,
     layout: wgpu::BindGroupLayout,
+    /// Group 1 of the sorted pipelines: the order and the orientation bits.
+    order_layout: wgpu::BindGroupLayout,
+    gpu_sort: GpuSort,
     format: wgpu::TextureFormat,
     /// The uniform buffers: per-frame globals and the transfer-function table (written while the
     /// frame holds `cache`).
@@ -152,6 +162,10 @@ struct Chunk {
     positions: wgpu::Buffer,
     tets: wgpu::Buffer,
     geo: wgpu::Buffer,
+    /// A bit per tet, set when it is negatively oriented ([`VisibilityOrder::Gpu`]'s draw).
+    negative: wgpu::Buffer,
+    /// [`VisibilityOrder::Gpu`]'s buffers, made when first drawn in that order.
+    sort: std::sync::OnceLock<SortBuffers>,
 }
 
 /// The k-d tree whose leaves are the chunks: node 0 is the root; a split sends centroids below
@@ -259,8 +273,18 @@ impl ChunkTree {
 /// shader, triangle count).
 struct PartPlan {
     chunk: u32,
-    indices: Vec<[u32; 3]>,
-    runs: Vec<(bool, u32)>,
+    draw: PartPlanDraw,
+}
+
+/// How a chunk is drawn.
+enum PartPlanDraw {
+    /// The exit faces listed, with runs of (adaptive shader, triangle count).
+    Indexed {
+        indices: Vec<[u32; 3]>,
+        runs: Vec<(bool, u32)>,
+    },
+    /// Every face in the GPU's order, all with the adaptive shader or none.
+    Sorted { slow: bool },
 }
 
 impl TetDrawData {
@@ -281,10 +305,18 @@ pub struct FramePlan {
 /// One chunk's share of a [`FrameDraw`].
 struct FramePart {
     chunk: u32,
-    indices: wgpu::Buffer,
     triangles: u32,
-    /// Runs of (adaptive shader, triangle count) in drawing order.
-    runs: Vec<(bool, u32)>,
+    draw: FramePartDraw,
+}
+
+enum FramePartDraw {
+    /// Exit faces by index, with runs of (adaptive shader, triangle count) in drawing order.
+    Indexed {
+        indices: wgpu::Buffer,
+        runs: Vec<(bool, u32)>,
+    },
+    /// Every face (4 triangles a tet) in the order the GPU sorted, bound as group 1.
+    Sorted { order: wgpu::BindGroup, slow: bool },
 }
 
 /// One frame's draw data ([`PtRenderer::prepare`]): the exit faces of the tets in visibility
@@ -387,18 +419,30 @@ impl PtRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
+        let order_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("pt order"),
+            entries: &[
+                storage(0, wgpu::ShaderStages::VERTEX),
+                storage(1, wgpu::ShaderStages::VERTEX),
+            ],
+        });
+        let pl_sorted = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("pt sorted"),
+            bind_group_layouts: &[Some(&layout), Some(&order_layout)],
+            immediate_size: 0,
+        });
         let blend = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::One,
             dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,
             operation: wgpu::BlendOperation::Add,
         };
-        let make_pipeline = |fs: &str| {
+        let make_pipeline = |vs: &str, pl: &wgpu::PipelineLayout, fs: &str| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("pt"),
-                layout: Some(&pl),
+                layout: Some(pl),
                 vertex: wgpu::VertexState {
                     module: &module,
-                    entry_point: Some("vs_main"),
+                    entry_point: Some(vs),
                     buffers: &[],
                     compilation_options: Default::default(),
                 },
@@ -436,8 +480,12 @@ impl PtRenderer {
             })
         };
         PtRenderer {
-            pipeline: make_pipeline("fs_main"),
-            pipeline_steps: make_pipeline("fs_steps"),
+            pipeline: make_pipeline("vs_main", &pl, "fs_main"),
+            pipeline_steps: make_pipeline("vs_main", &pl, "fs_steps"),
+            sorted: make_pipeline("vs_sorted", &pl_sorted, "fs_main"),
+            sorted_steps: make_pipeline("vs_sorted", &pl_sorted, "fs_steps"),
+            order_layout,
+            gpu_sort: GpuSort::new(device),
             globals: uniform("globals", std::mem::size_of::<Globals>()),
             tf_table: uniform("tf", TF_TABLE_BYTES as usize),
             cache: Default::default(),
@@ -572,10 +620,19 @@ impl PtRenderer {
                     })
                     .collect();
                 let g = &geo[range.start as usize..range.end as usize];
+                let mut negative = vec![0u32; mine.len().div_ceil(32)];
+                for (i, t) in mine.iter().enumerate() {
+                    let p = |k: usize| mesh.positions[t[k] as usize];
+                    if tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)) < 0.0 {
+                        negative[i / 32] |= 1 << (i % 32);
+                    }
+                }
                 Chunk {
                     positions: make("positions", bytemuck::cast_slice(&positions)),
                     tets: make("tets", bytemuck::cast_slice(&tets_local)),
                     geo: make("geo", bytemuck::cast_slice(g)),
+                    negative: make("negative", bytemuck::cast_slice(&negative)),
+                    sort: std::sync::OnceLock::new(),
                     range,
                 }
             })
@@ -697,10 +754,17 @@ impl PtRenderer {
         let eye = cam.eye - data.origin;
         let eye32 = [eye.x as f32, eye.y as f32, eye.z as f32];
         // per chunk far to near, its tets (indices into the data's chunk order) back to front
+        // (the GPU's order: the chunks alone, their tets left to the GPU)
         let ordered: Vec<(u32, Vec<u32>)> = match (&data.neighbors, visibility) {
             (Some(nb), VisibilityOrder::Mpvo) => {
                 vec![(0, mpvo_order(&data.planes, nb, &data.centroids, eye32).0)]
             }
+            (_, VisibilityOrder::Gpu) => data
+                .tree
+                .far_to_near(eye32)
+                .into_iter()
+                .map(|c| (c, Vec::new()))
+                .collect(),
             _ => data
                 .tree
                 .far_to_near(eye32)
@@ -763,6 +827,13 @@ impl PtRenderer {
         let fast_limit = FAST_MAX_STEPS * s_res as f32;
         let part = |(chunk, order): (u32, Vec<u32>)| {
             let first = data.chunks[chunk as usize].range.start;
+            if visibility == VisibilityOrder::Gpu {
+                let slow = data.max_s_range > fast_limit;
+                return PartPlan {
+                    chunk,
+                    draw: PartPlanDraw::Sorted { slow },
+                };
+            }
             if data.max_s_range <= fast_limit {
                 let indices: Vec<[u32; 3]> = order
                     .par_iter()
@@ -771,8 +842,10 @@ impl PtRenderer {
                 let n = indices.len() as u32;
                 return PartPlan {
                     chunk,
-                    indices,
-                    runs: vec![(false, n)],
+                    draw: PartPlanDraw::Indexed {
+                        indices,
+                        runs: vec![(false, n)],
+                    },
                 };
             }
             let mut indices = Vec::with_capacity(order.len() * 2);
@@ -797,8 +870,7 @@ impl PtRenderer {
             }
             PartPlan {
                 chunk,
-                indices,
-                runs,
+                draw: PartPlanDraw::Indexed { indices, runs },
             }
         };
         FramePlan {
@@ -838,23 +910,70 @@ impl PtRenderer {
                 .write_buffer(tfbuf, 0, bytemuck::cast_slice(&tf_gpu));
             cache.tf_points = Some(tf.points.clone());
         }
+        // the GPU's order: every sorted chunk's sort, submitted before any draw of the frame
+        let eye = globals.eye;
+        let mut sorts: Option<wgpu::CommandEncoder> = None;
         let parts: Vec<FramePart> = parts
             .into_iter()
-            .map(|p| FramePart {
-                chunk: p.chunk,
-                indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("faces"),
-                    contents: if p.indices.is_empty() {
-                        &[0u8; 12]
-                    } else {
-                        bytemuck::cast_slice(&p.indices)
+            .map(|p| {
+                let chunk = &data.chunks[p.chunk as usize];
+                match p.draw {
+                    PartPlanDraw::Indexed { indices, runs } => FramePart {
+                        chunk: p.chunk,
+                        triangles: indices.len() as u32,
+                        draw: FramePartDraw::Indexed {
+                            indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                                label: Some("faces"),
+                                contents: if indices.is_empty() {
+                                    &[0u8; 12]
+                                } else {
+                                    bytemuck::cast_slice(&indices)
+                                },
+                                usage: wgpu::BufferUsages::INDEX,
+                            }),
+                            runs,
+                        },
                     },
-                    usage: wgpu::BufferUsages::INDEX,
-                }),
-                triangles: p.indices.len() as u32,
-                runs: p.runs,
+                    PartPlanDraw::Sorted { slow } => {
+                        let r = chunk.range.start as usize..chunk.range.end as usize;
+                        let b = chunk.sort.get_or_init(|| {
+                            let c: Vec<[f32; 4]> = data.centroids[r]
+                                .iter()
+                                .map(|c| [c[0], c[1], c[2], 1.0])
+                                .collect();
+                            self.gpu_sort.buffers(device, &c)
+                        });
+                        let enc = sorts.get_or_insert_with(|| {
+                            device.create_command_encoder(&Default::default())
+                        });
+                        self.gpu_sort
+                            .encode(&ctx.queue, enc, b, [eye[0], eye[1], eye[2]]);
+                        let order = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                            label: Some("pt order"),
+                            layout: &self.order_layout,
+                            entries: &[
+                                wgpu::BindGroupEntry {
+                                    binding: 0,
+                                    resource: b.order().as_entire_binding(),
+                                },
+                                wgpu::BindGroupEntry {
+                                    binding: 1,
+                                    resource: chunk.negative.as_entire_binding(),
+                                },
+                            ],
+                        });
+                        FramePart {
+                            chunk: p.chunk,
+                            triangles: 4 * (chunk.range.end - chunk.range.start),
+                            draw: FramePartDraw::Sorted { order, slow },
+                        }
+                    }
+                }
             })
             .collect();
+        if let Some(enc) = sorts {
+            ctx.queue.submit([enc.finish()]);
+        }
         let binds = data
             .chunks
             .iter()
@@ -924,9 +1043,26 @@ impl PtRenderer {
                 continue;
             }
             pass.set_bind_group(0, &frame.binds[part.chunk as usize], &[]);
-            pass.set_index_buffer(part.indices.slice(..), wgpu::IndexFormat::Uint32);
             let base = first;
-            for &(slow, n) in &part.runs {
+            let runs = match &part.draw {
+                FramePartDraw::Indexed { indices, runs } => {
+                    pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                    runs
+                }
+                FramePartDraw::Sorted { order, slow } => {
+                    pass.set_bind_group(1, order, &[]);
+                    pass.set_pipeline(if *slow {
+                        &self.sorted_steps
+                    } else {
+                        &self.sorted
+                    });
+                    let (a, b) = (first.max(tris.start), part_end.min(end));
+                    pass.draw(3 * (a - base)..3 * (b - base), 0..1);
+                    first = part_end;
+                    continue;
+                }
+            };
+            for &(slow, n) in runs {
                 let (a, b) = (first.max(tris.start), (first + n).min(end));
                 first += n;
                 if a >= b {

@@ -1,7 +1,7 @@
 //! A mesh larger than one storage binding is drawn in chunks (`TetDrawData`): forced here on a
 //! small mesh (`upload_in_chunks`), the chunked image matches the one-buffer image and the CPU
-//! reference, from outside the mesh and from inside it, and a spread draw of a chunked frame gives
-//! its whole image. Needs a GPU adapter (`scripts/setup` installs Mesa's lavapipe); without one it
+//! reference, from outside the mesh and from inside it, with the CPU's sort and the GPU's
+//! (`VisibilityOrder::Gpu`), which draws the CPU's image. Needs a GPU adapter (`scripts/setup` installs Mesa's lavapipe); without one it
 //! fails with the renderer's "no GPU adapter" message rather than skip.
 
 use tetwave_gpu::pt::{PtRenderer, VisibilityOrder};
@@ -47,19 +47,28 @@ fn a_mesh_in_chunks_draws_the_image_of_one_buffer() {
             .render_ordered(&ctx, &whole, &cam, &tf, VisibilityOrder::Centroid)
             .unwrap();
         let reference = render_reference(&mesh, &cam, &tf);
-        for most in [5_000, 700] {
+        // the GPU's sort draws the CPU's order (but for ties, which neither orders)
+        let (gpu, _) = r
+            .render_ordered(&ctx, &whole, &cam, &tf, VisibilityOrder::Gpu)
+            .unwrap();
+        let gpu_one = psnr(&gpu, &one);
+        eprintln!("{what}: the GPU's sort: {gpu_one:.1} dB against the CPU's");
+        assert!(gpu_one >= 60.0, "{what}: GPU sort {gpu_one:.1} dB");
+        for (most, order) in [
+            (5_000, VisibilityOrder::Centroid),
+            (700, VisibilityOrder::Centroid),
+            (700, VisibilityOrder::Gpu),
+        ] {
             let chunked = r.upload_in_chunks(&ctx, &mesh, false, most).unwrap();
-            let (img, _) = r
-                .render_ordered(&ctx, &chunked, &cam, &tf, VisibilityOrder::Centroid)
-                .unwrap();
+            let (img, _) = r.render_ordered(&ctx, &chunked, &cam, &tf, order).unwrap();
             let (vs_one, vs_ref, one_ref) = (
                 psnr(&img, &one),
                 psnr(&img, &reference),
                 psnr(&one, &reference),
             );
             eprintln!(
-                "{what}: chunks of {most}: {vs_one:.1} dB against one buffer, {vs_ref:.1} dB \
-                 against the CPU reference (one buffer: {one_ref:.1} dB)"
+                "{what}: chunks of {most}, {order:?}: {vs_one:.1} dB against one buffer, \
+                 {vs_ref:.1} dB against the CPU reference (one buffer: {one_ref:.1} dB)"
             );
             assert!(img.coverage() > 0.05, "{what}: drawn");
             assert!(vs_one >= 50.0, "{what}, chunks of {most}: {vs_one:.1} dB");

@@ -8,22 +8,27 @@ use tetwave_protocol::view::Orbit;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::TransferFunction;
 
-/// In one buffer, and in chunks of 100 tets (a frame's ranges then cross chunks).
+/// In one buffer, and in chunks of 100 tets (a frame's ranges then cross chunks), with the CPU's
+/// sort and the GPU's.
 #[test]
 fn drawing_into_a_callers_texture_gives_the_offscreen_image() {
     let ctx = GpuContext::new().unwrap_or_else(|e| panic!("GPU tests cannot run: {e}"));
     let r = PtRenderer::with_accumulation(&ctx, Accumulation::U8);
     let mesh = RenderMesh::kuhn_cube(6, 1.0, |p| (p[0] * 3.0).sin() * p[1] + p[2]);
-    check(&ctx, &r, &mesh, r.upload(&ctx, &mesh).unwrap());
-    check(
-        &ctx,
-        &r,
-        &mesh,
-        r.upload_in_chunks(&ctx, &mesh, false, 100).unwrap(),
-    );
+    for order in [VisibilityOrder::Centroid, VisibilityOrder::Gpu] {
+        check(&ctx, &r, &mesh, r.upload(&ctx, &mesh).unwrap(), order);
+        let chunked = r.upload_in_chunks(&ctx, &mesh, false, 100).unwrap();
+        check(&ctx, &r, &mesh, chunked, order);
+    }
 }
 
-fn check(ctx: &GpuContext, r: &PtRenderer, mesh: &RenderMesh, data: TetDrawData) {
+fn check(
+    ctx: &GpuContext,
+    r: &PtRenderer,
+    mesh: &RenderMesh,
+    data: TetDrawData,
+    order: VisibilityOrder,
+) {
     let tf = TransferFunction::preset("default").unwrap();
     let (w, h) = (96, 72);
     let cam = Orbit {
@@ -34,9 +39,7 @@ fn check(ctx: &GpuContext, r: &PtRenderer, mesh: &RenderMesh, data: TetDrawData)
         fov: 40.0,
     }
     .camera(w, h);
-    let (offscreen, _) = r
-        .render_ordered(ctx, &data, &cam, &tf, VisibilityOrder::Centroid)
-        .unwrap();
+    let (offscreen, _) = r.render_ordered(ctx, &data, &cam, &tf, order).unwrap();
     assert!(offscreen.coverage() > 0.05, "the cube is drawn");
 
     let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
@@ -55,15 +58,7 @@ fn check(ctx: &GpuContext, r: &PtRenderer, mesh: &RenderMesh, data: TetDrawData)
     });
     let view = texture.create_view(&Default::default());
     let draw = |clear| {
-        r.draw_into(
-            ctx,
-            &data,
-            &cam,
-            &tf,
-            VisibilityOrder::Centroid,
-            &view,
-            clear,
-        );
+        r.draw_into(ctx, &data, &cam, &tf, order, &view, clear);
         r.read_texture(ctx, &texture).unwrap()
     };
     let drawn = draw(true);
@@ -81,7 +76,7 @@ fn check(ctx: &GpuContext, r: &PtRenderer, mesh: &RenderMesh, data: TetDrawData)
 
     // one frame spread over uneven ranges of its triangles, one submission each (as the viewer
     // spreads a slow draw over several window frames): the same image
-    let frame = r.prepare(ctx, &data, &cam, &tf, VisibilityOrder::Centroid);
+    let frame = r.prepare(ctx, &data, &cam, &tf, order);
     let n = frame.triangles();
     assert!(n > 1000, "{n} triangles");
     let cuts = [0, 1, n / 7, n / 3, n / 3, n / 2 + 5, n - 1, n + 50];
