@@ -55,6 +55,18 @@ pub enum PrepareError {
     LevelSet(#[from] tetwave_protocol::levelset::LevelSetError),
     #[error(transparent)]
     Store(#[from] StoreError),
+    #[error(
+        "{vertices} vertices at {levels} levels: prepare holds the whole hierarchy in memory, \
+         about {need_gib:.1} GiB here, and this machine has {have_gib:.1} GiB (preparing by parts \
+         and out of core is not implemented yet): give fewer --levels, or prepare on a machine \
+         with more memory"
+    )]
+    TooLargeForMemory {
+        vertices: u64,
+        levels: u8,
+        need_gib: f64,
+        have_gib: f64,
+    },
     #[error("{what}: max abs error {error:e} exceeds the manifest's bound {bound:e}")]
     VerifyFailed {
         what: String,
@@ -408,27 +420,22 @@ pub fn mesh_levels(
     volume: f64,
     memory: u64,
 ) -> Result<u8, PrepareError> {
-    let (positions, base_tets) = crate::resample::base_mesh(spec, bounds)?;
-    let base_volume: f64 = base_tets
+    let mut base = bare_base(spec, bounds)?;
+    let base_volume: f64 = base
+        .tets
         .iter()
         .map(|t| {
-            let p = |k: usize| positions[t[k] as usize];
+            let p = |k: usize| base.positions[t[k] as usize];
             tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
         })
         .sum();
-    let n_base = base_tets.len() as f64;
+    let n_base = base.tets.len() as f64;
     let input_tet = volume / tets.max(1) as f64;
-    let mut base = tetwave_protocol::BaseMesh {
-        levels: 0,
-        positions,
-        tets: base_tets,
-        values: Vec::new(),
-        empty: Vec::new(),
-        predictor: Default::default(),
-    };
     let fits = |base: &mut tetwave_protocol::BaseMesh, l: u8| {
         base.levels = l;
-        base.forest().nodes() <= MAX_NODES
+        base.forest()
+            .checked_nodes()
+            .is_some_and(|n| n <= MAX_NODES)
             && base.vertex_keys().vertex_count() * PREPARE_BYTES_PER_VERTEX <= memory
     };
     let mut levels = 1;
@@ -454,6 +461,49 @@ pub fn mesh_levels(
          (--levels to choose)"
     );
     Ok(levels)
+}
+
+/// `spec`'s base mesh over `bounds`, without values: what sizes a hierarchy before it is sampled.
+fn bare_base(
+    spec: &BaseSpec,
+    bounds: ([f64; 3], [f64; 3]),
+) -> Result<tetwave_protocol::BaseMesh, PrepareError> {
+    let (positions, tets) = crate::resample::base_mesh(spec, bounds)?;
+    Ok(tetwave_protocol::BaseMesh {
+        levels: 0,
+        positions,
+        tets,
+        values: Vec::new(),
+        empty: Vec::new(),
+        predictor: Default::default(),
+    })
+}
+
+/// Refuses, before anything is allocated, a hierarchy whose in-memory preparation needs more than
+/// this machine's memory (at [`PREPARE_BYTES_PER_VERTEX`] a vertex): one error line instead of
+/// the system stopping the process half way.
+fn check_fits_memory(
+    spec: &BaseSpec,
+    bounds: ([f64; 3], [f64; 3]),
+    levels: u8,
+) -> Result<(), PrepareError> {
+    if levels > tetwave_protocol::hierarchy::MAX_LEVELS {
+        return Err(ResampleError::TooManyLevels(levels).into());
+    }
+    let mut base = bare_base(spec, bounds)?;
+    base.levels = levels;
+    let vertices = base.vertex_keys().vertex_count();
+    let need = vertices.saturating_mul(PREPARE_BYTES_PER_VERTEX);
+    let have = store::machine_memory();
+    if need > have {
+        return Err(PrepareError::TooLargeForMemory {
+            vertices,
+            levels,
+            need_gib: need as f64 / (1u64 << 30) as f64,
+            have_gib: have as f64 / (1u64 << 30) as f64,
+        });
+    }
+    Ok(())
 }
 
 /// A byte count: `N`, or `N` with `K`, `M`, `G`, `T` (powers of 1024; `KiB`, `GB` … read alike).
@@ -491,7 +541,11 @@ fn voxel_base(
     g: &RawGrid,
     levels: Option<u8>,
 ) -> Result<(BaseSpec, u8, Option<Domain>), PrepareError> {
-    let fits = |tets, l| tetwave_protocol::Forest::new(tets, l).nodes() <= MAX_NODES;
+    let fits = |tets, l| {
+        tetwave_protocol::Forest::new(tets, l)
+            .checked_nodes()
+            .is_some_and(|n| n <= MAX_NODES)
+    };
     let l = VoxelLattice::fit(g.dims, g.spacing, levels, fits)?;
     let ([x, y, z], [px, py, pz], [cx, cy, cz]) = (g.dims, l.points, l.cells);
     let pads = l.pads(g.dims);
@@ -513,6 +567,33 @@ fn voxel_base(
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     let t0 = Instant::now();
+    // a raw grid's voxel lattice is known from its dims: refuse one too large before reading it
+    // (a file of another size than its dims is left to the reader, which says so)
+    let dims_match_file = |dims: [usize; 3]| {
+        let dtype = RawType::parse(&o.read.grid.dtype);
+        let voxels = dims.iter().try_fold(1u64, |a, &n| a.checked_mul(n as u64));
+        let len = std::fs::metadata(&o.input).map(|m| m.len()).ok();
+        matches!((dtype, voxels, len), (Some(t), Some(v), Some(l))
+            if v.checked_mul(t.bytes() as u64) == Some(l))
+    };
+    if let (Some(dims), BaseSpec::Auto, true) = (
+        o.read.grid.dims,
+        &o.base,
+        o.read.grid.dims.is_some_and(dims_match_file),
+    ) {
+        let fits = |tets, l| {
+            tetwave_protocol::Forest::new(tets, l)
+                .checked_nodes()
+                .is_some_and(|n| n <= MAX_NODES)
+        };
+        let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
+        let spec = BaseSpec::KuhnBoxes {
+            lo: [0.0; 3],
+            hi: l.hi,
+            cells: l.cells,
+        };
+        check_fits_memory(&spec, ([0.0; 3], l.hi), l.levels)?;
+    }
     let Loaded {
         source,
         dataset,
@@ -543,6 +624,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
             (spec.clone(), levels, domain)
         }
     };
+    check_fits_memory(&base, source.bounds(), levels)?;
     tracing::info!(input = %o.input, levels, "resampling");
     let mut r = resample(&source, &base, levels)?;
     let box6 = tetwave_protocol::axes::check_base(&r.base).is_ok();

@@ -935,17 +935,18 @@ fn bad_options_are_refused() {
         ],
         &["levels"],
     );
-    // beyond what the analysis indexes: the message says how many levels the base takes
+    // beyond this machine's memory (4097³ vertices): the message says what it needs and how to
+    // ask for less
     expect_error(
         &[
             "prepare",
             "synthetic:harmonic",
             "--levels",
-            "10",
+            "12",
             "--out",
             s(&d.path().join("o")),
         ],
-        &["--levels 10", "at most --levels 9"],
+        &["at 12 levels", "GiB", "fewer --levels"],
     );
     expect_error(&["verify", s(&d.path().join("absent"))], &["manifest.json"]);
     // an empty token (an unset variable in `--token "$T"`) would serve without authentication
@@ -1086,5 +1087,65 @@ fn a_meshs_default_levels_follow_its_resolution() {
             s(&d.path().join("x")),
         ],
         &["--memory", "4G"],
+    );
+}
+
+/// A hierarchy larger than this machine's memory is refused at once with what it needs and what
+/// there is, never by the system stopping the process: a 2049³ u8 grid (a sparse file: nothing is
+/// read; about 320 GiB in memory) and synthetic:harmonic at 12 levels of box6 (4097³ vertices).
+/// Past 2^29 nodes the node count itself is no limit (the analysis' owner codes widen to 64 bits).
+#[test]
+fn a_hierarchy_beyond_memory_is_refused_before_it_is_read() {
+    let d = tmp();
+    let raw = d.path().join("ct.raw");
+    let f = std::fs::File::create(&raw).unwrap();
+    f.set_len(2049 * 2049 * 2049).unwrap();
+    let out = d.path().join("o");
+    let t = std::time::Instant::now();
+    let r = run(&[
+        "prepare",
+        s(&raw),
+        "--dims",
+        "2049,2049,2049",
+        "--out",
+        s(&out),
+    ]);
+    assert!(!r.ok);
+    // 2049³ voxels are the vertices of one Kuhn box refined 11 times
+    assert!(
+        r.stderr.contains("8602523649 vertices at 11 levels"),
+        "{}",
+        r.stderr
+    );
+    assert!(
+        r.stderr.contains("GiB") && r.stderr.contains("--levels"),
+        "{}",
+        r.stderr
+    );
+    assert!(
+        !r.stderr.contains("more voxels than a hierarchy can index"),
+        "{}",
+        r.stderr
+    );
+    assert!(
+        t.elapsed().as_secs() < 30,
+        "refused without reading the grid"
+    );
+    assert!(!out.join("manifest.json").exists());
+    let r = run(&[
+        "prepare",
+        "synthetic:harmonic",
+        "--base",
+        "box6",
+        "--levels",
+        "12",
+        "--out",
+        s(&out),
+    ]);
+    assert!(!r.ok);
+    assert!(
+        r.stderr.contains("68769820673 vertices at 12 levels"),
+        "{}",
+        r.stderr
     );
 }

@@ -5,6 +5,7 @@
 //!
 //! [`Predictor::Axes`]: tetwave_protocol::wavelet::Predictor::Axes
 
+use super::walk::Owner;
 use super::walk::{load, store, Cell};
 use super::AnalysisError;
 use std::sync::atomic::AtomicU32;
@@ -18,11 +19,11 @@ pub const AXES_MAX_MAGNITUDE: f32 = 1e36;
 
 /// Replaces `detail` and the reconstructions in `cells` with the axes predictor's; returns the
 /// max |synthesis − sample|.
-pub(super) fn details(
+pub(super) fn details<O: Owner>(
     base: &BaseMesh,
     keys: &VertexKeys,
     reference: &[AtomicU32],
-    cells: &[Cell],
+    cells: &[Cell<O>],
     detail: &[AtomicU32],
     quantizer: Option<(Quantizer, LevelSteps)>,
 ) -> Result<f64, AnalysisError> {

@@ -2,16 +2,16 @@
 //! then each node's subtree max |d| and empty children, bottom-up by id arithmetic.
 
 use super::par::par_map;
-use super::walk::{fold_children, load, Cell, UNOWNED};
+use super::walk::{fold_children, load, Cell, Owner};
 use super::{SCATTER_PARALLEL_FROM, SEQUENTIAL_BELOW};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::AtomicU32;
 use tetwave_protocol::Forest;
 
 /// Per node the owned-edge mask, and the owned details in node order then edge order, from the
 /// per-vertex owners the walks claimed (`cells[nv..]` and `detail[nv..]`: the new vertices).
-pub(super) fn owned_coefficients(
-    cells: &[Cell],
+pub(super) fn owned_coefficients<O: Owner>(
+    cells: &[Cell<O>],
     detail: &[AtomicU32],
     nodes: usize,
     nv: usize,
@@ -32,10 +32,10 @@ pub(super) fn owned_coefficients(
     par_map(
         owned.chunks_mut(part_len).enumerate().collect(),
         |(p, masks): (usize, &mut [u8])| {
-            let lo = (p * part_len) as u32;
+            let lo = (p * part_len) as u64;
             for c in owners {
-                let c = c.owner.load(Ordering::Relaxed);
-                debug_assert_ne!(c, UNOWNED);
+                let c = O::wide(c.owner.load());
+                debug_assert_ne!(c, O::wide(O::UNOWNED));
                 let i = (c >> 3).wrapping_sub(lo) as usize;
                 if i < masks.len() {
                     masks[i] |= 1 << (c & 7);
@@ -49,10 +49,10 @@ pub(super) fn owned_coefficients(
         .map(|w| u64::from_le_bytes(w.try_into().unwrap()))
         .collect();
     let mut word_offsets = Vec::with_capacity(words.len() + 1);
-    let mut total = 0u32;
+    let mut total = 0u64;
     for w in &words {
         word_offsets.push(total);
-        total += w.count_ones();
+        total += w.count_ones() as u64;
     }
     word_offsets.push(total);
     owned.truncate(nodes);
@@ -72,14 +72,14 @@ pub(super) fn owned_coefficients(
         par_map(tasks, |(w0, w1, out): (usize, usize, &mut [f32])| {
             let base = word_offsets[w0];
             for (m, c) in owners.iter().enumerate() {
-                let code = c.owner.load(Ordering::Relaxed);
+                let code = O::wide(c.owner.load());
                 // bit position of (node, edge) in its word = 8 × (node mod 8) + edge = code mod 64
                 let w = (code >> 6) as usize;
                 if w < w0 || w >= w1 {
                     continue;
                 }
-                let at =
-                    word_offsets[w] - base + (words[w] & ((1u64 << (code & 63)) - 1)).count_ones();
+                let at = word_offsets[w] - base
+                    + (words[w] & ((1u64 << (code & 63)) - 1)).count_ones() as u64;
                 out[at as usize] = load(&detail[nv + m]);
             }
         });

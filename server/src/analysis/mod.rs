@@ -27,12 +27,12 @@ use crate::resample::{Resampled, MAX_NODES};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use samples::SampleStats;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use tetwave_protocol::store_format::QUANTIZED_BITS;
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::wavelet::{LevelSteps, Predictor, Quantizer};
 use tetwave_protocol::BaseMesh;
-use walk::{load, Cell, Walk, UNOWNED};
+use walk::{load, Cell, Owner, Walk};
 
 /// Everything the store needs, in node-id order.
 pub struct Analysis {
@@ -319,8 +319,26 @@ pub fn analyze_hierarchy(
     Ok(a)
 }
 
-/// One analysis of `samples` (outside vertices NaN) with details kept by `quantizer`.
+/// One analysis of `samples` (outside vertices NaN) with details kept by `quantizer`, with owner
+/// codes as narrow as the hierarchy allows ([`Owner`]).
 fn walk_all(
+    base: BaseMesh,
+    keys: &VertexKeys,
+    samples: Vec<f32>,
+    stats: &SampleStats,
+    quantizer: Option<Quantizer>,
+    level_steps: LevelSteps,
+    progress: bool,
+) -> Result<Analysis, AnalysisError> {
+    if base.forest().nodes() <= <AtomicU32 as Owner>::MAX_NODES {
+        walk_all_with::<AtomicU32>(base, keys, samples, stats, quantizer, level_steps, progress)
+    } else {
+        walk_all_with::<AtomicU64>(base, keys, samples, stats, quantizer, level_steps, progress)
+    }
+}
+
+/// [`walk_all`] with owner codes in `O`.
+fn walk_all_with<O: Owner>(
     mut base: BaseMesh,
     keys: &VertexKeys,
     samples: Vec<f32>,
@@ -338,10 +356,10 @@ fn walk_all(
     let reference = samples::reference_values(samples, stats, nv);
     let cell = |r: &AtomicU32| Cell {
         rec: AtomicU32::new(r.load(Ordering::Relaxed)),
-        owner: AtomicU32::new(UNOWNED),
+        owner: O::new(O::UNOWNED),
     };
     let zero = |_| AtomicU32::new(0);
-    let (cells, detail): (Vec<Cell>, Vec<AtomicU32>) = if n >= PARALLEL_PASS_FROM {
+    let (cells, detail): (Vec<Cell<O>>, Vec<AtomicU32>) = if n >= PARALLEL_PASS_FROM {
         (
             reference.par_iter().map(cell).collect(),
             (0..n).into_par_iter().map(zero).collect(),
@@ -410,4 +428,56 @@ fn walk_all(
         max_abs_error: max_err,
         error_bound,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::resample::synthetic::Synthetic;
+    use crate::resample::{resample, BaseSpec, Source};
+
+    /// The walk with 64-bit owner codes (what a hierarchy past 2^29 nodes takes) gives what the
+    /// 32-bit one gives, byte for byte: both predictors, lossless and quantized, a box5 and a
+    /// box6 base.
+    #[test]
+    fn wide_owner_codes_analyse_alike() {
+        let field = Synthetic::parse("harmonic").unwrap();
+        for (spec, predictor, levels) in [
+            (BaseSpec::Box5, Predictor::Parent, 4),
+            (BaseSpec::Box6, Predictor::Axes, 4),
+        ] {
+            let mut r = resample(&Source::Synthetic(field), &spec, levels).unwrap();
+            r.base.predictor = predictor;
+            let stats = SampleStats::of(&r.samples);
+            for precision in [Precision::Lossless, Precision::Bits(12)] {
+                let (q, steps) = match samples::size_quantizer(precision, &r, &stats).unwrap() {
+                    Some((q, steps)) => (Some(q), steps),
+                    None => (None, LevelSteps::UNIFORM),
+                };
+                let run = |wide: bool| {
+                    let (base, samples) = (r.base.clone(), r.samples.clone());
+                    let a = if wide {
+                        walk_all_with::<AtomicU64>(base, &r.keys, samples, &stats, q, steps, false)
+                    } else {
+                        walk_all_with::<AtomicU32>(base, &r.keys, samples, &stats, q, steps, false)
+                    };
+                    a.unwrap()
+                };
+                let (narrow, wide) = (run(false), run(true));
+                let what = format!("{spec:?} {predictor:?} {precision:?}");
+                assert_eq!(narrow.owned, wide.owned, "{what}");
+                assert_eq!(narrow.empty_children, wide.empty_children, "{what}");
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&narrow.coeffs), bits(&wide.coeffs), "{what}");
+                assert_eq!(
+                    bits(&narrow.subtree_max_abs),
+                    bits(&wide.subtree_max_abs),
+                    "{what}"
+                );
+                assert_eq!(bits(&narrow.base.values), bits(&wide.base.values), "{what}");
+                assert_eq!(narrow.max_abs_error, wide.max_abs_error, "{what}");
+                assert!(narrow.coeffs.len() > 1000, "{what}");
+            }
+        }
+    }
 }

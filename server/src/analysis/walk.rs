@@ -5,8 +5,7 @@
 use super::keys::{for_each_split_keys, for_each_tet_keys};
 use super::par::par_max;
 use super::{bar, BASE_PER_TASK, PARALLEL_WALK_FROM, PARENTS_PER_TASK};
-use crate::resample::MAX_NODES;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use tetwave_protocol::hierarchy::{BEY_CHILDREN, BEY_SPLIT, EDGES};
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::wavelet::{analyze, predict, predict_split, synthesize, Quantizer};
@@ -15,11 +14,82 @@ use tetwave_protocol::Forest;
 /// One walk task's node outputs: its parents' subtree max and empty masks, then its children's.
 type LevelTask<'a> = ((&'a mut [f32], &'a mut [u8]), (&'a mut [f32], &'a mut [u8]));
 
-/// Per vertex, in one cache line: the reconstruction and `8 × (lowest id of a tet containing its
-/// edge) + local edge` ([`UNOWNED`] before the first visit).
-pub(super) struct Cell {
+/// A vertex's owner code, `8 × (lowest id of a tet containing its edge) + local edge`, in an
+/// atomic of the width the hierarchy needs: `u32` while every code fits below its [`Self::UNOWNED`]
+/// (2^29 nodes), `u64` past that (8 more bytes a vertex, so only where needed).
+pub(super) trait Owner: Send + Sync {
+    /// A code as a plain number.
+    type Code: Copy + Ord + Send + Sync + std::fmt::Debug;
+    /// No visitor yet.
+    const UNOWNED: Self::Code;
+    /// The most nodes whose codes fit.
+    const MAX_NODES: u64;
+    fn new(code: Self::Code) -> Self;
+    fn load(&self) -> Self::Code;
+    /// Lowers the code to `code`; returns the one before.
+    fn fetch_min(&self, code: Self::Code) -> Self::Code;
+    /// The code of `8 × id + edge`.
+    fn code(id: u64, edge: u64) -> Self::Code;
+    /// `8 × id + edge` of a code.
+    fn wide(code: Self::Code) -> u64;
+}
+
+impl Owner for AtomicU32 {
+    type Code = u32;
+    const UNOWNED: u32 = u32::MAX;
+    const MAX_NODES: u64 = (u32::MAX >> 3) as u64;
+    fn new(code: u32) -> Self {
+        AtomicU32::new(code)
+    }
+    #[inline]
+    fn load(&self) -> u32 {
+        AtomicU32::load(self, Ordering::Relaxed)
+    }
+    #[inline]
+    fn fetch_min(&self, code: u32) -> u32 {
+        AtomicU32::fetch_min(self, code, Ordering::Relaxed)
+    }
+    #[inline]
+    fn code(id: u64, edge: u64) -> u32 {
+        debug_assert!(id < Self::MAX_NODES);
+        (8 * id + edge) as u32
+    }
+    #[inline]
+    fn wide(code: u32) -> u64 {
+        code as u64
+    }
+}
+
+impl Owner for AtomicU64 {
+    type Code = u64;
+    const UNOWNED: u64 = u64::MAX;
+    const MAX_NODES: u64 = u64::MAX >> 3;
+    fn new(code: u64) -> Self {
+        AtomicU64::new(code)
+    }
+    #[inline]
+    fn load(&self) -> u64 {
+        AtomicU64::load(self, Ordering::Relaxed)
+    }
+    #[inline]
+    fn fetch_min(&self, code: u64) -> u64 {
+        AtomicU64::fetch_min(self, code, Ordering::Relaxed)
+    }
+    #[inline]
+    fn code(id: u64, edge: u64) -> u64 {
+        8 * id + edge
+    }
+    #[inline]
+    fn wide(code: u64) -> u64 {
+        code
+    }
+}
+
+/// Per vertex, in one cache line: the reconstruction and its owner code ([`Owner::UNOWNED`]
+/// before the first visit).
+pub(super) struct Cell<O> {
     pub(super) rec: AtomicU32,
-    pub(super) owner: AtomicU32,
+    pub(super) owner: O,
 }
 
 #[inline]
@@ -32,19 +102,12 @@ pub(super) fn store(a: &AtomicU32, x: f32) {
     a.store(x.to_bits(), Ordering::Relaxed)
 }
 
-/// No visitor yet (in [`Cell::owner`]).
-pub(super) const UNOWNED: u32 = u32::MAX;
-
-// Owner codes are 8 × node id + edge in a u32 below `UNOWNED`: every hierarchy within
-// `MAX_NODES` (the limit resample owns and checks first) must fit.
-const _: () = assert!(MAX_NODES <= (UNOWNED >> 3) as u64);
-
 /// The per-vertex state the level walks share.
-pub(super) struct Walk<'a> {
+pub(super) struct Walk<'a, O> {
     /// Sampled values (the samples' own memory); outside vertices are filled by prediction when
     /// first reached.
     pub(super) reference: &'a [AtomicU32],
-    pub(super) cells: &'a [Cell],
+    pub(super) cells: &'a [Cell<O>],
     /// Per new vertex: its detail.
     pub(super) detail: &'a [AtomicU32],
     /// Bitset of the vertices outside the input's domain; `None` when there are none.
@@ -55,7 +118,7 @@ pub(super) struct Walk<'a> {
     pub(super) details: bool,
 }
 
-impl Walk<'_> {
+impl<O: Owner> Walk<'_, O> {
     #[inline]
     fn is_outside(&self, v: usize) -> bool {
         match self.outside {
@@ -70,7 +133,6 @@ impl Walk<'_> {
     /// |open-loop detail| over its 6 edges and, for `leaf_parent`, its empty-children mask.
     #[inline]
     fn visit(&self, id: u64, sk: &[usize; 10], leaf_parent: bool, err: &mut f64) -> (f32, u8) {
-        let code0 = (id as u32) << 3;
         let mut mx = 0f32;
         let r = |i: usize| load(&self.reference[sk[i]]);
         for (e, &(a, b)) in EDGES.iter().enumerate() {
@@ -80,7 +142,7 @@ impl Walk<'_> {
                 // open-loop |d| of every edge (inside samples are never written: no race)
                 mx = mx.max((r(4 + e) - predict(r(a), r(b))).abs());
             }
-            self.claim(m, code0 | e as u32, out, err, || {
+            self.claim(m, O::code(id, e as u64), out, err, || {
                 predict(load(&self.cells[sk[a]].rec), load(&self.cells[sk[b]].rec))
             });
         }
@@ -113,12 +175,11 @@ impl Walk<'_> {
     ) {
         let split = &BEY_SPLIT;
         let mut od = [0f32; 25];
-        let code0 = (c0 as u32) << 3;
         // gather first: independent loads overlap their cache misses
-        let (mut fm, mut owner, mut fp) = ([0f32; 25], [0u32; 25], [0f32; 10]);
+        let (mut fm, mut owner, mut fp) = ([0f32; 25], [O::UNOWNED; 25], [0f32; 10]);
         for j in 0..25 {
             fm[j] = load(&self.reference[mid[j]]);
-            owner[j] = self.cells[mid[j]].owner.load(Ordering::Relaxed);
+            owner[j] = self.cells[mid[j]].owner.load();
         }
         for p in 0..10 {
             fp[p] = load(&self.reference[pk[p]]);
@@ -131,7 +192,7 @@ impl Walk<'_> {
                 od[j] = (fm[j] - predict(fp[a], fp[b])).abs();
             }
             let (i, e) = split.first_child[j];
-            let code = code0 + ((i as u32) << 3) + e as u32;
+            let code = O::code(c0 + i as u64, e as u64);
             if code < owner[j] {
                 self.claim(m, code, out, err, || {
                     let rec: [f32; 10] = std::array::from_fn(|p| load(&self.cells[pk[p]].rec));
@@ -179,17 +240,14 @@ impl Walk<'_> {
     fn claim(
         &self,
         m: usize,
-        code: u32,
+        code: O::Code,
         out: bool,
         err: &mut f64,
         prediction: impl FnOnce() -> f32,
     ) {
         let cell = &self.cells[m];
         // within a task ids increase: mostly only a task's first reach of a vertex takes the atomic
-        if code >= cell.owner.load(Ordering::Relaxed)
-            || cell.owner.fetch_min(code, Ordering::Relaxed) != UNOWNED
-            || !self.details
-        {
+        if code >= cell.owner.load() || cell.owner.fetch_min(code) != O::UNOWNED || !self.details {
             return;
         }
         let p = prediction();
@@ -216,7 +274,7 @@ impl Walk<'_> {
     }
 }
 
-impl Walk<'_> {
+impl<O: Owner> Walk<'_, O> {
     /// Walks every level top-down (closed loop: each level reads only coarser reconstructions),
     /// filling each node's own max |d| and, for the last node level, its subtree max and empty
     /// children; returns the max |synthesis − sample| over the new vertices.

@@ -23,10 +23,10 @@ use tetwave_protocol::hierarchy::MAX_LEVELS;
 use tetwave_protocol::vertex::VertexKeys;
 use tetwave_protocol::{BaseMesh, Forest};
 
-/// Detail nodes a hierarchy may have: the analysis codes a vertex's owner as 8 × node id + edge in
-/// a u32 (below `u32::MAX`, its "no owner"). [`resample`] refuses more before it allocates the
-/// samples, and the analysis checks it again.
-pub const MAX_NODES: u64 = (u32::MAX >> 3) as u64;
+/// Detail nodes a hierarchy may have: the analysis codes a vertex's owner as 8 × node id + edge,
+/// in a u64 past 2^29 nodes (below `u64::MAX`, its "no owner"). [`resample`] refuses more before
+/// it allocates the samples, and the analysis checks it again; memory binds long before.
+pub const MAX_NODES: u64 = u64::MAX >> 3;
 
 /// Where the scalar comes from.
 pub enum Source {
@@ -220,11 +220,13 @@ pub fn resample_onto(
         predictor: Default::default(),
     };
     let forest = base.forest();
-    if levels > 0 && forest.nodes() > MAX_NODES {
-        let most = (0..levels)
-            .rev()
-            .find(|&l| Forest::new(forest.n_base, l).nodes() <= MAX_NODES)
-            .unwrap_or(0);
+    let fits = |l: u8| {
+        Forest::new(forest.n_base, l)
+            .checked_nodes()
+            .is_some_and(|n| n <= MAX_NODES)
+    };
+    if levels > 0 && !fits(levels) {
+        let most = (0..levels).rev().find(|&l| fits(l)).unwrap_or(0);
         return Err(ResampleError::TooManyNodes {
             levels,
             tets: forest.level_len(levels),
