@@ -784,19 +784,6 @@ fn long_sequence_level4() {
     assert!(s.corrected > 0);
 }
 
-/// A hierarchy deeper than the mesh's 32-bit vertex keys allow (one tet, 12 levels: about 1.2e10
-/// keys) is refused with an error, not a panic.
-#[test]
-fn too_many_vertex_keys_is_an_error() {
-    let base = corner_tet(12);
-    base.validate().expect("a valid base mesh");
-    assert!(base.vertex_keys().vertex_count() >= u32::MAX as u64);
-    match AdaptiveMesh::new(&base) {
-        Err(MeshError::TooManyKeys(n)) => assert_eq!(n, base.vertex_keys().vertex_count()),
-        other => panic!("expected TooManyKeys, got {:?}", other.map(|_| ())),
-    }
-}
-
 /// A hierarchy whose ids do not fit the mesh's 40-bit node ids (one tet, 14 levels: about 5e12
 /// tets) is refused with an error, not a panic or a wrapped id.
 #[test]

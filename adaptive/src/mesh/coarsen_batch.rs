@@ -36,7 +36,15 @@ struct BatchAux {
 /// Vertices whose presence forces a refined tet to be refined again if its split is undone (see
 /// [`AdaptiveMesh::coarsen_batch_at`]): up to 4 (slot, key) pairs, unused ones `(NONE, 0)`. Any
 /// present superset forces it too (the closure's test is monotone in the present vertices).
-type Witness = [(u32, u32); 4];
+/// The keys are whole (a slot may be reused by another vertex; hierarchies of 2049³ points have
+/// keys past 2^32): 48 bytes, slots and keys apart so that neither pads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Witness {
+    slots: [u32; 4],
+    keys: [u64; 4],
+}
+
+const _: () = assert!(std::mem::size_of::<Witness>() == 48);
 
 /// Why the last merge attempt of a refined tet was refused, kept by its slot. Only
 /// `AdaptiveMesh::unrefine` makes a refined tet a leaf or frees a slot, and it drops the record:
@@ -218,15 +226,28 @@ impl AdaptiveMesh {
 
     /// Whether slot `s` holds a present vertex of key `k` (a witness entry's test).
     #[inline(always)]
-    fn holds_vertex(&self, s: u32, k: u32) -> bool {
-        self.vref[s as usize] > 0 && self.vkey[s as usize] == k as u64
+    fn holds_vertex(&self, s: u32, k: u64) -> bool {
+        self.vref[s as usize] > 0 && self.vkey[s as usize] == k
+    }
+
+    /// The witness made of the vertices in slots `ss` (at most 4), with their keys as they are.
+    fn witness(&self, ss: &[u32]) -> Witness {
+        let mut w = Witness {
+            slots: [NONE; 4],
+            keys: [0; 4],
+        };
+        for (i, &s) in ss.iter().enumerate() {
+            w.slots[i] = s;
+            w.keys[i] = self.vkey[s as usize];
+        }
+        w
     }
 
     /// Whether the vertices of witness `w` are all present (positive count, same key).
     #[inline]
     fn witness_present(&self, w: &Witness) -> bool {
-        let present = |(s, k): (u32, u32)| s == NONE || self.holds_vertex(s, k);
-        present(w[0]) && present(w[1]) && present(w[2]) && present(w[3])
+        let present = |i: usize| w.slots[i] == NONE || self.holds_vertex(w.slots[i], w.keys[i]);
+        present(0) && present(1) && present(2) && present(3)
     }
 
     /// When every vertex of witness `w` is present with an owner ([`Self::vowner`]) that is not a
@@ -234,7 +255,7 @@ impl AdaptiveMesh {
     #[inline]
     fn witness_held(&self, w: &Witness) -> Option<[u32; 4]> {
         let mut owners = [NONE; 4];
-        for (o, &(s, k)) in owners.iter_mut().zip(w) {
+        for (o, (&s, &k)) in owners.iter_mut().zip(w.slots.iter().zip(&w.keys)) {
             if s == NONE {
                 continue;
             }
@@ -267,13 +288,6 @@ impl AdaptiveMesh {
                 mask |= 1 << e;
             }
         }
-        let wit = |ss: &[u32]| -> Witness {
-            let mut w = [(NONE, 0u32); 4];
-            for (i, &s) in ss.iter().enumerate() {
-                w[i] = (s, self.vkey[s as usize] as u32);
-            }
-            w
-        };
         if !green_pattern_ok(mask) {
             // 3 edges off a face, or 4 edges: present midpoints that alone are a bad pattern
             let mut ss = [NONE; 4];
@@ -285,7 +299,7 @@ impl AdaptiveMesh {
                 }
             }
             let n = if mask.count_ones() == 3 { 3 } else { 4 };
-            return Some(wit(&ss[..n]));
+            return Some(self.witness(&ss[..n]));
         }
         if mask == 0 {
             return None;
@@ -313,7 +327,7 @@ impl AdaptiveMesh {
                 if let Some(s) = pt(a, 2 * e, &|| midpoint(&lt.v[x], &m()))
                     .or_else(|| pt(a, 2 * e + 1, &|| midpoint(&m(), &lt.v[y])))
                 {
-                    return Some(wit(&[c.mids[e], s]));
+                    return Some(self.witness(&[c.mids[e], s]));
                 }
             }
         }
@@ -333,7 +347,7 @@ impl AdaptiveMesh {
                         if let Some(s) = pt(a, 12 + 3 * d + p, &|| {
                             midpoint(&lt.edge_midpoint(x), &lt.edge_midpoint(y))
                         }) {
-                            return Some(wit(&[c.mids[x], c.mids[y], s]));
+                            return Some(self.witness(&[c.mids[x], c.mids[y], s]));
                         }
                     }
                 }
@@ -346,5 +360,40 @@ impl AdaptiveMesh {
     /// save work: every operation gives the same result with or without them.
     pub fn clear_refusal_records(&mut self) {
         self.refused.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tetwave_protocol::shapes;
+    use tetwave_protocol::testing::unsampled_base;
+
+    /// A witness keeps its vertices' keys whole: a key past 2^32 still matches its vertex, and a
+    /// slot reused by the vertex whose key is that key's low 32 bits does not. The mesh is one tet
+    /// refined once; its midpoint's key is set past 2^32 by hand (no hierarchy that large is made).
+    #[test]
+    fn witness_keys_past_32_bits() {
+        let (p, _) = shapes::box6([0.0; 3], [1.0; 3]);
+        let base = unsampled_base(3, (vec![p[0], p[1], p[2], p[4]], vec![[0, 1, 2, 3]]));
+        let buf = DetailBuffer::new(base.forest(), base.vertex_keys());
+        let mut m = AdaptiveMesh::new(&base).unwrap();
+        m.refine(0, &buf).unwrap();
+        let s = m.child_mids(&m.nodes[0])[0];
+        assert!(s >= 4 && m.vref[s as usize] > 0, "a present midpoint");
+        let low = m.vkey[s as usize];
+        let wide = low + (1 << 32);
+        m.vkey[s as usize] = wide;
+        let w = m.witness(&[s]);
+        assert!(
+            m.witness_present(&w),
+            "the vertex the witness names is present"
+        );
+        assert_eq!(m.witness_held(&w), Some([0, NONE, NONE, NONE]));
+        // the slot now holds another vertex, whose key is the first one's low 32 bits
+        m.vkey[s as usize] = low;
+        assert!(!m.witness_present(&w), "another vertex is in the slot");
+        assert_eq!(m.witness_held(&w), None);
+        assert_eq!((w.slots, w.keys), ([s, NONE, NONE, NONE], [wide, 0, 0, 0]));
     }
 }

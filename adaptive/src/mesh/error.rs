@@ -20,7 +20,7 @@ pub enum MeshError {
     Forced(TetId),
     #[error("green closure did not settle within {0} refinements")]
     ClosureBound(usize),
-    #[error("the hierarchy has {0} vertex keys: the adaptive mesh holds at most 2^32 - 1")]
+    #[error("the hierarchy has {0} vertex keys: more than this target's key table can index")]
     TooManyKeys(u64),
     #[error("the hierarchy has {0} tets: the adaptive mesh holds at most 2^40")]
     TooManyTets(u64),

@@ -152,18 +152,15 @@ pub struct AdaptiveMesh {
 
 impl AdaptiveMesh {
     /// The coarsest mesh: the base tets as leaves. `base` must pass [`BaseMesh::validate`]; a
-    /// hierarchy with 2^32 vertex keys or more, or [`MAX_TETS`] tets or more, is refused (the mesh
-    /// packs keys in 32 bits and ids in 40).
+    /// hierarchy with [`MAX_TETS`] tets or more is refused (the mesh packs ids in 40 bits), and
+    /// so is one whose vertex keys a `usize` cannot count (the key table's directory is indexed
+    /// by key; on a 64-bit target every hierarchy under [`MAX_TETS`] tets passes). Vertex keys are
+    /// kept whole (64 bits); the key table's directory takes 0.25 B per key of the hierarchy.
     pub fn new(base: &BaseMesh) -> Result<Self, MeshError> {
         let forest = base.forest();
-        if forest.total_tets() >= MAX_TETS {
-            return Err(MeshError::TooManyTets(forest.total_tets()));
-        }
         let keys = base.vertex_keys();
         let nkeys = keys.vertex_count();
-        if nkeys >= NONE as u64 {
-            return Err(MeshError::TooManyKeys(nkeys));
-        }
+        Self::check_size(forest.total_tets(), nkeys)?;
         let nv = base.positions.len();
         let mut vertex_tets = vec![Vec::new(); nv];
         let mut face_count: FxHashMap<[u32; 3], u32> = FxHashMap::default();
@@ -272,6 +269,17 @@ impl AdaptiveMesh {
         Ok(m)
     }
 
+    /// [`Self::new`]'s size limits: [`MAX_TETS`] tets, and keys a `usize` can count.
+    fn check_size(total_tets: u64, nkeys: u64) -> Result<(), MeshError> {
+        if total_tets >= MAX_TETS {
+            return Err(MeshError::TooManyTets(total_tets));
+        }
+        if usize::try_from(nkeys).is_err() {
+            return Err(MeshError::TooManyKeys(nkeys));
+        }
+        Ok(())
+    }
+
     pub fn forest(&self) -> Forest {
         self.forest
     }
@@ -333,5 +341,35 @@ impl AdaptiveMesh {
                     + self.changes.capacity() * size_of::<SlotChange>(),
             ),
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Vertex keys past 2^32 are no longer refused (keys are kept whole): one tet at 12 levels
+    /// (1.1e10 keys, 7.9e10 tets) and the 2049³ box (8.6e9 keys) pass; 2^40 tets or more do not.
+    /// The sizes are checked without making those meshes (the key table alone would take GBs).
+    #[test]
+    fn sizes_past_32_bit_keys_pass() {
+        use tetwave_protocol::{shapes, testing::unsampled_base};
+        let (p, _) = shapes::box6([0.0; 3], [1.0; 3]);
+        let tet = unsampled_base(12, (vec![p[0], p[1], p[2], p[4]], vec![[0, 1, 2, 3]]));
+        let boxed = unsampled_base(11, shapes::box6([0.0; 3], [1.0; 3]));
+        assert_eq!(boxed.vertex_keys().vertex_count(), 2049u64.pow(3));
+        for b in [&tet, &boxed] {
+            let nkeys = b.vertex_keys().vertex_count();
+            assert!(nkeys > u32::MAX as u64);
+            assert_eq!(
+                AdaptiveMesh::check_size(b.forest().total_tets(), nkeys),
+                Ok(())
+            );
+        }
+        assert_eq!(
+            AdaptiveMesh::check_size(MAX_TETS, 1 << 36),
+            Err(MeshError::TooManyTets(MAX_TETS))
+        );
+        assert_eq!(AdaptiveMesh::check_size(MAX_TETS - 1, 1 << 36), Ok(()));
     }
 }

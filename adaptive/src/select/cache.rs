@@ -20,12 +20,14 @@ pub(super) const PREFETCH: usize = 8;
 /// node's is infinite until its parent arrives) and the status last evaluated
 /// (reused while the epoch lasts and the slot does not change, see `Selector::eval`). The status
 /// takes spare bits of the word and its priority is computed again from the entry rather than
-/// stored, since these entries are most of the selector's memory.
+/// stored, since these entries are most of the selector's memory. The node's tag (its id plus one,
+/// 40 bits) is split like a mesh node's id: a low word and the high bits of `checked`.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct SlotEntry {
-    /// The node the entry describes, as [`info_tag`] names it; 0: none.
-    tag: u32,
-    /// [`DetailBuffer::generation`] (low 32 bits) when presence and usability were looked up.
+    /// The low 32 bits of the node's tag ([`info_tag`]; tag 0: none).
+    tag_lo: u32,
+    /// From the low bits: the check stamp ([`Selector::check_stamp`], [`CHECK_BITS`] bits; 0:
+    /// never) when presence and usability were looked up, then the tag's bits from 32 up.
     checked: u32,
     smax: f32,
     /// From the low bits: the status's [`Kind`] (2 bits), the node's [`Facts`] (3 bits), its
@@ -35,6 +37,12 @@ pub(super) struct SlotEntry {
 }
 
 const _: () = assert!(std::mem::size_of::<SlotEntry>() == 16);
+
+/// Bits of [`SlotEntry::checked`] that hold a check stamp; the others hold a tag's high bits.
+const CHECK_BITS: u32 = 24;
+const CHECK_MASK: u32 = (1 << CHECK_BITS) - 1;
+// every tag fits: ids are below the mesh's MAX_TETS, and tags (id + 1) at most MAX_TETS - 1
+const _: () = assert!(crate::mesh::MAX_TETS <= 1 << (64 - CHECK_BITS));
 const _: () = assert!(tetwave_protocol::hierarchy::MAX_LEVELS as u32 <= LEVEL_MASK);
 
 bitflags! {
@@ -75,21 +83,48 @@ const _: () = assert!(FACTS_MASK == Facts::all().bits() | LEVEL_MASK << LEVEL_SH
 const _: () = assert!(Facts::all().bits() & KIND_MASK == 0);
 
 pub(super) const NO_ENTRY: SlotEntry = SlotEntry {
-    tag: 0,
-    checked: u32::MAX,
+    tag_lo: 0,
+    checked: 0,
     smax: 0.0,
     word: 0,
 };
 
 impl SlotEntry {
-    /// The entry of node `tag` (see [`info_tag`]) at `level`, with no facts and no status.
+    /// The entry of node `tag` (see [`info_tag`]) at `level`, with no facts, no status and no
+    /// check.
     #[inline(always)]
-    fn new(tag: u32, level: u8) -> SlotEntry {
+    fn new(tag: u64, level: u8) -> SlotEntry {
+        debug_assert!(tag < 1 << (64 - CHECK_BITS), "tag {tag} too wide");
         SlotEntry {
-            tag,
+            tag_lo: tag as u32,
+            checked: ((tag >> 32) as u32) << CHECK_BITS,
             word: (level as u32) << LEVEL_SHIFT,
             ..NO_ENTRY
         }
+    }
+
+    /// The tag of the node the entry describes (0: none).
+    #[inline(always)]
+    fn tag(&self) -> u64 {
+        self.tag_lo as u64 | ((self.checked >> CHECK_BITS) as u64) << 32
+    }
+
+    /// Whether the entry describes node `id`.
+    #[inline(always)]
+    fn holds(&self, id: TetId) -> bool {
+        self.tag() == info_tag(id)
+    }
+
+    /// The check stamp of the last lookup of presence and usability (0: none).
+    #[inline(always)]
+    fn check(&self) -> u32 {
+        self.checked & CHECK_MASK
+    }
+
+    #[inline(always)]
+    fn set_check(&mut self, stamp: u32) {
+        debug_assert!(stamp <= CHECK_MASK);
+        self.checked = (self.checked & !CHECK_MASK) | stamp;
     }
 
     #[inline(always)]
@@ -135,16 +170,11 @@ impl SlotEntry {
     }
 }
 
-/// The name of node `id` in [`SlotEntry::tag`]: its low 32 bits plus one, never 0. Two nodes that
-/// share a slot over time have different tags as long as ids fit in 32 bits; a forest with more
-/// tets (`wide`) gets tag 0, which never matches: its entries are filled again at every use.
-#[inline]
-fn info_tag(id: TetId, wide: bool) -> u32 {
-    if wide {
-        0
-    } else {
-        (id as u32).wrapping_add(1)
-    }
+/// The name of node `id` in a [`SlotEntry`]: the id plus one, never 0, exact for every id of a
+/// forest the mesh holds (40 bits, [`MAX_TETS`](crate::mesh::MAX_TETS)).
+#[inline(always)]
+fn info_tag(id: TetId) -> u64 {
+    id + 1
 }
 
 impl Selector {
@@ -162,16 +192,16 @@ impl Selector {
                 .resize(mesh.node_slot_len().max(slot + 1), NO_ENTRY);
         }
         let forest = mesh.forest();
-        let tag = info_tag(n.id, forest.total_tets() > u32::MAX as u64);
         let e = &mut self.info[slot];
-        if e.tag != tag || tag == 0 {
-            *e = SlotEntry::new(tag, forest.level(n.id));
+        if !e.holds(n.id) {
+            *e = SlotEntry::new(info_tag(n.id), forest.level(n.id));
         }
         // the finest level has no detail nodes: nothing to look up (such leaves are never split)
         if !e.facts().contains(Facts::USABLE) && e.level() < forest.levels {
-            let held = buf.generation() as u32;
-            if e.checked != held {
-                e.checked = held;
+            let held = self.check_stamp(buf.generation());
+            let e = &mut self.info[slot];
+            if e.check() != held {
+                e.set_check(held);
                 if let Some(m) = buf.subtree_max(n.id) {
                     e.smax = m;
                     e.insert(Facts::PRESENT);
@@ -181,6 +211,7 @@ impl Selector {
                 }
             }
         }
+        let e = &self.info[slot];
         let facts = e.facts();
         SlotInfo {
             smax: e.smax,
@@ -285,17 +316,38 @@ impl Selector {
     }
 
     /// Forgets all that any entry knows of nodes `ids` (their metadata changed), whichever slot
-    /// holds it, live or free: one pass over the entries. `wide`: the forest's ids do not fit the
-    /// tags, whose entries are filled again at every use anyway.
-    pub(super) fn reset_nodes(&mut self, ids: &rustc_hash::FxHashSet<TetId>, wide: bool) {
-        if wide {
-            return;
-        }
-        let tags: rustc_hash::FxHashSet<u32> = ids.iter().map(|&id| info_tag(id, false)).collect();
+    /// holds it, live or free: one pass over the entries.
+    pub(super) fn reset_nodes(&mut self, ids: &rustc_hash::FxHashSet<TetId>) {
+        let tags: rustc_hash::FxHashSet<u64> = ids.iter().map(|&id| info_tag(id)).collect();
         for s in 0..self.info.len() {
-            if tags.contains(&self.info[s].tag) {
+            if tags.contains(&self.info[s].tag()) {
                 self.info[s] = NO_ENTRY;
             }
+        }
+    }
+
+    /// The check stamp that stands for buffer generation `generation` in the entries (see
+    /// [`SlotEntry::check`]): a new one whenever the generation differs from the last one asked
+    /// for, so an entry checked under another generation is looked up again. Stamps count up
+    /// from 1; when they run out (2^24 - 1 changes of generation), every entry's is cleared and
+    /// they start again, so a stamp never names two generations.
+    #[inline(always)]
+    fn check_stamp(&mut self, generation: u64) -> u32 {
+        if generation != self.check_gen {
+            self.next_check(generation);
+        }
+        self.check
+    }
+
+    #[cold]
+    fn next_check(&mut self, generation: u64) {
+        self.check_gen = generation;
+        self.check += 1;
+        if self.check > CHECK_MASK {
+            for i in 0..self.info.len() {
+                self.info[i].set_check(0);
+            }
+            self.check = 1;
         }
     }
 
@@ -343,5 +395,83 @@ impl Selector {
                 self.prefetch_slot(mesh, s as usize);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::MAX_TETS;
+    use crate::select::{SelectParams, Tolerance};
+
+    /// Ids past 2^32 (a 1025³ box has 7.4e9 tets): a slot's entry made for one is found again by
+    /// that id, and by no other id, in particular none that shares its low 32 bits; a check stamp
+    /// leaves the tag alone and the other way round. No forest that large is made.
+    #[test]
+    fn entries_name_ids_past_32_bits() {
+        let ids = [
+            0,
+            1,
+            u32::MAX as TetId - 1,
+            u32::MAX as TetId,
+            1 << 32,
+            (1 << 32) + 5,
+            (7 << 32) + 5,
+            MAX_TETS - 2,
+        ];
+        for &id in &ids {
+            let mut e = SlotEntry::new(info_tag(id), 9);
+            e.insert(Facts::GEO);
+            assert!(e.holds(id), "{id}");
+            assert!(!NO_ENTRY.holds(id), "{id}");
+            for &other in &ids {
+                assert_eq!(e.holds(other), other == id, "{id} vs {other}");
+            }
+            for stamp in [1, 77, CHECK_MASK] {
+                e.set_check(stamp);
+                assert!(e.holds(id) && e.check() == stamp, "{id}: {stamp}");
+                assert_eq!((e.level(), e.facts()), (9, Facts::GEO));
+            }
+            e.set_check(0);
+            assert!(e.holds(id) && e.check() == 0);
+        }
+    }
+
+    fn selector() -> Selector {
+        Selector::new(SelectParams::new(Tolerance::Pixels(1.0), [0.0, 1.0]))
+    }
+
+    /// Replaced nodes past 2^32 drop their own entries only.
+    #[test]
+    fn reset_nodes_past_32_bits() {
+        let ids: [TetId; 4] = [5, (1 << 32) + 5, (2 << 32) + 5, MAX_TETS - 2];
+        let mut sel = selector();
+        for &id in &ids {
+            sel.info.push(SlotEntry::new(info_tag(id), 3));
+        }
+        let gone: rustc_hash::FxHashSet<TetId> =
+            [(1 << 32) + 5, MAX_TETS - 2].into_iter().collect();
+        sel.reset_nodes(&gone);
+        for (s, &id) in ids.iter().enumerate() {
+            assert_eq!(sel.info[s].holds(id), !gone.contains(&id), "{id}");
+        }
+    }
+
+    /// Check stamps: one per generation asked for in a row, never 0, and when they run out every
+    /// entry's is cleared (tags kept) before they start again at 1.
+    #[test]
+    fn check_stamps_wrap_clean() {
+        let mut sel = selector();
+        let a = sel.check_stamp(0);
+        assert_eq!((a, sel.check_stamp(0)), (1, 1));
+        assert_eq!((sel.check_stamp(4), sel.check_stamp(4)), (2, 2));
+        let id = (3 << 32) + 1;
+        sel.info.push(SlotEntry::new(info_tag(id), 2));
+        sel.check = CHECK_MASK - 1;
+        let last = sel.check_stamp(5);
+        assert_eq!(last, CHECK_MASK);
+        sel.info[0].set_check(last);
+        assert_eq!(sel.check_stamp(6), 1);
+        assert!(sel.info[0].holds(id) && sel.info[0].check() == 0);
     }
 }

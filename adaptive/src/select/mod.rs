@@ -265,6 +265,10 @@ pub struct Selector {
     waiters: FxHashMap<u32, Vec<u32>>,
     /// Per slot: what selection keeps of its node.
     info: SegVec<SlotEntry>,
+    /// The entries' current check stamp and the buffer generation it stands for (see
+    /// [`Self::check_stamp`]).
+    check: u32,
+    check_gen: u64,
     /// Bounding spheres by slot ([`bounding_sphere`]), valid where `info` says so.
     geo: SegVec<(Vec3, f32)>,
     /// Image weights by slot (with [`SelectParams::image`]), valid where `info` holds a status.
@@ -328,6 +332,8 @@ impl Selector {
             slot_flags: SegVec::new(),
             waiters: Default::default(),
             info: SegVec::new(),
+            check: 0,
+            check_gen: u64::MAX,
             geo: SegVec::new(),
             wt: SegVec::new(),
             mesh_uid: 0,
@@ -417,7 +423,7 @@ impl Selector {
                 affected.extend((0..8).map(|i| forest.child(id, i)));
             }
         }
-        self.reset_nodes(&affected, forest.total_tets() > u32::MAX as u64);
+        self.reset_nodes(&affected);
         self.dirty = true;
         self.converged = false;
         let parents = ids.iter().filter_map(|&id| forest.parent(id));
