@@ -565,19 +565,23 @@ impl PtRenderer {
             ChunkTree::build(&mut ids, &c, most)
         };
         let tets: Vec<[u32; 4]> = ids.iter().map(|&t| mesh.tets[t as usize]).collect();
-        let geo: Vec<TetGeo> = ids
-            .par_iter()
-            .map(|&t| {
-                let t = t as usize;
-                let (planes, g, c) = mesh.tet_geometry(t, origin);
-                let (lg, lc) = mesh.tet_levelset(t, origin);
-                TetGeo {
-                    planes: planes.map(|(n, d)| [n.x as f32, n.y as f32, n.z as f32, d as f32]),
-                    grad: [g.x as f32, g.y as f32, g.z as f32, c as f32],
-                    lset: [lg.x as f32, lg.y as f32, lg.z as f32, lc as f32],
-                }
-            })
-            .collect();
+        // per-tet geometry is made a chunk at a time and dropped once uploaded; the CPU keeps the
+        // face planes (exit faces, MPVO)
+        let geo_of = |ids: &[u32]| -> Vec<TetGeo> {
+            ids.par_iter()
+                .map(|&t| {
+                    let t = t as usize;
+                    let (planes, g, c) = mesh.tet_geometry(t, origin);
+                    let (lg, lc) = mesh.tet_levelset(t, origin);
+                    TetGeo {
+                        planes: planes.map(|(n, d)| [n.x as f32, n.y as f32, n.z as f32, d as f32]),
+                        grad: [g.x as f32, g.y as f32, g.z as f32, c as f32],
+                        lset: [lg.x as f32, lg.y as f32, lg.z as f32, lc as f32],
+                    }
+                })
+                .collect()
+        };
+        let mut planes: Vec<[[f32; 4]; 4]> = Vec::with_capacity(n);
         let centroids: Vec<[f32; 3]> = tets.par_iter().map(centroid).collect();
         let make = |label: &str, contents: &[u8]| {
             ctx.device
@@ -619,7 +623,8 @@ impl PtRenderer {
                         [x, y, z, 1.0]
                     })
                     .collect();
-                let g = &geo[range.start as usize..range.end as usize];
+                let g = geo_of(&ids[range.start as usize..range.end as usize]);
+                planes.extend(g.iter().map(|g| g.planes));
                 let mut negative = vec![0u32; mine.len().div_ceil(32)];
                 for (i, t) in mine.iter().enumerate() {
                     let p = |k: usize| mesh.positions[t[k] as usize];
@@ -630,7 +635,7 @@ impl PtRenderer {
                 Chunk {
                     positions: make("positions", bytemuck::cast_slice(&positions)),
                     tets: make("tets", bytemuck::cast_slice(&tets_local)),
-                    geo: make("geo", bytemuck::cast_slice(g)),
+                    geo: make("geo", bytemuck::cast_slice(&g)),
                     negative: make("negative", bytemuck::cast_slice(&negative)),
                     sort: std::sync::OnceLock::new(),
                     range,
@@ -665,7 +670,6 @@ impl PtRenderer {
             })
             .collect();
         let max_s_range = s_range.iter().copied().fold(0.0, f32::max);
-        let planes = geo.iter().map(|g| g.planes).collect();
         let positive = tets
             .par_iter()
             .map(|t| {
