@@ -169,6 +169,16 @@ pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 
         / 6.0
 }
 
+/// Volume of the tets `tets` of `points` (each counted positive, whatever its orientation).
+pub fn total_volume(points: &[[f64; 3]], tets: &[[u32; 4]]) -> f64 {
+    tets.iter()
+        .map(|t| {
+            let p = |k: usize| points[t[k] as usize];
+            signed_volume(p(0), p(1), p(2), p(3)).abs()
+        })
+        .sum()
+}
+
 /// Points as serialized (base meshes, the session's manifest): as f32 when every coordinate is
 /// one exactly, else as f64, so never rounded.
 #[derive(Serialize, Deserialize)]

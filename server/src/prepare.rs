@@ -377,14 +377,7 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
             })
             .flatten();
         let boundary = BoundaryDistance::new(&clean.points, &clean.tets);
-        let volume: f64 = clean
-            .tets
-            .iter()
-            .map(|t| {
-                let p = |k: usize| clean.points[t[k] as usize];
-                tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
-            })
-            .sum();
+        let volume = tetwave_protocol::base::total_volume(&clean.points, &clean.tets);
         let resolution = Some((clean.tets.len() as u64, volume));
         return Ok(Loaded {
             source: Source::Mesh(Box::new(loc), bounds),
@@ -421,14 +414,7 @@ pub fn mesh_levels(
     memory: u64,
 ) -> Result<u8, PrepareError> {
     let mut base = bare_base(spec, bounds)?;
-    let base_volume: f64 = base
-        .tets
-        .iter()
-        .map(|t| {
-            let p = |k: usize| base.positions[t[k] as usize];
-            tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
-        })
-        .sum();
+    let base_volume = tetwave_protocol::base::total_volume(&base.positions, &base.tets);
     let n_base = base.tets.len() as f64;
     let input_tet = volume / tets.max(1) as f64;
     let fits = |base: &mut tetwave_protocol::BaseMesh, l: u8| {
