@@ -54,6 +54,7 @@ def main():
     ap.add_argument("--tets", type=float, default=8e6)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--out", default="out/bench-large-mesh")
+    ap.add_argument("--view-frames", type=int, default=60)
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
     target = int(args.tets)
@@ -81,6 +82,15 @@ def main():
         rows[name] = {"image_ms": round(r["ms"], 1), "wall_s": round(wall, 1), "peak_rss_mib": round(rss), "renderer": r["renderer"],
                       "upload_ms": r.get("upload_ms"), "gpu_chunks": r.get("gpu_chunks")}
         print(f"bench-large-mesh: {name}: {json.dumps(rows[name])}", file=sys.stderr)
+    # the viewer under Xvfb: opens the mesh, draws frames (spread over several window frames when
+    # a draw is slow) until --frames, and reports
+    shot = os.path.join(args.out, "view.png")
+    out, wall, rss = timed(["timeout", "1800", "xvfb-run", "-a", "-s", "-screen 0 1024x768x24", tw, "view", vtu,
+                            "--size", size, "--frames", str(args.view_frames), "--screenshot", shot, "--json"], "tetwave view")
+    v = json.loads(out.strip().splitlines()[-1])
+    rows["view"] = {"wall_s": round(wall, 1), "peak_rss_mib": round(rss), "frames": v["frames"], "fps": v["fps"],
+                    "fps_drawn": v["fps_drawn"], "upload_ms": v["upload_ms"], "render_ms": v["render_ms"], "tets": v["tets"]}
+    print(f"bench-large-mesh: view: {json.dumps(rows['view'])}", file=sys.stderr)
     ref = os.path.join(args.out, "cpu-reference.png")
     for name in ("gpu", "gpu-sorted-on-gpu"):
         rows[name]["psnr_db_vs_reference"] = round(psnr(os.path.join(args.out, f"{name}.png"), ref), 2)
