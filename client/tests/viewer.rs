@@ -1210,3 +1210,69 @@ fn picking_auto_on_a_stream_draws_the_stores_fitted_function() {
     eprintln!("picked auto vs render auto {pa:.2} dB, vs render default {pd:.2} dB");
     assert!(pa >= 40.0 && pa > pd + 3.0, "{pa:.2} / {pd:.2} dB");
 }
+
+/// A mesh file has no coarser levels: with draws slower than `--motion-ms` (every draw, at 1 µs)
+/// the viewer draws a Kuhn grid sampled from it while the camera moves (at most `--motion-tets`
+/// tets, clipped to the mesh's domain), and the mesh itself at rest, matching `tetwave render`.
+#[test]
+fn view_moves_a_mesh_file_with_a_coarser_proxy_and_draws_it_whole_at_rest() {
+    let d = tempfile::tempdir().unwrap();
+    // 12³ Kuhn cells without the corner octant: 9,072 tets, a field with structure
+    let (pts, tets) = tetwave_protocol::shapes::kuhn_boxes([0.0; 3], [1.0; 3], [12; 3]);
+    let corner = |t: &[u32; 4]| (0..3).all(|a| t.iter().all(|&v| pts[v as usize][a] >= 0.5));
+    let tets: Vec<[u32; 4]> = tets.into_iter().filter(|t| !corner(t)).collect();
+    let mut vtk = format!(
+        "# vtk DataFile Version 3.0\nnotched\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS {} double\n",
+        pts.len()
+    );
+    for p in &pts {
+        vtk += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    vtk += &format!("CELLS {} {}\n", tets.len(), 5 * tets.len());
+    for t in &tets {
+        vtk += &format!("4 {} {} {} {}\n", t[0], t[1], t[2], t[3]);
+    }
+    vtk += &format!("CELL_TYPES {}\n", tets.len());
+    vtk += &"10\n".repeat(tets.len());
+    vtk += &format!(
+        "POINT_DATA {}\nSCALARS f double 1\nLOOKUP_TABLE default\n",
+        pts.len()
+    );
+    for p in &pts {
+        vtk += &format!("{}\n", (6.0 * p[0]).sin() * p[1] + p[2] * p[2]);
+    }
+    let mesh = d.path().join("notched.vtk");
+    std::fs::write(&mesh, vtk).unwrap();
+    let shot = d.path().join("rest.png");
+    let script = orbit_then_rest(&shot);
+    let args = [
+        mesh.to_str().unwrap(),
+        "--size",
+        "160x120",
+        "--frames",
+        "20000",
+        "--motion-ms",
+        "0.001",
+        "--motion-tets",
+        "1500",
+    ];
+    let r = view_script(d.path(), &script, &args);
+    let p = &r["perf"];
+    eprintln!("{p}");
+    let f = |v: &serde_json::Value| v.as_f64().unwrap();
+    assert!(p["tets_drawn_in_motion"]["n"].as_u64().unwrap() > 0, "{p}");
+    assert!(f(&p["tets_drawn_in_motion"]["max"]) <= 1500.0, "{p}");
+    assert_eq!(f(&r["tets"]), tets.len() as f64, "{r}");
+    let az = r["azimuth"].as_f64().unwrap();
+    let reference = offscreen(
+        &mesh,
+        "auto",
+        az,
+        25.0,
+        (160, 120),
+        &d.path().join("ref.png"),
+    );
+    let db = psnr(&png(&shot), &reference);
+    eprintln!("at rest vs offscreen: {db:.2} dB");
+    assert!(db >= 40.0, "{db:.2} dB");
+}

@@ -44,6 +44,7 @@
 mod cells;
 pub mod clean;
 mod lex;
+pub mod locate;
 mod medit;
 mod mesh;
 mod msh;

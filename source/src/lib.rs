@@ -154,6 +154,9 @@ pub struct Data {
     pub session: Option<Session>,
     /// A mesh file's mesh (no session).
     pub mesh: Option<RenderMesh>,
+    /// A coarse proxy of [`Self::mesh`] that a viewer draws while the camera moves
+    /// ([`load::motion_proxy`]; set by the viewer, which knows its budget).
+    pub mesh_motion: Option<RenderMesh>,
     /// The value range mapped to the transfer function (a store's
     /// [`display_value_range`](tetwave_protocol::store_format::Manifest::display_value_range)).
     pub value_range: [f32; 2],
@@ -189,6 +192,7 @@ impl Data {
             kind,
             session: None,
             mesh: None,
+            mesh_motion: None,
             value_range: [0.0, 1.0],
             frame: None,
             bytes_applied: 0,

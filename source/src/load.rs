@@ -141,3 +141,134 @@ pub fn fit_auto(
     };
     Ok(tf.fitted(&hist))
 }
+
+/// What a mesh file's viewer draws while the camera moves, when drawing the mesh itself is slow: a
+/// Kuhn grid over `mesh`'s bounding box of at most `most` tets (cells as near to cubes as the box
+/// allows), its values sampled from `mesh` (barycentric interpolation, as `prepare` samples it).
+/// Grid points outside the mesh take the mean of their inside neighbours, and a level set of
+/// +½ inside, −½ outside clips each straddling tet half way between them: the mesh's domain to
+/// within half a cell. `None` when the mesh itself has at most `most` tets, when `most` holds no
+/// cell, or when no grid point falls inside.
+pub fn motion_proxy(mesh: &RenderMesh, most: usize) -> Option<RenderMesh> {
+    if mesh.tets.len() <= most {
+        return None;
+    }
+    let (lo, hi) = mesh.bounds();
+    let (lo, hi) = (lo.to_array(), hi.to_array());
+    let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-300));
+    // 6 tets a cell; the cell side h makes 6 · Π ceil(ext / h) ≤ most
+    let cells_most = (most / 6) as f64;
+    if cells_most < 1.0 {
+        return None;
+    }
+    let mut h = (ext[0] * ext[1] * ext[2] / cells_most).cbrt();
+    let cells = loop {
+        let n = ext.map(|e| ((e / h).ceil() as usize).max(1));
+        if (n[0] * n[1] * n[2]) as f64 <= cells_most {
+            break n;
+        }
+        h *= 1.05;
+    };
+    let (positions, tets) = tetwave_protocol::shapes::kuhn_boxes(lo, hi, cells);
+    let locator = tetwave_import::locate::Locator::new(&tetwave_import::clean::ScalarTetMesh {
+        points: mesh.positions.clone(),
+        tets: mesh.tets.clone(),
+        values: mesh.values.iter().map(|&v| v as f64).collect(),
+        distance: false,
+    });
+    let sampled: Vec<Option<f64>> = positions.iter().map(|&p| locator.sample(p)).collect();
+    drop(locator);
+    let inside: Vec<f64> = sampled.iter().flatten().copied().collect();
+    if inside.is_empty() {
+        return None;
+    }
+    let mean = inside.iter().sum::<f64>() / inside.len() as f64;
+    // an outside point takes the mean of the inside points it shares a tet with
+    let mut sum = vec![(0f64, 0u32); positions.len()];
+    for t in &tets {
+        for &a in t {
+            if sampled[a as usize].is_none() {
+                for &b in t {
+                    if let Some(v) = sampled[b as usize] {
+                        sum[a as usize].0 += v;
+                        sum[a as usize].1 += 1;
+                    }
+                }
+            }
+        }
+    }
+    let values = sampled
+        .iter()
+        .zip(&sum)
+        .map(|(s, &(t, n))| match s {
+            Some(v) => *v as f32,
+            None if n > 0 => (t / n as f64) as f32,
+            None => mean as f32,
+        })
+        .collect();
+    let levelset = sampled
+        .iter()
+        .map(|s| if s.is_some() { 0.5 } else { -0.5 })
+        .collect();
+    // tets wholly outside draw nothing: left out
+    let tets: Vec<[u32; 4]> = tets
+        .into_iter()
+        .filter(|t| t.iter().any(|&v| sampled[v as usize].is_some()))
+        .collect();
+    let mut proxy = RenderMesh::new(positions, tets, values);
+    proxy.value_range = mesh.value_range;
+    proxy.levelset = Some(levelset);
+    Some(proxy)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A cube minus its upper octant with a linear field: the proxy keeps to its budget, holds
+    /// the field exactly at every grid point inside, and marks the points in the missing octant
+    /// outside.
+    #[test]
+    fn a_motion_proxy_samples_the_mesh_within_its_budget() {
+        let (points, tets) = tetwave_protocol::shapes::kuhn_boxes([0.0; 3], [2.0; 3], [8; 3]);
+        let in_octant = |t: &[u32; 4]| {
+            (0..3).all(|a| t.iter().map(|&v| points[v as usize][a]).sum::<f64>() / 4.0 > 1.0)
+        };
+        let tets: Vec<[u32; 4]> = tets.into_iter().filter(|t| !in_octant(t)).collect();
+        let f = |p: [f64; 3]| (p[0] + 2.0 * p[1] - p[2]) as f32;
+        let values = points.iter().map(|&p| f(p)).collect();
+        let mesh = RenderMesh::new(points, tets, values);
+        for most in [300, 2_000] {
+            let proxy = motion_proxy(&mesh, most).expect("a proxy");
+            assert!(
+                proxy.tets.len() <= most,
+                "{} tets for {most}",
+                proxy.tets.len()
+            );
+            assert!(
+                proxy.tets.len() * 4 > most,
+                "{} tets for {most}",
+                proxy.tets.len()
+            );
+            assert_eq!(proxy.value_range, mesh.value_range);
+            let ls = proxy.levelset.as_ref().unwrap();
+            let (mut inside, mut outside) = (0, 0);
+            for (p, (&v, &l)) in proxy.positions.iter().zip(proxy.values.iter().zip(ls)) {
+                if l > 0.0 {
+                    inside += 1;
+                    assert!((v - f(*p)).abs() < 1e-5, "{p:?}: {v} vs {}", f(*p));
+                } else {
+                    outside += 1;
+                    assert!(p.iter().all(|&c| c > 1.0), "{p:?} is inside the mesh");
+                }
+            }
+            assert!(
+                inside > 0 && outside > 0,
+                "{inside} inside, {outside} outside"
+            );
+        }
+        assert!(motion_proxy(&mesh, 5).is_none());
+        // a mesh no larger than the budget is its own coarse mesh
+        assert!(motion_proxy(&mesh, mesh.tets.len()).is_none());
+    }
+}

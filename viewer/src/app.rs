@@ -793,7 +793,7 @@ impl ViewerApp {
                     let (leaf, motion) = s.leaf_meshes(self.data.value_range, most);
                     (Some(leaf), motion)
                 }
-                (None, Some(m)) => (Some(m.clone()), None),
+                (None, Some(m)) => (Some(m.clone()), self.data.mesh_motion.clone()),
                 (None, None) => (None, None),
             };
             if let Some(m) = mesh {

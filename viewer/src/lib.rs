@@ -104,7 +104,9 @@ pub struct ViewArgs {
     pub motion_scale: u32,
     /// For slow draws in motion, draw a coarser mesh of at most this many tets instead: the leaf
     /// mesh with its deepest levels merged into their ancestors, uploaded beside it; meanwhile the
-    /// leaf mesh is refined within a short budget and drawn once the camera rests. 0: never.
+    /// leaf mesh is refined within a short budget and drawn once the camera rests. A mesh file
+    /// has no levels: its coarser mesh is a Kuhn grid sampled from it
+    /// (`tetwave_source::load::motion_proxy`). 0: never.
     #[arg(long, default_value_t = 4_000)]
     pub motion_tets: usize,
     /// Also raise the tolerance in motion while frames draw slower than `--motion-ms` (a
@@ -301,6 +303,11 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
         },
     )
     .map_err(|e| start(format!("{}: {e}", args.source)))?;
+    let mut data = data;
+    if let Some(m) = &data.mesh {
+        // a mesh file has no coarser levels: in motion a slow draw takes a proxy sampled from it
+        data.mesh_motion = tetwave_source::load::motion_proxy(m, args.motion_tets);
+    }
     let report = Arc::new(Mutex::new(ViewReport::default()));
     let mut options = eframe::NativeOptions {
         viewport: eframe::egui::ViewportBuilder::default()
