@@ -30,8 +30,8 @@ pub enum VisibilityOrder {
     Centroid,
     /// Williams' MPVO over face adjacency (exact for convex, acyclic meshes).
     Mpvo,
-    /// Centroid order computed on the GPU ([`crate::sort`]: a compute pass of depth keys and a
-    /// radix sort); the CPU only orders the chunks.
+    /// Centroid order computed on the GPU (`shaders/sort.wgsl`: a compute pass of depth keys and
+    /// a radix sort); the CPU only orders the chunks.
     Gpu,
 }
 
@@ -127,7 +127,7 @@ struct FrameCache {
 /// One mesh on the GPU. Valid for the mesh it was built from; positions are relative to `origin`.
 ///
 /// **Chunks.** A mesh whose per-tet data exceeds one storage binding of the adapter is split into
-/// chunks that each fit ([`ChunkTree`]: a k-d tree of the tets' centroids, split at the median of
+/// chunks that each fit (`ChunkTree`: a k-d tree of the tets' centroids, split at the median of
 /// the longest axis until every leaf fits), each with its own buffers of the vertices it uses.
 /// A frame draws the chunks far to near (the k-d tree's order for the eye, exact between the
 /// cells of the tree) and each chunk's tets in the chosen order within it: one visibility order
