@@ -24,19 +24,24 @@ def fail(msg):
 
 
 def timed(cmd, what):
-    """Runs `cmd`; returns (stdout, wall seconds, peak RSS in MiB of that process alone)."""
+    """Runs `cmd`; returns (stdout, wall seconds, peak RSS in MiB of that process alone). The RSS
+    comes from GNU time, a small process between: a child forked from this (large) Python process
+    would report this process's own high-water mark as its start."""
     import tempfile
 
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         t0 = time.time()
-        p = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
-        _, status, usage = os.wait4(p.pid, 0)
+        p = subprocess.run(["/usr/bin/time", "-f", "TETWAVE_MAXRSS_KIB=%M", *cmd], stdout=out, stderr=err, text=True)
         wall = time.time() - t0
         out.seek(0)
         err.seek(0)
-        if os.waitstatus_to_exitcode(status) != 0:
-            fail(f"{what} failed:\n{err.read()[-3000:]}")
-        return out.read(), wall, usage.ru_maxrss / 1024.0
+        errs = err.read()
+        if p.returncode != 0:
+            fail(f"{what} failed:\n{errs[-3000:]}")
+        kib = [int(l.split("=")[1]) for l in errs.splitlines() if l.startswith("TETWAVE_MAXRSS_KIB=")]
+        if not kib:
+            fail(f"{what}: GNU time reported no peak RSS")
+        return out.read(), wall, kib[-1] / 1024.0
 
 
 def psnr(a, b):

@@ -147,21 +147,26 @@ fn unreadable_encodings_are_refused() {
     }
 }
 
-/// Hierarchies beyond what the analysis can index are refused before any sample is allocated (not
-/// by an allocation failure, nor after resampling).
+/// Hierarchies beyond this machine's memory (4097³ and 8193³ vertices: terabytes) are refused
+/// before any sample is allocated (not by an allocation failure, nor after resampling), and
+/// levels past what the hierarchy supports are refused as such.
 #[test]
 fn too_many_levels_fail_before_resampling() {
     let d = tempfile::tempdir().unwrap();
-    for levels in [10u8, 11] {
+    for levels in [12u8, 13] {
         let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
         o.levels = Some(levels);
         let e = prepare(&o).expect_err("refused");
         let msg = e.to_string();
         assert!(
-            msg.contains(&format!("--levels {levels}")) && msg.contains("more than the analysis"),
+            msg.contains(&format!("at {levels} levels")) && msg.contains("fewer --levels"),
             "{msg}"
         );
     }
+    let mut o = PrepareOptions::new("synthetic:harmonic", d.path());
+    o.levels = Some(40);
+    let msg = prepare(&o).expect_err("refused").to_string();
+    assert!(msg.contains("--levels 40"), "{msg}");
     assert!(!d.path().join("manifest.json").exists());
 }
 
