@@ -85,7 +85,7 @@ def main():
         out, wall, rss = timed([tw, "render", vtu, "--size", size, "--json", "-o", png, *extra], f"tetwave render ({name})")
         r = json.loads(out)
         rows[name] = {"image_ms": round(r["ms"], 1), "wall_s": round(wall, 1), "peak_rss_mib": round(rss), "renderer": r["renderer"],
-                      "upload_ms": r.get("upload_ms"), "gpu_chunks": r.get("gpu_chunks")}
+                      "upload_ms": r.get("upload_ms"), "gpu_chunks": r.get("gpu_chunks"), "sort_ms": r.get("sort_ms"), "cpu_ms": r.get("cpu_ms")}
         print(f"bench-large-mesh: {name}: {json.dumps(rows[name])}", file=sys.stderr)
     # the viewer under Xvfb: opens the mesh, draws frames (spread over several window frames when
     # a draw is slow) until --frames, and reports

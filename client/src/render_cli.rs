@@ -129,6 +129,11 @@ pub struct RenderReport {
     /// storage binding of the adapter).
     pub upload_ms: Option<f64>,
     pub gpu_chunks: Option<usize>,
+    /// GPU: the CPU's visibility sort within `ms` (near 0 for `--order gpu`, whose sort runs on
+    /// the GPU), and the CPU's whole share of the frame (the sort, the exit faces, the
+    /// submission: `ms` less the GPU's work and the readback).
+    pub sort_ms: Option<f64>,
+    pub cpu_ms: Option<f64>,
     pub output: String,
     /// The transfer function drawn with (for `auto`, the fitted one: save it as a `.json` file to
     /// draw another input with the same colours).
@@ -204,6 +209,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     };
     // the GPU's upload: its time and the chunks the mesh is drawn in
     let mut upload: Option<(f64, usize)> = None;
+    let mut frame_times = None;
     let (img, ms, renderer, refimg): (Rgba8Image, f64, String, Option<(Rgba8Image, f64)>) =
         if a.reference {
             let (img, ms) = reference(&mesh);
@@ -220,6 +226,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             // first frame warms the pipeline up; time the second
             r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
             let (img, times) = r.render_ordered(&ctx, &data, &cam, &tf, a.order)?;
+            frame_times = Some(times);
             let refimg = a.compare.then(|| reference(&mesh));
             (
                 img,
@@ -254,6 +261,8 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         reference_ms: refimg.as_ref().map(|(_, ms)| *ms),
         upload_ms: upload.map(|(ms, _)| ms),
         gpu_chunks: upload.map(|(_, c)| c),
+        sort_ms: frame_times.map(|t| t.sort_ms),
+        cpu_ms: frame_times.map(|t| t.total_ms - t.gpu_ms - t.readback_ms),
         output: a.output.display().to_string(),
         tf,
     })

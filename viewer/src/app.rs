@@ -684,7 +684,7 @@ impl ViewerApp {
             base.max_time
                 .map(|t| motion.refine_budget_ms(t.as_secs_f64() * 1e3, now))
         });
-        let plan = FramePlan::decide(&FrameInputs {
+        let inputs = FrameInputs {
             mode: self.mode,
             moving: self.moving,
             in_motion,
@@ -696,7 +696,8 @@ impl ViewerApp {
             motion_scale: self.args.motion_scale,
             view_px: (w, h),
             interactive_ms,
-        });
+        };
+        let mut plan = FramePlan::decide(&inputs);
         let tol = plan.tol_px;
         let rec = self.perf.current();
         rec.tol_px = tol;
@@ -772,7 +773,17 @@ impl ViewerApp {
             self.drawn_tol = self.upload_tol;
             match res {
                 Ok((d, motion)) => {
-                    self.tets = d.tet_count as u64;
+                    let tets = d.tet_count as u64;
+                    // judged before its first draw, so that a much larger mesh is spread
+                    self.full_draw_ms =
+                        super::plan::expected_draw_ms(self.full_draw_ms, self.tets, tets);
+                    self.tets = tets;
+                    // this frame draws it: whole or spread as its expected cost says
+                    plan.draw = FramePlan::decide(&FrameInputs {
+                        full_draw_ms: self.full_draw_ms,
+                        ..inputs
+                    })
+                    .draw;
                     self.draw_data = Some(Arc::new(d));
                     self.motion_data = motion.map(Arc::new);
                 }

@@ -10,6 +10,27 @@ use tetwave_adaptive::select::Mode;
 /// is refined only a little then (its upload waits for rest), so the frame is the draw.
 pub const MOVING_COARSE_REFINE_MS: f64 = 8.0;
 
+/// A first mesh of at least this many tets is taken as slow to draw before any draw of it is
+/// measured (so spread over frames): a whole draw of 8 M tets holds a CPU rasterizer's window
+/// for 13 s (docs/benchmarks.md, "Large meshes").
+pub const SLOW_FIRST_DRAW_TETS: u64 = 1 << 20;
+
+/// What a whole draw of a new mesh of `tets` tets is expected to cost, from the last measured
+/// whole draw (`last_ms` for `last_tets` tets; 0 when none): scaled by the tets when the mesh
+/// grew, since the draw's work is per tet; unknown and slow (∞) for a first mesh past
+/// [`SLOW_FIRST_DRAW_TETS`]. A measured draw replaces the estimate.
+pub fn expected_draw_ms(last_ms: f64, last_tets: u64, tets: u64) -> f64 {
+    if tets <= last_tets {
+        last_ms
+    } else if last_ms > 0.0 && last_tets > 0 {
+        last_ms * tets as f64 / last_tets as f64
+    } else if tets >= SLOW_FIRST_DRAW_TETS {
+        f64::INFINITY
+    } else {
+        last_ms
+    }
+}
+
 /// What one frame knows when it decides.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameInputs {
@@ -127,6 +148,25 @@ impl FramePlan {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A grown mesh is expected to cost the last draw scaled by its tets; a large first mesh is
+    /// slow until measured; a small one or a shrunk one keeps the last figure.
+    #[test]
+    fn a_new_meshs_draw_is_expected_to_cost_its_tets() {
+        assert_eq!(expected_draw_ms(20.0, 1_000, 4_000), 80.0);
+        assert_eq!(expected_draw_ms(20.0, 1_000, 500), 20.0);
+        assert_eq!(
+            expected_draw_ms(0.0, 0, SLOW_FIRST_DRAW_TETS),
+            f64::INFINITY
+        );
+        assert_eq!(expected_draw_ms(0.0, 0, 1_000), 0.0);
+        // ∞ makes the next frame's plan spread the draw at rest
+        let i = FrameInputs {
+            full_draw_ms: expected_draw_ms(0.0, 0, 8_000_000),
+            ..at_rest()
+        };
+        assert_eq!(FramePlan::decide(&i).draw, DrawKind::Spread);
+    }
 
     /// A frame at rest with fast draws, in progressive mode.
     fn at_rest() -> FrameInputs {
