@@ -154,6 +154,26 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 progress: interactive && !json,
                 ..options
             };
+            if let (Some(n), Some(k)) = (o.by_parts.parts, o.by_parts.part) {
+                let p = tetwave_server::prepare::parts::prepare_part(&o, n, k)?;
+                if json {
+                    println!("{}", serde_json::to_string(&p)?);
+                } else {
+                    println!(
+                        "part {k} of {n}: base tets {}..{}, {} coefficients, max error {:e} \
+                         (bound {:e}), {} bytes of nodes -> {} ({:.3} s)",
+                        p.base_tets[0],
+                        p.base_tets[1],
+                        p.coefficients,
+                        p.max_abs_error,
+                        p.error_bound,
+                        p.nodes_bytes,
+                        o.out.display(),
+                        p.seconds
+                    );
+                }
+                return Ok(());
+            }
             let s = prepare(&o)?;
             if json {
                 println!("{}", serde_json::to_string(&s)?);

@@ -18,6 +18,9 @@ use tetwave_import::{self as import, ImportError, MeshFormat};
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
+pub mod parts;
+
+pub use parts::PartsArgs;
 use tetwave_store::{
     self as store, Preview, PreviewNodes, Store, StoreError, StoreMeta, PREVIEW_FILE,
     REFERENCE_FILE,
@@ -103,9 +106,22 @@ impl GridArgs {
     /// Reads the grid at `path`; NaN/Inf samples are refused, or replaced by `nan_as`.
     pub fn read(&self, path: &Path, nan_as: Option<f64>) -> Result<RawGrid, PrepareError> {
         let dims = self.dims.ok_or(RawError::MissingDims)?;
+        self.read_slab(path, nan_as, 0..dims[2])
+    }
+
+    /// [`Self::read`] of the voxel planes `z` alone ([`RawGrid::read_slab`]); a NaN's index is
+    /// the whole grid's.
+    pub fn read_slab(
+        &self,
+        path: &Path,
+        nan_as: Option<f64>,
+        z: std::ops::Range<usize>,
+    ) -> Result<RawGrid, PrepareError> {
+        let dims = self.dims.ok_or(RawError::MissingDims)?;
         let dtype = RawType::parse(&self.dtype)
             .ok_or_else(|| PrepareError::UnknownDtype(self.dtype.clone()))?;
-        let mut grid = RawGrid::read(path, dims, dtype, self.spacing)?;
+        let before = z.start * dims[0] * dims[1];
+        let mut grid = RawGrid::read_slab(path, dims, dtype, self.spacing, z)?;
         if let Some(first) = grid.first_non_finite() {
             match nan_as {
                 Some(v) => {
@@ -117,7 +133,7 @@ impl GridArgs {
                     return Err(PrepareError::NonFiniteRaw {
                         path: path.to_path_buf(),
                         count,
-                        first,
+                        first: before + first,
                     });
                 }
             }
@@ -204,6 +220,8 @@ pub struct PrepareOptions {
     /// input.
     #[arg(long)]
     pub keep_reference: bool,
+    #[command(flatten)]
+    pub by_parts: PartsArgs,
     /// Show progress bars (on a terminal, without --json).
     #[arg(skip)]
     pub progress: bool,
@@ -223,6 +241,7 @@ impl PrepareOptions {
             read: ReadArgs::default(),
             memory: None,
             keep_reference: false,
+            by_parts: PartsArgs::default(),
             progress: false,
         }
     }
@@ -552,6 +571,22 @@ fn voxel_base(
 
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
+    match (o.by_parts.parts, o.by_parts.part, o.by_parts.finish) {
+        (Some(n), None, true) => return parts::finish(o, n),
+        (Some(_), Some(_), _) => {
+            return Err(PrepareError::Usage(
+                "prepare one part with parts::prepare_part (`prepare --parts N --part K`)".into(),
+            ))
+        }
+        (Some(n), None, false) => {
+            return Err(PrepareError::Usage(format!(
+                "--parts {n} needs --part K (0 to {}) to prepare one part, or --finish to write \
+                 the store from all of them",
+                n.saturating_sub(1)
+            )))
+        }
+        (None, _, _) => {}
+    }
     let t0 = Instant::now();
     // a raw grid's voxel lattice is known from its dims: refuse one too large before reading it
     // (a file of another size than its dims is left to the reader, which says so)
@@ -687,46 +722,56 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         keep_reference: o.keep_reference,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
-    let bytes = m
-        .files
-        .iter()
-        .filter(|(k, _)| !matches!(k.as_str(), REFERENCE_FILE | "levelset.f32" | PREVIEW_FILE))
-        .map(|(_, f)| f.bytes)
-        .sum();
-    Ok(Summary {
-        dataset,
-        store: o.out.display().to_string(),
-        base: base_name,
-        base_tets: m.base_tets,
-        levels: m.levels,
-        tets_total: m.counts.tets_total,
-        leaves: m.counts.leaves,
-        nodes: m.counts.nodes,
-        vertices: m.counts.vertices,
-        coefficients: m.counts.coefficients,
-        bytes,
-        reference_bytes: m.files.get(REFERENCE_FILE).map(|f| f.bytes).unwrap_or(0),
-        preview_bytes: m.files.get(PREVIEW_FILE).map(|f| f.bytes).unwrap_or(0),
-        levelset_bytes: m.files.get("levelset.f32").map(|f| f.bytes).unwrap_or(0),
-        levelset_near_bytes: m
+    Ok(Summary::of(&m, o, predictor, import, t0))
+}
+
+impl Summary {
+    /// What `prepare` wrote, from the manifest it wrote.
+    fn of(
+        m: &store::Manifest,
+        o: &PrepareOptions,
+        predictor: Predictor,
+        import: Option<CleanReport>,
+        t0: Instant,
+    ) -> Summary {
+        let file = |name: &str| m.files.get(name).map(|f| f.bytes).unwrap_or(0);
+        let bytes = m
             .files
-            .get("levelset_near.bin")
-            .map(|f| f.bytes)
-            .unwrap_or(0),
-        encoding: match m.encoding {
-            store::Encoding::F32 => "f32".into(),
-            store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),
-        },
-        predictor: predictor.name(),
-        max_abs_error: m.max_abs_error,
-        max_error_bound: m.max_error_bound,
-        value_range: m.value_range,
-        source_value_range: m.source_value_range,
-        outside_vertices: outside,
-        empty_base_tets: m.counts.empty_base_tets,
-        seconds: t0.elapsed().as_secs_f64(),
-        import,
-    })
+            .iter()
+            .filter(|(k, _)| !matches!(k.as_str(), REFERENCE_FILE | "levelset.f32" | PREVIEW_FILE))
+            .map(|(_, f)| f.bytes)
+            .sum();
+        Summary {
+            dataset: m.dataset.clone(),
+            store: o.out.display().to_string(),
+            base: m.base.clone(),
+            base_tets: m.base_tets,
+            levels: m.levels,
+            tets_total: m.counts.tets_total,
+            leaves: m.counts.leaves,
+            nodes: m.counts.nodes,
+            vertices: m.counts.vertices,
+            coefficients: m.counts.coefficients,
+            bytes,
+            reference_bytes: file(REFERENCE_FILE),
+            preview_bytes: file(PREVIEW_FILE),
+            levelset_bytes: file("levelset.f32"),
+            levelset_near_bytes: file("levelset_near.bin"),
+            encoding: match m.encoding {
+                store::Encoding::F32 => "f32".into(),
+                store::Encoding::Quantized { bits, .. } => format!("quantized{bits}"),
+            },
+            predictor: predictor.name(),
+            max_abs_error: m.max_abs_error,
+            max_error_bound: m.max_error_bound,
+            value_range: m.value_range,
+            source_value_range: m.source_value_range,
+            outside_vertices: m.counts.outside_vertices,
+            empty_base_tets: m.counts.empty_base_tets,
+            seconds: t0.elapsed().as_secs_f64(),
+            import,
+        }
+    }
 }
 
 /// What `verify` measured.

@@ -35,7 +35,9 @@ mod read;
 mod write;
 
 pub use read::{OpenOptions, Store};
-pub use write::{write, PreviewNodes, StoreContent, StoreMeta};
+pub use write::{
+    histogram_inside, write, write_streamed, PreviewNodes, StoreContent, StoreMeta, Totals,
+};
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
 pub const STORE_FILES: [&str; 3] = ["base.bin", "blocks.bin", "block_index.bin"];

@@ -266,71 +266,149 @@ pub struct StoreMeta {
 /// that fails before then leaves the old store as it was; one cut short while replacing leaves a
 /// directory that does not open as a store, never an old manifest over new files.
 pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manifest, StoreError> {
+    a.check_lengths().map_err(|reason| StoreError::Corrupt {
+        path: dir.join("blocks.bin"),
+        reason,
+    })?;
+    let range = meta
+        .source_value_range
+        .map(|(lo, hi)| [lo, hi])
+        .unwrap_or([a.value_range.0, a.value_range.1]);
+    let histogram = histogram_inside(
+        a.base,
+        a.reference,
+        meta.levelset.as_deref(),
+        meta.levelset_near
+            .as_ref()
+            .and_then(NearLevelSet::domain_box),
+        range,
+        |_, _| true,
+    );
+    let totals = Totals {
+        vertices: a.reference.len() as u64,
+        coefficients: a.coeffs.len() as u64,
+        value_range: a.value_range,
+        max_abs_error: a.max_abs_error,
+        error_bound: a.error_bound,
+        histogram,
+    };
+    let mut cursor = a.node_cursor();
+    let mut nodes = (0..a.owned.len()).map(move |_| cursor.next_node());
+    let reference = meta.keep_reference.then_some(a.reference);
+    write_streamed(
+        dir,
+        a.base,
+        a.quantizer,
+        (a.owned.len() as u64, &mut nodes),
+        &totals,
+        reference,
+        meta,
+    )
+}
+
+/// What a store's manifest counts and promises besides its nodes: [`write_streamed`]'s summary of
+/// an analysis it does not hold (`prepare --finish` sums the parts').
+#[derive(Debug, Clone)]
+pub struct Totals {
+    /// Vertices of every level (the manifest's `counts.vertices`).
+    pub vertices: u64,
+    /// Coefficients the nodes own, all together: checked against the nodes written.
+    pub coefficients: u64,
+    /// Inside samples' range.
+    pub value_range: (f32, f32),
+    /// Measured max |synthesis − sample|.
+    pub max_abs_error: f64,
+    /// The bound the store promises.
+    pub error_bound: f64,
+    /// The manifest's value histogram ([`histogram_inside`]).
+    pub histogram: Vec<u64>,
+}
+
+/// Writes a store as [`write`](fn@write) does, from `nodes`: `count` detail nodes in id order
+/// (ids `0..count`, each checked), coded block by block as they come, so that a caller need not
+/// hold them (`prepare --finish` streams them from the parts' files). `reference`, when given, is
+/// written as `reference.f32` (and `meta.keep_reference` is not read).
+pub fn write_streamed(
+    dir: &Path,
+    base: &BaseMesh,
+    quantizer: Option<(Quantizer, LevelSteps)>,
+    (n, nodes): (u64, &mut dyn Iterator<Item = Result<DetailNode, String>>),
+    totals: &Totals,
+    reference: Option<&[f32]>,
+    meta: StoreMeta,
+) -> Result<Manifest, StoreError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
     let mut staged = Staged::new(dir);
-    let forest = a.base.forest();
+    let forest = base.forest();
     let mut files = std::collections::BTreeMap::new();
-    let encoding = Encoding::of(a.quantizer);
+    let encoding = Encoding::of(quantizer);
+    if n != forest.nodes() {
+        return Err(StoreError::Corrupt {
+            path: dir.join("blocks.bin"),
+            reason: format!("{n} nodes for a hierarchy of {}", forest.nodes()),
+        });
+    }
 
     let path = dir.join("base.bin");
     let mut w = staged.create("base.bin")?;
-    let bytes =
-        bincode::serde::encode_to_vec(a.base, bincode::config::standard()).map_err(|e| {
-            StoreError::Corrupt {
-                path: path.clone(),
-                reason: e.to_string(),
-            }
-        })?;
+    let bytes = bincode::serde::encode_to_vec(base, bincode::config::standard()).map_err(|e| {
+        StoreError::Corrupt {
+            path: path.clone(),
+            reason: e.to_string(),
+        }
+    })?;
     w.put(&bytes)?;
     files.insert("base.bin".into(), w.finish()?);
 
     // the nodes in blocks of BLOCK ids, each coded on its own (random access decodes one block
     // without its neighbours); the index gets each block's offset, then the file's length
-    let n = a.owned.len();
-    a.check_lengths().map_err(|reason| StoreError::Corrupt {
-        path: dir.join("blocks.bin"),
-        reason,
-    })?;
-    let coder = BlockCoder::new(a.base, &encoding);
+    let coder = BlockCoder::new(base, &encoding);
     let path = dir.join("blocks.bin");
+    let corrupt = |reason: String| StoreError::Corrupt {
+        path: path.clone(),
+        reason,
+    };
     let mut w = staged.create("blocks.bin")?;
-    let mut index = Vec::with_capacity(n.div_ceil(BLOCK as usize) + 1);
+    let mut index = Vec::with_capacity(n.div_ceil(BLOCK) as usize + 1);
     let mut offset = 0u64;
-    let mut cursor = a.node_cursor();
-    let mut nodes = Vec::with_capacity(BLOCK as usize);
+    let mut coefficients = 0u64;
+    let mut block_nodes = Vec::with_capacity(BLOCK as usize);
     for start in (0..n).step_by(BLOCK as usize) {
-        let end = (start + BLOCK as usize).min(n);
-        nodes.clear();
-        for _ in start..end {
-            nodes.push(cursor.next_node().map_err(|reason| StoreError::Corrupt {
-                path: path.clone(),
-                reason,
-            })?);
+        let end = (start + BLOCK).min(n);
+        block_nodes.clear();
+        for id in start..end {
+            let node = nodes
+                .next()
+                .ok_or_else(|| corrupt(format!("the nodes end at {id} of {n}")))?
+                .map_err(&corrupt)?;
+            if node.id != id {
+                return Err(corrupt(format!("node {} where node {id} belongs", node.id)));
+            }
+            coefficients += node.coeffs.len() as u64;
+            block_nodes.push(node);
         }
-        let block = coder.encode(&nodes).map_err(|e| StoreError::Corrupt {
-            path: path.clone(),
-            reason: format!("nodes {start}..{end}: {e}"),
-        })?;
+        let block = coder
+            .encode(&block_nodes)
+            .map_err(|e| corrupt(format!("nodes {start}..{end}: {e}")))?;
         if block.bytes.len() as u64 > MAX_BLOCK_BYTES {
-            return Err(StoreError::Corrupt {
-                path: path.clone(),
-                reason: format!(
-                    "nodes {start}..{end} code to {} bytes, beyond the {MAX_BLOCK_BYTES}-byte limit",
-                    block.bytes.len()
-                ),
-            });
+            return Err(corrupt(format!(
+                "nodes {start}..{end} code to {} bytes, beyond the {MAX_BLOCK_BYTES}-byte limit",
+                block.bytes.len()
+            )));
         }
         index.push(offset);
         offset += block.bytes.len() as u64;
         w.put(&block.bytes)?;
     }
     index.push(offset);
-    let coeffs = cursor.coeffs;
-    if !coeffs.is_empty() {
-        return Err(StoreError::Corrupt {
-            path: path.clone(),
-            reason: format!("{} coefficients owned by no node", coeffs.len()),
-        });
+    if nodes.next().is_some() {
+        return Err(corrupt(format!("more than the hierarchy's {n} nodes")));
+    }
+    if coefficients != totals.coefficients {
+        return Err(corrupt(format!(
+            "the nodes own {coefficients} coefficients of {}",
+            totals.coefficients
+        )));
     }
     files.insert("blocks.bin".into(), w.finish()?);
 
@@ -340,9 +418,9 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     }
     files.insert("block_index.bin".into(), w.finish()?);
 
-    if meta.keep_reference {
+    if let Some(reference) = reference {
         let mut w = staged.create(REFERENCE_FILE)?;
-        for &x in a.reference {
+        for &x in reference {
             w.put(&x.to_le_bytes())?;
         }
         files.insert(REFERENCE_FILE.into(), w.finish()?);
@@ -354,13 +432,13 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
     let path = dir.join("levelset.f32");
     match &meta.levelset {
         Some(ls) => {
-            if ls.len() != a.reference.len() {
+            if ls.len() as u64 != totals.vertices {
                 return Err(StoreError::Corrupt {
                     path,
                     reason: format!(
                         "{} level-set values for {} vertices",
                         ls.len(),
-                        a.reference.len()
+                        totals.vertices
                     ),
                 });
             }
@@ -417,7 +495,7 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
                 )));
             }
             // the blocks one after the other, each a bincode NodeBlock
-            let coder = BlockCoder::for_preview(a.base, &p.preview.encoding);
+            let coder = BlockCoder::for_preview(base, &p.preview.encoding);
             let mut w = staged.create(PREVIEW_FILE)?;
             for c in p.nodes.chunks(BLOCK as usize) {
                 let block = coder.encode(c).map_err(|e| corrupt(e.to_string()))?;
@@ -434,17 +512,9 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         }
     };
 
-    let value_range = [a.value_range.0, a.value_range.1];
+    let value_range = [totals.value_range.0, totals.value_range.1];
     let source_value_range = meta.source_value_range.map(|(lo, hi)| [lo, hi]);
-    let value_histogram = Some(histogram_inside(
-        a,
-        meta.levelset.as_deref(),
-        meta.levelset_near
-            .as_ref()
-            .and_then(NearLevelSet::domain_box),
-        source_value_range.unwrap_or(value_range),
-    ));
-    let (lo, hi) = a.base.bounds();
+    let (lo, hi) = base.bounds();
     let manifest = Manifest {
         format: STORE_FORMAT.into(),
         version: STORE_VERSION,
@@ -452,26 +522,26 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
         source: meta.source,
         bounds: [lo, hi],
         base: meta.base,
-        base_tets: a.base.tets.len() as u64,
-        base_vertices: a.base.positions.len() as u64,
-        levels: a.base.levels,
+        base_tets: base.tets.len() as u64,
+        base_vertices: base.positions.len() as u64,
+        levels: base.levels,
         value_range,
         source_value_range,
         counts: Counts {
             tets_total: forest.total_tets(),
             leaves: forest.leaves(),
             nodes: forest.nodes(),
-            vertices: a.reference.len() as u64,
-            coefficients: a.coeffs.len() as u64,
+            vertices: totals.vertices,
+            coefficients: totals.coefficients,
             outside_vertices: meta.outside_vertices,
-            empty_base_tets: a.base.empty.iter().filter(|&&e| e).count() as u64,
+            empty_base_tets: base.empty.iter().filter(|&&e| e).count() as u64,
         },
         encoding,
-        max_error_bound: a.error_bound,
-        max_abs_error: a.max_abs_error,
+        max_error_bound: totals.error_bound,
+        max_abs_error: totals.max_abs_error,
         files,
         preview,
-        value_histogram,
+        value_histogram: Some(totals.histogram.clone()),
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
     staged.commit(&text)?;
@@ -482,14 +552,17 @@ pub fn write(dir: &Path, a: &StoreContent<'_>, meta: StoreMeta) -> Result<Manife
 /// from the whole level set or a box domain's distance at each vertex) over `range`, each weighed
 /// by its home base tet's volume in units of the smallest one's (rounded, at least 1): the finest
 /// vertices are spread evenly through each base tet, and base tets differ in volume (box5's
-/// central tet is twice a corner tet), so a count alone would misweigh them.
-fn histogram_inside(
-    a: &StoreContent<'_>,
+/// central tet is twice a corner tet), so a count alone would misweigh them. Only the vertices
+/// where `counted(tet, weights)` (a base tet holding the vertex, and its lattice weights there)
+/// count: a part of a store leaves out those another part counts.
+pub fn histogram_inside(
+    base: &BaseMesh,
+    reference: &[f32],
     levelset: Option<&[f32]>,
     domain_box: Option<[[f64; 3]; 2]>,
     range: [f32; 2],
+    counted: impl Fn(u32, &[u32; 4]) -> bool,
 ) -> Vec<u64> {
-    let base = a.base;
     let volume = |t: &[u32; 4]| {
         let p = |k: usize| base.positions[t[k] as usize];
         tetwave_protocol::base::signed_volume(p(0), p(1), p(2), p(3)).abs()
@@ -501,10 +574,11 @@ fn histogram_inside(
         .filter(|v| *v > 0.0)
         .fold(f64::INFINITY, f64::min);
     let keys = base.vertex_keys();
-    let mut weight = vec![0u32; a.reference.len()];
+    let mut weight = vec![0u32; reference.len()];
     for (entity, _) in keys.entities() {
         keys.for_each_in(entity, |key, tet, w| {
-            let inside = levelset.is_none_or(|l| l[key as usize] >= 0.0)
+            let inside = counted(tet, &w)
+                && levelset.is_none_or(|l| l[key as usize] >= 0.0)
                 && domain_box.is_none_or(|[lo, hi]| {
                     box_signed_distance(lo, hi, base.position(tet, &w)) >= 0.0
                 });
@@ -512,5 +586,5 @@ fn histogram_inside(
             weight[key as usize] = if inside { units as u32 } else { 0 };
         });
     }
-    value_histogram(a.reference, range, |k| weight[k] as u64)
+    value_histogram(reference, range, |k| weight[k] as u64)
 }

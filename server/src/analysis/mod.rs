@@ -222,6 +222,18 @@ pub fn analyze_hierarchy(
     precision: Precision,
     progress: bool,
 ) -> Result<Analysis, AnalysisError> {
+    analyze_hierarchy_in_range(r, precision, progress, None)
+}
+
+/// [`analyze_hierarchy`] of a part of a store (`prepare --part`): `range`, when given, is the
+/// inside samples' range over the whole input rather than over `r`'s samples, so that every
+/// part sizes the quantizer and the bound as one analysis of the whole would.
+pub fn analyze_hierarchy_in_range(
+    r: Resampled,
+    precision: Precision,
+    progress: bool,
+    range: Option<(f32, f32)>,
+) -> Result<Analysis, AnalysisError> {
     if let Precision::Bits(b) = precision {
         if !tetwave_protocol::store_format::QUANTIZED_BITS.contains(&b) {
             return Err(AnalysisError::BadBits(b));
@@ -232,7 +244,10 @@ pub fn analyze_hierarchy(
     if levels > 0 && forest.nodes() > MAX_NODES {
         return Err(AnalysisError::TooLarge(forest.level_len(levels - 1)));
     }
-    let stats = SampleStats::of(&r.samples);
+    let mut stats = SampleStats::of(&r.samples);
+    if let Some((lo, hi)) = range {
+        (stats.lo, stats.hi) = (lo, hi);
+    }
     let magnitude = stats.lo.abs().max(stats.hi.abs());
     if magnitude > MAX_MAGNITUDE {
         return Err(AnalysisError::Magnitude(magnitude as f64));

@@ -46,6 +46,13 @@ pub enum RawError {
     },
     #[error("raw grid needs --dims X,Y,Z and --dtype u8|u16|i16|f32")]
     MissingDims,
+    #[error("voxel planes {z:?} asked of a grid {depth} planes deep")]
+    BadSlab {
+        z: std::ops::Range<usize>,
+        depth: usize,
+    },
+    #[error("{bytes} bytes of voxels do not fit in this machine's memory")]
+    NoMemory { bytes: u64 },
     #[error(
         "{path}: size {actual} bytes does not match --dims {dims:?} × {dtype:?} = {expected} bytes"
     )]
@@ -84,6 +91,20 @@ impl RawGrid {
         dtype: RawType,
         spacing: [f64; 3],
     ) -> Result<Self, RawError> {
+        Self::read_slab(path, dims, dtype, spacing, 0..dims[2])
+    }
+
+    /// The voxel planes `z` (a slab) of the grid of `dims` at `path`, as a grid of their own
+    /// (`[x, y, z.len()]` voxels, its first plane at the origin): one seek and one read, so that
+    /// a part of a store (`prepare --part`) holds its slab alone.
+    pub fn read_slab(
+        path: &Path,
+        dims: [usize; 3],
+        dtype: RawType,
+        spacing: [f64; 3],
+        z: std::ops::Range<usize>,
+    ) -> Result<Self, RawError> {
+        use std::io::{Read, Seek, SeekFrom};
         if dims.iter().any(|&d| d < 2) {
             return Err(RawError::TooSmall(dims));
         }
@@ -107,7 +128,23 @@ impl RawGrid {
                 actual,
             });
         }
-        let bytes = std::fs::read(path).map_err(io)?;
+        if z.start >= z.end || z.end > dims[2] {
+            return Err(RawError::BadSlab { z, depth: dims[2] });
+        }
+        // within the file's size, which fits u64
+        let plane = (dims[0] * dims[1] * dtype.bytes()) as u64;
+        let len = plane * z.len() as u64;
+        let mut bytes = Vec::new();
+        bytes
+            .try_reserve_exact(len as usize)
+            .map_err(|_| RawError::NoMemory { bytes: len })?;
+        let mut f = std::fs::File::open(path).map_err(io)?;
+        f.seek(SeekFrom::Start(plane * z.start as u64))
+            .map_err(io)?;
+        f.take(len).read_to_end(&mut bytes).map_err(io)?;
+        if bytes.len() as u64 != len {
+            return Err(io(std::io::Error::from(std::io::ErrorKind::UnexpectedEof)));
+        }
         let data = match dtype {
             RawType::U8 => RawData::U8(bytes),
             RawType::U16 => RawData::U16(
@@ -130,7 +167,7 @@ impl RawGrid {
             ),
         };
         Ok(RawGrid {
-            dims,
+            dims: [dims[0], dims[1], z.len()],
             spacing,
             data,
         })

@@ -1,0 +1,651 @@
+//! Preparing a raw grid's store by parts (`prepare --parts N --part K`, then `prepare --parts N
+//! --finish`): each part reads a slab of the grid, analyses it alone and writes its nodes; the
+//! finish writes the store from the parts' files, equal byte for byte to the one-process store
+//! of the same options (docs/scale.md).
+//!
+//! **Why a slab analyses alone.** A raw grid's base mesh is a box of Kuhn cells, numbered x
+//! fastest, z slowest, 6 tets a cell; a part takes whole layers of cells along z, so its base
+//! tets are one id range `[b0, b1)`, and at every level its nodes are the ids
+//! `level_start(l) + [b0·8^l, b1·8^l)`: one range a level, in the same order as in the whole. The
+//! analysis of the layers alone differs from the whole's only on the plane a part shares with the
+//! part below: a new vertex there is predicted from values on that plane alone (a linear
+//! prediction on a base edge, the parent's quadratic restricted to the face it lies in), so both
+//! parts compute the same detail, and the contract gives it to the lowest-id tet around its edge,
+//! which is the lower part's. A part above the first drops the details it owns on its lower plane
+//! and leaves those vertices out of its histogram; the quantizer and the bound follow from the
+//! whole grid's value range, which every part reads first (one pass over the file, by slabs).
+//!
+//! **Files.** Part `K` of `N` writes `parts/part-K-of-N/nodes.bin` (its nodes in id order, each
+//! a bincode [`DetailNode`]) and then `parts/part-K-of-N/part.json` ([`PartSummary`]); no file is
+//! written by two parts, and a part without its summary is not done. The finish reads the
+//! summaries (refusing any missing, naming them), codes the blocks as the nodes stream in,
+//! writes the manifest last and removes `parts/`.
+
+use super::{GridArgs, PrepareError, PrepareOptions, Summary};
+use crate::analysis::{analyze_hierarchy_in_range, ErrorBound, Precision};
+use crate::resample::raw::VoxelLattice;
+use crate::resample::{base_mesh, resample, BaseSpec, Source, MAX_NODES};
+use serde::{Deserialize, Serialize};
+use std::io::{BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
+use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::wavelet::{LevelSteps, Predictor, Quantizer};
+use tetwave_protocol::{BaseMesh, DetailNode, Forest};
+use tetwave_store::{self as store, StoreError, StoreMeta, Totals};
+
+/// `prepare --parts N --part K | --finish`.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct PartsArgs {
+    /// Prepare a raw grid's store in N parts, each of which can run on its own machine (a Slurm
+    /// array task, a Kubernetes indexed job): `--part K` (0-based) writes part K under
+    /// `OUT/parts/`, and `--finish` writes the store from all N once they are done. The store
+    /// equals the one-process store of the same options. The grid's lattice needs at least N
+    /// layers of boxes along z (fewer --levels give more).
+    #[arg(long)]
+    pub parts: Option<u32>,
+    /// The part to prepare (0-based, with --parts).
+    #[arg(long, requires = "parts", conflicts_with = "finish")]
+    pub part: Option<u32>,
+    /// Write the store from the N parts' files (with --parts; the same options as the parts).
+    #[arg(long, requires = "parts")]
+    pub finish: bool,
+}
+
+/// What a part writes last (`part.json`): what the finish needs of it besides its nodes.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PartSummary {
+    pub format: String,
+    pub parts: u32,
+    pub part: u32,
+    /// The options every part and the finish must share ([`Fingerprint`]).
+    pub options: Fingerprint,
+    /// The part's base tets, `[b0, b1)`.
+    pub base_tets: [u64; 2],
+    /// Per node level, the ids of the part's nodes: `[start, end)`.
+    pub node_ranges: Vec<[u64; 2]>,
+    pub coefficients: u64,
+    /// `nodes.bin`'s size and CRC-32.
+    pub nodes_bytes: u64,
+    pub nodes_crc32: u32,
+    pub value_range: [f32; 2],
+    pub max_abs_error: f64,
+    pub error_bound: f64,
+    pub quantizer: Option<Quantizer>,
+    pub histogram: Vec<u64>,
+    /// The reconstructed values of the part's base vertices, by the whole base mesh's index.
+    pub base_values: Vec<(u64, f32)>,
+    /// The part's empty base tets, by the whole base mesh's index.
+    pub empty_base_tets: Vec<u64>,
+    pub seconds: f64,
+}
+
+/// The options that make a store: a part prepared with others than its siblings' is refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Fingerprint {
+    pub input_bytes: u64,
+    pub dims: [usize; 3],
+    pub dtype: String,
+    pub spacing: [f64; 3],
+    pub levels: u8,
+    pub cells: [usize; 3],
+    /// `None`: lossless; else the `--max-error` bound as given.
+    pub max_error: Option<String>,
+    pub nan_as: Option<f64>,
+}
+
+const PART_FORMAT: &str = "tetwave-store-part";
+const NODES_FILE: &str = "nodes.bin";
+const SUMMARY_FILE: &str = "part.json";
+
+fn part_dir(out: &Path, n: u32, k: u32) -> PathBuf {
+    out.join("parts").join(format!("part-{k}-of-{n}"))
+}
+
+/// The grid, its lattice and the layers of boxes each part takes.
+struct Plan {
+    grid: GridArgs,
+    path: PathBuf,
+    dims: [usize; 3],
+    lattice: VoxelLattice,
+    fingerprint: Fingerprint,
+    precision: Precision,
+    n: u32,
+}
+
+impl Plan {
+    fn new(o: &PrepareOptions, n: u32) -> Result<Self, PrepareError> {
+        let usage = |s: &str| Err(PrepareError::Usage(s.into()));
+        if n == 0 {
+            return usage("--parts must be at least 1");
+        }
+        let Some(dims) = o.read.grid.dims else {
+            return usage(
+                "--parts prepares a raw grid (give --dims and --dtype); meshes and synthetic \
+                 fields are prepared in one process",
+            );
+        };
+        if !matches!(o.base, BaseSpec::Auto) {
+            return usage("--parts keeps every voxel: leave --base at auto");
+        }
+        if o.preview.is_some() || o.keep_reference {
+            return usage("--parts writes no --preview and no --keep-reference");
+        }
+        if o.predictor == super::PredictorChoice::Axes {
+            return usage(
+                "--parts analyses with the parent predictor (--predictor axes needs one box)",
+            );
+        }
+        let precision =
+            match (o.bits, o.max_error) {
+                (None, None) => Precision::Lossless,
+                (None, Some(e)) => Precision::MaxError(e),
+                (Some(_), _) => return usage(
+                    "--parts takes a lossless store or --max-error: --bits sizes its step from \
+                     every detail of the whole",
+                ),
+            };
+        let path = PathBuf::from(&o.input);
+        let input_bytes = std::fs::metadata(&path)
+            .map_err(|source| crate::resample::raw::RawError::Io {
+                path: path.clone(),
+                source,
+            })?
+            .len();
+        let fits = |tets, l| {
+            Forest::new(tets, l)
+                .checked_nodes()
+                .is_some_and(|n| n <= MAX_NODES)
+        };
+        let lattice = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
+        let layers = lattice.cells[2];
+        if (layers as u64) < n as u64 {
+            return Err(PrepareError::Usage(format!(
+                "--parts {n}: the voxel lattice has {layers} layer(s) of boxes along z at {} \
+                 levels; give at most {layers} parts, or fewer --levels (each level fewer doubles \
+                 the layers)",
+                lattice.levels
+            )));
+        }
+        let fingerprint = Fingerprint {
+            input_bytes,
+            dims,
+            dtype: o.read.grid.dtype.clone(),
+            spacing: o.read.grid.spacing,
+            levels: lattice.levels,
+            cells: lattice.cells,
+            max_error: o.max_error.map(|e| match e {
+                ErrorBound::Absolute(e) => format!("{e:e}"),
+                ErrorBound::OfRange(f) => format!("{:e}%", f * 100.0),
+            }),
+            nan_as: o.read.nan_as,
+        };
+        Ok(Plan {
+            grid: o.read.grid.clone(),
+            path,
+            dims,
+            lattice,
+            fingerprint,
+            precision,
+            n,
+        })
+    }
+
+    /// Part `k`'s layers of boxes along z.
+    fn layers(&self, k: u32) -> std::ops::Range<usize> {
+        let (n, cz) = (self.n as usize, self.lattice.cells[2]);
+        k as usize * cz / n..(k as usize + 1) * cz / n
+    }
+
+    /// Base tets a layer of boxes holds.
+    fn tets_per_layer(&self) -> u64 {
+        6 * (self.lattice.cells[0] * self.lattice.cells[1]) as u64
+    }
+
+    /// Base vertices a plane of box corners holds.
+    fn points_per_plane(&self) -> u64 {
+        ((self.lattice.cells[0] + 1) * (self.lattice.cells[1] + 1)) as u64
+    }
+
+    /// The whole grid's value range, read slab by slab (NaN/Inf as `nan_as` says).
+    fn value_range(&self, nan_as: Option<f64>) -> Result<(f32, f32), PrepareError> {
+        let plane = self.dims[0] * self.dims[1];
+        let slab = (64usize << 20).div_ceil(plane).max(1);
+        let mut range: Option<(f32, f32)> = None;
+        for z0 in (0..self.dims[2]).step_by(slab) {
+            let z1 = (z0 + slab).min(self.dims[2]);
+            let g = self.grid.read_slab(&self.path, nan_as, z0..z1)?;
+            if let Some((lo, hi)) = g.value_range() {
+                range = Some(range.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
+            }
+        }
+        range.ok_or_else(|| {
+            PrepareError::Usage(format!("{}: no finite sample", self.path.display()))
+        })
+    }
+
+    /// The whole store's base mesh (its values and empty flags left to the parts).
+    fn base_spec(&self) -> BaseSpec {
+        BaseSpec::KuhnBoxes {
+            lo: [0.0; 3],
+            hi: self.lattice.hi,
+            cells: self.lattice.cells,
+        }
+    }
+}
+
+/// `prepare --parts N --part K`: reads part `k`'s slab, analyses it and writes its files.
+pub fn prepare_part(o: &PrepareOptions, n: u32, k: u32) -> Result<PartSummary, PrepareError> {
+    let t0 = Instant::now();
+    let plan = Plan::new(o, n)?;
+    if k >= n {
+        return Err(PrepareError::Usage(format!(
+            "--part {k}: parts are numbered 0 to {}",
+            n - 1
+        )));
+    }
+    let dir = part_dir(&o.out, n, k);
+    std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, e))?;
+    // a summary left by an earlier run of this part is not this run's
+    remove_if_there(&dir.join(SUMMARY_FILE))?;
+    tracing::info!(part = k, parts = n, "the grid's value range");
+    let range = plan.value_range(o.read.nan_as)?;
+
+    let layers = plan.layers(k);
+    let side = 1usize << plan.lattice.levels;
+    let z = layers.start * side..(layers.end * side).min(plan.dims[2] - 1) + 1;
+    tracing::info!(part = k, ?layers, voxel_planes = ?z, "reading the part's slab");
+    let grid = plan.grid.read_slab(&plan.path, o.read.nan_as, z)?;
+    let (spec, levels, domain) = super::voxel_base(&grid, Some(plan.lattice.levels))?;
+    let BaseSpec::KuhnBoxes { cells, .. } = spec else {
+        unreachable!("a raw grid's base is Kuhn boxes")
+    };
+    debug_assert_eq!(
+        cells,
+        [plan.lattice.cells[0], plan.lattice.cells[1], layers.len()]
+    );
+    let domain_box = domain.and_then(|d| match d {
+        super::Domain::Box { lo, hi } => Some([lo, hi]),
+        super::Domain::Mesh(_) => None,
+    });
+    let mut r = resample(&Source::Raw(grid), &spec, levels)?;
+    if r.outside > 0 {
+        return Err(PrepareError::Usage(format!(
+            "part {k}: {} vertices outside a raw grid's lattice",
+            r.outside
+        )));
+    }
+    r.base.predictor = Predictor::Parent;
+    tracing::info!(part = k, vertices = r.samples.len(), "analysing the part");
+    let a = analyze_hierarchy_in_range(r, plan.precision, o.progress, Some(range))?;
+
+    // the plane shared with the part below: the lower part owns its details and counts its
+    // vertices
+    let per_plane = plan.points_per_plane();
+    let lower_plane = |v: u32| k > 0 && (v as u64) < per_plane;
+    let on_lower = |tet: u32, w: &[u32; 4]| {
+        let t = &a.base.tets[tet as usize];
+        (0..4).all(|i| w[i] == 0 || lower_plane(t[i]))
+    };
+    let histogram = store::histogram_inside(
+        &a.base,
+        &a.reference,
+        None,
+        domain_box,
+        [range.0, range.1],
+        |t, w| !on_lower(t, w),
+    );
+
+    let whole = Forest::new(n_base_of(&plan), levels);
+    let sub = a.base.forest();
+    let b0 = layers.start as u64 * plan.tets_per_layer();
+    let path = dir.join(NODES_FILE);
+    let file = std::fs::File::create(&path).map_err(|e| io_error(&path, e))?;
+    let mut w = HashingWriter::new(BufWriter::new(file));
+    let mut node_ranges = Vec::with_capacity(levels as usize);
+    let mut coefficients = 0u64;
+    let mut at = 0usize;
+    for l in 0..levels {
+        let (s, e) = (sub.level_start(l), sub.level_start(l + 1));
+        let first = whole.level_start(l) + b0 * (1u64 << (3 * l as u32));
+        node_ranges.push([first, first + (e - s)]);
+        for (id, t) in LevelWalker::new(sub, l, s..e) {
+            let i = id as usize;
+            let mask = a.owned[i];
+            let mine = &a.coeffs[at..at + mask.count_ones() as usize];
+            at += mine.len();
+            let (mut owned, mut coeffs) = (0u8, Vec::with_capacity(mine.len()));
+            let mut c = mine.iter();
+            for (bit, &(u, v)) in EDGES.iter().enumerate() {
+                if mask & (1 << bit) == 0 {
+                    continue;
+                }
+                let d = *c.next().expect("one coefficient a bit");
+                if !(on_lower(t.base, &t.v[u]) && on_lower(t.base, &t.v[v])) {
+                    owned |= 1 << bit;
+                    coeffs.push(d);
+                }
+            }
+            coefficients += coeffs.len() as u64;
+            let node = DetailNode {
+                id: first + (id - s),
+                owned,
+                empty_children: a.empty_children[i],
+                subtree_max_abs: a.subtree_max_abs[i],
+                coeffs,
+            };
+            bincode::serde::encode_into_std_write(&node, &mut w, bincode::config::standard())
+                .map_err(|e| PrepareError::Usage(format!("{}: {e}", path.display())))?;
+        }
+    }
+    let (nodes_bytes, nodes_crc32) = w.finish().map_err(|e| io_error(&path, e))?;
+    let points_before = layers.start as u64 * per_plane;
+    let summary = PartSummary {
+        format: PART_FORMAT.into(),
+        parts: n,
+        part: k,
+        options: plan.fingerprint.clone(),
+        base_tets: [b0, b0 + sub.n_base],
+        node_ranges,
+        coefficients,
+        nodes_bytes,
+        nodes_crc32,
+        value_range: [a.value_range.0, a.value_range.1],
+        max_abs_error: a.max_abs_error,
+        error_bound: a.error_bound,
+        quantizer: a.quantizer,
+        histogram,
+        base_values: a
+            .base
+            .values
+            .iter()
+            .enumerate()
+            .map(|(v, &x)| (points_before + v as u64, x))
+            .collect(),
+        empty_base_tets: (0..sub.n_base)
+            .filter(|&b| a.base.empty[b as usize])
+            .map(|b| b0 + b)
+            .collect(),
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    // the summary last, whole or not at all: a part without one is not done
+    let text = serde_json::to_string_pretty(&summary).expect("a part summary serializes");
+    let tmp = dir.join(format!("{SUMMARY_FILE}.partial"));
+    std::fs::write(&tmp, text).map_err(|e| io_error(&tmp, e))?;
+    let done = dir.join(SUMMARY_FILE);
+    std::fs::rename(&tmp, &done).map_err(|e| io_error(&done, e))?;
+    Ok(summary)
+}
+
+fn n_base_of(plan: &Plan) -> u64 {
+    plan.tets_per_layer() * plan.lattice.cells[2] as u64
+}
+
+/// `prepare --parts N --finish`: the store from the parts' files.
+pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
+    let t0 = Instant::now();
+    let plan = Plan::new(o, n)?;
+    let mut parts = Vec::with_capacity(n as usize);
+    let mut missing = Vec::new();
+    for k in 0..n {
+        let path = part_dir(&o.out, n, k).join(SUMMARY_FILE);
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let p: PartSummary = serde_json::from_str(&text).map_err(|e| {
+                    PrepareError::Usage(format!("{}: not a part summary: {e}", path.display()))
+                })?;
+                if p.format != PART_FORMAT || p.parts != n || p.part != k {
+                    return Err(PrepareError::Usage(format!(
+                        "{}: part {} of {} ({}), not part {k} of {n}",
+                        path.display(),
+                        p.part,
+                        p.parts,
+                        p.format
+                    )));
+                }
+                if p.options != plan.fingerprint {
+                    return Err(PrepareError::Usage(format!(
+                        "part {k} was prepared with other options or another input ({:?}) than \
+                         these ({:?}): run it again with these",
+                        p.options, plan.fingerprint
+                    )));
+                }
+                parts.push(p);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => missing.push(k),
+            Err(e) => return Err(io_error(&path, e)),
+        }
+    }
+    if !missing.is_empty() {
+        let list: Vec<String> = missing.iter().map(|k| k.to_string()).collect();
+        return Err(PrepareError::Usage(format!(
+            "{} of {n} parts are not done (part {}): run `prepare … --parts {n} --part K` for \
+             each, then --finish again; nothing was written",
+            missing.len(),
+            list.join(", part ")
+        )));
+    }
+
+    let (positions, tets) = base_mesh(&plan.base_spec(), ([0.0; 3], [0.0; 3]))?;
+    let levels = plan.lattice.levels;
+    let mut base = BaseMesh {
+        levels,
+        values: vec![f32::NAN; positions.len()],
+        empty: vec![false; tets.len()],
+        positions,
+        tets,
+        predictor: Predictor::Parent,
+    };
+    let forest = base.forest();
+    for p in &parts {
+        for &(v, x) in &p.base_values {
+            let slot = base.values.get_mut(v as usize).ok_or_else(|| {
+                PrepareError::Usage(format!(
+                    "part {}: base vertex {v} of {}",
+                    p.part, forest.n_base
+                ))
+            })?;
+            if !slot.is_nan() && slot.to_bits() != x.to_bits() {
+                return Err(PrepareError::Usage(format!(
+                    "parts disagree on base vertex {v}: {slot} and {x} (part {})",
+                    p.part
+                )));
+            }
+            *slot = x;
+        }
+        for &b in &p.empty_base_tets {
+            if let Some(e) = base.empty.get_mut(b as usize) {
+                *e = true;
+            }
+        }
+    }
+    if let Some(v) = base.values.iter().position(|x| x.is_nan()) {
+        return Err(PrepareError::Usage(format!(
+            "no part gave base vertex {v} a value"
+        )));
+    }
+    let first = &parts[0];
+    let same = |what: &str, ok: bool| -> Result<(), PrepareError> {
+        if ok {
+            Ok(())
+        } else {
+            Err(PrepareError::Usage(format!(
+                "the parts disagree on the {what}"
+            )))
+        }
+    };
+    same(
+        "value range",
+        parts.iter().all(|p| p.value_range == first.value_range),
+    )?;
+    same(
+        "error bound",
+        parts.iter().all(|p| p.error_bound == first.error_bound),
+    )?;
+    same(
+        "quantizer's step",
+        parts
+            .iter()
+            .all(|p| p.quantizer.map(|q| q.step) == first.quantizer.map(|q| q.step)),
+    )?;
+    // the width the one-process analysis sizes from every detail: the widest part's (a code
+    // codes alike at any width that holds it)
+    let quantizer = first.quantizer.map(|q| Quantizer {
+        bits: parts
+            .iter()
+            .filter_map(|p| p.quantizer.map(|q| q.bits))
+            .max()
+            .unwrap_or(q.bits),
+        ..q
+    });
+    let mut histogram = vec![0u64; first.histogram.len()];
+    for p in &parts {
+        same("histogram", p.histogram.len() == histogram.len())?;
+        for (h, c) in histogram.iter_mut().zip(&p.histogram) {
+            *h += c;
+        }
+    }
+    let totals = Totals {
+        vertices: base.vertex_keys().vertex_count(),
+        coefficients: parts.iter().map(|p| p.coefficients).sum(),
+        value_range: (first.value_range[0], first.value_range[1]),
+        max_abs_error: parts.iter().map(|p| p.max_abs_error).fold(0.0, f64::max),
+        error_bound: first.error_bound,
+        histogram,
+    };
+
+    // the parts' node files whole and as written, before a byte of the store is
+    let mut readers = Vec::with_capacity(parts.len());
+    for p in &parts {
+        let path = part_dir(&o.out, n, p.part).join(NODES_FILE);
+        let (len, crc) = checksum(&path)?;
+        if (len, crc) != (p.nodes_bytes, p.nodes_crc32) {
+            return Err(PrepareError::Usage(format!(
+                "{}: {len} bytes with CRC-32 {crc:08x} where part {} wrote {} bytes with \
+                 {:08x}: run the part again, then --finish",
+                path.display(),
+                p.part,
+                p.nodes_bytes,
+                p.nodes_crc32
+            )));
+        }
+        let file = std::fs::File::open(&path).map_err(|e| io_error(&path, e))?;
+        readers.push((path, BufReader::new(file)));
+    }
+    // the nodes level by level, each level part by part
+    let mut order = (0..levels as usize)
+        .flat_map(|l| {
+            parts
+                .iter()
+                .enumerate()
+                .map(move |(i, p)| (i, p.node_ranges[l][1] - p.node_ranges[l][0]))
+        })
+        .flat_map(|(i, count)| (0..count).map(move |_| i))
+        .collect::<Vec<usize>>()
+        .into_iter();
+    let mut stream = std::iter::from_fn(move || {
+        let (path, r) = &mut readers[order.next()?];
+        Some(
+            bincode::serde::decode_from_std_read::<DetailNode, _, _>(
+                r,
+                bincode::config::standard(),
+            )
+            .map_err(|e| format!("{}: {e}", path.display())),
+        )
+    });
+    let lo = [0.0; 3];
+    let hi = [0, 1, 2].map(|a| (plan.dims[a] - 1) as f64 * plan.grid.spacing[a]);
+    let levelset_near = plan
+        .lattice
+        .pads(plan.dims)
+        .then(|| NearLevelSet::of_box(lo, hi))
+        .transpose()?;
+    let dataset = plan
+        .path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| o.input.clone());
+    let meta = StoreMeta {
+        dataset,
+        source: o.input.clone(),
+        base: plan.base_spec().name(),
+        outside_vertices: 0,
+        source_value_range: Some((first.value_range[0], first.value_range[1])),
+        levelset: None,
+        levelset_near,
+        preview: None,
+        keep_reference: false,
+    };
+    let quantizer = quantizer.map(|q| (q, LevelSteps::UNIFORM));
+    let m = store::write_streamed(
+        &o.out,
+        &base,
+        quantizer,
+        (forest.nodes(), &mut stream),
+        &totals,
+        None,
+        meta,
+    )?;
+    let parts_dir = o.out.join("parts");
+    std::fs::remove_dir_all(&parts_dir).map_err(|e| io_error(&parts_dir, e))?;
+    Ok(Summary::of(&m, o, Predictor::Parent, None, t0))
+}
+
+fn io_error(path: &Path, e: std::io::Error) -> PrepareError {
+    PrepareError::Store(StoreError::Io {
+        path: path.to_path_buf(),
+        source: e,
+    })
+}
+
+fn remove_if_there(path: &Path) -> Result<(), PrepareError> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io_error(path, e)),
+        _ => Ok(()),
+    }
+}
+
+/// A writer that counts and checksums what passes through it.
+struct HashingWriter<W: Write> {
+    inner: W,
+    hasher: crc32fast::Hasher,
+    bytes: u64,
+}
+
+impl<W: Write> HashingWriter<W> {
+    fn new(inner: W) -> Self {
+        HashingWriter {
+            inner,
+            hasher: crc32fast::Hasher::new(),
+            bytes: 0,
+        }
+    }
+
+    /// Flushes; the bytes written and their CRC-32.
+    fn finish(mut self) -> std::io::Result<(u64, u32)> {
+        self.inner.flush()?;
+        Ok((self.bytes, self.hasher.finalize()))
+    }
+}
+
+impl<W: Write> Write for HashingWriter<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hasher.update(&buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// A file's size and CRC-32, read through.
+fn checksum(path: &Path) -> Result<(u64, u32), PrepareError> {
+    let mut f = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
+    let mut w = HashingWriter::new(std::io::sink());
+    std::io::copy(&mut f, &mut w).map_err(|e| io_error(path, e))?;
+    w.finish().map_err(|e| io_error(path, e))
+}
