@@ -60,15 +60,27 @@ pub enum PrepareError {
     Store(#[from] StoreError),
     #[error(
         "{vertices} vertices at {levels} levels: prepare holds the whole hierarchy in memory, \
-         about {need_gib:.1} GiB here, and this machine has {have_gib:.1} GiB (preparing by parts \
-         and out of core is not implemented yet): give fewer --levels, or prepare on a machine \
-         with more memory"
+         about {need_gib:.1} GiB here, and this machine has {have_gib:.1} GiB (a raw grid is \
+         prepared by parts within --memory; meshes and synthetic fields are not yet): give fewer \
+         --levels, or prepare on a machine with more memory"
     )]
     TooLargeForMemory {
         vertices: u64,
         levels: u8,
         need_gib: f64,
         have_gib: f64,
+    },
+    #[error(
+        "--memory {memory}: one layer of boxes of this grid, at the fewest levels that keep its \
+         base mesh small enough, needs about {least} bytes (its slab of voxels and {per_vertex} \
+         bytes a vertex, and {overhead} for the process): give --memory {least_mib}M or more"
+    )]
+    MemoryTooSmall {
+        memory: u64,
+        least: u64,
+        least_mib: u64,
+        per_vertex: u64,
+        overhead: u64,
     },
     #[error("{what}: max abs error {error:e} exceeds the manifest's bound {bound:e}")]
     VerifyFailed {
@@ -608,6 +620,27 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
                 .is_some_and(|n| n <= MAX_NODES)
         };
         let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
+        let memory = o.memory.unwrap_or_else(default_memory);
+        let dtype = RawType::parse(&o.read.grid.dtype).expect("checked with the file's size");
+        let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[2]);
+        if whole > memory {
+            match parts::out_of_core_refusal(o) {
+                None => {
+                    tracing::info!(
+                        need = whole,
+                        memory,
+                        "the grid's hierarchy does not fit --memory: preparing it by parts"
+                    );
+                    return parts::prepare_out_of_core(o, memory);
+                }
+                Some(why) => tracing::info!(
+                    need = whole,
+                    memory,
+                    "the grid's hierarchy does not fit --memory, and cannot be prepared by parts \
+                     ({why}): preparing it whole"
+                ),
+            }
+        }
         let spec = BaseSpec::KuhnBoxes {
             lo: [0.0; 3],
             hi: l.hi,

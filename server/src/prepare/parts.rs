@@ -21,9 +21,9 @@
 //! summaries (refusing any missing, naming them), codes the blocks as the nodes stream in,
 //! writes the manifest last and removes `parts/`.
 
-use super::{GridArgs, PrepareError, PrepareOptions, Summary};
+use super::{GridArgs, PrepareError, PrepareOptions, Summary, PREPARE_BYTES_PER_VERTEX};
 use crate::analysis::{analyze_hierarchy_in_range, ErrorBound, Precision};
-use crate::resample::raw::VoxelLattice;
+use crate::resample::raw::{VoxelLattice, MOST_AUTO_CELLS, MOST_BASE_TETS};
 use crate::resample::{base_mesh, resample, BaseSpec, Source, MAX_NODES};
 use serde::{Deserialize, Serialize};
 use std::io::{BufReader, BufWriter, Write};
@@ -245,12 +245,24 @@ pub fn prepare_part(o: &PrepareOptions, n: u32, k: u32) -> Result<PartSummary, P
             n - 1
         )));
     }
+    tracing::info!(part = k, parts = n, "the grid's value range");
+    let range = plan.value_range(o.read.nan_as)?;
+    part_in(o, &plan, k, range, t0)
+}
+
+/// Part `k` of `plan`, given the whole grid's value range.
+fn part_in(
+    o: &PrepareOptions,
+    plan: &Plan,
+    k: u32,
+    range: (f32, f32),
+    t0: Instant,
+) -> Result<PartSummary, PrepareError> {
+    let n = plan.n;
     let dir = part_dir(&o.out, n, k);
     std::fs::create_dir_all(&dir).map_err(|e| io_error(&dir, e))?;
     // a summary left by an earlier run of this part is not this run's
     remove_if_there(&dir.join(SUMMARY_FILE))?;
-    tracing::info!(part = k, parts = n, "the grid's value range");
-    let range = plan.value_range(o.read.nan_as)?;
 
     let layers = plan.layers(k);
     let side = 1usize << plan.lattice.levels;
@@ -297,7 +309,7 @@ pub fn prepare_part(o: &PrepareOptions, n: u32, k: u32) -> Result<PartSummary, P
         |t, w| !on_lower(t, w),
     );
 
-    let whole = Forest::new(n_base_of(&plan), levels);
+    let whole = Forest::new(n_base_of(plan), levels);
     let sub = a.base.forest();
     let b0 = layers.start as u64 * plan.tets_per_layer();
     let path = dir.join(NODES_FILE);
@@ -380,6 +392,138 @@ pub fn prepare_part(o: &PrepareOptions, n: u32, k: u32) -> Result<PartSummary, P
 
 fn n_base_of(plan: &Plan) -> u64 {
     plan.tets_per_layer() * plan.lattice.cells[2] as u64
+}
+
+/// What a process holds besides its part: the binary, its threads' stacks, I/O buffers, the base
+/// mesh (measured: 20–30 MB on this machine; with a margin).
+pub const PROCESS_OVERHEAD: u64 = 64 << 20;
+
+/// The memory a part of `layers` layers of boxes of `lattice` needs: its slab of voxels, and its
+/// vertices at [`PREPARE_BYTES_PER_VERTEX`] each (`layers` = all of them: the whole grid).
+pub fn part_bytes(
+    lattice: &VoxelLattice,
+    dims: [usize; 3],
+    dtype_bytes: usize,
+    layers: usize,
+) -> u64 {
+    let side = 1u64 << lattice.levels;
+    let lattice_planes = layers as u64 * side + 1;
+    let [px, py, _] = lattice.points.map(|p| p as u64);
+    let voxel_planes = lattice_planes.min(dims[2] as u64);
+    (px * py * lattice_planes).saturating_mul(PREPARE_BYTES_PER_VERTEX)
+        + dims[0] as u64 * dims[1] as u64 * voxel_planes * dtype_bytes as u64
+}
+
+/// Why `o` cannot be prepared by parts, if it cannot (what [`Plan::new`] refuses besides the
+/// number of parts).
+pub fn out_of_core_refusal(o: &PrepareOptions) -> Option<&'static str> {
+    if o.preview.is_some() {
+        Some("--preview")
+    } else if o.keep_reference {
+        Some("--keep-reference")
+    } else if o.bits.is_some() {
+        Some("--bits")
+    } else if o.predictor == super::PredictorChoice::Axes {
+        Some("--predictor axes")
+    } else {
+        None
+    }
+}
+
+/// `prepare` of a raw grid whose hierarchy does not fit `memory`: by parts in this process, one
+/// after the other, then the finish. The levels are `--levels`, or the most (up to the grid's
+/// default) at which one layer of boxes fits; the parts take as many layers as fit. Each part
+/// holds at most `memory` ([`part_bytes`] + [`PROCESS_OVERHEAD`]); the finish holds a block.
+pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, PrepareError> {
+    let t0 = Instant::now();
+    let dims = o
+        .read
+        .grid
+        .dims
+        .ok_or(crate::resample::raw::RawError::MissingDims)?;
+    let dtype = crate::resample::raw::RawType::parse(&o.read.grid.dtype)
+        .ok_or_else(|| PrepareError::UnknownDtype(o.read.grid.dtype.clone()))?;
+    let spacing = o.read.grid.spacing;
+    let budget = memory.saturating_sub(PROCESS_OVERHEAD);
+    let fits = |tets, l| {
+        Forest::new(tets, l)
+            .checked_nodes()
+            .is_some_and(|n| n <= MAX_NODES)
+    };
+    let candidates: Vec<u8> = match o.levels {
+        Some(l) => vec![l],
+        None => {
+            let top = VoxelLattice::fit(dims, spacing, None, fits)?.levels;
+            (1..=top).rev().collect()
+        }
+    };
+    let mut chosen = None;
+    let mut least = u64::MAX;
+    for &l in &candidates {
+        let lattice = VoxelLattice::at(dims, spacing, l);
+        let cells: usize = lattice.cells.iter().product();
+        // automatic levels keep the base mesh a client receives first as small as a grid's
+        // default does
+        if 6 * cells > MOST_BASE_TETS || (o.levels.is_none() && cells > MOST_AUTO_CELLS) {
+            continue;
+        }
+        let one = part_bytes(&lattice, dims, dtype.bytes(), 1);
+        least = least.min(one + PROCESS_OVERHEAD);
+        let per = (1..=lattice.cells[2])
+            .take_while(|&k| part_bytes(&lattice, dims, dtype.bytes(), k) <= budget)
+            .last();
+        if let Some(per) = per {
+            chosen = Some((lattice, per));
+            break;
+        }
+    }
+    let Some((lattice, per)) = chosen else {
+        return Err(PrepareError::MemoryTooSmall {
+            memory,
+            least,
+            least_mib: least.div_ceil(1 << 20),
+            per_vertex: PREPARE_BYTES_PER_VERTEX,
+            overhead: PROCESS_OVERHEAD,
+        });
+    };
+    let n = lattice.cells[2].div_ceil(per) as u32;
+    let show = o.progress;
+    let o = PrepareOptions {
+        levels: Some(lattice.levels),
+        progress: false,
+        ..o.clone()
+    };
+    let plan = Plan::new(&o, n)?;
+    tracing::info!(
+        levels = lattice.levels,
+        boxes = ?lattice.cells,
+        parts = n,
+        layers_per_part = per,
+        part_bytes = part_bytes(&lattice, dims, dtype.bytes(), per) + PROCESS_OVERHEAD,
+        "out of core: by parts in this process"
+    );
+    let bar = if show {
+        let b = indicatif::ProgressBar::new(n as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:30}] {pos}/{len} parts, {elapsed} (ETA {eta})",
+            )
+            .expect("a valid template"),
+        );
+        b.set_message("prepare by parts");
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let range = plan.value_range(o.read.nan_as)?;
+    for k in 0..n {
+        part_in(&o, &plan, k, range, Instant::now())?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut s = finish(&o, n)?;
+    s.seconds = t0.elapsed().as_secs_f64();
+    Ok(s)
 }
 
 /// `prepare --parts N --finish`: the store from the parts' files.

@@ -266,9 +266,9 @@ impl RawGrid {
 const MOST_PADDING: f64 = 0.5;
 /// The most Kuhn cells [`VoxelLattice::fit`] gives a base mesh when it chooses the levels (6 tets
 /// each: a base mesh a client receives first, in one message).
-const MOST_AUTO_CELLS: usize = 4096;
+pub const MOST_AUTO_CELLS: usize = 4096;
 /// The most base tets an explicit `--levels` may ask for.
-const MOST_BASE_TETS: usize = 1 << 22;
+pub const MOST_BASE_TETS: usize = 1 << 22;
 
 /// Where a raw grid's voxels sit in a semi-regular mesh of Kuhn cells refined `levels` times: a
 /// cell spans `2^levels` voxel steps per axis, `cells[a] · 2^levels ≥ dims[a] − 1`, so voxel
