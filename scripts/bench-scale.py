@@ -171,6 +171,41 @@ def write_l9_grid(path, n=513, slab=16):
     os.replace(path + ".part", path)
 
 
+def write_ct_grid(path, dims, dtype, slab=32):
+    """A CT-like volume of `dims` (x fastest) written slab by slab (bounded memory): air around an
+    elliptic body of soft tissue with two darker lungs, a dense bone shell and a spine, a smooth
+    intensity drift, and noise at every voxel (a seeded Gaussian, ~1.5 % of the range). u8 maps
+    -1000..1000 HU to 0..255; u16 stores HU + 1024 (0..3071)."""
+    import numpy as np
+
+    nx, ny, nz = dims
+    itemsize = 1 if dtype == "u8" else 2
+    if os.path.exists(path) and os.path.getsize(path) == nx * ny * nz * itemsize:
+        return
+    rng = np.random.default_rng(12345)
+    x = np.linspace(-1.0, 1.0, nx, dtype=np.float32)[None, None, :]
+    y = np.linspace(-1.0, 1.0, ny, dtype=np.float32)[None, :, None]
+    with open(path + ".part", "wb") as f:
+        for z0 in range(0, nz, slab):
+            z = np.linspace(-1.0, 1.0, nz, dtype=np.float32)[z0 : min(nz, z0 + slab), None, None]
+            body = (x / 0.8) ** 2 + (y / 0.6) ** 2
+            hu = np.full((z.shape[0], ny, nx), -1000.0, dtype=np.float32)
+            inside = body + 0.0 * z < 1.0
+            hu = np.where(inside, 40.0 + 30.0 * z + 20.0 * np.sin(6.0 * x), hu)
+            lungs = ((np.abs(x) - 0.35) / 0.25) ** 2 + (y / 0.35) ** 2 + (z / 0.7) ** 2 < 1.0
+            hu = np.where(lungs & inside, -850.0, hu)
+            bone = inside & (body > 0.8)
+            spine = (x / 0.08) ** 2 + ((y + 0.45) / 0.08) ** 2 < 1.0
+            hu = np.where(bone | spine, 700.0 + 200.0 * np.cos(9.0 * z), hu)
+            hu = hu + rng.normal(0.0, 30.0, hu.shape).astype(np.float32)
+            if dtype == "u8":
+                v = np.clip((hu + 1000.0) / 2000.0 * 255.0 + 0.5, 0, 255).astype(np.uint8)
+            else:
+                v = np.clip(hu + 1024.0 + 0.5, 0, 3071).astype("<u2")
+            f.write(v.tobytes())
+    os.replace(path + ".part", path)
+
+
 def view_server(bindir, store, log):
     """`serve --order view` on loopback, once its view order is computed (the one-time cost of a
     server's start, which it logs): returns the server and the seconds to /healthz and to that."""
@@ -203,13 +238,17 @@ def main():
     ap.add_argument("--view-motion-lod", action="store_true", help="view runs with --motion-lod too")
     ap.add_argument("--view-motion-tets", default="0,4000",
                     help="--motion-tets of each view run (0: the whole leaf mesh in motion too)")
+    ap.add_argument("--ct", default="", help="CT-like grids prepared out of core at the default --memory "
+                    "and verified voxel by voxel: e.g. 1025-u8,1024x1024x1536-u16,2049-u16 (sizes XxYxZ or N)")
+    ap.add_argument("--ct-bound", default="0.5%", help="--max-error of the --ct stores")
+    ap.add_argument("--ct-only", action="store_true", help="run the --ct cases alone")
     ap.add_argument("--out", default="out/bench-scale")
     a = ap.parse_args()
 
     bindir = a.bin_dir
     server = os.path.join(bindir, "tetwave-server")
     client = os.path.join(bindir, "tetwave")
-    for b in (server, client):
+    for b in (server,) if a.ct_only else (server, client):
         if not os.access(b, os.X_OK):
             fail(f"{b} is missing: build the release binaries first (scripts/bench-scale does)")
     work = os.path.join(a.out, "work")
@@ -225,7 +264,7 @@ def main():
             f.write(json.dumps(row) + "\n")
         print(json.dumps(row), flush=True)
 
-    for level in (int(v) for v in a.levels.split(",")):
+    for level in ([] if a.ct_only else (int(v) for v in a.levels.split(","))):
         for field in a.fields.split(","):
             for bound in a.bounds.split(","):
                 tag = f"{field}-l{level}-{bound.replace('%', 'pc')}"
@@ -321,6 +360,33 @@ def main():
                       "client_rss_mib": round(rss), "timed_out": killed})
         finally:
             srv.close()
+
+    for case in [c for c in a.ct.split(",") if c]:
+        size, dtype = case.split("-")
+        dims = [int(v) for v in size.split("x")] if "x" in size else [int(size)] * 3
+        raw = os.path.join(work, f"ct-{case}.raw")
+        t = time.time()
+        write_ct_grid(raw, dims, dtype)
+        print(f"bench-scale: {raw} ready ({time.time() - t:.0f} s)", file=sys.stderr)
+        store = os.path.join(work, f"ct-{case}")
+        grid = ["--dims", ",".join(map(str, dims)), "--dtype", dtype]
+        out, wall, rss, _ = run_measured(
+            [server, "prepare", raw, *grid, "--max-error", a.ct_bound, "--out", store, "--json"],
+            f"prepare {case}", os.path.join(work, f"ct-{case}-prepare"))
+        summary = json.loads(out.strip().splitlines()[-1])
+        disk = sum(os.path.getsize(os.path.join(store, f)) for f in os.listdir(store))
+        row = {"run": "prepare out of core", "case": f"ct-{case}", "bound": a.ct_bound,
+               "raw_bytes": os.path.getsize(raw), "prepare_s": round(wall, 1), "prepare_rss_mib": round(rss),
+               "levels": summary["levels"], "base": summary["base"], "bytes": summary["bytes"],
+               "store_dir_bytes": disk, "max_abs_error": summary["max_abs_error"],
+               "max_error_bound": summary["max_error_bound"]}
+        out, wall, rss, _ = run_measured(
+            [server, "verify", store, "--input", raw, *grid, "--json"],
+            f"verify --input {case}", os.path.join(work, f"ct-{case}-verify"))
+        v = json.loads(out.strip().splitlines()[-1])
+        row.update({"verify_s": round(wall, 1), "verify_rss_mib": round(rss),
+                    "verify_max_abs_error": v["input"]["max_abs_error"], "verify_voxels": v["input"]["points"]})
+        emit(row)
 
     if a.l9:
         raw = os.path.join(work, "harmonic-513.u8")
