@@ -3,32 +3,20 @@
 //! in-memory store of the same levels byte for byte, and a `--memory` below one layer of boxes is
 //! refused with the least that works. One test in this file: it measures its own child process.
 
+mod ct_common;
+
 use std::path::Path;
 use std::process::{Command, Stdio};
 
 const BIN: &str = env!("CARGO_BIN_EXE_tetwave-server");
 
-/// A 129×129×257 u8 CT-like volume: a dense shell, a smooth ramp and noise.
+/// A 129×129×257 u8 CT-like volume ([`ct_common::ct_field`] scaled to a byte).
 fn write_ct(path: &Path) -> [usize; 3] {
     let dims = [129usize, 129, 257];
-    let mut v = Vec::with_capacity(dims.iter().product());
-    let mut noise = 99u32;
-    for k in 0..dims[2] {
-        for j in 0..dims[1] {
-            for i in 0..dims[0] {
-                noise = noise.wrapping_mul(1664525).wrapping_add(1013904223);
-                let (x, y, z) = (
-                    i as f32 / 129.0 - 0.5,
-                    j as f32 / 129.0 - 0.5,
-                    k as f32 / 257.0 - 0.5,
-                );
-                let r = (x * x + y * y + 0.5 * z * z).sqrt();
-                let shell = if (0.3..0.36).contains(&r) { 150.0 } else { 0.0 };
-                let f = 60.0 + shell + 20.0 * (i as f32 * 0.2).sin() + (noise >> 27) as f32;
-                v.push(f.min(255.0) as u8);
-            }
-        }
-    }
+    let v: Vec<u8> = ct_common::ct_field(dims)
+        .iter()
+        .map(|x| (x / 5.0).min(255.0) as u8)
+        .collect();
     std::fs::write(path, v).unwrap();
     dims
 }

@@ -4,33 +4,13 @@
 //! other options; a part re-run alone completes the store; too many parts for the lattice's layers
 //! are refused with what works.
 
+mod ct_common;
+
+use ct_common::ct_field as field;
 use std::path::Path;
 use tetwave_server::analysis::ErrorBound;
 use tetwave_server::prepare::{parts, prepare, GridArgs, PartsArgs, PrepareError, PrepareOptions};
 use tetwave_store::STORE_FILES;
-
-/// A CT-like field: smooth structure, sharp edges (a dense "bone" shell) and noise.
-fn field(dims: [usize; 3]) -> Vec<f32> {
-    let mut v = Vec::with_capacity(dims.iter().product());
-    let mut noise = 12345u32;
-    for k in 0..dims[2] {
-        for j in 0..dims[1] {
-            for i in 0..dims[0] {
-                noise = noise.wrapping_mul(1664525).wrapping_add(1013904223);
-                let (x, y, z) = (
-                    i as f32 / dims[0] as f32 - 0.5,
-                    j as f32 / dims[1] as f32 - 0.5,
-                    k as f32 / dims[2] as f32 - 0.5,
-                );
-                let r = (x * x + y * y + 0.5 * z * z).sqrt();
-                let shell = if (0.3..0.36).contains(&r) { 900.0 } else { 0.0 };
-                let soft = 40.0 * (9.0 * x).sin() * (7.0 * y).cos() + 30.0 * z;
-                v.push(200.0 + shell + soft + (noise >> 24) as f32 * 0.1);
-            }
-        }
-    }
-    v
-}
 
 fn write_grid(path: &Path, v: &[f32], dtype: &str) {
     let bytes: Vec<u8> = match dtype {
