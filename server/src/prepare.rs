@@ -130,10 +130,23 @@ impl GridArgs {
         z: std::ops::Range<usize>,
     ) -> Result<RawGrid, PrepareError> {
         let dims = self.dims.ok_or(RawError::MissingDims)?;
+        self.read_block(path, nan_as, 0..dims[1], z)
+    }
+
+    /// [`Self::read`] of the voxel rows `y` of the planes `z` alone ([`RawGrid::read_block`]); a
+    /// NaN's index is the block's first plane's in the whole grid plus its index in the block.
+    pub fn read_block(
+        &self,
+        path: &Path,
+        nan_as: Option<f64>,
+        y: std::ops::Range<usize>,
+        z: std::ops::Range<usize>,
+    ) -> Result<RawGrid, PrepareError> {
+        let dims = self.dims.ok_or(RawError::MissingDims)?;
         let dtype = RawType::parse(&self.dtype)
             .ok_or_else(|| PrepareError::UnknownDtype(self.dtype.clone()))?;
-        let before = z.start * dims[0] * dims[1];
-        let mut grid = RawGrid::read_slab(path, dims, dtype, self.spacing, z)?;
+        let before = (z.start * dims[1] + y.start) * dims[0];
+        let mut grid = RawGrid::read_block(path, dims, dtype, self.spacing, y, z)?;
         if let Some(first) = grid.first_non_finite() {
             match nan_as {
                 Some(v) => {
@@ -622,7 +635,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
         let memory = o.memory.unwrap_or_else(default_memory);
         let dtype = RawType::parse(&o.read.grid.dtype).expect("checked with the file's size");
-        let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[2]);
+        let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[1], l.cells[2]);
         if whole > memory {
             match parts::out_of_core_refusal(o) {
                 None => {

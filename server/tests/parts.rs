@@ -75,14 +75,15 @@ fn assert_same_store(a: &Path, b: &Path) {
 #[test]
 fn parts_write_the_one_process_store_byte_for_byte() {
     let tmp = tempfile::tempdir().unwrap();
-    // 37×29×65 at 3 levels: 5×4×8 boxes (x and y padded), split 8 layers into 3 uneven parts
+    // 37×29×65 at 3 levels: 5×4×8 boxes (x and y padded)
     let dims = [37, 29, 65];
     let v = field(dims);
     for dtype in ["f32", "u16"] {
         let raw = tmp.path().join(format!("ct-{dtype}.raw"));
         write_grid(&raw, &v, dtype);
         for max_error in [None, Some("0.5%")] {
-            for n in [1, 3, 8] {
+            // 1, 3, 8: whole layers; 16, 32: 2 and 4 row ranges of each layer
+            for n in [1, 3, 8, 16, 32] {
                 let one = tmp.path().join("one");
                 let many = tmp.path().join("many");
                 let _ = std::fs::remove_dir_all(&one);

@@ -112,6 +112,16 @@ struct Plan {
     fingerprint: Fingerprint,
     precision: Precision,
     n: u32,
+    /// 1: a part is whole layers; `m > 1`: a part is one layer's `1/m` of its rows of boxes.
+    rows_split: usize,
+}
+
+/// The boxes a part takes: rows (along y) and layers (along z) of the lattice's boxes, all of
+/// them along x.
+#[derive(Debug, Clone)]
+struct PartBox {
+    rows: std::ops::Range<usize>,
+    layers: std::ops::Range<usize>,
 }
 
 impl Plan {
@@ -159,15 +169,22 @@ impl Plan {
                 .is_some_and(|n| n <= MAX_NODES)
         };
         let lattice = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
-        let layers = lattice.cells[2];
-        if (layers as u64) < n as u64 {
+        let [_, rows, layers] = lattice.cells;
+        let n_ = n as usize;
+        let rows_split = if n_ <= layers {
+            1
+        } else if n_.is_multiple_of(layers) && n_ / layers <= rows {
+            n_ / layers
+        } else {
             return Err(PrepareError::Usage(format!(
-                "--parts {n}: the voxel lattice has {layers} layer(s) of boxes along z at {} \
-                 levels; give at most {layers} parts, or fewer --levels (each level fewer doubles \
-                 the layers)",
-                lattice.levels
+                "--parts {n}: the voxel lattice has {layers} layer(s) of {rows} row(s) of boxes \
+                 at {} levels; give at most {layers} parts (whole layers), or a multiple of \
+                 {layers} up to {} (rows of each layer), or fewer --levels (each level fewer \
+                 doubles the layers and the rows)",
+                lattice.levels,
+                layers * rows
             )));
-        }
+        };
         let fingerprint = Fingerprint {
             input_bytes,
             dims,
@@ -189,23 +206,30 @@ impl Plan {
             fingerprint,
             precision,
             n,
+            rows_split,
         })
     }
 
-    /// Part `k`'s layers of boxes along z.
-    fn layers(&self, k: u32) -> std::ops::Range<usize> {
-        let (n, cz) = (self.n as usize, self.lattice.cells[2]);
-        k as usize * cz / n..(k as usize + 1) * cz / n
-    }
-
-    /// Base tets a layer of boxes holds.
-    fn tets_per_layer(&self) -> u64 {
-        6 * (self.lattice.cells[0] * self.lattice.cells[1]) as u64
-    }
-
-    /// Base vertices a plane of box corners holds.
-    fn points_per_plane(&self) -> u64 {
-        ((self.lattice.cells[0] + 1) * (self.lattice.cells[1] + 1)) as u64
+    /// The boxes of part `k`.
+    fn part_box(&self, k: u32) -> PartBox {
+        let [_, cy, cz] = self.lattice.cells;
+        let k = k as usize;
+        match self.rows_split {
+            1 => {
+                let n = self.n as usize;
+                PartBox {
+                    rows: 0..cy,
+                    layers: k * cz / n..(k + 1) * cz / n,
+                }
+            }
+            m => {
+                let (layer, r) = (k / m, k % m);
+                PartBox {
+                    rows: r * cy / m..(r + 1) * cy / m,
+                    layers: layer..layer + 1,
+                }
+            }
+        }
     }
 
     /// The whole grid's value range, read slab by slab (NaN/Inf as `nan_as` says).
@@ -264,19 +288,19 @@ fn part_in(
     // a summary left by an earlier run of this part is not this run's
     remove_if_there(&dir.join(SUMMARY_FILE))?;
 
-    let layers = plan.layers(k);
+    let PartBox { rows, layers } = plan.part_box(k);
     let side = 1usize << plan.lattice.levels;
-    let z = layers.start * side..(layers.end * side).min(plan.dims[2] - 1) + 1;
-    tracing::info!(part = k, ?layers, voxel_planes = ?z, "reading the part's slab");
-    let grid = plan.grid.read_slab(&plan.path, o.read.nan_as, z)?;
+    let voxels = |cells: &std::ops::Range<usize>, n: usize| {
+        cells.start * side..(cells.end * side).min(n - 1) + 1
+    };
+    let (y, z) = (voxels(&rows, plan.dims[1]), voxels(&layers, plan.dims[2]));
+    tracing::info!(part = k, ?rows, ?layers, voxel_rows = ?y, voxel_planes = ?z, "reading the part's block");
+    let grid = plan.grid.read_block(&plan.path, o.read.nan_as, y, z)?;
     let (spec, levels, domain) = super::voxel_base(&grid, Some(plan.lattice.levels))?;
     let BaseSpec::KuhnBoxes { cells, .. } = spec else {
         unreachable!("a raw grid's base is Kuhn boxes")
     };
-    debug_assert_eq!(
-        cells,
-        [plan.lattice.cells[0], plan.lattice.cells[1], layers.len()]
-    );
+    debug_assert_eq!(cells, [plan.lattice.cells[0], rows.len(), layers.len()]);
     let domain_box = domain.and_then(|d| match d {
         super::Domain::Box { lo, hi } => Some([lo, hi]),
         super::Domain::Mesh(_) => None,
@@ -292,14 +316,24 @@ fn part_in(
     tracing::info!(part = k, vertices = r.samples.len(), "analysing the part");
     let a = analyze_hierarchy_in_range(r, plan.precision, o.progress, Some(range))?;
 
-    // the plane shared with the part below: the lower part owns its details and counts its
-    // vertices
-    let per_plane = plan.points_per_plane();
-    let lower_plane = |v: u32| k > 0 && (v as u64) < per_plane;
-    let on_lower = |tet: u32, w: &[u32; 4]| {
-        let t = &a.base.tets[tet as usize];
-        (0..4).all(|i| w[i] == 0 || lower_plane(t[i]))
+    // the planes shared with lower-id parts (the layer below, the rows before in this layer):
+    // their owners are there, and the vertices are counted there. Per base vertex of the part, a
+    // bit per such plane it lies on: bit 0 its first plane of corners along z, bit 1 along y.
+    let [cx, _, _] = plan.lattice.cells;
+    let (sx, sy) = (cx as u64 + 1, rows.len() as u64 + 1);
+    let planes = |v: u32| -> u8 {
+        let (j, kk) = ((v as u64 / sx) % sy, v as u64 / (sx * sy));
+        ((layers.start > 0 && kk == 0) as u8) | (((rows.start > 0 && j == 0) as u8) << 1)
     };
+    // the lower planes holding a lattice point of base tet `tet` (weights `w`): those of all the
+    // corners it depends on
+    let point_planes = |tet: u32, w: &[u32; 4]| -> u8 {
+        let t = &a.base.tets[tet as usize];
+        (0..4)
+            .filter(|&i| w[i] != 0)
+            .fold(0b11, |m, i| m & planes(t[i]))
+    };
+    let on_lower = |tet: u32, w: &[u32; 4]| point_planes(tet, w) != 0;
     let histogram = store::histogram_inside(
         &a.base,
         &a.reference,
@@ -311,7 +345,8 @@ fn part_in(
 
     let whole = Forest::new(n_base_of(plan), levels);
     let sub = a.base.forest();
-    let b0 = layers.start as u64 * plan.tets_per_layer();
+    let [_, cy, _] = plan.lattice.cells;
+    let b0 = 6 * ((layers.start * cy + rows.start) * cx) as u64;
     let path = dir.join(NODES_FILE);
     let file = std::fs::File::create(&path).map_err(|e| io_error(&path, e))?;
     let mut w = HashingWriter::new(BufWriter::new(file));
@@ -334,7 +369,8 @@ fn part_in(
                     continue;
                 }
                 let d = *c.next().expect("one coefficient a bit");
-                if !(on_lower(t.base, &t.v[u]) && on_lower(t.base, &t.v[v])) {
+                // an edge on a lower plane: both ends on the same one
+                if point_planes(t.base, &t.v[u]) & point_planes(t.base, &t.v[v]) == 0 {
                     owned |= 1 << bit;
                     coeffs.push(d);
                 }
@@ -352,7 +388,10 @@ fn part_in(
         }
     }
     let (nodes_bytes, nodes_crc32) = w.finish().map_err(|e| io_error(&path, e))?;
-    let points_before = layers.start as u64 * per_plane;
+    let global_point = |v: u64| {
+        let (i, j, kk) = (v % sx, (v / sx) % sy, v / (sx * sy));
+        i + sx * ((rows.start as u64 + j) + (cy as u64 + 1) * (layers.start as u64 + kk))
+    };
     let summary = PartSummary {
         format: PART_FORMAT.into(),
         parts: n,
@@ -373,7 +412,7 @@ fn part_in(
             .values
             .iter()
             .enumerate()
-            .map(|(v, &x)| (points_before + v as u64, x))
+            .map(|(v, &x)| (global_point(v as u64), x))
             .collect(),
         empty_base_tets: (0..sub.n_base)
             .filter(|&b| a.base.empty[b as usize])
@@ -391,27 +430,32 @@ fn part_in(
 }
 
 fn n_base_of(plan: &Plan) -> u64 {
-    plan.tets_per_layer() * plan.lattice.cells[2] as u64
+    6 * plan.lattice.cells.iter().product::<usize>() as u64
 }
 
 /// What a process holds besides its part: the binary, its threads' stacks, I/O buffers, the base
 /// mesh (measured: 20–30 MB on this machine; with a margin).
 pub const PROCESS_OVERHEAD: u64 = 64 << 20;
 
-/// The memory a part of `layers` layers of boxes of `lattice` needs: its slab of voxels, and its
-/// vertices at [`PREPARE_BYTES_PER_VERTEX`] each (`layers` = all of them: the whole grid).
+/// The memory a part of `rows` rows of `layers` layers of boxes of `lattice` needs: its block of
+/// voxels, and its vertices at [`PREPARE_BYTES_PER_VERTEX`] each (all rows and layers: the
+/// whole grid).
 pub fn part_bytes(
     lattice: &VoxelLattice,
     dims: [usize; 3],
     dtype_bytes: usize,
+    rows: usize,
     layers: usize,
 ) -> u64 {
     let side = 1u64 << lattice.levels;
-    let lattice_planes = layers as u64 * side + 1;
-    let [px, py, _] = lattice.points.map(|p| p as u64);
-    let voxel_planes = lattice_planes.min(dims[2] as u64);
-    (px * py * lattice_planes).saturating_mul(PREPARE_BYTES_PER_VERTEX)
-        + dims[0] as u64 * dims[1] as u64 * voxel_planes * dtype_bytes as u64
+    let (lattice_rows, lattice_planes) = (rows as u64 * side + 1, layers as u64 * side + 1);
+    let px = lattice.points[0] as u64;
+    let (voxel_rows, voxel_planes) = (
+        lattice_rows.min(dims[1] as u64),
+        lattice_planes.min(dims[2] as u64),
+    );
+    (px * lattice_rows * lattice_planes).saturating_mul(PREPARE_BYTES_PER_VERTEX)
+        + dims[0] as u64 * voxel_rows * voxel_planes * dtype_bytes as u64
 }
 
 /// Why `o` cannot be prepared by parts, if it cannot (what [`Plan::new`] refuses besides the
@@ -467,17 +511,21 @@ pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, P
         if 6 * cells > MOST_BASE_TETS || (o.levels.is_none() && cells > MOST_AUTO_CELLS) {
             continue;
         }
-        let one = part_bytes(&lattice, dims, dtype.bytes(), 1);
-        least = least.min(one + PROCESS_OVERHEAD);
-        let per = (1..=lattice.cells[2])
-            .take_while(|&k| part_bytes(&lattice, dims, dtype.bytes(), k) <= budget)
-            .last();
-        if let Some(per) = per {
-            chosen = Some((lattice, per));
+        let [_, cy, cz] = lattice.cells;
+        let bytes = |rows, layers| part_bytes(&lattice, dims, dtype.bytes(), rows, layers);
+        least = least.min(bytes(1, 1) + PROCESS_OVERHEAD);
+        // whole layers, as many as fit; else rows of one layer, as many as fit
+        let most = |n: usize, f: &dyn Fn(usize) -> bool| (1..=n).take_while(|&k| f(k)).last();
+        if let Some(per) = most(cz, &|k| bytes(cy, k) <= budget) {
+            chosen = Some((lattice, cz.div_ceil(per), per, cy));
+            break;
+        }
+        if let Some(per) = most(cy, &|r| bytes(r, 1) <= budget) {
+            chosen = Some((lattice, cz * cy.div_ceil(per), 1, per));
             break;
         }
     }
-    let Some((lattice, per)) = chosen else {
+    let Some((lattice, n, layers_per_part, rows_per_part)) = chosen else {
         return Err(PrepareError::MemoryTooSmall {
             memory,
             least,
@@ -486,7 +534,7 @@ pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, P
             overhead: PROCESS_OVERHEAD,
         });
     };
-    let n = lattice.cells[2].div_ceil(per) as u32;
+    let n = n as u32;
     let show = o.progress;
     let o = PrepareOptions {
         levels: Some(lattice.levels),
@@ -498,8 +546,10 @@ pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, P
         levels = lattice.levels,
         boxes = ?lattice.cells,
         parts = n,
-        layers_per_part = per,
-        part_bytes = part_bytes(&lattice, dims, dtype.bytes(), per) + PROCESS_OVERHEAD,
+        layers_per_part,
+        rows_per_part,
+        part_bytes = part_bytes(&lattice, dims, dtype.bytes(), rows_per_part, layers_per_part)
+            + PROCESS_OVERHEAD,
         "out of core: by parts in this process"
     );
     let bar = if show {

@@ -46,10 +46,11 @@ pub enum RawError {
     },
     #[error("raw grid needs --dims X,Y,Z and --dtype u8|u16|i16|f32")]
     MissingDims,
-    #[error("voxel planes {z:?} asked of a grid {depth} planes deep")]
-    BadSlab {
+    #[error("voxel rows {y:?} of planes {z:?} asked of a grid of {dims:?} rows and planes")]
+    BadBlock {
+        y: std::ops::Range<usize>,
         z: std::ops::Range<usize>,
-        depth: usize,
+        dims: [usize; 2],
     },
     #[error("{bytes} bytes of voxels do not fit in this machine's memory")]
     NoMemory { bytes: u64 },
@@ -91,17 +92,19 @@ impl RawGrid {
         dtype: RawType,
         spacing: [f64; 3],
     ) -> Result<Self, RawError> {
-        Self::read_slab(path, dims, dtype, spacing, 0..dims[2])
+        Self::read_block(path, dims, dtype, spacing, 0..dims[1], 0..dims[2])
     }
 
-    /// The voxel planes `z` (a slab) of the grid of `dims` at `path`, as a grid of their own
-    /// (`[x, y, z.len()]` voxels, its first plane at the origin): one seek and one read, so that
-    /// a part of a store (`prepare --part`) holds its slab alone.
-    pub fn read_slab(
+    /// The voxel rows `y` of the planes `z` (a block) of the grid of `dims` at `path`, as a grid
+    /// of their own (`[x, y.len(), z.len()]` voxels, its first voxel at the origin): one seek and
+    /// one read a plane (one in all for whole planes), so that a part of a store (`prepare
+    /// --part`) holds its block alone.
+    pub fn read_block(
         path: &Path,
         dims: [usize; 3],
         dtype: RawType,
         spacing: [f64; 3],
+        y: std::ops::Range<usize>,
         z: std::ops::Range<usize>,
     ) -> Result<Self, RawError> {
         use std::io::{Read, Seek, SeekFrom};
@@ -128,20 +131,36 @@ impl RawGrid {
                 actual,
             });
         }
-        if z.start >= z.end || z.end > dims[2] {
-            return Err(RawError::BadSlab { z, depth: dims[2] });
+        if z.start >= z.end || z.end > dims[2] || y.start >= y.end || y.end > dims[1] {
+            return Err(RawError::BadBlock {
+                y,
+                z,
+                dims: [dims[1], dims[2]],
+            });
         }
         // within the file's size, which fits u64
-        let plane = (dims[0] * dims[1] * dtype.bytes()) as u64;
-        let len = plane * z.len() as u64;
+        let row = (dims[0] * dtype.bytes()) as u64;
+        let plane = row * dims[1] as u64;
+        let rows = row * y.len() as u64;
+        let len = rows * z.len() as u64;
         let mut bytes = Vec::new();
         bytes
             .try_reserve_exact(len as usize)
             .map_err(|_| RawError::NoMemory { bytes: len })?;
         let mut f = std::fs::File::open(path).map_err(io)?;
-        f.seek(SeekFrom::Start(plane * z.start as u64))
-            .map_err(io)?;
-        f.take(len).read_to_end(&mut bytes).map_err(io)?;
+        // whole planes are one read; rows of planes one a plane
+        let whole_planes = y.len() == dims[1];
+        let reads = if whole_planes {
+            z.start..z.start + 1
+        } else {
+            z.clone()
+        };
+        for k in reads {
+            f.seek(SeekFrom::Start(plane * k as u64 + row * y.start as u64))
+                .map_err(io)?;
+            let take = if whole_planes { len } else { rows };
+            (&mut f).take(take).read_to_end(&mut bytes).map_err(io)?;
+        }
         if bytes.len() as u64 != len {
             return Err(io(std::io::Error::from(std::io::ErrorKind::UnexpectedEof)));
         }
@@ -167,7 +186,7 @@ impl RawGrid {
             ),
         };
         Ok(RawGrid {
-            dims: [dims[0], dims[1], z.len()],
+            dims: [dims[0], y.len(), z.len()],
             spacing,
             data,
         })
