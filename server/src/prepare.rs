@@ -635,7 +635,8 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
         let memory = o.memory.unwrap_or_else(default_memory);
         let dtype = RawType::parse(&o.read.grid.dtype).expect("checked with the file's size");
-        let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[1], l.cells[2]);
+        let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[1], l.cells[2])
+            + parts::PROCESS_OVERHEAD;
         if whole > memory {
             match parts::out_of_core_refusal(o) {
                 None => {

@@ -198,3 +198,56 @@ fn parts_refuse_what_they_cannot_split() {
     let e = prepare(&neither).unwrap_err().to_string();
     assert!(e.contains("--part K"), "{e}");
 }
+
+#[test]
+fn out_of_core_keeps_the_parts_an_earlier_run_finished() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dims = [37, 29, 65];
+    let raw = tmp.path().join("g.raw");
+    write_grid(&raw, &field(dims), "u16");
+    let one = tmp.path().join("one");
+    let ooc = tmp.path().join("ooc");
+    // 65 MiB: 64 for the process, 1 for a part (the whole hierarchy needs about 3 MiB)
+    let memory = 65u64 << 20;
+    let mut o = options(&raw, &ooc, dims, "u16", 3);
+    o.levels = None;
+    o.memory = Some(memory);
+    o.max_error = Some(ErrorBound::parse("0.5%").unwrap());
+    let plan = parts::out_of_core_plan(&o, memory).unwrap();
+    assert!(plan.parts > 2, "{plan:?}");
+    assert!(plan.part_bytes <= memory, "{plan:?}");
+    // an earlier run cut short: part 0 done, part 1 begun (no summary)
+    let at = PrepareOptions {
+        levels: Some(plan.levels),
+        ..o.clone()
+    };
+    parts::prepare_part(&by_parts(&at, plan.parts, Some(0)), plan.parts, 0).unwrap();
+    parts::prepare_part(&by_parts(&at, plan.parts, Some(1)), plan.parts, 1).unwrap();
+    let dir = |k: u32| ooc.join(format!("parts/part-{k}-of-{}", plan.parts));
+    std::fs::remove_file(dir(1).join("part.json")).unwrap();
+    let written = |k: u32| {
+        std::fs::metadata(dir(k).join("part.json"))
+            .unwrap()
+            .modified()
+            .unwrap()
+    };
+    let kept = written(0);
+    // a run that stops at part 2 (its directory's place is taken by a file)
+    std::fs::write(dir(2), b"in the way").unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    assert!(prepare(&o).is_err());
+    assert_eq!(written(0), kept, "part 0 was prepared again");
+    assert!(dir(1).join("part.json").exists(), "part 1 was not resumed");
+    // and a run that completes: the store the in-memory one of those levels
+    std::fs::remove_file(dir(2)).unwrap();
+    let s = prepare(&o).unwrap();
+    assert_eq!(s.levels, plan.levels);
+    assert!(!ooc.join("parts").exists());
+    let whole = PrepareOptions {
+        out: one.clone(),
+        memory: None,
+        ..at
+    };
+    prepare(&whole).unwrap();
+    assert_same_store(&one, &ooc);
+}

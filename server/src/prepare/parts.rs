@@ -474,12 +474,22 @@ pub fn out_of_core_refusal(o: &PrepareOptions) -> Option<&'static str> {
     }
 }
 
-/// `prepare` of a raw grid whose hierarchy does not fit `memory`: by parts in this process, one
-/// after the other, then the finish. The levels are `--levels`, or the most (up to the grid's
-/// default) at which one layer of boxes fits; the parts take as many layers as fit. Each part
-/// holds at most `memory` ([`part_bytes`] + [`PROCESS_OVERHEAD`]); the finish holds a block.
-pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, PrepareError> {
-    let t0 = Instant::now();
+/// How [`prepare_out_of_core`] splits a grid: its levels, parts, and what a part takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OutOfCore {
+    pub levels: u8,
+    pub parts: u32,
+    pub layers_per_part: usize,
+    /// The rows of boxes a part takes (all of them when it takes whole layers).
+    pub rows_per_part: usize,
+    /// [`part_bytes`] of the largest part, with [`PROCESS_OVERHEAD`].
+    pub part_bytes: u64,
+}
+
+/// The split [`prepare_out_of_core`] makes of `o`'s grid within `memory`: `--levels`, or the most
+/// levels (up to the grid's default, with at most 4,096 boxes) at which one layer of boxes, or
+/// else one row of boxes, fits; as many layers (or rows of one layer) a part as fit.
+pub fn out_of_core_plan(o: &PrepareOptions, memory: u64) -> Result<OutOfCore, PrepareError> {
     let dims = o
         .read
         .grid
@@ -534,22 +544,48 @@ pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, P
             overhead: PROCESS_OVERHEAD,
         });
     };
-    let n = n as u32;
+    Ok(OutOfCore {
+        levels: lattice.levels,
+        parts: n as u32,
+        layers_per_part,
+        rows_per_part,
+        part_bytes: part_bytes(
+            &lattice,
+            dims,
+            dtype.bytes(),
+            rows_per_part,
+            layers_per_part,
+        ) + PROCESS_OVERHEAD,
+    })
+}
+
+/// `prepare` of a raw grid whose hierarchy does not fit `memory`: by parts in this process, one
+/// after the other, then the finish; parts an earlier run cut short left done are kept. The levels are `--levels`, or the most (up to the grid's
+/// default) at which one layer of boxes fits; the parts take as many layers as fit. Each part
+/// holds at most `memory` ([`part_bytes`] + [`PROCESS_OVERHEAD`]); the finish holds a block.
+pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, PrepareError> {
+    let t0 = Instant::now();
+    let OutOfCore {
+        levels,
+        parts: n,
+        layers_per_part,
+        rows_per_part,
+        part_bytes,
+    } = out_of_core_plan(o, memory)?;
     let show = o.progress;
     let o = PrepareOptions {
-        levels: Some(lattice.levels),
+        levels: Some(levels),
         progress: false,
         ..o.clone()
     };
     let plan = Plan::new(&o, n)?;
     tracing::info!(
-        levels = lattice.levels,
-        boxes = ?lattice.cells,
+        levels,
+        boxes = ?plan.lattice.cells,
         parts = n,
         layers_per_part,
         rows_per_part,
-        part_bytes = part_bytes(&lattice, dims, dtype.bytes(), rows_per_part, layers_per_part)
-            + PROCESS_OVERHEAD,
+        part_bytes,
         "out of core: by parts in this process"
     );
     let bar = if show {
@@ -567,13 +603,58 @@ pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, P
     };
     let range = plan.value_range(o.read.nan_as)?;
     for k in 0..n {
-        part_in(&o, &plan, k, range, Instant::now())?;
+        if part_done(&o.out, &plan, k) {
+            tracing::info!(part = k, "already done (an earlier run's): kept");
+        } else {
+            part_in(&o, &plan, k, range, Instant::now())?;
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
     let mut s = finish(&o, n)?;
     s.seconds = t0.elapsed().as_secs_f64();
     Ok(s)
+}
+
+/// Part `k`'s summary, `None` when the part is not done; refused when it belongs to another
+/// plan (another part, count, input or options).
+fn read_summary(out: &Path, plan: &Plan, k: u32) -> Result<Option<PartSummary>, PrepareError> {
+    let n = plan.n;
+    let path = part_dir(out, n, k).join(SUMMARY_FILE);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(io_error(&path, e)),
+    };
+    let p: PartSummary = serde_json::from_str(&text)
+        .map_err(|e| PrepareError::Usage(format!("{}: not a part summary: {e}", path.display())))?;
+    if p.format != PART_FORMAT || p.parts != n || p.part != k {
+        return Err(PrepareError::Usage(format!(
+            "{}: part {} of {} ({}), not part {k} of {n}",
+            path.display(),
+            p.part,
+            p.parts,
+            p.format
+        )));
+    }
+    if p.options != plan.fingerprint {
+        return Err(PrepareError::Usage(format!(
+            "part {k} was prepared with other options or another input ({:?}) than these \
+             ({:?}): run it again with these",
+            p.options, plan.fingerprint
+        )));
+    }
+    Ok(Some(p))
+}
+
+/// Whether part `k` is done and whole: its summary is this plan's and its node file is what it
+/// wrote (a prepare cut short resumes at the first part that is not).
+fn part_done(out: &Path, plan: &Plan, k: u32) -> bool {
+    let Ok(Some(p)) = read_summary(out, plan, k) else {
+        return false;
+    };
+    let path = part_dir(out, plan.n, k).join(NODES_FILE);
+    checksum(&path).is_ok_and(|c| c == (p.nodes_bytes, p.nodes_crc32))
 }
 
 /// `prepare --parts N --finish`: the store from the parts' files.
@@ -583,32 +664,9 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
     let mut parts = Vec::with_capacity(n as usize);
     let mut missing = Vec::new();
     for k in 0..n {
-        let path = part_dir(&o.out, n, k).join(SUMMARY_FILE);
-        match std::fs::read_to_string(&path) {
-            Ok(text) => {
-                let p: PartSummary = serde_json::from_str(&text).map_err(|e| {
-                    PrepareError::Usage(format!("{}: not a part summary: {e}", path.display()))
-                })?;
-                if p.format != PART_FORMAT || p.parts != n || p.part != k {
-                    return Err(PrepareError::Usage(format!(
-                        "{}: part {} of {} ({}), not part {k} of {n}",
-                        path.display(),
-                        p.part,
-                        p.parts,
-                        p.format
-                    )));
-                }
-                if p.options != plan.fingerprint {
-                    return Err(PrepareError::Usage(format!(
-                        "part {k} was prepared with other options or another input ({:?}) than \
-                         these ({:?}): run it again with these",
-                        p.options, plan.fingerprint
-                    )));
-                }
-                parts.push(p);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => missing.push(k),
-            Err(e) => return Err(io_error(&path, e)),
+        match read_summary(&o.out, &plan, k)? {
+            Some(p) => parts.push(p),
+            None => missing.push(k),
         }
     }
     if !missing.is_empty() {
