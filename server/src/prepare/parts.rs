@@ -15,8 +15,8 @@
 //! and leaves those vertices out of its histogram; the quantizer and the bound follow from the
 //! whole grid's value range, which every part reads first (one pass over the file, by slabs).
 //!
-//! **Files.** Part `K` of `N` writes `parts/part-K-of-N/nodes.bin` (its nodes in id order, each
-//! a bincode [`DetailNode`]) and then `parts/part-K-of-N/part.json` ([`PartSummary`]); no file is
+//! **Files.** Part `K` of `N` writes `parts/part-K-of-N/nodes.bin` (its nodes in id order, coded
+//! as a store codes them, in blocks of up to 4,096 ids of one level, each a bincode [`NodeBlock`]) and then `parts/part-K-of-N/part.json` ([`PartSummary`]); no file is
 //! written by two parts, and a part without its summary is not done. The finish reads the
 //! summaries (refusing any missing, naming them), codes the blocks as the nodes stream in,
 //! writes the manifest last and removes `parts/`.
@@ -26,11 +26,14 @@ use crate::analysis::{analyze_hierarchy_in_range, ErrorBound, Precision};
 use crate::resample::raw::{VoxelLattice, MOST_AUTO_CELLS, MOST_BASE_TETS};
 use crate::resample::{base_mesh, resample, BaseSpec, Source, MAX_NODES};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::io::{BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::hierarchy::{LevelWalker, EDGES};
 use tetwave_protocol::levelset::NearLevelSet;
+use tetwave_protocol::store_format::Encoding;
 use tetwave_protocol::wavelet::{LevelSteps, Predictor, Quantizer};
 use tetwave_protocol::{BaseMesh, DetailNode, Forest};
 use tetwave_store::{self as store, StoreError, StoreMeta, Totals};
@@ -249,6 +252,22 @@ impl Plan {
         })
     }
 
+    /// The coder of the parts' node files: a store's, of the whole base mesh (its ownership),
+    /// with a part's quantizer.
+    fn coder(&self, quantizer: Option<Quantizer>) -> Result<BlockCoder, PrepareError> {
+        let (positions, tets) = base_mesh(&self.base_spec(), ([0.0; 3], [0.0; 3]))?;
+        let base = BaseMesh {
+            levels: self.lattice.levels,
+            values: vec![0.0; positions.len()],
+            empty: vec![false; tets.len()],
+            positions,
+            tets,
+            predictor: Predictor::Parent,
+        };
+        let encoding = Encoding::of(quantizer.map(|q| (q, LevelSteps::UNIFORM)));
+        Ok(BlockCoder::new(&base, &encoding))
+    }
+
     /// The whole store's base mesh (its values and empty flags left to the parts).
     fn base_spec(&self) -> BaseSpec {
         BaseSpec::KuhnBoxes {
@@ -353,6 +372,21 @@ fn part_in(
     let mut node_ranges = Vec::with_capacity(levels as usize);
     let mut coefficients = 0u64;
     let mut at = 0usize;
+    // the nodes coded as a store codes them, in blocks of at most BLOCK consecutive ids of one
+    // level (the finish decodes them and codes the store's blocks)
+    let coder = plan.coder(a.quantizer)?;
+    let mut block = Vec::with_capacity(store::BLOCK as usize);
+    let mut put = |nodes: &mut Vec<DetailNode>| -> Result<(), PrepareError> {
+        if nodes.is_empty() {
+            return Ok(());
+        }
+        let bad = |e: String| PrepareError::Usage(format!("{}: {e}", path.display()));
+        let coded = coder.encode(nodes).map_err(|e| bad(e.to_string()))?;
+        bincode::serde::encode_into_std_write(&coded, &mut w, bincode::config::standard())
+            .map_err(|e| bad(e.to_string()))?;
+        nodes.clear();
+        Ok(())
+    };
     for l in 0..levels {
         let (s, e) = (sub.level_start(l), sub.level_start(l + 1));
         let first = whole.level_start(l) + b0 * (1u64 << (3 * l as u32));
@@ -383,10 +417,14 @@ fn part_in(
                 subtree_max_abs: a.subtree_max_abs[i],
                 coeffs,
             };
-            bincode::serde::encode_into_std_write(&node, &mut w, bincode::config::standard())
-                .map_err(|e| PrepareError::Usage(format!("{}: {e}", path.display())))?;
+            block.push(node);
+            if block.len() == store::BLOCK as usize {
+                put(&mut block)?;
+            }
         }
+        put(&mut block)?;
     }
+    drop(put);
     let (nodes_bytes, nodes_crc32) = w.finish().map_err(|e| io_error(&path, e))?;
     let global_point = |v: u64| {
         let (i, j, kk) = (v % sx, (v / sx) % sy, v / (sx * sy));
@@ -783,7 +821,8 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
             )));
         }
         let file = std::fs::File::open(&path).map_err(|e| io_error(&path, e))?;
-        readers.push((path, BufReader::new(file)));
+        let coder = plan.coder(p.quantizer)?;
+        readers.push((path, BufReader::new(file), coder, VecDeque::new()));
     }
     // the nodes level by level, each level part by part
     let mut order = (0..levels as usize)
@@ -797,13 +836,24 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
         .collect::<Vec<usize>>()
         .into_iter();
     let mut stream = std::iter::from_fn(move || {
-        let (path, r) = &mut readers[order.next()?];
-        Some(
-            bincode::serde::decode_from_std_read::<DetailNode, _, _>(
+        let (path, r, coder, decoded) = &mut readers[order.next()?];
+        if decoded.is_empty() {
+            let block = bincode::serde::decode_from_std_read::<NodeBlock, _, _>(
                 r,
                 bincode::config::standard(),
-            )
-            .map_err(|e| format!("{}: {e}", path.display())),
+            );
+            let nodes = block
+                .map_err(|e| e.to_string())
+                .and_then(|b| coder.decode(&b).map_err(|e| e.to_string()));
+            match nodes {
+                Ok(nodes) => decoded.extend(nodes),
+                Err(e) => return Some(Err(format!("{}: {e}", path.display()))),
+            }
+        }
+        Some(
+            decoded
+                .pop_front()
+                .ok_or_else(|| format!("{}: an empty block", path.display())),
         )
     });
     let lo = [0.0; 3];
