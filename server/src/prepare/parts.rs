@@ -424,7 +424,6 @@ fn part_in(
         }
         put(&mut block)?;
     }
-    drop(put);
     let (nodes_bytes, nodes_crc32) = w.finish().map_err(|e| io_error(&path, e))?;
     let global_point = |v: u64| {
         let (i, j, kk) = (v % sx, (v / sx) % sy, v / (sx * sy));
