@@ -823,19 +823,27 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
         let coder = plan.coder(p.quantizer)?;
         readers.push((path, BufReader::new(file), coder, VecDeque::new()));
     }
-    // the nodes level by level, each level part by part
-    let mut order = (0..levels as usize)
+    // the nodes level by level, each level part by part: (part, node count) runs, walked
+    // without holding a word a node
+    let runs: Vec<(usize, u64)> = (0..levels as usize)
         .flat_map(|l| {
             parts
                 .iter()
                 .enumerate()
                 .map(move |(i, p)| (i, p.node_ranges[l][1] - p.node_ranges[l][0]))
         })
-        .flat_map(|(i, count)| (0..count).map(move |_| i))
-        .collect::<Vec<usize>>()
-        .into_iter();
+        .collect();
+    let mut runs = runs.into_iter();
+    let mut run: (usize, u64) = (0, 0);
+    let mut next_part = move || -> Option<usize> {
+        while run.1 == 0 {
+            run = runs.next()?;
+        }
+        run.1 -= 1;
+        Some(run.0)
+    };
     let mut stream = std::iter::from_fn(move || {
-        let (path, r, coder, decoded) = &mut readers[order.next()?];
+        let (path, r, coder, decoded) = &mut readers[next_part()?];
         if decoded.is_empty() {
             let block = bincode::serde::decode_from_std_read::<NodeBlock, _, _>(
                 r,
