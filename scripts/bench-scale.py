@@ -242,6 +242,11 @@ def main():
                     "and verified voxel by voxel: e.g. 1025-u8,1024x1024x1536-u16,2049-u16 (sizes XxYxZ or N)")
     ap.add_argument("--ct-bound", default="0.5%", help="--max-error of the --ct stores")
     ap.add_argument("--ct-only", action="store_true", help="run the --ct cases alone")
+    ap.add_argument("--ct-project", default="", help="a CT-like grid too long to prepare here (e.g. 2049-u16): "
+                    "prepare a sample of its parts (--parts N --part K, each its own process) and project the total")
+    ap.add_argument("--ct-project-levels", default="7")
+    ap.add_argument("--ct-project-parts", default="128")
+    ap.add_argument("--ct-project-sample", default="0,64", help="the parts to prepare")
     ap.add_argument("--out", default="out/bench-scale")
     a = ap.parse_args()
 
@@ -387,6 +392,34 @@ def main():
         row.update({"verify_s": round(wall, 1), "verify_rss_mib": round(rss),
                     "verify_max_abs_error": v["input"]["max_abs_error"], "verify_voxels": v["input"]["points"]})
         emit(row)
+
+    if a.ct_project:
+        case = a.ct_project
+        size, dtype = case.split("-")
+        dims = [int(v) for v in size.split("x")] if "x" in size else [int(size)] * 3
+        raw = os.path.join(work, f"ct-{case}.raw")
+        t = time.time()
+        write_ct_grid(raw, dims, dtype)
+        print(f"bench-scale: {raw} ready ({time.time() - t:.0f} s)", file=sys.stderr)
+        store = os.path.join(work, f"ct-{case}-parts")
+        n = int(a.ct_project_parts)
+        grid = ["--dims", ",".join(map(str, dims)), "--dtype", dtype, "--levels", a.ct_project_levels,
+                "--max-error", a.ct_bound, "--parts", str(n)]
+        walls, peaks = [], []
+        for k in a.ct_project_sample.split(","):
+            out, wall, rss, _ = run_measured(
+                [server, "prepare", raw, *grid, "--part", k, "--out", store, "--json"],
+                f"prepare {case} part {k}", os.path.join(work, f"ct-{case}-part-{k}"))
+            part = json.loads(out.strip().splitlines()[-1])
+            walls.append(wall)
+            peaks.append(rss)
+            emit({"run": "prepare part", "case": f"ct-{case}", "part": int(k), "parts": n,
+                  "levels": int(a.ct_project_levels), "wall_s": round(wall, 1), "analysis_s": round(part["seconds"], 1),
+                  "rss_mib": round(rss), "nodes_bytes": part["nodes_bytes"], "raw_bytes": os.path.getsize(raw)})
+        mean = sum(walls) / len(walls)
+        emit({"run": "projection", "case": f"ct-{case}", "parts": n, "part_wall_s_mean": round(mean, 1),
+              "part_rss_mib_max": round(max(peaks)), "projected_one_machine_s": round(n * mean),
+              "note": "each part re-reads the whole file for its value range; the finish is not included"})
 
     if a.l9:
         raw = os.path.join(work, "harmonic-513.u8")

@@ -251,3 +251,62 @@ fn out_of_core_keeps_the_parts_an_earlier_run_finished() {
     prepare(&whole).unwrap();
     assert_same_store(&one, &ooc);
 }
+
+/// A full disk (writes into `/dev/full`, through a symlink where a file goes): one error naming
+/// the file and the cause, and nothing that looks like a finished part or store.
+#[test]
+fn a_full_disk_is_an_error_naming_the_file_and_leaves_nothing_that_looks_done() {
+    let full = Path::new("/dev/full");
+    assert!(full.exists(), "/dev/full is missing: this test needs Linux");
+    let tmp = tempfile::tempdir().unwrap();
+    let dims = [17, 17, 33];
+    let raw = tmp.path().join("g.raw");
+    write_grid(&raw, &field(dims), "f32");
+    let out = tmp.path().join("s");
+    let o = options(&raw, &out, dims, "f32", 2);
+    // a part's node file
+    let dir = out.join("parts/part-0-of-2");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::os::unix::fs::symlink(full, dir.join("nodes.bin")).unwrap();
+    let e = parts::prepare_part(&by_parts(&o, 2, Some(0)), 2, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("nodes.bin") && e.contains("No space left"),
+        "{e}"
+    );
+    assert!(
+        !dir.join("part.json").exists(),
+        "a part that failed looks done"
+    );
+    // the store's blocks, at the finish
+    std::fs::remove_file(dir.join("nodes.bin")).unwrap();
+    for k in 0..2 {
+        parts::prepare_part(&by_parts(&o, 2, Some(k)), 2, k).unwrap();
+    }
+    std::os::unix::fs::symlink(full, out.join("blocks.bin.partial")).unwrap();
+    let e = prepare(&by_parts(&o, 2, None)).unwrap_err().to_string();
+    assert!(
+        e.contains("blocks.bin") && e.contains("No space left"),
+        "{e}"
+    );
+    assert!(
+        !out.join("manifest.json").exists(),
+        "a store that failed looks whole"
+    );
+    // and in one process
+    let one = tmp.path().join("one");
+    std::fs::create_dir_all(&one).unwrap();
+    std::os::unix::fs::symlink(full, one.join("blocks.bin.partial")).unwrap();
+    let e = prepare(&PrepareOptions {
+        out: one.clone(),
+        ..o.clone()
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("blocks.bin") && e.contains("No space left"),
+        "{e}"
+    );
+    assert!(!one.join("manifest.json").exists());
+}
