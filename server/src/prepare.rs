@@ -121,7 +121,7 @@ impl GridArgs {
         self.read_slab(path, nan_as, 0..dims[2])
     }
 
-    /// [`Self::read`] of the voxel planes `z` alone ([`RawGrid::read_slab`]); a NaN's index is
+    /// [`Self::read`] of the voxel planes `z` alone ([`RawGrid::read_block`]); a NaN's index is
     /// the whole grid's.
     pub fn read_slab(
         &self,

@@ -495,7 +495,7 @@ pub fn part_bytes(
         + dims[0] as u64 * voxel_rows * voxel_planes * dtype_bytes as u64
 }
 
-/// Why `o` cannot be prepared by parts, if it cannot (what [`Plan::new`] refuses besides the
+/// Why `o` cannot be prepared by parts, if it cannot (what the parts refuse besides the
 /// number of parts).
 pub fn out_of_core_refusal(o: &PrepareOptions) -> Option<&'static str> {
     if o.preview.is_some() {
