@@ -366,13 +366,19 @@ def main():
         finally:
             srv.close()
 
-    for case in [c for c in a.ct.split(",") if c]:
+    def ct_case(case):
+        """A --ct case (`SIZE-DTYPE`, SIZE `N` or `XxYxZ`): its dims, dtype and raw file, written
+        if missing."""
         size, dtype = case.split("-")
         dims = [int(v) for v in size.split("x")] if "x" in size else [int(size)] * 3
         raw = os.path.join(work, f"ct-{case}.raw")
         t = time.time()
         write_ct_grid(raw, dims, dtype)
         print(f"bench-scale: {raw} ready ({time.time() - t:.0f} s)", file=sys.stderr)
+        return dims, dtype, raw
+
+    for case in [c for c in a.ct.split(",") if c]:
+        dims, dtype, raw = ct_case(case)
         store = os.path.join(work, f"ct-{case}")
         grid = ["--dims", ",".join(map(str, dims)), "--dtype", dtype]
         out, wall, rss, _ = run_measured(
@@ -395,12 +401,7 @@ def main():
 
     if a.ct_project:
         case = a.ct_project
-        size, dtype = case.split("-")
-        dims = [int(v) for v in size.split("x")] if "x" in size else [int(size)] * 3
-        raw = os.path.join(work, f"ct-{case}.raw")
-        t = time.time()
-        write_ct_grid(raw, dims, dtype)
-        print(f"bench-scale: {raw} ready ({time.time() - t:.0f} s)", file=sys.stderr)
+        dims, dtype, raw = ct_case(case)
         store = os.path.join(work, f"ct-{case}-parts")
         n = int(a.ct_project_parts)
         grid = ["--dims", ",".join(map(str, dims)), "--dtype", dtype, "--levels", a.ct_project_levels,
