@@ -71,9 +71,10 @@ pub enum PrepareError {
         have_gib: f64,
     },
     #[error(
-        "--memory {memory}: one layer of boxes of this grid, at the fewest levels that keep its \
-         base mesh small enough, needs about {least} bytes (its slab of voxels and {per_vertex} \
-         bytes a vertex, and {overhead} for the process): give --memory {least_mib}M or more"
+        "--memory {memory}: the smallest part of this grid (one row of boxes, at the fewest \
+         levels that keep its base mesh small enough) needs about {least} bytes (its block of \
+         voxels and {per_vertex} bytes a vertex, and {overhead} for the process): give --memory \
+         {least_mib}M or more"
     )]
     MemoryTooSmall {
         memory: u64,

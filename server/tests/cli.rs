@@ -1092,7 +1092,7 @@ fn a_meshs_default_levels_follow_its_resolution() {
 
 /// A hierarchy larger than this machine's memory is refused at once with what it needs and what
 /// there is, never by the system stopping the process: a 2049³ u8 grid (a sparse file: nothing is
-/// read; about 320 GiB in memory, and even one layer of boxes of it over --memory) and
+/// read; about 320 GiB in memory, and even its smallest part over `--memory 1G`) and
 /// synthetic:harmonic at 12 levels of box6 (4097³ vertices).
 /// Past 2^29 nodes the node count itself is no limit (the analysis' owner codes widen to 64 bits).
 #[test]
@@ -1108,15 +1108,17 @@ fn a_hierarchy_beyond_memory_is_refused_before_it_is_read() {
         s(&raw),
         "--dims",
         "2049,2049,2049",
+        "--memory",
+        "1G",
         "--out",
         s(&out),
     ]);
     assert!(!r.ok);
-    // 2049³ voxels at 40 bytes do not fit --memory (a sixth of the machine): prepared by parts,
-    // one layer of boxes at the coarsest base a client accepts (16³ boxes, 7 levels: 2049² × 129
-    // vertices) needs about 21 GiB
+    // 2049³ voxels at 40 bytes do not fit --memory: prepared by parts, the smallest part at the
+    // coarsest base a client accepts (one row of 16³ boxes, 7 levels: 2049 × 129 × 129 vertices)
+    // needs about 1.3 GiB
     assert!(
-        r.stderr.contains("one layer of boxes") && r.stderr.contains("give --memory 2"),
+        r.stderr.contains("smallest part") && r.stderr.contains("give --memory 1"),
         "{}",
         r.stderr
     );
