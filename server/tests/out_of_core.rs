@@ -1,7 +1,8 @@
 //! A raw grid whose hierarchy does not fit `--memory` is prepared by parts in one process: its
 //! peak RSS (measured by `wait4` on the real binary) stays under `--memory`, the store equals the
-//! in-memory store of the same levels byte for byte, and a `--memory` below one layer of boxes is
-//! refused with the least that works. One test in this file: it measures its own child process.
+//! in-memory store of the same levels byte for byte, and a `--memory` below its smallest part
+//! (one row of boxes) is refused with the least that works. One test in this file: it measures
+//! its own child process.
 
 mod ct_common;
 
@@ -120,7 +121,7 @@ fn a_grid_larger_than_memory_is_prepared_by_parts_within_it() {
     }
     assert!(!ooc.join("parts").exists());
 
-    // too little for one layer of boxes: refused, with the least that works, which works
+    // too little for one row of boxes: refused, with the least that works, which works
     let small = tmp.path().join("small");
     let mut args = common.to_vec();
     args.extend(["--memory", "8M", "--out", small.to_str().unwrap()]);
