@@ -597,9 +597,9 @@ pub fn out_of_core_plan(o: &PrepareOptions, memory: u64) -> Result<OutOfCore, Pr
 }
 
 /// `prepare` of a raw grid whose hierarchy does not fit `memory`: by parts in this process, one
-/// after the other, then the finish; parts an earlier run cut short left done are kept. The levels are `--levels`, or the most (up to the grid's
-/// default) at which one layer of boxes fits; the parts take as many layers as fit. Each part
-/// holds at most `memory` ([`part_bytes`] + [`PROCESS_OVERHEAD`]); the finish holds a block.
+/// after the other, then the finish; parts an earlier run cut short left done are kept. The split
+/// is [`out_of_core_plan`]'s. Each part holds at most `memory` ([`part_bytes`] +
+/// [`PROCESS_OVERHEAD`]); the finish holds a block.
 pub fn prepare_out_of_core(o: &PrepareOptions, memory: u64) -> Result<Summary, PrepareError> {
     let t0 = Instant::now();
     let OutOfCore {
