@@ -10,7 +10,7 @@ use crate::resample::synthetic::Synthetic;
 use crate::resample::unstructured::{
     self, BoundaryDistance, CleanError, CleanReport, ImportOptions, Locator,
 };
-use crate::resample::{resample, BaseSpec, ResampleError, Source, MAX_NODES};
+use crate::resample::{indexable, resample, BaseSpec, ResampleError, Source, MAX_NODES};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -572,12 +572,7 @@ fn voxel_base(
     g: &RawGrid,
     levels: Option<u8>,
 ) -> Result<(BaseSpec, u8, Option<Domain>), PrepareError> {
-    let fits = |tets, l| {
-        tetwave_protocol::Forest::new(tets, l)
-            .checked_nodes()
-            .is_some_and(|n| n <= MAX_NODES)
-    };
-    let l = VoxelLattice::fit(g.dims, g.spacing, levels, fits)?;
+    let l = VoxelLattice::fit(g.dims, g.spacing, levels, indexable)?;
     let ([x, y, z], [px, py, pz], [cx, cy, cz]) = (g.dims, l.points, l.cells);
     let pads = l.pads(g.dims);
     tracing::info!(
@@ -628,12 +623,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         &o.base,
         o.read.grid.dims.is_some_and(dims_match_file),
     ) {
-        let fits = |tets, l| {
-            tetwave_protocol::Forest::new(tets, l)
-                .checked_nodes()
-                .is_some_and(|n| n <= MAX_NODES)
-        };
-        let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
+        let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, indexable)?;
         let memory = o.memory.unwrap_or_else(default_memory);
         let dtype = RawType::parse(&o.read.grid.dtype).expect("checked with the file's size");
         let whole = parts::part_bytes(&l, dims, dtype.bytes(), l.cells[1], l.cells[2])

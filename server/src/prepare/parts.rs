@@ -24,7 +24,7 @@
 use super::{GridArgs, PrepareError, PrepareOptions, Summary, PREPARE_BYTES_PER_VERTEX};
 use crate::analysis::{analyze_hierarchy_in_range, ErrorBound, Precision};
 use crate::resample::raw::{VoxelLattice, MOST_AUTO_CELLS, MOST_BASE_TETS};
-use crate::resample::{base_mesh, resample, BaseSpec, Source, MAX_NODES};
+use crate::resample::{base_mesh, indexable, resample, BaseSpec, Source};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::io::{BufReader, BufWriter, Write};
@@ -166,12 +166,7 @@ impl Plan {
                 source,
             })?
             .len();
-        let fits = |tets, l| {
-            Forest::new(tets, l)
-                .checked_nodes()
-                .is_some_and(|n| n <= MAX_NODES)
-        };
-        let lattice = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, fits)?;
+        let lattice = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, indexable)?;
         let [_, rows, layers] = lattice.cells;
         let n_ = n as usize;
         let rows_split = if n_ <= layers {
@@ -252,20 +247,17 @@ impl Plan {
         })
     }
 
-    /// The coder of the parts' node files: a store's, of the whole base mesh (its ownership),
-    /// with a part's quantizer.
-    fn coder(&self, quantizer: Option<Quantizer>) -> Result<BlockCoder, PrepareError> {
+    /// The whole store's base mesh, its values NaN and no tet empty (the parts give them).
+    fn whole_base(&self) -> Result<BaseMesh, PrepareError> {
         let (positions, tets) = base_mesh(&self.base_spec(), ([0.0; 3], [0.0; 3]))?;
-        let base = BaseMesh {
+        Ok(BaseMesh {
             levels: self.lattice.levels,
-            values: vec![0.0; positions.len()],
+            values: vec![f32::NAN; positions.len()],
             empty: vec![false; tets.len()],
             positions,
             tets,
             predictor: Predictor::Parent,
-        };
-        let encoding = Encoding::of(quantizer.map(|q| (q, LevelSteps::UNIFORM)));
-        Ok(BlockCoder::new(&base, &encoding))
+        })
     }
 
     /// The whole store's base mesh (its values and empty flags left to the parts).
@@ -374,7 +366,7 @@ fn part_in(
     let mut at = 0usize;
     // the nodes coded as a store codes them, in blocks of at most BLOCK consecutive ids of one
     // level (the finish decodes them and codes the store's blocks)
-    let coder = plan.coder(a.quantizer)?;
+    let coder = part_coder(&plan.whole_base()?, a.quantizer);
     let mut block = Vec::with_capacity(store::BLOCK as usize);
     let mut put = |nodes: &mut Vec<DetailNode>| -> Result<(), PrepareError> {
         if nodes.is_empty() {
@@ -536,15 +528,10 @@ pub fn out_of_core_plan(o: &PrepareOptions, memory: u64) -> Result<OutOfCore, Pr
         .ok_or_else(|| PrepareError::UnknownDtype(o.read.grid.dtype.clone()))?;
     let spacing = o.read.grid.spacing;
     let budget = memory.saturating_sub(PROCESS_OVERHEAD);
-    let fits = |tets, l| {
-        Forest::new(tets, l)
-            .checked_nodes()
-            .is_some_and(|n| n <= MAX_NODES)
-    };
     let candidates: Vec<u8> = match o.levels {
         Some(l) => vec![l],
         None => {
-            let top = VoxelLattice::fit(dims, spacing, None, fits)?.levels;
+            let top = VoxelLattice::fit(dims, spacing, None, indexable)?.levels;
             (1..=top).rev().collect()
         }
     };
@@ -694,6 +681,13 @@ fn part_done(out: &Path, plan: &Plan, k: u32) -> bool {
     checksum(&path).is_ok_and(|c| c == (p.nodes_bytes, p.nodes_crc32))
 }
 
+/// The coder of the parts' node files: a store's, of the whole base mesh (its ownership), with a
+/// part's quantizer.
+fn part_coder(whole: &BaseMesh, quantizer: Option<Quantizer>) -> BlockCoder {
+    let encoding = Encoding::of(quantizer.map(|q| (q, LevelSteps::UNIFORM)));
+    BlockCoder::new(whole, &encoding)
+}
+
 /// `prepare --parts N --finish`: the store from the parts' files.
 pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
     let t0 = Instant::now();
@@ -716,16 +710,8 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
         )));
     }
 
-    let (positions, tets) = base_mesh(&plan.base_spec(), ([0.0; 3], [0.0; 3]))?;
     let levels = plan.lattice.levels;
-    let mut base = BaseMesh {
-        levels,
-        values: vec![f32::NAN; positions.len()],
-        empty: vec![false; tets.len()],
-        positions,
-        tets,
-        predictor: Predictor::Parent,
-    };
+    let mut base = plan.whole_base()?;
     let forest = base.forest();
     for p in &parts {
         for &(v, x) in &p.base_values {
@@ -820,7 +806,7 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
             )));
         }
         let file = std::fs::File::open(&path).map_err(|e| io_error(&path, e))?;
-        let coder = plan.coder(p.quantizer)?;
+        let coder = part_coder(&base, p.quantizer);
         readers.push((path, BufReader::new(file), coder, VecDeque::new()));
     }
     // the nodes level by level, each level part by part: (part, node count) runs, walked

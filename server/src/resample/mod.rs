@@ -145,6 +145,14 @@ pub struct Resampled {
     pub outside: u64,
 }
 
+/// Whether a hierarchy of `levels` levels over `tets` base tets can be indexed (at most
+/// [`MAX_NODES`] nodes).
+pub fn indexable(tets: u64, levels: u8) -> bool {
+    Forest::new(tets, levels)
+        .checked_nodes()
+        .is_some_and(|n| n <= MAX_NODES)
+}
+
 /// Builds the base mesh.
 pub fn base_mesh(
     spec: &BaseSpec,
@@ -220,11 +228,7 @@ pub fn resample_onto(
         predictor: Default::default(),
     };
     let forest = base.forest();
-    let fits = |l: u8| {
-        Forest::new(forest.n_base, l)
-            .checked_nodes()
-            .is_some_and(|n| n <= MAX_NODES)
-    };
+    let fits = |l: u8| indexable(forest.n_base, l);
     if levels > 0 && !fits(levels) {
         let most = (0..levels).rev().find(|&l| fits(l)).unwrap_or(0);
         return Err(ResampleError::TooManyNodes {
