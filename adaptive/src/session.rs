@@ -179,20 +179,39 @@ impl Session {
     /// where their parent's bound cannot settle them. Later arrivals may still correct vertex
     /// values in place (by at most the missing details). One pass over the mesh's nodes.
     pub fn view_complete(&self) -> bool {
-        if !self.sel.is_converged() {
-            return false;
-        }
-        let mut ok = true;
+        self.sel.is_converged() && !self.unsettled(|_| false)
+    }
+
+    /// The nodes the last frame's camera needs and the session does not hold: the leaves
+    /// [`Self::view_complete`] waits for (a splittable leaf without its store node that its
+    /// nearest held ancestor's bound cannot settle). What a reader that fetches nodes itself (a
+    /// store in a bucket, with no server choosing) asks for next. One pass over the mesh's nodes.
+    pub fn wanted(&self) -> Vec<TetId> {
+        let mut out = Vec::new();
+        self.unsettled(|id| {
+            out.push(id);
+            true
+        });
+        out
+    }
+
+    /// Hands each unsettled leaf to `f` while it returns true; whether there was one.
+    fn unsettled(&self, mut f: impl FnMut(TetId) -> bool) -> bool {
+        let (mut any, mut go) = (false, true);
         self.mesh.for_each_splittable_leaf(|id| {
-            if !ok || (self.buf.is_present(id) && !self.buf.is_preview(id)) {
+            if !go || (self.buf.is_present(id) && !self.buf.is_preview(id)) {
                 return;
             }
-            ok = self.mesh.red_node_of(id).is_some_and(|n| {
+            let settled = self.mesh.red_node_of(id).is_some_and(|n| {
                 self.sel
                     .stays_unsplit_without_node(&self.mesh, &self.buf, &n)
             });
+            if !settled {
+                any = true;
+                go = f(id);
+            }
         });
-        ok
+        any
     }
 
     /// The selector's parameters (tolerance, budgets).

@@ -527,6 +527,7 @@ pub fn bench(args: &BenchArgs, mut emit: impl FnMut(&RunReport)) -> anyhow::Resu
         &args.store,
         tetwave_store::OpenOptions {
             verify_checksums: args.verify,
+            ..Default::default()
         },
     )?;
     let m = &store.manifest;

@@ -188,6 +188,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             &a.store,
             OpenOptions {
                 verify_checksums: a.verify,
+                ..Default::default()
             },
         )?;
         let (mesh, level) = store_mesh(&store, a.levels)?;

@@ -33,7 +33,11 @@ use tetwave_source::{Data, OpenOptions, Pump, Selection, Source, SourceError};
 /// `tetwave stream` options.
 #[derive(Debug, Clone, clap::Args)]
 pub struct StreamArgs {
-    /// Server address: `http://127.0.0.1:7878` or `ws://127.0.0.1:7878` (the stream is `/v1/stream`).
+    /// Server address: `http://127.0.0.1:7878` or `ws://127.0.0.1:7878` (the stream is
+    /// `/v1/stream`); or a store read directly with no server: `s3://BUCKET/PREFIX` (endpoint and
+    /// credentials from AWS_ENDPOINT_URL, AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_REGION,
+    /// AWS_ALLOW_HTTP) or a folder over HTTP (`http://HOST/PATH`, `https://…`), its blocks fetched
+    /// by range as this client's selection asks for them.
     pub url: String,
     /// No window: write PNG frames and JSON lines (the only mode this build has).
     #[arg(long)]
@@ -282,7 +286,12 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
         reason: e.to_string(),
     })?;
     // a bad address fails before the renderer is set up
-    ServerUrl::parse(&args.url)?;
+    let source = Source::parse(&args.url);
+    match &source {
+        Source::Url(url) => drop(ServerUrl::parse(url)?),
+        Source::Bucket(_) => {}
+        _ => return Err(NetError::Url(args.url.clone()).into()),
+    }
     let gpu = if args.cpu || args.no_render {
         None
     } else {
@@ -295,7 +304,7 @@ pub fn run_session(args: &StreamArgs, faults: Faults) -> Result<Streamed, Stream
     let t0 = Instant::now();
     let session_tol = tol.unwrap_or(Tolerance::Pixels(0.0));
     let mut data = Data::open(
-        &Source::Url(args.url.clone()),
+        &source,
         OpenOptions {
             token: args.token.clone(),
             tol: session_tol,

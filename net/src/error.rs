@@ -13,6 +13,10 @@ pub enum NetError {
     Url(String),
     #[error("connection to {url} failed: {reason}")]
     Connect { url: String, reason: String },
+    /// Reading a store directly from object storage failed (after its retries), or a block it
+    /// sent was refused: the message names the object.
+    #[error("{0}")]
+    Store(String),
     #[error("server error {code}: {message}")]
     Server { code: u16, message: String },
     /// A message the protocol puts later came first (`what` before `before`).

@@ -321,9 +321,32 @@ impl StoreHead {
         base_bytes: &[u8],
         index_bytes: &[u8],
     ) -> Result<Self, FormatError> {
+        let base = Self::decode_base(&manifest, base_bytes)?;
+        let nodes = manifest.counts.nodes;
+        let entries = nodes.div_ceil(BLOCK) + 1;
+        if !index_bytes.len().is_multiple_of(8) || (index_bytes.len() / 8) as u64 != entries {
+            return Err(FormatError::BadIndex(format!(
+                "{} bytes, the {nodes} nodes need {entries} entries of 8 bytes",
+                index_bytes.len()
+            )));
+        }
+        let index = Self::decode_index(index_bytes, 0)?;
+        let coder = BlockCoder::new(&base, &manifest.encoding);
+        Ok(StoreHead {
+            manifest,
+            base,
+            index,
+            coder,
+        })
+    }
+
+    /// Checks a store's manifest (its version and encoding) and decodes its `base.bin`, which
+    /// must agree with the manifest's levels and node count: what a reader that fetches the
+    /// index a page at a time ([`Self::decode_index`]) checks at open.
+    pub fn decode_base(manifest: &Manifest, base_bytes: &[u8]) -> Result<BaseMesh, FormatError> {
         if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
             return Err(FormatError::Version {
-                format: manifest.format,
+                format: manifest.format.clone(),
                 version: manifest.version,
             });
         }
@@ -354,26 +377,27 @@ impl StoreHead {
                 "base mesh disagrees with the manifest".into(),
             ));
         }
-        let entries = nodes.div_ceil(BLOCK) + 1;
-        if !index_bytes.len().is_multiple_of(8) || (index_bytes.len() / 8) as u64 != entries {
-            return Err(FormatError::BadIndex(format!(
-                "{} bytes, the {nodes} nodes need {entries} entries of 8 bytes",
-                index_bytes.len()
-            )));
-        }
-        let index: Vec<u64> = index_bytes
+        Ok(base)
+    }
+
+    /// Decodes consecutive entries of `block_index.bin` starting at entry `first` (a multiple of
+    /// 8 bytes): they may not decrease, no block may claim more than a block can take, and entry
+    /// 0 is 0.
+    pub fn decode_index(bytes: &[u8], first: u64) -> Result<Vec<u64>, FormatError> {
+        let index: Vec<u64> = bytes
             .chunks_exact(8)
             .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
             .collect();
         // read_nodes subtracts neighbouring entries: they must not decrease, and no block may
         // claim more than a block can take
-        if index[0] != 0 {
+        if first == 0 && index.first().is_some_and(|&e| e != 0) {
             return Err(FormatError::BadIndex(format!(
                 "entry 0 is {}, the first block starts at byte 0",
                 index[0]
             )));
         }
-        for (b, w) in index.windows(2).enumerate() {
+        for (i, w) in index.windows(2).enumerate() {
+            let b = first + i as u64;
             if w[1] < w[0] || w[1] - w[0] > MAX_BLOCK_BYTES {
                 return Err(FormatError::BadIndex(format!(
                     "block {b} spans bytes {}..{} (entries {b} and {}: they may not decrease \
@@ -384,13 +408,7 @@ impl StoreHead {
                 )));
             }
         }
-        let coder = BlockCoder::new(&base, &manifest.encoding);
-        Ok(StoreHead {
-            manifest,
-            base,
-            index,
-            coder,
-        })
+        Ok(index)
     }
 
     /// Number of blocks of `blocks.bin`.

@@ -19,6 +19,7 @@ use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
 use tetwave_protocol::wavelet::Predictor;
 pub mod parts;
+mod remote;
 
 pub use parts::PartsArgs;
 use tetwave_store::{
@@ -197,9 +198,16 @@ pub struct PrepareOptions {
     /// `synthetic:harmonic` (the embedded default), `synthetic:linear`, a raw grid (.raw or with
     /// --dims), or an unstructured tet mesh (.vtu, .vtk, .msh).
     pub input: String,
-    /// Store directory to write.
+    /// Where to write the store: a directory, or `s3://BUCKET/PREFIX` (any S3-compatible
+    /// service; endpoint and credentials from AWS_ENDPOINT_URL, AWS_ACCESS_KEY_ID,
+    /// AWS_SECRET_ACCESS_KEY, AWS_REGION, AWS_ALLOW_HTTP), written through a local staging
+    /// folder (--stage) and copied up, the manifest last.
     #[arg(long)]
     pub out: PathBuf,
+    /// Staging folder for a store written to object storage (it needs the store's size free).
+    /// Default: the system's temporary folder.
+    #[arg(long)]
+    pub stage: Option<PathBuf>,
     /// Levels of Bey refinement. Default: for a mesh, the fewest whose finest leaves are on
     /// average no larger than its tets, within --memory; for a raw grid, the most levels whose
     /// voxel lattice pads the grid by at most half its points (see --base); 5 for a synthetic
@@ -258,6 +266,7 @@ impl PrepareOptions {
         PrepareOptions {
             input: input.to_string(),
             out: out.to_path_buf(),
+            stage: None,
             levels: None,
             base: BaseSpec::Auto,
             bits: None,
@@ -592,6 +601,9 @@ fn voxel_base(
 
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
+    if let Some(to) = remote::remote_out(o)? {
+        return remote::prepare_to(o, &to);
+    }
     match (o.by_parts.parts, o.by_parts.part, o.by_parts.finish) {
         (Some(n), None, true) => return parts::finish(o, n),
         (Some(_), Some(_), _) => {

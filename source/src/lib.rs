@@ -62,6 +62,10 @@ pub enum SourceError {
     BaseMesh(#[from] tetwave_adaptive::mesh::MeshError),
     #[error(transparent)]
     Node(#[from] tetwave_adaptive::session::NodeRejected),
+    #[error("the store has {nodes} nodes, more than --max-nodes {max}")]
+    TooLarge { nodes: u64, max: u64 },
+    #[error("the transfer function: {0}")]
+    Fit(String),
 }
 
 /// What `tetwave view` was given.
@@ -71,13 +75,22 @@ pub enum Source {
     Url(String),
     /// A store directory.
     Store(PathBuf),
+    /// A store in object storage read directly, no server: `s3://BUCKET/PREFIX`, or a folder
+    /// over HTTP(S) (`https://…`, or `http://HOST/PATH` with a path that is not a server's
+    /// route); blocks fetched by range as the session's selection asks for them.
+    Bucket(tetwave_store::Location),
     /// A mesh file (`.vtu`, `.vtk`, `.msh`, `.mesh`), drawn as it is.
     Mesh(PathBuf),
 }
 
 impl Source {
+    /// What `s` names: a server is its root (`http://HOST:PORT`, `ws://…`, or a `/v1/…` route
+    /// of one); `s3://…`, `https://…` and an `http://` URL with another path are stores read
+    /// directly; anything else is a file or directory.
     pub fn parse(s: &str) -> Source {
-        if ServerUrl::is_server(s) {
+        if let Some(loc) = bucket_location(s) {
+            Source::Bucket(loc)
+        } else if ServerUrl::is_server(s) {
             Source::Url(s.to_string())
         } else if load::is_mesh_input(Path::new(s), None) {
             Source::Mesh(s.into())
@@ -86,6 +99,25 @@ impl Source {
         }
     }
 }
+
+/// The object-storage location `s` names, when it names a store read directly (see
+/// [`Source::parse`]).
+fn bucket_location(s: &str) -> Option<tetwave_store::Location> {
+    let path = s.strip_prefix("http://").map(|rest| {
+        let p = rest.find('/').map_or("", |i| &rest[i..]);
+        p.split(['?', '#']).next().unwrap_or("")
+    });
+    let server = matches!(path, Some(p) if p.is_empty() || p == "/" || p.starts_with("/v1/"));
+    if server || !(s.starts_with("s3://") || s.starts_with("https://") || s.starts_with("http://"))
+    {
+        return None;
+    }
+    tetwave_store::Location::parse(s).ok()
+}
+
+/// Blocks a store read directly fetches at most per round (one round trip: their ranges go
+/// out together); 64 blocks are about 256 K nodes.
+pub const FETCH_BLOCKS: usize = 64;
 
 /// Nodes of a local store fed to the session per chunk (the clock is read between chunks).
 const LOCAL_CHUNK: usize = 512;
@@ -142,8 +174,16 @@ struct Remote {
     ingest: Ingest,
 }
 
+/// A store read directly from object storage.
+struct Bucket {
+    store: tetwave_store::PagedStore,
+    /// Blocks fetched (each once).
+    fetched: std::collections::HashSet<u64>,
+}
+
 enum Kind {
     Remote(Box<Remote>),
+    Bucket(Box<Bucket>),
     Local { nodes: Vec<DetailNode>, next: usize },
     Mesh,
 }
@@ -236,6 +276,35 @@ impl Data {
                 }
                 Ok(d)
             }
+            Source::Bucket(loc) => {
+                let store = tetwave_store::PagedStore::open(loc)?;
+                let m = &store.manifest;
+                if m.counts.nodes > max_nodes {
+                    return Err(SourceError::TooLarge {
+                        nodes: m.counts.nodes,
+                        max: max_nodes,
+                    });
+                }
+                let (range, name) = (m.display_value_range(), m.dataset.clone());
+                let (base, near) = (store.base.clone(), store.levelset_near.clone());
+                let mut d = empty(Kind::Bucket(Box::new(Bucket {
+                    store,
+                    fetched: Default::default(),
+                })));
+                d.value_range = range;
+                d.name = name;
+                if d.select.fit_auto {
+                    if let Kind::Bucket(b) = &d.kind {
+                        d.select.tf = TransferFunction::for_manifest(AUTO, &b.store.manifest)
+                            .map_err(|e| SourceError::Fit(e.to_string()))?;
+                    }
+                }
+                d.start_session(base, tol)?;
+                if let (Some(s), Some(near)) = (d.session.as_mut(), near) {
+                    s.set_levelset(near);
+                }
+                Ok(d)
+            }
             Source::Mesh(path) => {
                 let options = tetwave_import::clean::ImportOptions {
                     scalar: None,
@@ -301,6 +370,7 @@ impl Data {
     pub fn remote_manifest(&self) -> Option<&Manifest> {
         match &self.kind {
             Kind::Remote(r) => r.ingest.manifest(),
+            Kind::Bucket(b) => Some(&b.store.manifest),
             _ => None,
         }
     }
@@ -341,6 +411,7 @@ impl Data {
     pub fn bytes_received(&self) -> u64 {
         match &self.kind {
             Kind::Remote(r) => r.conn.bytes(),
+            Kind::Bucket(b) => b.store.bytes_read(),
             _ => 0,
         }
     }
@@ -405,7 +476,8 @@ impl Data {
                     *next = 0;
                 }
             }
-            Kind::Remote(_) => match self.pump(Pump::within(budget), tol, |_| {}) {
+            Kind::Remote(_) | Kind::Bucket(_) => match self.pump(Pump::within(budget), tol, |_| {})
+            {
                 Ok(n) => applied = n,
                 Err(e) => self.error = Some(e.to_string()),
             },
@@ -427,6 +499,9 @@ impl Data {
         tol: Tolerance,
         mut on: impl FnMut(Step),
     ) -> Result<usize, NetError> {
+        if matches!(self.kind, Kind::Bucket(_)) {
+            return self.fetch_round(p, on);
+        }
         let mut applied = 0;
         let mut got_any = false;
         loop {
@@ -498,6 +573,54 @@ impl Data {
         }
     }
 
+    /// One round of a store read directly: the blocks holding the nodes the session wants for
+    /// its last frame's camera ([`Session::wanted`]), coarsest first, at most [`FETCH_BLOCKS`]
+    /// (and `p.max_nodes` worth), fetched together and applied whole (each is the store's own).
+    fn fetch_round(&mut self, p: Pump, mut on: impl FnMut(Step)) -> Result<usize, NetError> {
+        let (Kind::Bucket(b), Some(session)) = (&mut self.kind, self.session.as_mut()) else {
+            return Ok(0);
+        };
+        let per_block = tetwave_store::BLOCK as usize;
+        let most = match p.max_nodes {
+            0 => FETCH_BLOCKS,
+            n => n.div_ceil(per_block).clamp(1, FETCH_BLOCKS),
+        };
+        let mut blocks: Vec<u64> = session
+            .wanted()
+            .into_iter()
+            .map(|id| id / tetwave_store::BLOCK)
+            .filter(|blk| !b.fetched.contains(blk))
+            .collect();
+        blocks.sort_unstable();
+        blocks.dedup();
+        blocks.truncate(most);
+        if blocks.is_empty() {
+            return Ok(0);
+        }
+        let before = b.store.bytes_read();
+        let got = b
+            .store
+            .read_blocks(&blocks)
+            .map_err(|e| NetError::Store(e.to_string()))?;
+        self.bytes_applied += b.store.bytes_read() - before;
+        let mut applied = 0;
+        for (blk, nodes) in blocks.iter().zip(got) {
+            b.fetched.insert(*blk);
+            session
+                .insert(&nodes)
+                .map_err(|e| NetError::Store(e.to_string()))?;
+            applied += nodes.len();
+            on(Step::Nodes {
+                nodes,
+                duplicates: 0,
+            });
+        }
+        if applied > 0 {
+            self.changed = true;
+        }
+        Ok(applied)
+    }
+
     /// The transfer function the session selects by (for a stream drawing `auto`, the one fitted
     /// to its manifest once the session started).
     pub fn selection_tf(&self) -> &TransferFunction {
@@ -506,7 +629,11 @@ impl Data {
 
     /// A stream whose server said every node was sent, and every node is held.
     pub fn stream_ended(&self) -> bool {
-        matches!(&self.kind, Kind::Remote(r) if r.ingest.ended())
+        match &self.kind {
+            Kind::Remote(r) => r.ingest.ended(),
+            Kind::Bucket(_) => self.is_complete(),
+            _ => false,
+        }
     }
 
     /// Stops the network task (the viewer is closing).

@@ -137,7 +137,7 @@ pub fn fit_auto(
             };
             ValueHistogram::of_mesh(&file_mesh(path, None, &options)?.0)
         }
-        crate::Source::Url(_) => return Ok(tf),
+        crate::Source::Url(_) | crate::Source::Bucket(_) => return Ok(tf),
     };
     Ok(tf.fitted(&hist))
 }

@@ -13,32 +13,21 @@
 //! A flipped byte inside a block usually fails to decode (or decodes to the wrong count); one that
 //! still decodes to plausible nodes is found by `verify`'s checksums.
 
+use crate::location::Files;
 use crate::{io_err, StoreError};
-use std::io::{BufReader, Read};
-use std::path::Path;
 use tetwave_protocol::store_format::{FormatError, StoreHead, LEVELSET_BAND_FILE};
 use tetwave_protocol::DetailNode;
 
-fn corrupt(dir: &Path, file: &str, reason: String) -> StoreError {
+fn corrupt(files: &Files, file: &str, reason: String) -> StoreError {
     StoreError::Corrupt {
-        path: dir.join(file),
+        path: files.name(file),
         reason,
-    }
-}
-
-/// Size on disk of `file`, or `None` when it is absent.
-fn size_of(dir: &Path, file: &str) -> Result<Option<u64>, StoreError> {
-    let p = dir.join(file);
-    match std::fs::metadata(&p) {
-        Ok(m) => Ok(Some(m.len())),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(io_err(&p)(e)),
     }
 }
 
 /// `file` must exist and hold `count` items of `width` bytes.
 fn expect_size(
-    dir: &Path,
+    files: &Files,
     file: &str,
     count: u64,
     width: u64,
@@ -46,18 +35,18 @@ fn expect_size(
 ) -> Result<(), StoreError> {
     let want = count.checked_mul(width).ok_or_else(|| {
         corrupt(
-            dir,
+            files,
             file,
             format!("{count} {what} of {width} bytes overflow a file size"),
         )
     })?;
-    let Some(len) = size_of(dir, file)? else {
-        let p = dir.join(file);
+    let Some(len) = files.size(file)? else {
+        let p = files.name(file);
         return Err(io_err(&p)(std::io::ErrorKind::NotFound.into()));
     };
     if len != want {
         return Err(corrupt(
-            dir,
+            files,
             file,
             format!("{len} bytes, the manifest's {count} {what} of {width} bytes need {want}"),
         ));
@@ -68,7 +57,7 @@ fn expect_size(
 /// Runs every check of the module docs on an open store's head and files, handing each decoded
 /// block's nodes to `visit` (in id order).
 pub(crate) fn structure(
-    dir: &Path,
+    files: &Files,
     head: &StoreHead,
     visit: &mut dyn FnMut(Vec<DetailNode>),
 ) -> Result<(), StoreError> {
@@ -79,7 +68,7 @@ pub(crate) fn structure(
     // counts (the node count and the levels were compared by StoreHead::decode)
     if m.base_tets != base.tets.len() as u64 || m.base_vertices != base.positions.len() as u64 {
         return Err(corrupt(
-            dir,
+            files,
             mpath,
             format!(
                 "base_tets {} and base_vertices {} disagree with base.bin's {} tets and {} vertices",
@@ -92,7 +81,7 @@ pub(crate) fn structure(
     }
     let total = forest.checked_total_tets().ok_or_else(|| {
         corrupt(
-            dir,
+            files,
             "base.bin",
             format!(
                 "{} tets refined {} times: the tet count does not fit in 64 bits",
@@ -109,7 +98,7 @@ pub(crate) fn structure(
     ] {
         if got != want {
             return Err(corrupt(
-                dir,
+                files,
                 mpath,
                 format!("counts.{what} is {got}, the base mesh's hierarchy has {want}"),
             ));
@@ -118,17 +107,17 @@ pub(crate) fn structure(
     let coefficients = m.counts.coefficients;
     if coefficients > vertices {
         return Err(corrupt(
-            dir,
+            files,
             mpath,
             format!("counts.coefficients {coefficients} exceeds the {vertices} vertices"),
         ));
     }
     // file sizes
-    if size_of(dir, "reference.f32")?.is_some() || m.files.contains_key("reference.f32") {
-        expect_size(dir, "reference.f32", vertices, 4, "vertices")?;
+    if files.size("reference.f32")?.is_some() || m.files.contains_key("reference.f32") {
+        expect_size(files, "reference.f32", vertices, 4, "vertices")?;
     }
     if m.files.contains_key("levelset.f32") {
-        expect_size(dir, "levelset.f32", vertices, 4, "vertices")?;
+        expect_size(files, "levelset.f32", vertices, 4, "vertices")?;
     }
     // a level set and its near band go together (clients clip with the band, renderers with the
     // whole set: they must describe the same domain), except a box domain's band, from which
@@ -136,11 +125,12 @@ pub(crate) fn structure(
     let whole = m.files.contains_key("levelset.f32");
     if whole != m.has_levelset_band() {
         let box_alone = !whole
-            && std::fs::read(dir.join(LEVELSET_BAND_FILE))
+            && files
+                .read(LEVELSET_BAND_FILE)
                 .is_ok_and(|b| b.len() == 56 && b[..8] == [0xff; 8]);
         if !box_alone {
             return Err(corrupt(
-                dir,
+                files,
                 mpath,
                 "the manifest lists one of levelset.f32 and levelset_near.bin without the other \
                  (only a box domain's band stands alone)"
@@ -148,15 +138,15 @@ pub(crate) fn structure(
             ));
         }
     }
-    let bpath = dir.join("blocks.bin");
-    let Some(len) = size_of(dir, "blocks.bin")? else {
+    let bpath = files.name("blocks.bin");
+    let Some(len) = files.size("blocks.bin")? else {
         return Err(io_err(&bpath)(std::io::ErrorKind::NotFound.into()));
     };
     let index = &head.index;
     let last = *index.last().expect("decode checked nblocks + 1 entries");
     if last != len {
         return Err(corrupt(
-            dir,
+            files,
             "block_index.bin",
             format!(
                 "entry {} ({last}) is not the length of blocks.bin ({len} bytes)",
@@ -164,16 +154,23 @@ pub(crate) fn structure(
             ),
         ));
     }
-    // every block, in order
-    let file = std::fs::File::open(&bpath).map_err(io_err(&bpath))?;
-    let mut r = BufReader::with_capacity(1 << 20, file);
-    let mut buf = Vec::new();
+    // every block, in order, read some 8 MiB at a time
     let mut owned = 0u64;
+    let mut batch = Vec::new();
+    let mut batch_start = 0;
     for b in 0..head.blocks() {
-        let (at, until) = (index[b as usize], index[b as usize + 1]);
-        // decode bounded every block's length by MAX_BLOCK_BYTES
-        buf.resize((until - at) as usize, 0);
-        r.read_exact(&mut buf).map_err(io_err(&bpath))?;
+        if b >= batch_start + (batch.len() as u64) {
+            let mut end = b + 1;
+            while end < head.blocks() && index[end as usize + 1] - index[b as usize] < 8 << 20 {
+                end += 1;
+            }
+            let ranges: Vec<_> = (b..end)
+                .map(|k| index[k as usize]..index[k as usize + 1])
+                .collect();
+            batch = files.read_ranges("blocks.bin", &ranges)?;
+            batch_start = b;
+        }
+        let buf = std::mem::take(&mut batch[(b - batch_start) as usize]);
         let nodes = head.decode_block(b, &buf).map_err(|e| match e {
             FormatError::BadBlock {
                 block,
@@ -181,12 +178,12 @@ pub(crate) fn structure(
                 to,
                 reason,
             } => corrupt(
-                dir,
+                files,
                 "blocks.bin",
                 format!("block {block} (nodes {from}..{to}): {reason}"),
             ),
             other => StoreError::Format {
-                path: dir.to_path_buf(),
+                path: files.name(""),
                 source: other,
             },
         })?;
@@ -195,7 +192,7 @@ pub(crate) fn structure(
     }
     if owned != coefficients {
         return Err(corrupt(
-            dir,
+            files,
             "blocks.bin",
             format!("the blocks own {owned} coefficients, counts.coefficients is {coefficients}"),
         ));

@@ -31,12 +31,17 @@ pub use tetwave_protocol::store_format::{
 };
 
 mod check;
+pub mod location;
+pub mod paged;
 mod read;
 mod write;
 
+pub use location::Location;
+pub use paged::PagedStore;
 pub use read::{OpenOptions, Store};
 pub use write::{
-    histogram_inside, write, write_streamed, PreviewNodes, StoreContent, StoreMeta, Totals,
+    delete_file, download_file, histogram_inside, upload, upload_file, write, write_streamed,
+    PreviewNodes, StoreContent, StoreMeta, Totals,
 };
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
@@ -69,6 +74,11 @@ pub enum StoreError {
     Corrupt { path: PathBuf, reason: String },
     #[error("{path}: {source}")]
     Format { path: PathBuf, source: FormatError },
+    #[error("{location}: {reason}")]
+    Location { location: String, reason: String },
+    /// A request to object storage failed (after its retries).
+    #[error("{path}: {reason}")]
+    Object { path: PathBuf, reason: String },
     #[error("{path}: synthesis failed: {source}")]
     Synthesis {
         path: PathBuf,

@@ -1,41 +1,30 @@
 //! Reading a store: the manifest, base mesh and block index at open, coded blocks on demand.
 
-use crate::{io_err, StoreError, OPTIONAL_STORE_FILES, REFERENCE_FILE, STORE_FILES};
-use std::fs::File;
-use std::io::{Read, Seek, SeekFrom};
+use crate::location::{Files, Location};
+use crate::{StoreError, OPTIONAL_STORE_FILES, REFERENCE_FILE, STORE_FILES};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::block::NodeBlock;
 use tetwave_protocol::levelset::{box_signed_distance, NearLevelSet};
 use tetwave_protocol::store_format::{
-    FormatError, Manifest, StoreFiles, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
-    MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
+    FormatError, Manifest, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES, MAX_BLOCK_BYTES,
+    PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
 };
 use tetwave_protocol::synthesis::synthesize_all;
 use tetwave_protocol::{BaseMesh, DetailNode, Forest, TetId};
 
-/// A store directory as a [`StoreFiles`] source.
-struct DirFiles(PathBuf);
-
-impl StoreFiles for DirFiles {
-    type Error = StoreError;
-    fn read_at(&self, file: &str, offset: u64, buf: &mut [u8]) -> Result<(), StoreError> {
-        let path = self.0.join(file);
-        let mut f = File::open(&path).map_err(io_err(&path))?;
-        f.seek(SeekFrom::Start(offset)).map_err(io_err(&path))?;
-        f.read_exact(buf).map_err(io_err(&path))
-    }
-}
-
 /// An open store: manifest, base mesh and block index in memory, blocks read and decoded on demand.
 pub struct Store {
+    /// Where the store is (its display names it in messages).
+    pub location: Location,
+    /// The directory, for a local store; for object storage, its URL as a path (for messages).
     pub dir: PathBuf,
     pub manifest: Manifest,
     pub base: BaseMesh,
     /// The preview's nodes (`preview.bin`, [`Manifest::preview`]), decoded and checked at open.
     pub preview: Option<Vec<DetailNode>>,
     head: StoreHead,
-    files: DirFiles,
+    files: Files,
 }
 
 /// How [`Store::open_with`] checks a store.
@@ -44,11 +33,15 @@ pub struct OpenOptions {
     /// Also recompute every file's CRC-32 ([`Store::check_sums`]): reads the whole store.
     /// `base.bin`'s is always checked.
     pub verify_checksums: bool,
+    /// Skip the structure pass (which reads every block) and each file's size check: blocks are
+    /// checked when they are read (their decoding, and `verify`'s checksums). What a reader of
+    /// object storage that wants only some blocks opens with.
+    pub lazy: bool,
 }
 
 impl Store {
     /// Opens a store with the default [`OpenOptions`] (structural checks and `base.bin`'s
-    /// checksum; not the other files' checksums).
+    /// checksum; not the other files' checksums). `dir` may hold a URL ([`Location::of_path`]).
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         Self::open_with(dir, OpenOptions::default())
     }
@@ -68,10 +61,27 @@ impl Store {
     pub fn open_visiting(
         dir: &Path,
         options: OpenOptions,
+        visit: impl FnMut(Vec<DetailNode>),
+    ) -> Result<Self, StoreError> {
+        Self::open_at(&Location::of_path(dir)?, options, visit)
+    }
+
+    /// Opens a store wherever it is ([`Location`]), as [`Self::open_visiting`] does a directory.
+    pub fn open_at(
+        location: &Location,
+        options: OpenOptions,
         mut visit: impl FnMut(Vec<DetailNode>),
     ) -> Result<Self, StoreError> {
-        let mpath = dir.join("manifest.json");
-        let text = std::fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
+        let files = Files::open(location)?;
+        let dir = &location.name("");
+        let dir = dir.as_path();
+        let mpath = files.name("manifest.json");
+        let text = String::from_utf8(files.read("manifest.json")?).map_err(|e| {
+            StoreError::BadManifest {
+                path: mpath.clone(),
+                reason: e.to_string(),
+            }
+        })?;
         let manifest: Manifest =
             serde_json::from_str(&text).map_err(|e| StoreError::BadManifest {
                 path: mpath.clone(),
@@ -98,8 +108,13 @@ impl Store {
                     reason: format!("{name:?} is not a file of a store"),
                 });
             }
-            let p = dir.join(name);
-            let len = std::fs::metadata(&p).map_err(io_err(&p))?.len();
+            if options.lazy {
+                continue;
+            }
+            let p = files.name(name);
+            let Some(len) = files.size(name)? else {
+                return Err(crate::io_err(&p)(std::io::ErrorKind::NotFound.into()));
+            };
             if len != sum.bytes {
                 return Err(StoreError::Corrupt {
                     path: p,
@@ -107,15 +122,15 @@ impl Store {
                 });
             }
         }
-        let bpath = dir.join("base.bin");
-        let base_len = std::fs::metadata(&bpath).map_err(io_err(&bpath))?.len();
+        let bpath = files.name("base.bin");
+        let base_len = manifest.files.get("base.bin").map_or(0, |s| s.bytes);
         if base_len > MAX_BASE_BYTES as u64 {
             return Err(StoreError::Corrupt {
                 path: bpath,
                 reason: format!("{base_len} bytes exceeds the {MAX_BASE_BYTES}-byte limit"),
             });
         }
-        let base_bytes = std::fs::read(&bpath).map_err(io_err(&bpath))?;
+        let base_bytes = files.read("base.bin")?;
         // the base mesh is small and every render depends on it: its checksum is always checked
         let Some(sum) = manifest.files.get("base.bin") else {
             return Err(StoreError::Corrupt {
@@ -132,20 +147,24 @@ impl Store {
         }
         // the index is read whole: first its size (StoreHead::decode then ties the manifest's node
         // count to the base mesh)
-        let ipath = dir.join("block_index.bin");
-        let index_len = std::fs::metadata(&ipath).map_err(io_err(&ipath))?.len();
+        let ipath = files.name("block_index.bin");
         let want = (manifest.counts.nodes.div_ceil(BLOCK) + 1).checked_mul(8);
-        if Some(index_len) != want {
+        let index_len = match options.lazy {
+            true => manifest.files.get("block_index.bin").map(|s| s.bytes),
+            false => files.size("block_index.bin")?,
+        };
+        if index_len != want {
             return Err(StoreError::Corrupt {
                 path: ipath,
                 reason: format!(
-                    "{index_len} bytes, the manifest's {} nodes need 8 per block of {BLOCK} and \
+                    "{} bytes, the manifest's {} nodes need 8 per block of {BLOCK} and \
                      8 more",
+                    index_len.map_or("no".into(), |l| l.to_string()),
                     manifest.counts.nodes
                 ),
             });
         }
-        let index_bytes = std::fs::read(&ipath).map_err(io_err(&ipath))?;
+        let index_bytes = files.read("block_index.bin")?;
         let head =
             StoreHead::decode(manifest, &base_bytes, &index_bytes).map_err(
                 |source| match source {
@@ -159,10 +178,10 @@ impl Store {
                     },
                 },
             )?;
-        let preview = read_preview(dir, &head)?;
+        let preview = read_preview(&files, &head)?;
         // the structure pass decodes every block once: the preview's masks are compared there
         let mut differs = None;
-        crate::check::structure(dir, &head, &mut |part: Vec<DetailNode>| {
+        let mut check = |part: Vec<DetailNode>| {
             if let (Some(p), None) = (&preview, differs) {
                 differs = part
                     .iter()
@@ -174,10 +193,13 @@ impl Store {
                     .map(|n| n.id);
             }
             visit(part)
-        })?;
+        };
+        if !options.lazy {
+            crate::check::structure(&files, &head, &mut check)?;
+        }
         if let Some(id) = differs {
             return Err(StoreError::Corrupt {
-                path: dir.join(PREVIEW_FILE),
+                path: files.name(PREVIEW_FILE),
                 reason: format!(
                     "its node {id} has other owned or empty masks than the store's: not the \
                      store's first nodes"
@@ -185,12 +207,13 @@ impl Store {
             });
         }
         let store = Store {
+            location: location.clone(),
             dir: dir.to_path_buf(),
             manifest: head.manifest.clone(),
             base: head.base.clone(),
             preview,
             head,
-            files: DirFiles(dir.to_path_buf()),
+            files,
         };
         if options.verify_checksums {
             store.check_sums()?;
@@ -221,16 +244,20 @@ impl Store {
             });
         }
         for (name, sum) in &self.manifest.files {
-            let p = self.dir.join(name);
-            let mut f = File::open(&p).map_err(io_err(&p))?;
+            let p = self.files.name(name);
+            let len = sum.bytes;
             let mut h = crc32fast::Hasher::new();
-            let mut buf = vec![0u8; 1 << 20];
-            loop {
-                let n = f.read(&mut buf).map_err(io_err(&p))?;
-                if n == 0 {
-                    break;
-                }
-                h.update(&buf[..n]);
+            let mut at = 0;
+            while at < len {
+                let end = (at + (8 << 20)).min(len);
+                h.update(&self.files.read_range(name, at..end)?);
+                at = end;
+            }
+            if self.files.size(name)? != Some(len) {
+                return Err(StoreError::Corrupt {
+                    path: p,
+                    reason: format!("not {len} bytes as the manifest says"),
+                });
             }
             let got = h.finalize();
             if got != sum.crc32 {
@@ -276,8 +303,8 @@ impl Store {
         if !self.manifest.files.contains_key(REFERENCE_FILE) {
             return Ok(None);
         }
-        let p = self.dir.join(REFERENCE_FILE);
-        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        let p = self.files.name(REFERENCE_FILE);
+        let b = self.files.read(REFERENCE_FILE)?;
         if b.len() as u64 != self.manifest.counts.vertices * 4 {
             return Err(StoreError::Corrupt {
                 path: p,
@@ -312,8 +339,8 @@ impl Store {
             }
             return Ok(Some(out));
         }
-        let p = self.dir.join("levelset.f32");
-        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        let p = self.files.name("levelset.f32");
+        let b = self.files.read("levelset.f32")?;
         if b.len() as u64 != self.manifest.counts.vertices * 4 {
             return Err(StoreError::Corrupt {
                 path: p,
@@ -340,8 +367,8 @@ impl Store {
         if !self.manifest.has_levelset_band() {
             return Ok(None);
         }
-        let p = self.dir.join(LEVELSET_BAND_FILE);
-        let b = std::fs::read(&p).map_err(io_err(&p))?;
+        let p = self.files.name(LEVELSET_BAND_FILE);
+        let b = self.files.read(LEVELSET_BAND_FILE)?;
         let near = NearLevelSet::decode(&b, self.manifest.counts.vertices).map_err(|e| {
             StoreError::Corrupt {
                 path: p,
@@ -382,9 +409,9 @@ impl Store {
 /// Decodes `preview.bin` when the manifest describes a preview, checking that it holds exactly
 /// the nodes of the node levels it names, block by block (their masks against the store's are
 /// compared by the structure pass).
-fn read_preview(dir: &Path, head: &StoreHead) -> Result<Option<Vec<DetailNode>>, StoreError> {
+fn read_preview(files: &Files, head: &StoreHead) -> Result<Option<Vec<DetailNode>>, StoreError> {
     let (manifest, base) = (&head.manifest, &head.base);
-    let path = dir.join(PREVIEW_FILE);
+    let path = files.name(PREVIEW_FILE);
     let corrupt = |reason: String| StoreError::Corrupt {
         path: path.clone(),
         reason,
@@ -412,7 +439,7 @@ fn read_preview(dir: &Path, head: &StoreHead) -> Result<Option<Vec<DetailNode>>,
     if sum.bytes > limit {
         return Err(corrupt(format!("{} bytes, beyond {limit}", sum.bytes)));
     }
-    let bytes = std::fs::read(&path).map_err(io_err(&path))?;
+    let bytes = files.read(PREVIEW_FILE)?;
     let coder = BlockCoder::for_preview(base, &p.encoding);
     let cfg = bincode::config::standard().with_limit::<{ MAX_BLOCK_BYTES as usize + 64 }>();
     let mut nodes = Vec::new();

@@ -588,3 +588,38 @@ pub fn histogram_inside(
     }
     value_histogram(reference, range, |k| weight[k] as u64)
 }
+
+/// Copies the store in `dir` to object storage at `to`: every file the manifest lists (large
+/// ones in parts), then the manifest, so that a reader sees the new store whole or not at all.
+/// An earlier store's manifest there is removed first: a copy cut short leaves no manifest,
+/// never an old manifest over new files. Nothing is listed (a bucket need not allow it).
+pub fn upload(dir: &Path, to: &crate::Location) -> Result<Manifest, StoreError> {
+    let mpath = dir.join("manifest.json");
+    let text = std::fs::read_to_string(&mpath).map_err(io_err(&mpath))?;
+    let manifest: Manifest = serde_json::from_str(&text).map_err(|e| StoreError::BadManifest {
+        path: mpath.clone(),
+        reason: e.to_string(),
+    })?;
+    let objects = crate::location::Objects::connect(to)?;
+    objects.delete("manifest.json")?;
+    for name in manifest.files.keys() {
+        objects.upload(name, &dir.join(name))?;
+    }
+    objects.upload("manifest.json", &mpath)?;
+    Ok(manifest)
+}
+
+/// Copies one file to object storage at `to` (a part's files, written as they are made).
+pub fn upload_file(from: &Path, to: &crate::Location, name: &str) -> Result<(), StoreError> {
+    crate::location::Objects::connect(to)?.upload(name, from)
+}
+
+/// Copies object `name` at `from` into the local file `to`; `Ok(false)` when there is none.
+pub fn download_file(from: &crate::Location, name: &str, to: &Path) -> Result<bool, StoreError> {
+    crate::location::Objects::connect(from)?.download(name, to)
+}
+
+/// Removes object `name` at `at` (absent is fine).
+pub fn delete_file(at: &crate::Location, name: &str) -> Result<(), StoreError> {
+    crate::location::Objects::connect(at)?.delete(name)
+}

@@ -174,6 +174,7 @@ fn an_intact_store_opens_and_reads_back() {
         d.path(),
         OpenOptions {
             verify_checksums: true,
+            ..Default::default()
         },
     )
     .unwrap();
@@ -195,6 +196,7 @@ fn a_level_set_and_source_range_read_back() {
         d.path(),
         OpenOptions {
             verify_checksums: true,
+            ..Default::default()
         },
     )
     .unwrap();
@@ -462,6 +464,7 @@ fn checksums_are_checked_at_open_on_request() {
         d.path(),
         OpenOptions {
             verify_checksums: true,
+            ..Default::default()
         },
     )
     .err()

@@ -99,11 +99,16 @@ pub struct Fingerprint {
 }
 
 const PART_FORMAT: &str = "tetwave-store-part";
-const NODES_FILE: &str = "nodes.bin";
-const SUMMARY_FILE: &str = "part.json";
+pub(super) const NODES_FILE: &str = "nodes.bin";
+pub(super) const SUMMARY_FILE: &str = "part.json";
+
+/// Part `k` of `n`'s folder under the store: `parts/part-K-of-N`.
+pub(super) fn part_rel(n: u32, k: u32) -> String {
+    format!("parts/part-{k}-of-{n}")
+}
 
 fn part_dir(out: &Path, n: u32, k: u32) -> PathBuf {
-    out.join("parts").join(format!("part-{k}-of-{n}"))
+    out.join(part_rel(n, k))
 }
 
 /// The grid, its lattice and the layers of boxes each part takes.
@@ -272,6 +277,9 @@ impl Plan {
 
 /// `prepare --parts N --part K`: reads part `k`'s slab, analyses it and writes its files.
 pub fn prepare_part(o: &PrepareOptions, n: u32, k: u32) -> Result<PartSummary, PrepareError> {
+    if let Some(to) = super::remote::remote_out(o)? {
+        return super::remote::prepare_part_to(o, n, k, &to);
+    }
     let t0 = Instant::now();
     let plan = Plan::new(o, n)?;
     if k >= n {

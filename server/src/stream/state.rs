@@ -178,6 +178,7 @@ impl Shared {
             dir,
             OpenOptions {
                 verify_checksums: config.verify_checksums,
+                ..Default::default()
             },
             |part| {
                 smax.extend(part.iter().map(|n| n.subtree_max_abs));

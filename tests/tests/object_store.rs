@@ -1,0 +1,281 @@
+//! Stores in object storage, with real components on loopback, started here and stopped at the
+//! end: a 3-node garage cluster (S3-compatible, replication factor 3; `scripts/garage-cluster`)
+//! and nginx serving a store folder over HTTP with range requests. Fails, never skips, when
+//! garage or nginx is missing (`scripts/setup` installs both).
+//!
+//! One test function: the AWS_* variables it sets are the process's own.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
+use tetwave_server::analysis::ErrorBound;
+use tetwave_server::prepare::{prepare, verify, PrepareOptions};
+use tetwave_store::{Location, OpenOptions, Store};
+
+mod common;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+fn need(tool: &str, hint: &str) -> PathBuf {
+    let home = std::env::var("HOME").unwrap_or_default();
+    let path = std::env::var("PATH").unwrap_or_default();
+    for dir in std::iter::once(format!("{home}/.cargo/bin"))
+        .chain(path.split(':').map(String::from))
+        .chain(["/usr/sbin".to_string(), "/sbin".to_string()])
+    {
+        let p = Path::new(&dir).join(tool);
+        if p.is_file() {
+            return p;
+        }
+    }
+    panic!("{tool} is not installed ({hint}): this test needs it and does not skip");
+}
+
+/// A garage cluster under a temporary folder, stopped when dropped.
+struct Garage {
+    dir: tempfile::TempDir,
+}
+
+impl Garage {
+    fn start() -> Garage {
+        need(
+            "garage",
+            "scripts/setup runs `cargo install garage --version 2.5.0 --locked`",
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let script = repo().join("scripts/garage-cluster");
+        let st = Command::new(&script)
+            .arg("start")
+            .arg(dir.path())
+            .status()
+            .unwrap();
+        assert!(st.success(), "scripts/garage-cluster start failed");
+        let env = std::fs::read_to_string(dir.path().join("env")).unwrap();
+        for line in env.lines() {
+            let (k, v) = line
+                .trim_start_matches("export ")
+                .split_once('=')
+                .expect("KEY=VALUE");
+            std::env::set_var(k, v);
+        }
+        Garage { dir }
+    }
+
+    fn node(&self, how: &str, k: u32) {
+        let st = Command::new(repo().join("scripts/garage-cluster"))
+            .arg(how)
+            .arg(self.dir.path())
+            .arg(k.to_string())
+            .status()
+            .unwrap();
+        assert!(st.success(), "garage-cluster {how} {k}");
+    }
+}
+
+impl Drop for Garage {
+    fn drop(&mut self) {
+        let _ = Command::new(repo().join("scripts/garage-cluster"))
+            .arg("stop")
+            .arg(self.dir.path())
+            .status();
+    }
+}
+
+/// nginx serving `root` on a free loopback port, stopped when dropped.
+struct Nginx {
+    child: Child,
+    port: u16,
+    _dir: tempfile::TempDir,
+}
+
+impl Nginx {
+    fn start(root: &Path) -> Nginx {
+        let nginx = need("nginx", "scripts/setup installs Debian's nginx-light");
+        let dir = tempfile::tempdir().unwrap();
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let d = dir.path().display();
+        let conf = format!(
+            "daemon off; user root; worker_processes 1; pid {d}/nginx.pid; error_log {d}/error.log;\n\
+             events {{}}\n\
+             http {{ access_log off; client_body_temp_path {d}/b; proxy_temp_path {d}/p;\n\
+               fastcgi_temp_path {d}/f; uwsgi_temp_path {d}/u; scgi_temp_path {d}/s;\n\
+               server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }} }}\n",
+            root.display()
+        );
+        std::fs::write(dir.path().join("nginx.conf"), conf).unwrap();
+        let child = Command::new(nginx)
+            .arg("-p")
+            .arg(dir.path())
+            .arg("-c")
+            .arg(dir.path().join("nginx.conf"))
+            .stdout(Stdio::null())
+            .spawn()
+            .unwrap();
+        let t0 = Instant::now();
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "nginx did not listen"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Nginx {
+            child,
+            port,
+            _dir: dir,
+        }
+    }
+}
+
+impl Drop for Nginx {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A session on `url` at 2 px on 256², until the view is complete.
+fn converged(url: &str, out: &Path) -> Result<Streamed, String> {
+    let mut a = StreamArgs::new(url, out);
+    a.no_render = true;
+    a.cpu = true;
+    a.frames = 2000;
+    a.tol = "2".into();
+    a.size = (256, 256);
+    a.frame_ms = 5;
+    a.until_converged = true;
+    run_session(&a, Faults::default()).map_err(|e| e.to_string())
+}
+
+fn leaves(s: &Streamed) -> Vec<u64> {
+    let mut ids = s.mesh.as_ref().unwrap().leaf_ids();
+    ids.sort_unstable();
+    ids
+}
+
+#[test]
+fn stores_in_a_bucket_and_over_http() {
+    let garage = Garage::start();
+    let work = tempfile::tempdir().unwrap();
+    let local = work.path().join("www/h6");
+    let mut o = PrepareOptions::new("synthetic:harmonic", &local);
+    o.levels = Some(6);
+    o.max_error = Some(ErrorBound::parse("0.1%").unwrap());
+    let here = prepare(&o).unwrap();
+    // the same store written to the bucket (through a staging folder, manifest last)
+    let url = "s3://tetwave/stores/h6";
+    let o3 = PrepareOptions {
+        out: url.into(),
+        stage: Some(work.path().join("stage")),
+        ..o.clone()
+    };
+    let there = prepare(&o3).unwrap();
+    assert_eq!(there.store, url);
+    assert_eq!(there.bytes, here.bytes);
+    assert!(
+        !work.path().join("stage").read_dir().unwrap().any(|_| true),
+        "the staging folder is emptied"
+    );
+    // every file the same bytes as the directory's: read back and checksummed
+    let s3 = Store::open_with(
+        Path::new(url),
+        OpenOptions {
+            verify_checksums: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let dir = Store::open(&local).unwrap();
+    assert_eq!(s3.manifest.files, dir.manifest.files);
+    assert_eq!(s3.synthesize_all().unwrap(), dir.synthesize_all().unwrap());
+    verify(Path::new(url)).unwrap();
+
+    // served from the bucket, read directly from it, and from nginx: one final mesh
+    let srv = common::serve(Path::new(url), "view");
+    let push = converged(srv.url(), &work.path().join("push")).unwrap();
+    drop(srv);
+    let direct = converged(url, &work.path().join("direct")).unwrap();
+    let nginx = Nginx::start(&work.path().join("www"));
+    let http_url = format!("http://127.0.0.1:{}/h6", nginx.port);
+    let http = converged(&http_url, &work.path().join("http")).unwrap();
+    let want = leaves(&push);
+    assert!(push.report.frames.last().unwrap().view_complete);
+    for (name, s) in [("s3", &direct), ("http", &http)] {
+        assert!(s.report.frames.last().unwrap().view_complete, "{name}");
+        assert_eq!(leaves(s), want, "{name}: another final mesh");
+        s.mesh.as_ref().unwrap().check_conformity().unwrap();
+        // what was fetched: some of the store, within 1.5× what the push stream sent
+        assert!(
+            s.report.bytes_received as f64 <= 1.5 * push.report.bytes_received as f64,
+            "{name}: {} bytes against the push stream's {}",
+            s.report.bytes_received,
+            push.report.bytes_received
+        );
+    }
+    eprintln!(
+        "bytes: push {}, s3 {}, http {}; nodes: push {}, s3 {}",
+        push.report.bytes_received,
+        direct.report.bytes_received,
+        http.report.bytes_received,
+        push.report.nodes_received,
+        direct.report.nodes_received
+    );
+
+    // a garage node lost mid-stream (replication 3: the others answer)
+    let killer = {
+        let dir = garage.dir.path().to_path_buf();
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(150));
+            let st = Command::new(repo().join("scripts/garage-cluster"))
+                .arg("kill")
+                .arg(&dir)
+                .arg("2")
+                .status()
+                .unwrap();
+            assert!(st.success());
+        })
+    };
+    let lossy = converged(url, &work.path().join("lossy")).unwrap();
+    killer.join().unwrap();
+    assert_eq!(leaves(&lossy), want, "a node lost mid-stream");
+    garage.node("restart", 2);
+
+    // a missing object: one error naming it, from every reader
+    let broken = "s3://tetwave/stores/broken";
+    prepare(&PrepareOptions {
+        out: broken.into(),
+        ..o3.clone()
+    })
+    .unwrap();
+    tetwave_store::delete_file(&Location::parse(broken).unwrap(), "blocks.bin").unwrap();
+    let e = Store::open(Path::new(broken)).err().unwrap().to_string();
+    assert!(e.contains("s3://tetwave/stores/broken/blocks.bin"), "{e}");
+    let e = converged(broken, &work.path().join("broken"))
+        .err()
+        .unwrap();
+    assert!(e.contains("s3://tetwave/stores/broken/blocks.bin"), "{e}");
+    let e = Store::open(Path::new("s3://tetwave/stores/none"))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("s3://tetwave/stores/none/manifest.json"), "{e}");
+
+    // wrong credentials: one clear error, no secret in it
+    let secret = std::env::var("AWS_SECRET_ACCESS_KEY").unwrap();
+    std::env::set_var("AWS_SECRET_ACCESS_KEY", "0".repeat(64));
+    let e = Store::open(Path::new(url)).err().unwrap().to_string();
+    std::env::set_var("AWS_SECRET_ACCESS_KEY", &secret);
+    assert!(e.contains("manifest.json"), "{e}");
+    assert!(!e.contains(&secret), "a secret in an error: {e}");
+    assert!(e.contains("access denied") || e.contains("403"), "{e}");
+}
