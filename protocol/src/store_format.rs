@@ -9,6 +9,7 @@
 //! | `blocks.bin`      | per block of [`BLOCK`] consecutive ids, the bytes of a [`NodeBlock`]:     |
 //! |                   | [`BlockCoder::encode`] of those nodes, concatenated                        |
 //! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then its length         |
+//! | `block_sums.bin`  | u32 LE CRC-32 of each block's bytes ([`BLOCK_SUMS_FILE`])                  |
 //! | `reference.f32`   | the sampled value of every vertex (for verification; not streamed)         |
 //!
 //! Block `b` holds ids `b·BLOCK .. min((b+1)·BLOCK, nodes)`: its node count and first id are
@@ -31,7 +32,8 @@ pub const BLOCK: u64 = 4096;
 /// read allocates whatever the index says.
 pub const MAX_BLOCK_BYTES: u64 = BLOCK * 512;
 pub const STORE_FORMAT: &str = "tetwave-store";
-/// 8: a base mesh that is a named box is written as its two corners ([`crate::BaseMesh`]);
+/// 9: each block's CRC-32 in `block_sums.bin` ([`BLOCK_SUMS_FILE`]), checked whenever a block is
+/// read; 8: a base mesh that is a named box is written as its two corners ([`crate::BaseMesh`]);
 /// 7: no subtree bound on the finest node level (its parent's stands in), ids as runs and jumps
 /// by sibling group ([`crate::block`]), level steps ([`LevelSteps`]); 6: the base mesh names its
 /// predictor; 5: base positions as f32 where that is exact ([`crate::BaseMesh`]), quantized
@@ -39,7 +41,11 @@ pub const STORE_FORMAT: &str = "tetwave-store";
 /// bounds as powers of two; 3: details of the quadratic predictor, one subtree bound per sibling
 /// group; 2: coded blocks (`blocks.bin`, `block_index.bin`); 1: fixed-width records (`nodes.bin`,
 /// `coeffs.bin`, `coeff_index.bin`). Only the current version is read.
-pub const STORE_VERSION: u32 = 8;
+pub const STORE_VERSION: u32 = 9;
+/// Each block's CRC-32 (IEEE, as `crc32fast` computes it) as u32 LE, `nblocks` entries: a reader
+/// that fetches one block by range (from object storage) checks it alone, so that a flipped byte
+/// is refused, never decoded into other values.
+pub const BLOCK_SUMS_FILE: &str = "block_sums.bin";
 /// Largest `base.bin` a reader accepts.
 pub const MAX_BASE_BYTES: usize = 1 << 30;
 
@@ -311,6 +317,9 @@ pub struct StoreHead {
     pub index: Vec<u64>,
     /// Decodes the blocks (built once from the base mesh and the encoding).
     pub coder: BlockCoder,
+    /// Each block's CRC-32 ([`BLOCK_SUMS_FILE`]), once a reader has given them
+    /// ([`Self::with_sums`]): [`Self::decode_block`] then checks every block against its sum.
+    pub sums: Option<Vec<u32>>,
 }
 
 impl StoreHead {
@@ -337,7 +346,22 @@ impl StoreHead {
             base,
             index,
             coder,
+            sums: None,
         })
+    }
+
+    /// The blocks' checksums from `block_sums.bin`'s bytes (4 a block), checked on every block
+    /// [`Self::decode_block`] decodes from now on.
+    pub fn with_sums(mut self, bytes: &[u8]) -> Result<Self, FormatError> {
+        let n = self.manifest.counts.nodes.div_ceil(BLOCK);
+        if bytes.len() as u64 != n * 4 {
+            return Err(FormatError::Inconsistent(format!(
+                "{BLOCK_SUMS_FILE}: {} bytes, the {n} blocks need 4 each",
+                bytes.len()
+            )));
+        }
+        self.sums = Some(decode_sums(bytes));
+        Ok(self)
     }
 
     /// Checks a store's manifest (its version and encoding) and decodes its `base.bin`, which
@@ -432,6 +456,14 @@ impl StoreHead {
             to,
             reason,
         };
+        if let Some(want) = self.sums.as_ref().and_then(|s| s.get(b as usize)) {
+            let got = crc32fast::hash(bytes);
+            if got != *want {
+                return Err(bad(format!(
+                    "checksum {got:08x}, {BLOCK_SUMS_FILE} says {want:08x}"
+                )));
+            }
+        }
         let block = NodeBlock {
             count: (to - from) as u32,
             first: from,
@@ -487,4 +519,12 @@ impl StoreHead {
         }
         Ok(out)
     }
+}
+
+/// Entries of `block_sums.bin` (u32 LE each; a trailing partial entry is ignored).
+pub fn decode_sums(bytes: &[u8]) -> Vec<u32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")))
+        .collect()
 }

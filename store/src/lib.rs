@@ -11,6 +11,7 @@
 //! | `blocks.bin`      | the nodes in blocks of [`BLOCK`] consecutive ids, each block's bytes those |
 //! |                   | of [`BlockCoder::encode`](tetwave_protocol::block::BlockCoder::encode)      |
 //! | `block_index.bin` | u64 LE byte offset of each block in `blocks.bin`, then the file's length  |
+//! | `block_sums.bin`  | u32 LE CRC-32 of each block, checked whenever a block is read             |
 //! | `reference.f32`   | optional: the sampled value of every vertex (`--keep-reference`; for     |
 //! |                   | `verify`, not streamed)                                                   |
 //! | `levelset.f32`    | optional: per vertex key, the signed distance to the input domain's        |
@@ -27,7 +28,8 @@
 use std::path::{Path, PathBuf};
 pub use tetwave_protocol::store_format::{
     Counts, Encoding, FileSum, FormatError, Manifest, Preview, StoreFiles, StoreHead, BLOCK,
-    LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT, STORE_VERSION,
+    BLOCK_SUMS_FILE, LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT,
+    STORE_VERSION,
 };
 
 mod check;
@@ -45,7 +47,7 @@ pub use write::{
 };
 
 /// The files of a store besides `manifest.json`, each with its size and CRC-32 in the manifest.
-pub const STORE_FILES: [&str; 3] = ["base.bin", "blocks.bin", "block_index.bin"];
+pub const STORE_FILES: [&str; 4] = ["base.bin", "blocks.bin", "block_index.bin", BLOCK_SUMS_FILE];
 
 /// Files a store may have besides [`STORE_FILES`]; when present they are listed in the manifest
 /// with their size and CRC-32 like the others.

@@ -32,8 +32,18 @@ pub const RETRY: RetryPolicy = RetryPolicy {
 /// fails.
 pub const SHORT_READ_RETRIES: u32 = 3;
 
-/// A request that takes longer than this fails (and is retried as above).
+/// A request that takes longer than this fails (and is retried as above), unless
+/// `TETWAVE_REQUEST_TIMEOUT` gives other seconds.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// [`REQUEST_TIMEOUT`], or `TETWAVE_REQUEST_TIMEOUT` seconds when set to a positive number.
+pub fn request_timeout() -> Duration {
+    std::env::var("TETWAVE_REQUEST_TIMEOUT")
+        .ok()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .map_or(REQUEST_TIMEOUT, Duration::from_secs_f64)
+}
 
 /// The retry settings given to `object_store` (its `RetryConfig`, stated here so that docs and
 /// tests can name them).
@@ -179,19 +189,27 @@ fn runtime() -> &'static tokio::runtime::Runtime {
 }
 
 /// Runs `f` on the object runtime and waits for it: callable from any thread, a tokio worker's
-/// included (the caller's thread blocks; a server calls from a blocking task).
-pub(crate) fn block_on<F>(f: F) -> F::Output
+/// included (the caller's thread blocks; a server calls from a blocking task). A request whose
+/// task panicked is an error, not a panic here.
+pub(crate) fn block_on<T, F>(f: F) -> Result<T, object_store::Error>
 where
-    F: Future + Send + 'static,
-    F::Output: Send + 'static,
+    F: Future<Output = Result<T, object_store::Error>> + Send + 'static,
+    T: Send + 'static,
 {
     let (tx, rx) = std::sync::mpsc::sync_channel(1);
     runtime().spawn(async move {
         let _ = tx.send(f.await);
     });
-    rx.recv()
-        .expect("the object runtime dropped a request (it panicked)")
+    rx.recv().unwrap_or_else(|_| {
+        Err(object_store::Error::Generic {
+            store: "tetwave",
+            source: "the request failed inside object_store (its task panicked)".into(),
+        })
+    })
 }
+
+/// Ranges of one object closer than this are fetched as one request.
+const COALESCE_GAP: u64 = 64 << 10;
 
 /// A store's objects: `object_store` and the prefix its files are under.
 #[derive(Clone, Debug)]
@@ -218,7 +236,7 @@ impl Objects {
             retry_timeout: RETRY.timeout,
         };
         let options = object_store::ClientOptions::new()
-            .with_timeout(REQUEST_TIMEOUT)
+            .with_timeout(request_timeout())
             .with_connect_timeout(Duration::from_secs(5));
         let (store, prefix): (Arc<dyn ObjectStore>, &str) = match location {
             Location::Dir(_) => unreachable!("a directory is read from the disk"),
@@ -311,75 +329,109 @@ impl Objects {
         }
     }
 
-    /// Byte ranges of `file`, fetched concurrently (neighbouring ranges coalesced by
-    /// `object_store`); a short body is asked for again.
+    /// Byte ranges of `file`: neighbouring ranges (closer than [`COALESCE_GAP`]) fetched as one
+    /// request, the requests concurrently ([`Self::read_many`], with its checks and retries).
     pub(crate) fn read_ranges(
         &self,
         file: &str,
         ranges: &[Range<u64>],
     ) -> Result<Vec<Vec<u8>>, StoreError> {
-        let mut tries = 0;
-        loop {
-            let (store, path, rs) = (self.store.clone(), self.path(file), ranges.to_vec());
-            let got = block_on(async move { store.get_ranges(&path, &rs).await })
-                .map_err(|e| self.error(file, e))?;
-            let short = ranges
-                .iter()
-                .zip(&got)
-                .find(|(r, b)| b.len() as u64 != r.end - r.start);
-            match short {
-                None => return Ok(got.into_iter().map(|b| b.to_vec()).collect()),
-                Some((r, b)) if tries >= SHORT_READ_RETRIES => {
-                    return Err(StoreError::Object {
-                        path: self.location.name(file),
-                        reason: format!(
-                            "bytes {}..{}: {} came, {SHORT_READ_RETRIES} times short",
-                            r.start,
-                            r.end,
-                            b.len()
-                        ),
-                    })
+        let mut order: Vec<usize> = (0..ranges.len()).collect();
+        order.sort_by_key(|&i| ranges[i].start);
+        let mut merged: Vec<Range<u64>> = Vec::new();
+        let mut which = vec![0; ranges.len()];
+        for i in order {
+            let r = &ranges[i];
+            match merged.last_mut() {
+                Some(m) if r.start <= m.end.saturating_add(COALESCE_GAP) => {
+                    m.end = m.end.max(r.end)
                 }
-                Some(_) => tries += 1,
+                _ => merged.push(r.clone()),
             }
+            which[i] = merged.len() - 1;
         }
+        let want: Vec<_> = merged.iter().map(|m| (file, m.clone())).collect();
+        let got = self.read_many(&want)?;
+        Ok(ranges
+            .iter()
+            .zip(which)
+            .map(|(r, k)| {
+                let m = &merged[k];
+                got[k][(r.start - m.start) as usize..(r.end - m.start) as usize].to_vec()
+            })
+            .collect())
     }
 
-    /// Ranges of several files at once (one round trip's worth of concurrent requests), each
-    /// checked for length as [`Self::read_ranges`] does.
+    /// Ranges of several objects at once (one round trip's worth of concurrent requests). A body
+    /// of another length than asked (cut short), or a request that failed after
+    /// `object_store`'s own retries (a body cut off mid-way is not one of those), is asked for
+    /// again, up to [`SHORT_READ_RETRIES`] times; a missing object or a refusal is not.
     pub(crate) fn read_many(
         &self,
         want: &[(&str, Range<u64>)],
     ) -> Result<Vec<Vec<u8>>, StoreError> {
-        let jobs: Vec<_> = want
-            .iter()
-            .map(|(f, r)| (f.to_string(), self.path(f), r.clone()))
-            .collect();
-        let store = self.store.clone();
-        let got = block_on(async move {
-            let mut set = tokio::task::JoinSet::new();
-            for (i, (_, path, r)) in jobs.into_iter().enumerate() {
-                let store = store.clone();
-                set.spawn(async move { (i, store.get_range(&path, r).await) });
+        let mut out: Vec<Option<Vec<u8>>> = vec![None; want.len()];
+        for attempt in 0..=SHORT_READ_RETRIES {
+            let todo: Vec<usize> = (0..want.len()).filter(|&i| out[i].is_none()).collect();
+            if todo.is_empty() {
+                break;
             }
-            let mut out = Vec::new();
-            while let Some(j) = set.join_next().await {
-                out.push(j.expect("a range request's task"));
+            let jobs: Vec<_> = todo
+                .iter()
+                .map(|&i| (i, self.path(want[i].0), want[i].1.clone()))
+                .collect();
+            let store = self.store.clone();
+            let got = block_on(async move {
+                let mut set = tokio::task::JoinSet::new();
+                for (i, path, r) in jobs {
+                    let store = store.clone();
+                    set.spawn(async move { (i, store.get_range(&path, r).await) });
+                }
+                let mut got = Vec::new();
+                while let Some(j) = set.join_next().await {
+                    got.push(j.map_err(|e| object_store::Error::Generic {
+                        store: "tetwave",
+                        source: Box::new(e),
+                    })?);
+                }
+                Ok(got)
+            })
+            .map_err(|e| self.error(want[0].0, e))?;
+            let last = attempt == SHORT_READ_RETRIES;
+            for (i, b) in got {
+                let (file, r) = (want[i].0, &want[i].1);
+                match b {
+                    Ok(b) if b.len() as u64 == r.end - r.start => out[i] = Some(b.to_vec()),
+                    Ok(b) if last => {
+                        return Err(StoreError::Object {
+                            path: self.location.name(file),
+                            reason: format!(
+                                "bytes {}..{}: {} came, {} times short",
+                                r.start,
+                                r.end,
+                                b.len(),
+                                SHORT_READ_RETRIES + 1
+                            ),
+                        })
+                    }
+                    Ok(_) => {}
+                    Err(
+                        e @ (object_store::Error::NotFound { .. }
+                        | object_store::Error::PermissionDenied { .. }
+                        | object_store::Error::Unauthenticated { .. }),
+                    ) => return Err(self.error(file, e)),
+                    Err(e) if last => return Err(self.error(file, e)),
+                    Err(e) => tracing::warn!(
+                        object = %self.location.name(file).display(),
+                        "{e}: asking again"
+                    ),
+                }
             }
-            out.sort_by_key(|(i, _)| *i);
-            out
-        });
-        let mut out = Vec::with_capacity(got.len());
-        for ((file, r), (_, b)) in want.iter().zip(got) {
-            let b = match b {
-                Ok(b) if b.len() as u64 == r.end - r.start => b.to_vec(),
-                // a short body, or a failed request: once more alone (its own retries and check)
-                Ok(_) => self.read_ranges(file, std::slice::from_ref(r))?.remove(0),
-                Err(e) => return Err(self.error(file, e)),
-            };
-            out.push(b);
         }
-        Ok(out)
+        Ok(out
+            .into_iter()
+            .map(|b| b.expect("every range came"))
+            .collect())
     }
 
     /// Writes `file` whole from the local file `from`: in parts of 16 MiB (multipart) when it
@@ -398,28 +450,29 @@ impl Objects {
                 .map(|_| ())
                 .map_err(|e| self.error(file, e));
         }
-        let r: Result<Result<(), object_store::Error>, std::io::Error> = block_on(async move {
+        let mut f = std::fs::File::open(&from_path).map_err(io)?;
+        // the local file's errors inside, the object store's outside
+        let r = block_on(async move {
             use std::io::Read;
-            let upload = store.put_multipart(&path).await;
-            let mut w = match upload {
-                Ok(u) => object_store::WriteMultipart::new_with_chunk_size(u, PART),
-                Err(e) => return Ok(Err(e)),
-            };
-            let mut f = std::fs::File::open(&from_path)?;
+            let u = store.put_multipart(&path).await?;
+            let mut w = object_store::WriteMultipart::new_with_chunk_size(u, PART);
             let mut buf = vec![0u8; PART];
             loop {
-                let n = f.read(&mut buf)?;
-                if n == 0 {
-                    break;
-                }
-                if let Err(e) = w.wait_for_capacity(4).await {
-                    return Ok(Err(e));
-                }
+                let n = match f.read(&mut buf) {
+                    Ok(0) => break,
+                    Ok(n) => n,
+                    Err(e) => {
+                        w.abort().await?;
+                        return Ok(Err(e));
+                    }
+                };
+                w.wait_for_capacity(4).await?;
                 w.write(&buf[..n]);
             }
-            Ok(w.finish().await.map(|_| ()))
+            w.finish().await?;
+            Ok(Ok(()))
         });
-        r.map_err(io)?.map_err(|e| self.error(file, e))
+        r.map_err(|e| self.error(file, e))?.map_err(io)
     }
 
     /// Copies `file` into the local file `to`, in pieces of 16 MiB; `Ok(false)` when there is no

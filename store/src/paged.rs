@@ -11,10 +11,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{
-    FormatError, Manifest, StoreHead, BLOCK, LEVELSET_BAND_FILE, MAX_BASE_BYTES, STORE_FORMAT,
-    STORE_VERSION,
+    FormatError, Manifest, StoreHead, BLOCK, BLOCK_SUMS_FILE, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
+    STORE_FORMAT, STORE_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
+
+/// A page of the block index and the same blocks' checksums.
+struct Page {
+    entries: Vec<u64>,
+    sums: Vec<u32>,
+}
 
 /// Entries of `block_index.bin` fetched at once: 4 KiB, the offsets of 512 blocks (2 M nodes).
 pub const INDEX_PAGE: u64 = 512;
@@ -30,8 +36,8 @@ pub struct PagedStore {
     head: StoreHead,
     files: Files,
     /// Index page `p`: entries `p·INDEX_PAGE ..= (p+1)·INDEX_PAGE` (the last page's up to the
-    /// final entry).
-    pages: Mutex<HashMap<u64, Vec<u64>>>,
+    /// final entry), and those blocks' checksums (`block_sums.bin`).
+    pages: Mutex<HashMap<u64, Page>>,
     bytes: AtomicU64,
     requests: AtomicU64,
 }
@@ -91,16 +97,24 @@ impl PagedStore {
                 ),
             });
         }
+        if listed(BLOCK_SUMS_FILE)?.bytes != nblocks * 4 {
+            return Err(StoreError::Corrupt {
+                path: files.name(BLOCK_SUMS_FILE),
+                reason: format!("not 4 bytes for each of the {nblocks} blocks"),
+            });
+        }
         let mut want = vec![
             ("base.bin", 0..base_sum.bytes),
             ("block_index.bin", page_range(0, nblocks)),
+            (BLOCK_SUMS_FILE, sums_range(0, nblocks)),
         ];
         let band = manifest.has_levelset_band();
         if band {
             want.push((LEVELSET_BAND_FILE, 0..listed(LEVELSET_BAND_FILE)?.bytes));
         }
         let mut got = files.read_many(&want)?.into_iter();
-        let (base_bytes, page0) = (
+        let (base_bytes, page0, sums0) = (
+            got.next().unwrap_or_default(),
             got.next().unwrap_or_default(),
             got.next().unwrap_or_default(),
         );
@@ -134,13 +148,14 @@ impl PagedStore {
                 base,
                 index: Vec::new(),
                 coder,
+                sums: None,
             },
             files,
             pages: Mutex::new(HashMap::new()),
             bytes: AtomicU64::new(fetched),
             requests: AtomicU64::new(1 + want.len() as u64),
         };
-        store.keep_page(0, &page0)?;
+        store.keep_page(0, &page0, &sums0)?;
         Ok(store)
     }
 
@@ -160,7 +175,7 @@ impl PagedStore {
     }
 
     /// Checks and keeps index page `p`.
-    fn keep_page(&self, p: u64, bytes: &[u8]) -> Result<(), StoreError> {
+    fn keep_page(&self, p: u64, bytes: &[u8], sums: &[u8]) -> Result<(), StoreError> {
         let path = self.files.name("block_index.bin");
         let entries = StoreHead::decode_index(bytes, p * INDEX_PAGE).map_err(|e| match e {
             FormatError::BadIndex(reason) => StoreError::Corrupt {
@@ -184,16 +199,28 @@ impl PagedStore {
                 ),
             });
         }
-        self.pages.lock().expect("index pages").insert(p, entries);
+        let sums = tetwave_protocol::store_format::decode_sums(sums);
+        if sums.len() + 1 != entries.len() {
+            return Err(StoreError::Corrupt {
+                path: self.files.name(BLOCK_SUMS_FILE),
+                reason: format!(
+                    "page {p}: {} checksums for {} blocks",
+                    sums.len(),
+                    entries.len() - 1
+                ),
+            });
+        }
+        let page = Page { entries, sums };
+        self.pages.lock().expect("index pages").insert(p, page);
         Ok(())
     }
 
-    /// Byte range of block `b` in `blocks.bin`, when its index page is held.
-    fn span(&self, b: u64) -> Option<std::ops::Range<u64>> {
+    /// Byte range of block `b` in `blocks.bin` and its checksum, when its index page is held.
+    fn span(&self, b: u64) -> Option<(std::ops::Range<u64>, u32)> {
         let pages = self.pages.lock().expect("index pages");
         let page = pages.get(&(b / INDEX_PAGE))?;
         let i = (b % INDEX_PAGE) as usize;
-        Some(page[i]..page[i + 1])
+        Some((page.entries[i]..page.entries[i + 1], page.sums[i]))
     }
 
     /// Decodes blocks `blocks` (each checked: its node count and ids), fetching the index pages
@@ -224,30 +251,47 @@ impl PagedStore {
         if !missing.is_empty() {
             let want: Vec<_> = missing
                 .iter()
-                .map(|&p| ("block_index.bin", page_range(p, nblocks)))
+                .flat_map(|&p| {
+                    [
+                        ("block_index.bin", page_range(p, nblocks)),
+                        (BLOCK_SUMS_FILE, sums_range(p, nblocks)),
+                    ]
+                })
                 .collect();
             let got = self.files.read_many(&want)?;
-            for (&p, bytes) in missing.iter().zip(&got) {
-                self.count(bytes.len(), 1);
-                self.keep_page(p, bytes)?;
+            for (&p, pair) in missing.iter().zip(got.chunks(2)) {
+                self.count(pair[0].len() + pair[1].len(), 2);
+                self.keep_page(p, &pair[0], &pair[1])?;
             }
         }
-        let ranges: Vec<_> = blocks
+        let spans: Vec<_> = blocks
             .iter()
             .map(|&b| self.span(b).expect("its page was fetched"))
             .collect();
+        let ranges: Vec<_> = spans.iter().map(|(r, _)| r.clone()).collect();
         let got = self.files.read_ranges("blocks.bin", &ranges)?;
         self.count(got.iter().map(Vec::len).sum(), 1);
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: self.files.name("blocks.bin"),
+            reason,
+        };
         blocks
             .iter()
+            .zip(spans)
             .zip(got)
-            .map(|(&b, bytes)| {
+            .map(|((&b, (r, want)), bytes)| {
+                // a block whose bytes are not the ones written is refused before it is decoded
+                let crc = crc32fast::hash(&bytes);
+                if crc != want {
+                    return Err(corrupt(format!(
+                        "block {b} (bytes {}..{}): checksum {crc:08x}, {BLOCK_SUMS_FILE} says \
+                         {want:08x}",
+                        r.start, r.end
+                    )));
+                }
                 self.head
                     .decode_block(b, &bytes)
-                    .map_err(|e| StoreError::Corrupt {
-                        path: self.files.name("blocks.bin"),
-                        reason: e.to_string(),
-                    })
+                    .map_err(|e| corrupt(e.to_string()))
             })
             .collect()
     }
@@ -256,6 +300,13 @@ impl PagedStore {
         self.bytes.fetch_add(bytes as u64, Ordering::Relaxed);
         self.requests.fetch_add(requests, Ordering::Relaxed);
     }
+}
+
+/// Bytes of `block_sums.bin` for the blocks of index page `p`.
+fn sums_range(p: u64, nblocks: u64) -> std::ops::Range<u64> {
+    let first = p * INDEX_PAGE;
+    let last = ((p + 1) * INDEX_PAGE).min(nblocks);
+    first * 4..last * 4
 }
 
 /// Bytes of index page `p` of a store of `nblocks` blocks: entries `p·INDEX_PAGE` through

@@ -1,7 +1,7 @@
 //! Reading a store: the manifest, base mesh and block index at open, coded blocks on demand.
 
 use crate::location::{Files, Location};
-use crate::{StoreError, OPTIONAL_STORE_FILES, REFERENCE_FILE, STORE_FILES};
+use crate::{StoreError, BLOCK_SUMS_FILE, OPTIONAL_STORE_FILES, REFERENCE_FILE, STORE_FILES};
 use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::block::NodeBlock;
@@ -178,6 +178,22 @@ impl Store {
                     },
                 },
             )?;
+        // every block's checksum, checked whenever a block is decoded from now on
+        let spath = files.name(BLOCK_SUMS_FILE);
+        let sums = match files.read(BLOCK_SUMS_FILE) {
+            Ok(b) => b,
+            Err(StoreError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+                return Err(StoreError::Corrupt {
+                    path: spath,
+                    reason: "missing: every block's checksum is read from it".into(),
+                })
+            }
+            Err(e) => return Err(e),
+        };
+        let head = head.with_sums(&sums).map_err(|e| StoreError::Corrupt {
+            path: spath,
+            reason: e.to_string(),
+        })?;
         let preview = read_preview(&files, &head)?;
         // the structure pass decodes every block once: the preview's masks are compared there
         let mut differs = None;

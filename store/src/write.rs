@@ -370,6 +370,7 @@ pub fn write_streamed(
     };
     let mut w = staged.create("blocks.bin")?;
     let mut index = Vec::with_capacity(n.div_ceil(BLOCK) as usize + 1);
+    let mut sums = Vec::with_capacity(n.div_ceil(BLOCK) as usize);
     let mut offset = 0u64;
     let mut coefficients = 0u64;
     let mut block_nodes = Vec::with_capacity(BLOCK as usize);
@@ -397,6 +398,7 @@ pub fn write_streamed(
             )));
         }
         index.push(offset);
+        sums.push(crc32fast::hash(&block.bytes));
         offset += block.bytes.len() as u64;
         w.put(&block.bytes)?;
     }
@@ -417,6 +419,11 @@ pub fn write_streamed(
         w.put(&o.to_le_bytes())?;
     }
     files.insert("block_index.bin".into(), w.finish()?);
+    let mut w = staged.create(crate::BLOCK_SUMS_FILE)?;
+    for s in &sums {
+        w.put(&s.to_le_bytes())?;
+    }
+    files.insert(crate::BLOCK_SUMS_FILE.into(), w.finish()?);
 
     if let Some(reference) = reference {
         let mut w = staged.create(REFERENCE_FILE)?;

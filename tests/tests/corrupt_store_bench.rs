@@ -10,18 +10,22 @@ use std::path::Path;
 use tetwave_client::progressive::bench;
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::DetailNode;
-use tetwave_store::{Store, BLOCK};
+use tetwave_store::{Store, BLOCK, BLOCK_SUMS_FILE};
 
-/// Rewrites the store's `blocks.bin` and `block_index.bin` from `nodes` (all of them, in id order)
-/// with the store's coder, and their sizes in the manifest, as a writer with a bug would.
+/// Rewrites the store's `blocks.bin`, `block_index.bin` and `block_sums.bin` from `nodes` (all of
+/// them, in id order) with the store's coder, and their sizes in the manifest, as a writer with a
+/// bug would.
 fn recode(store: &Path, nodes: &[DetailNode]) {
     let s = Store::open(store).unwrap();
     let coder = BlockCoder::new(&s.base, &s.manifest.encoding);
-    let (mut blocks, mut index) = (Vec::new(), vec![0u8; 8]);
+    let (mut blocks, mut index, mut sums) = (Vec::new(), vec![0u8; 8], Vec::new());
     for chunk in nodes.chunks(BLOCK as usize) {
-        blocks.extend(coder.encode(chunk).unwrap().bytes);
+        let b = coder.encode(chunk).unwrap().bytes;
+        sums.extend(crc32fast::hash(&b).to_le_bytes());
+        blocks.extend(b);
         index.extend((blocks.len() as u64).to_le_bytes());
     }
+    std::fs::write(store.join(BLOCK_SUMS_FILE), &sums).unwrap();
     std::fs::write(store.join("blocks.bin"), &blocks).unwrap();
     std::fs::write(store.join("block_index.bin"), &index).unwrap();
     let mpath = store.join("manifest.json");
