@@ -6,8 +6,8 @@
 //! One test function: the AWS_* variables it sets are the process's own.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
 use tetwave_server::analysis::ErrorBound;
 use tetwave_server::prepare::{prepare, verify, PrepareOptions};
@@ -22,21 +22,6 @@ fn repo() -> PathBuf {
         .to_path_buf()
 }
 
-fn need(tool: &str, hint: &str) -> PathBuf {
-    let home = std::env::var("HOME").unwrap_or_default();
-    let path = std::env::var("PATH").unwrap_or_default();
-    for dir in std::iter::once(format!("{home}/.cargo/bin"))
-        .chain(path.split(':').map(String::from))
-        .chain(["/usr/sbin".to_string(), "/sbin".to_string()])
-    {
-        let p = Path::new(&dir).join(tool);
-        if p.is_file() {
-            return p;
-        }
-    }
-    panic!("{tool} is not installed ({hint}): this test needs it and does not skip");
-}
-
 /// A garage cluster under a temporary folder, stopped when dropped.
 struct Garage {
     dir: tempfile::TempDir,
@@ -44,7 +29,7 @@ struct Garage {
 
 impl Garage {
     fn start() -> Garage {
-        need(
+        common::need(
             "garage",
             "scripts/setup runs `cargo install garage --version 2.5.0 --locked`",
         );
@@ -84,63 +69,6 @@ impl Drop for Garage {
             .arg("stop")
             .arg(self.dir.path())
             .status();
-    }
-}
-
-/// nginx serving `root` on a free loopback port, stopped when dropped.
-struct Nginx {
-    child: Child,
-    port: u16,
-    _dir: tempfile::TempDir,
-}
-
-impl Nginx {
-    fn start(root: &Path) -> Nginx {
-        let nginx = need("nginx", "scripts/setup installs Debian's nginx-light");
-        let dir = tempfile::tempdir().unwrap();
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let d = dir.path().display();
-        let conf = format!(
-            "daemon off; user root; worker_processes 1; pid {d}/nginx.pid; error_log {d}/error.log;\n\
-             events {{}}\n\
-             http {{ access_log off; client_body_temp_path {d}/b; proxy_temp_path {d}/p;\n\
-               fastcgi_temp_path {d}/f; uwsgi_temp_path {d}/u; scgi_temp_path {d}/s;\n\
-               server {{ listen 127.0.0.1:{port}; root {}; location / {{ }} }} }}\n",
-            root.display()
-        );
-        std::fs::write(dir.path().join("nginx.conf"), conf).unwrap();
-        let child = Command::new(nginx)
-            .arg("-p")
-            .arg(dir.path())
-            .arg("-c")
-            .arg(dir.path().join("nginx.conf"))
-            .stdout(Stdio::null())
-            .spawn()
-            .unwrap();
-        let t0 = Instant::now();
-        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(20),
-                "nginx did not listen"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        Nginx {
-            child,
-            port,
-            _dir: dir,
-        }
-    }
-}
-
-impl Drop for Nginx {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -205,7 +133,8 @@ fn stores_in_a_bucket_and_over_http() {
     let push = converged(srv.url(), &work.path().join("push")).unwrap();
     drop(srv);
     let direct = converged(url, &work.path().join("direct")).unwrap();
-    let nginx = Nginx::start(&work.path().join("www"));
+    let root = work.path().join("www").display().to_string();
+    let nginx = common::Nginx::start(&format!("root {root}; location / {{ }}"));
     let http_url = format!("http://127.0.0.1:{}/h6", nginx.port);
     let http = converged(&http_url, &work.path().join("http")).unwrap();
     let want = leaves(&push);
