@@ -28,6 +28,12 @@ With --l9: a 513^3 u8 raw grid written by slabs (the harmonic field scaled to 0.
 at `--levels 9 --max-error 0.1%` (time, peak RSS), served in level order (serve's default), and
 streamed to its first frame (`first_frame_s`, from connect).
 
+With --serverless CASE: that case's store (run its case first) copied into a 3-node garage
+cluster on loopback (`scripts/garage-cluster`, `tetwave-server copy`) and its folder served by
+nginx; then, one after the other in one run, the same `tetwave stream` (image criterion) from a
+server of the directory (view order), from `s3://…` directly and from `http://…` (nginx)
+directly: bytes, time to the final view, first image, client peak RSS, PSNR of the final image.
+
 With --view CASE: that case's store served in view order and orbited a full turn in `tetwave view`
 under Xvfb (512², 2 px; once per --view-max-tets): frame period p50/p95/max, the most leaves held
 against the budget, frames in which the budget bound.
@@ -220,6 +226,81 @@ def view_server(bindir, store, log):
     return srv, {"healthz_s": round(healthz, 2), "view_order_ready_s": round(time.time() - t0, 2)}
 
 
+def serverless(a, bindir, server, client, work, emit):
+    """--serverless CASE: the same stream from a server, from garage and from nginx (module doc)."""
+    import shutil
+    import subprocess
+    case = a.serverless
+    store = os.path.join(work, case)
+    if not os.path.exists(os.path.join(store, "manifest.json")):
+        fail(f"--serverless {case}: no store at {store} (run its case first)")
+    ref = os.path.join(work, case + "-all-leaves.png")
+    gdir = os.path.join(work, "garage")
+    script = os.path.join(HERE, "garage-cluster")
+    subprocess.run([script, "start", gdir], check=True)
+    nginx = None
+    try:
+        for line in open(os.path.join(gdir, "env")):
+            k, v = line.strip().removeprefix("export ").split("=", 1)
+            os.environ[k] = v
+        url = f"s3://tetwave/{case}"
+        out, wall, _, _ = run_measured([server, "copy", store, url], f"copy {case}", os.path.join(work, "copy"))
+        emit({"run": "copy", "case": case, "copy_s": round(wall, 2)})
+        ndir = os.path.join(work, "nginx")
+        os.makedirs(ndir, exist_ok=True)
+        import socket
+        with socket.socket() as sk:
+            sk.bind(("127.0.0.1", 0))
+            port = sk.getsockname()[1]
+        conf = os.path.join(ndir, "nginx.conf")
+        with open(conf, "w") as f:
+            f.write(f"daemon off; user root; worker_processes 1; pid {ndir}/nginx.pid; error_log {ndir}/error.log;\n"
+                    f"events {{}}\nhttp {{ access_log off; client_body_temp_path {ndir}/b; proxy_temp_path {ndir}/p;\n"
+                    f"fastcgi_temp_path {ndir}/f; uwsgi_temp_path {ndir}/u; scgi_temp_path {ndir}/s;\n"
+                    f"server {{ listen 127.0.0.1:{port}; root {os.path.abspath(work)}; location / {{ }} }} }}\n")
+        nginx = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-p", ndir, "-c", conf],
+                                 stdout=subprocess.DEVNULL)
+        time.sleep(0.5)
+        srv, ready = view_server(bindir, store, os.path.join(work, case + "-serverless-serve.log"))
+        push = None
+        try:
+            for source, where in (("push", f"http://127.0.0.1:{srv.port}"), ("s3", url),
+                                  ("http", f"http://127.0.0.1:{port}/{case}")):
+                name = f"{case}-serverless-{source}"
+                final = os.path.join(work, name + "-converged.png")
+                cmd = [client, "stream", where, "--headless", "--no-render", "--until-converged",
+                       "--frames", "100000", "--tol", a.tol, "--size", a.size, "--criterion", "image",
+                       "--final-png", final, "--out", os.path.join(work, name)]
+                out, wall, rss, killed = run_measured(cmd, f"stream {name}", os.path.join(work, name),
+                                                      timeout=a.timeout)
+                frames = [json.loads(l) for l in out.splitlines() if l.startswith("{")]
+                row = {"run": "serverless", "case": case, "source": source, "wall_s": round(wall, 2),
+                       "client_rss_mib": round(rss), "timed_out": killed}
+                if frames:
+                    f = frames[-1]
+                    row.update(converge_s=round(f["ms_since_connect"] / 1e3, 2), converged=f["view_complete"],
+                               leaves=f["leaves"], tets=f["tets"], bytes=f["bytes_received"], nodes=f["nodes"],
+                               first_image_s=round(frames[0]["ms_since_connect"] / 1e3, 3))
+                    if source == "push":
+                        push = row
+                    elif push and push.get("bytes"):
+                        row["bytes_vs_push"] = round(row["bytes"] / push["bytes"], 3)
+                        row["time_vs_push"] = round(row["converge_s"] / push["converge_s"], 3)
+                if not killed and os.path.exists(final) and os.path.exists(ref):
+                    row["psnr_db"] = round(psnr(final, ref), 2)
+                push_png = os.path.join(work, f"{case}-serverless-push-converged.png")
+                if source != "push" and not killed and os.path.exists(final) and os.path.exists(push_png):
+                    # the same final mesh draws the same image: 99 (capped) when identical
+                    row["psnr_vs_push_db"] = round(min(psnr(final, push_png), 99.0), 2)
+                emit(row)
+        finally:
+            srv.close()
+    finally:
+        if nginx:
+            nginx.kill()
+        subprocess.run([script, "stop", gdir])
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bin-dir", default="target/release")
@@ -247,6 +328,8 @@ def main():
     ap.add_argument("--ct-project-levels", default="7")
     ap.add_argument("--ct-project-parts", default="128")
     ap.add_argument("--ct-project-sample", default="0,64", help="the parts to prepare")
+    ap.add_argument("--serverless", default="", help="a case (e.g. harmonic-l8-0.1pc) streamed side by side "
+                    "from a server, from a 3-node garage cluster directly, and from nginx directly")
     ap.add_argument("--out", default="out/bench-scale")
     a = ap.parse_args()
 
@@ -448,6 +531,9 @@ def main():
         finally:
             srv.close()
 
+    if a.serverless:
+        serverless(a, bindir, server, client, work, emit)
+
     md = os.path.join(a.out, "scale.md")
     with open(md, "w") as f:
         f.write("| case | criterion | converge s | converged | leaves | tets/px | client RSS MiB | PSNR dB | budget bound |\n")
@@ -458,6 +544,15 @@ def main():
                         f"{' (killed)' if r['timed_out'] else ''} | {r.get('converged', '-')} | "
                         f"{r.get('leaves', '-')} | {r.get('tets_per_px', '-')} | {r['client_rss_mib']} | "
                         f"{r.get('psnr_db', '-')} | {r.get('budget_bound', '-')} |\n")
+        if any(r["run"] == "serverless" for r in rows):
+            f.write("\n| case | source | converge s | first image s | bytes | bytes / push | time / push | leaves | "
+                    "client RSS MiB | PSNR dB |\n|---|---|---|---|---|---|---|---|---|---|\n")
+            for r in rows:
+                if r["run"] == "serverless":
+                    f.write(f"| {r['case']} | {r['source']} | {r.get('converge_s', '-')} | "
+                            f"{r.get('first_image_s', '-')} | {r.get('bytes', '-')} | {r.get('bytes_vs_push', '-')} | "
+                            f"{r.get('time_vs_push', '-')} | {r.get('leaves', '-')} | {r['client_rss_mib']} | "
+                            f"{r.get('psnr_db', '-')} |\n")
     print(f"wrote {jl} and {md}", file=sys.stderr)
 
 

@@ -45,6 +45,16 @@ enum Cmd {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Copy a store directory to object storage (`s3://BUCKET/PREFIX`): its files as the
+    /// manifest lists them (large ones in parts), the manifest last, after the store is checked
+    /// (structure and every checksum).
+    Copy {
+        /// The store directory.
+        from: PathBuf,
+        /// `s3://BUCKET/PREFIX` (endpoint and credentials from AWS_ENDPOINT_URL,
+        /// AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_REGION, AWS_ALLOW_HTTP).
+        to: String,
+    },
     /// Serve a store: manifest, base mesh and nodes over HTTP, the progressive stream over
     /// WebSocket (`/v1/stream`), fallback images (`/v1/render`) and a viewer page (`/`).
     Serve {
@@ -245,6 +255,28 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     );
                 }
             }
+        }
+        Cmd::Copy { from, to } => {
+            let to = tetwave_store::Location::parse(&to)?;
+            if !matches!(to, tetwave_store::Location::S3 { .. }) {
+                return Err(format!("copy writes to s3://BUCKET/PREFIX, not {to}").into());
+            }
+            tetwave_store::Store::open_with(
+                &from,
+                tetwave_store::OpenOptions {
+                    verify_checksums: true,
+                    ..Default::default()
+                },
+            )?;
+            let t0 = std::time::Instant::now();
+            let m = tetwave_store::upload(&from, &to)?;
+            let bytes: u64 = m.files.values().map(|f| f.bytes).sum();
+            println!(
+                "copied {} ({} files, {bytes} bytes) -> {to} ({:.3} s)",
+                from.display(),
+                m.files.len() + 1,
+                t0.elapsed().as_secs_f64()
+            );
         }
         Cmd::Serve {
             store,

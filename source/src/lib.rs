@@ -287,12 +287,15 @@ impl Data {
                 }
                 let (range, name) = (m.display_value_range(), m.dataset.clone());
                 let (base, near) = (store.base.clone(), store.levelset_near.clone());
+                let opened = store.bytes_read();
                 let mut d = empty(Kind::Bucket(Box::new(Bucket {
                     store,
                     fetched: Default::default(),
                 })));
                 d.value_range = range;
                 d.name = name;
+                // the manifest, base mesh and first index page count as a stream's first frames do
+                d.bytes_applied = opened;
                 if d.select.fit_auto {
                     if let Kind::Bucket(b) = &d.kind {
                         d.select.tf = TransferFunction::for_manifest(AUTO, &b.store.manifest)
