@@ -10,7 +10,7 @@ use std::process::Command;
 use std::time::Duration;
 use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
 use tetwave_server::analysis::ErrorBound;
-use tetwave_server::prepare::{prepare, verify, PrepareOptions};
+use tetwave_server::prepare::{parts, prepare, verify, PartsArgs, PrepareOptions};
 use tetwave_store::{Location, OpenOptions, Store};
 
 mod common;
@@ -198,6 +198,50 @@ fn stores_in_a_bucket_and_over_http() {
         .unwrap()
         .to_string();
     assert!(e.contains("s3://tetwave/stores/none/manifest.json"), "{e}");
+
+    // by parts into the bucket: each part's files go up as it ends; the finish fetches them,
+    // writes the store there and removes them; the store is the one-process store's
+    let dims = [33usize, 17, 65];
+    let raw = work.path().join("grid.f32");
+    let v: Vec<u8> = (0..dims[0] * dims[1] * dims[2])
+        .flat_map(|i| ((i % 97) as f32 * 0.5 + (i / 1000) as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, v).unwrap();
+    let mut g = PrepareOptions::new(raw.to_str().unwrap(), &work.path().join("whole"));
+    g.read.grid.dims = Some(dims);
+    g.read.grid.dtype = "f32".into();
+    g.levels = Some(4);
+    g.max_error = Some(ErrorBound::parse("0.5%").unwrap());
+    prepare(&g).unwrap();
+    let parted = "s3://tetwave/stores/parted";
+    let part = |k: Option<u32>| PrepareOptions {
+        out: parted.into(),
+        stage: Some(work.path().join("stage")),
+        by_parts: PartsArgs {
+            parts: Some(3),
+            part: k,
+            finish: k.is_none(),
+        },
+        ..g.clone()
+    };
+    parts::prepare_part(&part(Some(0)), 3, 0).unwrap();
+    parts::prepare_part(&part(Some(2)), 3, 2).unwrap();
+    let e = prepare(&part(None)).err().unwrap().to_string();
+    assert!(e.contains("(part 1)"), "a missing part is named: {e}");
+    parts::prepare_part(&part(Some(1)), 3, 1).unwrap();
+    prepare(&part(None)).unwrap();
+    let whole = Store::open(&work.path().join("whole")).unwrap();
+    let there = Store::open(Path::new(parted)).unwrap();
+    assert_eq!(
+        there.manifest.files, whole.manifest.files,
+        "not the one-process store"
+    );
+    let loc = Location::parse(parted).unwrap();
+    let probe = work.path().join("probe");
+    assert!(
+        !tetwave_store::download_file(&loc.join("parts/part-1-of-3"), "part.json", &probe).unwrap(),
+        "the parts are removed once the store is written"
+    );
 
     // wrong credentials: one clear error, no secret in it
     let secret = std::env::var("AWS_SECRET_ACCESS_KEY").unwrap();
