@@ -176,9 +176,53 @@ struct Remote {
 
 /// A store read directly from object storage.
 struct Bucket {
-    store: tetwave_store::PagedStore,
-    /// Blocks fetched (each once).
+    store: std::sync::Arc<tetwave_store::PagedStore>,
+    /// Blocks asked for (each once).
     fetched: std::collections::HashSet<u64>,
+    /// Rounds to the reader thread, and what came of them: a window never waits on a request.
+    ask: std::sync::mpsc::Sender<Vec<u64>>,
+    got: std::sync::mpsc::Receiver<Result<Round, String>>,
+    /// A round is under way.
+    in_flight: bool,
+}
+
+/// A fetched round: each block with its nodes, and the bytes read for it.
+type Round = (Vec<(u64, Vec<DetailNode>)>, u64);
+
+impl Bucket {
+    /// The store, with a thread that reads the rounds it is asked for (it ends with the
+    /// `Bucket`).
+    fn new(store: tetwave_store::PagedStore) -> Bucket {
+        let store = std::sync::Arc::new(store);
+        let (ask, asked) = std::sync::mpsc::channel::<Vec<u64>>();
+        let (tell, got) = std::sync::mpsc::channel();
+        let reader = store.clone();
+        std::thread::Builder::new()
+            .name("tetwave-bucket".into())
+            .spawn(move || {
+                for blocks in asked {
+                    let before = reader.bytes_read();
+                    let r = reader
+                        .read_blocks(&blocks)
+                        .map(|nodes| {
+                            let bytes = reader.bytes_read() - before;
+                            (blocks.into_iter().zip(nodes).collect(), bytes)
+                        })
+                        .map_err(|e| e.to_string());
+                    if tell.send(r).is_err() {
+                        break;
+                    }
+                }
+            })
+            .expect("a thread for the bucket's reads");
+        Bucket {
+            store,
+            fetched: Default::default(),
+            ask,
+            got,
+            in_flight: false,
+        }
+    }
 }
 
 enum Kind {
@@ -288,10 +332,7 @@ impl Data {
                 let (range, name) = (m.display_value_range(), m.dataset.clone());
                 let (base, near) = (store.base.clone(), store.levelset_near.clone());
                 let opened = store.bytes_read();
-                let mut d = empty(Kind::Bucket(Box::new(Bucket {
-                    store,
-                    fetched: Default::default(),
-                })));
+                let mut d = empty(Kind::Bucket(Box::new(Bucket::new(store))));
                 d.value_range = range;
                 d.name = name;
                 // the manifest, base mesh and first index page count as a stream's first frames do
@@ -576,47 +617,70 @@ impl Data {
         }
     }
 
-    /// One round of a store read directly: the blocks holding the nodes the session wants for
-    /// its last frame's camera ([`Session::wanted`]), coarsest first, at most [`FETCH_BLOCKS`]
-    /// (and `p.max_nodes` worth), fetched together and applied whole (each is the store's own).
+    /// A store read directly: takes the round of blocks under way when it has come (waiting for
+    /// it up to `p.until` when `p.wait` and nothing was applied yet), applying every node of it
+    /// (each block is the store's own), then asks the reader thread for the next round: the
+    /// blocks holding the nodes the session wants for its last frame's camera
+    /// ([`Session::wanted`]), coarsest first, at most [`FETCH_BLOCKS`] (and `p.max_nodes` worth).
     fn fetch_round(&mut self, p: Pump, mut on: impl FnMut(Step)) -> Result<usize, NetError> {
         let (Kind::Bucket(b), Some(session)) = (&mut self.kind, self.session.as_mut()) else {
             return Ok(0);
         };
-        let per_block = tetwave_store::BLOCK as usize;
-        let most = match p.max_nodes {
-            0 => FETCH_BLOCKS,
-            n => n.div_ceil(per_block).clamp(1, FETCH_BLOCKS),
-        };
-        let mut blocks: Vec<u64> = session
-            .wanted()
-            .into_iter()
-            .map(|id| id / tetwave_store::BLOCK)
-            .filter(|blk| !b.fetched.contains(blk))
-            .collect();
-        blocks.sort_unstable();
-        blocks.dedup();
-        blocks.truncate(most);
-        if blocks.is_empty() {
-            return Ok(0);
-        }
-        let before = b.store.bytes_read();
-        let got = b
-            .store
-            .read_blocks(&blocks)
-            .map_err(|e| NetError::Store(e.to_string()))?;
-        self.bytes_applied += b.store.bytes_read() - before;
         let mut applied = 0;
-        for (blk, nodes) in blocks.iter().zip(got) {
-            b.fetched.insert(*blk);
-            session
-                .insert(&nodes)
-                .map_err(|e| NetError::Store(e.to_string()))?;
-            applied += nodes.len();
-            on(Step::Nodes {
-                nodes,
-                duplicates: 0,
-            });
+        loop {
+            if b.in_flight {
+                let wait = match p.wait && applied == 0 {
+                    true => p.until.saturating_duration_since(Instant::now()),
+                    false => Duration::ZERO,
+                };
+                let round = match b.got.recv_timeout(wait) {
+                    Ok(Ok(round)) => round,
+                    Ok(Err(e)) => return Err(NetError::Store(e)),
+                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) => break,
+                    Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                        return Err(NetError::Store("the store's reader thread stopped".into()))
+                    }
+                };
+                b.in_flight = false;
+                self.bytes_applied += round.1;
+                for (_, nodes) in round.0 {
+                    session
+                        .insert(&nodes)
+                        .map_err(|e| NetError::Store(e.to_string()))?;
+                    applied += nodes.len();
+                    on(Step::Nodes {
+                        nodes,
+                        duplicates: 0,
+                    });
+                }
+            }
+            let most = match p.max_nodes {
+                0 => FETCH_BLOCKS,
+                n => n
+                    .div_ceil(tetwave_store::BLOCK as usize)
+                    .clamp(1, FETCH_BLOCKS),
+            };
+            let mut blocks: Vec<u64> = session
+                .wanted()
+                .into_iter()
+                .map(|id| id / tetwave_store::BLOCK)
+                .filter(|blk| !b.fetched.contains(blk))
+                .collect();
+            blocks.sort_unstable();
+            blocks.dedup();
+            blocks.truncate(most);
+            if blocks.is_empty() {
+                break;
+            }
+            b.fetched.extend(blocks.iter().copied());
+            b.ask
+                .send(blocks)
+                .map_err(|_| NetError::Store("the store's reader thread stopped".into()))?;
+            b.in_flight = true;
+            // one round applied a call: the frame uses it while the next is fetched
+            if applied > 0 || !p.wait {
+                break;
+            }
         }
         if applied > 0 {
             self.changed = true;

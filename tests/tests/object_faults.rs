@@ -2,7 +2,8 @@
 //! test, on loopback): answers late, answers 503, stalls past the request timeout, cuts a body
 //! short, flips a byte, or has no such object. Each fault is retried or refused with an error
 //! naming the object; the final mesh is the undisturbed one, never another. With 50 ms added to
-//! every request, the first image comes within 4 round trips.
+//! every request, the first image (the base mesh) comes within 4 round trips, and so does the
+//! first image with nodes of the store.
 //!
 //! Its own test binary: it sets `TETWAVE_REQUEST_TIMEOUT` for the process.
 
@@ -180,13 +181,34 @@ fn faults_are_retried_or_refused_by_name() {
     let want = leaves(&clean);
     assert!(clean.report.frames.last().unwrap().view_complete);
     let first_clean = clean.report.first_frame_ms.unwrap();
+    // the first frame drawn with some of the store's nodes
+    let first_data = |s: &Streamed| {
+        let f = s
+            .report
+            .frames
+            .iter()
+            .find(|f| f.nodes > 0)
+            .expect("nodes came");
+        f.ms_since_connect
+    };
+    let data_clean = first_data(&clean);
 
     // 50 ms on every request: the first image within 4 round trips of the undelayed one
     set(&|p| p.delay_ms = 50);
     let slow = session(&url, &out("slow")).unwrap();
     let first_slow = slow.report.first_frame_ms.unwrap();
     let trips = (first_slow - first_clean) / 50.0;
-    eprintln!("first image: {first_clean:.1} ms, with 50 ms a request {first_slow:.1} ms ({trips:.2} round trips)");
+    let data_slow = first_data(&slow);
+    let data_trips = (data_slow - data_clean) / 50.0;
+    eprintln!(
+        "first image: {first_clean:.1} ms, with 50 ms a request {first_slow:.1} ms ({trips:.2} \
+         round trips); first image with nodes: {data_clean:.1} ms, {data_slow:.1} ms \
+         ({data_trips:.2} round trips)"
+    );
+    assert!(
+        data_trips <= 4.0,
+        "{data_trips:.2} round trips before the first image with nodes"
+    );
     assert!(
         trips <= 4.0,
         "{trips:.2} round trips before the first image"
