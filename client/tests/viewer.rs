@@ -1276,3 +1276,34 @@ fn view_moves_a_mesh_file_with_a_coarser_proxy_and_draws_it_whole_at_rest() {
     eprintln!("at rest vs offscreen: {db:.2} dB");
     assert!(db >= 40.0, "{db:.2} dB");
 }
+
+/// A store read directly over HTTP, with no server (nginx serving its folder): the window fetches
+/// blocks by range as its selection asks, completes in complete mode, and its screenshot agrees
+/// with the offscreen renderer's image of the same store.
+#[test]
+fn view_reads_a_store_from_a_static_file_server() {
+    let (d, s) = store(3);
+    let dir = d.path();
+    let root = s.parent().unwrap().display().to_string();
+    let nginx = tetwave_tests::Nginx::start(&format!("root {root}; location / {{ }}"));
+    let url = format!("http://127.0.0.1:{}/s", nginx.port);
+    let shot = dir.join("http.png");
+    let script = serde_json::json!([
+        {"mode": "complete"},
+        {"wait": "complete"},
+        {"screenshot": shot},
+        {"quit": true}
+    ]);
+    let r = view_script(
+        dir,
+        &script,
+        &[&url, "--size", "256x224", "--frames", "5000"],
+    );
+    assert_eq!(r["complete"], true, "{r}");
+    assert_eq!(r["nodes"], r["nodes_total"], "{r}");
+    assert!(r["bytes_received"].as_u64().unwrap() > 0, "{r}");
+    let reference = offscreen(&s, "default", 35.0, 25.0, (256, 224), &dir.join("ref.png"));
+    let p = psnr(&png(&shot), &reference);
+    eprintln!("window (store over HTTP) vs offscreen: {p:.2} dB");
+    assert!(p >= 40.0, "screenshot vs offscreen render: {p:.2} dB");
+}

@@ -29,7 +29,7 @@ struct Garage {
 
 impl Garage {
     fn start() -> Garage {
-        common::need(
+        tetwave_tests::need(
             "garage",
             "scripts/setup runs `cargo install garage --version 2.5.0 --locked`",
         );
@@ -134,7 +134,7 @@ fn stores_in_a_bucket_and_over_http() {
     drop(srv);
     let direct = converged(url, &work.path().join("direct")).unwrap();
     let root = work.path().join("www").display().to_string();
-    let nginx = common::Nginx::start(&format!("root {root}; location / {{ }}"));
+    let nginx = tetwave_tests::Nginx::start(&format!("root {root}; location / {{ }}"));
     let http_url = format!("http://127.0.0.1:{}/h6", nginx.port);
     let http = converged(&http_url, &work.path().join("http")).unwrap();
     let want = leaves(&push);

@@ -54,7 +54,7 @@ fn a_client_finishes_on_another_replica() {
         a.url().trim_start_matches("http://"),
         b.url().trim_start_matches("http://")
     );
-    let nginx = common::Nginx::start_with(
+    let nginx = tetwave_tests::Nginx::start_with(
         &upstream,
         "location / { proxy_pass http://replicas; proxy_http_version 1.1; \
          proxy_set_header Upgrade $http_upgrade; proxy_set_header Connection \"upgrade\"; \

@@ -84,9 +84,10 @@ pub struct ViewArgs {
     pub size: (u32, u32),
     /// Transfer function: `auto` (the `default` preset fitted to the data as `tetwave render`
     /// fits it: a store's or a stream's to the histogram its manifest carries), a preset (default,
-    /// transparent, opaque, shells) or a .json file. Default: `auto` for a store or a mesh file,
-    /// `default` for a stream (`auto` makes the view-dependent stream keep about twice the
-    /// leaves: see docs/formats.md).
+    /// transparent, opaque, shells) or a .json file. Default: `auto` for a store directory or a
+    /// mesh file, `default` for a stream or a store read directly from object storage or HTTP
+    /// (`auto` makes the view-dependent selection keep about twice the leaves: see
+    /// docs/formats.md).
     #[arg(long)]
     pub tf: Option<String>,
     /// Screen-space tolerance in pixels (0: refine everything visible to the finest level).
@@ -260,7 +261,9 @@ pub fn run(args: &ViewArgs) -> Result<ViewReport, ViewError> {
     let source = tetwave_source::Source::parse(&args.source);
     let spec = match (&args.tf, &source) {
         (Some(spec), _) => spec.clone(),
-        (None, tetwave_source::Source::Url(_)) => "default".into(),
+        (None, tetwave_source::Source::Url(_) | tetwave_source::Source::Bucket(_)) => {
+            "default".into()
+        }
         (None, _) => AUTO.into(),
     };
     let args = &ViewArgs {
