@@ -58,6 +58,7 @@ pub fn app(shared: Arc<Shared>) -> Router {
         .max(limits.render_deadline + Duration::from_secs(1));
     Router::new()
         .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
         // the stream checks the token in `Hello` (or on the upgrade request, when given there)
         .route("/v1/stream", get(stream))
         .merge(protected)
@@ -125,9 +126,32 @@ pub fn rss_kib() -> (Option<u64>, Option<u64>) {
     (field("VmRSS:"), field("VmHWM:"))
 }
 
+/// `/readyz`: 200 once the store is open and the server takes streams (it is, once it listens;
+/// a server of view order is ready once its view-order geometry is computed), 503 while it holds
+/// its most connections; a balancer's readiness probe.
+async fn readyz(State(s): State<Arc<Shared>>) -> Response {
+    let ready = s.view_order_ready() && s.admission.open() < s.config.limits.max_connections;
+    let code = if ready {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (code, if ready { "ready\n" } else { "not ready\n" }).into_response()
+}
+
 async fn healthz(State(s): State<Arc<Shared>>) -> Response {
     let (rss, peak) = rss_kib();
+    let (hits, reads) = (
+        s.block_hits.load(AtomicOrdering::Relaxed),
+        s.block_reads.load(AtomicOrdering::Relaxed),
+    );
     let body = serde_json::json!({
+        "block_cache": {
+            "hits": hits,
+            "reads": reads,
+            "hit_ratio": if hits + reads > 0 { hits as f64 / (hits + reads) as f64 } else { 0.0 },
+            "all_nodes_in_memory": s.caches_every_node(),
+        },
         "status": "ok",
         "dataset": s.store.manifest.dataset,
         "nodes": s.nodes,

@@ -123,6 +123,9 @@ pub struct Shared {
     cache: Option<Vec<DetailNode>>,
     /// Otherwise the last decoded blocks of the store, most recent last ([`BLOCK_CACHE`]).
     recent: Mutex<VecDeque<(u64, Arc<Vec<DetailNode>>)>>,
+    /// Blocks found in `recent`, and read from the store (`/healthz`, `/metrics`).
+    pub(super) block_hits: AtomicU64,
+    pub(super) block_reads: AtomicU64,
     /// `subtree_max_abs` of every node.
     pub(super) smax: Vec<f32>,
     /// The store's preview and its coder, when it has one and new sessions get some of it
@@ -261,6 +264,8 @@ impl Shared {
             levelset_near,
             cache,
             recent: Mutex::new(VecDeque::with_capacity(BLOCK_CACHE)),
+            block_hits: AtomicU64::new(0),
+            block_reads: AtomicU64::new(0),
             smax,
             preview,
             magnitude_perm: OnceLock::new(),
@@ -326,6 +331,18 @@ impl Shared {
         if let Err(e) = spawned {
             tracing::warn!("view order is computed by the first session that needs it: {e}");
         }
+    }
+
+    /// Whether a session in the configured order starts at once: always, but in view order
+    /// before its geometry is computed ([`Self::warm_view_order`]).
+    pub(super) fn view_order_ready(&self) -> bool {
+        self.config.order != super::config::Order::View || self.geometry.get().is_some()
+    }
+
+    /// Whether every node is held decoded (the store fits the cache limit): no block is read
+    /// after the start.
+    pub(super) fn caches_every_node(&self) -> bool {
+        self.cache.is_some()
     }
 
     /// Every node's bounding sphere and image weight; computed when view order first asks (or by
@@ -468,11 +485,15 @@ impl Shared {
                 let hit = recent.remove(k).expect("present");
                 let nodes = hit.1.clone();
                 recent.push_back(hit);
+                self.block_hits
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 return Ok(nodes);
             }
         }
         // decoded outside the lock: two connections may decode the same block at once, which
         // costs time but never a wrong answer
+        self.block_reads
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let from = b * BLOCK;
         let nodes = Arc::new(
             self.store
