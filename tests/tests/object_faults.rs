@@ -15,9 +15,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
+use tetwave_client::stream::Streamed;
 use tetwave_server::analysis::ErrorBound;
 use tetwave_server::prepare::{prepare, PrepareOptions};
+
+mod common;
 
 /// What the file server does wrong, and how often it did.
 #[derive(Default)]
@@ -140,24 +142,6 @@ fn start(root: &Path) -> (Arc<Server>, u16) {
     (server, port)
 }
 
-fn session(url: &str, out: &Path) -> Result<Streamed, String> {
-    let mut a = StreamArgs::new(url, out);
-    a.no_render = true;
-    a.cpu = true;
-    a.frames = 2000;
-    a.tol = "2".into();
-    a.size = (256, 256);
-    a.frame_ms = 5;
-    a.until_converged = true;
-    run_session(&a, Faults::default()).map_err(|e| e.to_string())
-}
-
-fn leaves(s: &Streamed) -> Vec<u64> {
-    let mut ids = s.mesh.as_ref().unwrap().leaf_ids();
-    ids.sort_unstable();
-    ids
-}
-
 #[test]
 fn faults_are_retried_or_refused_by_name() {
     std::env::set_var("TETWAVE_REQUEST_TIMEOUT", "1");
@@ -177,8 +161,8 @@ fn faults_are_retried_or_refused_by_name() {
     };
 
     set(&|_| {});
-    let clean = session(&url, &out("clean")).unwrap();
-    let want = leaves(&clean);
+    let clean = common::converged(&url, &out("clean")).unwrap();
+    let want = common::leaves(&clean);
     assert!(clean.report.frames.last().unwrap().view_complete);
     let first_clean = clean.report.first_frame_ms.unwrap();
     // the first frame drawn with some of the store's nodes
@@ -195,7 +179,7 @@ fn faults_are_retried_or_refused_by_name() {
 
     // 50 ms on every request: the first image within 4 round trips of the undelayed one
     set(&|p| p.delay_ms = 50);
-    let slow = session(&url, &out("slow")).unwrap();
+    let slow = common::converged(&url, &out("slow")).unwrap();
     let first_slow = slow.report.first_frame_ms.unwrap();
     let trips = (first_slow - first_clean) / 50.0;
     let data_slow = first_data(&slow);
@@ -213,7 +197,7 @@ fn faults_are_retried_or_refused_by_name() {
         trips <= 4.0,
         "{trips:.2} round trips before the first image"
     );
-    assert_eq!(leaves(&slow), want);
+    assert_eq!(common::leaves(&slow), want);
 
     // transient faults: retried, the same final mesh
     type Setup = fn(&mut Policy);
@@ -226,26 +210,30 @@ fn faults_are_retried_or_refused_by_name() {
     ];
     for (name, f) in transient {
         set(&|p| f(p));
-        let s = session(&url, &out(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let s = common::converged(&url, &out(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(
             srv.faults.load(Ordering::SeqCst) > 0,
             "{name}: no fault was injected"
         );
-        assert_eq!(leaves(&s), want, "{name}: another final mesh");
+        assert_eq!(common::leaves(&s), want, "{name}: another final mesh");
     }
 
     // a flipped byte: refused by its block's checksum, naming the object
     set(&|p| p.flip_blocks = true);
-    let e = session(&url, &out("flipped")).err().expect("refused");
+    let e = common::converged(&url, &out("flipped"))
+        .err()
+        .expect("refused");
     assert!(
         e.contains(&format!("{url}/blocks.bin")) && e.contains("checksum"),
         "{e}"
     );
     // a missing object: named
     set(&|p| p.missing = Some("block_index.bin".into()));
-    let e = session(&url, &out("missing")).err().expect("refused");
+    let e = common::converged(&url, &out("missing"))
+        .err()
+        .expect("refused");
     assert!(e.contains(&format!("{url}/block_index.bin")), "{e}");
-    let e = session(&format!("http://127.0.0.1:{port}/nothing"), &out("none"))
+    let e = common::converged(&format!("http://127.0.0.1:{port}/nothing"), &out("none"))
         .err()
         .expect("refused");
     assert!(e.contains("/nothing/manifest.json"), "{e}");

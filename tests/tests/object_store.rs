@@ -8,7 +8,6 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
-use tetwave_client::stream::{run_session, Faults, StreamArgs, Streamed};
 use tetwave_server::analysis::ErrorBound;
 use tetwave_server::prepare::{parts, prepare, verify, PartsArgs, PrepareOptions};
 use tetwave_store::{Location, OpenOptions, Store};
@@ -72,25 +71,6 @@ impl Drop for Garage {
     }
 }
 
-/// A session on `url` at 2 px on 256², until the view is complete.
-fn converged(url: &str, out: &Path) -> Result<Streamed, String> {
-    let mut a = StreamArgs::new(url, out);
-    a.no_render = true;
-    a.cpu = true;
-    a.frames = 2000;
-    a.tol = "2".into();
-    a.size = (256, 256);
-    a.frame_ms = 5;
-    a.until_converged = true;
-    run_session(&a, Faults::default()).map_err(|e| e.to_string())
-}
-
-fn leaves(s: &Streamed) -> Vec<u64> {
-    let mut ids = s.mesh.as_ref().unwrap().leaf_ids();
-    ids.sort_unstable();
-    ids
-}
-
 #[test]
 fn stores_in_a_bucket_and_over_http() {
     let garage = Garage::start();
@@ -130,18 +110,18 @@ fn stores_in_a_bucket_and_over_http() {
 
     // served from the bucket, read directly from it, and from nginx: one final mesh
     let srv = common::serve(Path::new(url), "view");
-    let push = converged(srv.url(), &work.path().join("push")).unwrap();
+    let push = common::converged(srv.url(), &work.path().join("push")).unwrap();
     drop(srv);
-    let direct = converged(url, &work.path().join("direct")).unwrap();
+    let direct = common::converged(url, &work.path().join("direct")).unwrap();
     let root = work.path().join("www").display().to_string();
     let nginx = tetwave_tests::Nginx::start(&format!("root {root}; location / {{ }}"));
     let http_url = format!("http://127.0.0.1:{}/h6", nginx.port);
-    let http = converged(&http_url, &work.path().join("http")).unwrap();
-    let want = leaves(&push);
+    let http = common::converged(&http_url, &work.path().join("http")).unwrap();
+    let want = common::leaves(&push);
     assert!(push.report.frames.last().unwrap().view_complete);
     for (name, s) in [("s3", &direct), ("http", &http)] {
         assert!(s.report.frames.last().unwrap().view_complete, "{name}");
-        assert_eq!(leaves(s), want, "{name}: another final mesh");
+        assert_eq!(common::leaves(s), want, "{name}: another final mesh");
         s.mesh.as_ref().unwrap().check_conformity().unwrap();
         // what was fetched: some of the store, within 1.5× what the push stream sent
         assert!(
@@ -174,9 +154,9 @@ fn stores_in_a_bucket_and_over_http() {
             assert!(st.success());
         })
     };
-    let lossy = converged(url, &work.path().join("lossy")).unwrap();
+    let lossy = common::converged(url, &work.path().join("lossy")).unwrap();
     killer.join().unwrap();
-    assert_eq!(leaves(&lossy), want, "a node lost mid-stream");
+    assert_eq!(common::leaves(&lossy), want, "a node lost mid-stream");
     garage.node("restart", 2);
 
     // a missing object: one error naming it, from every reader
@@ -189,7 +169,7 @@ fn stores_in_a_bucket_and_over_http() {
     tetwave_store::delete_file(&Location::parse(broken).unwrap(), "blocks.bin").unwrap();
     let e = Store::open(Path::new(broken)).err().unwrap().to_string();
     assert!(e.contains("s3://tetwave/stores/broken/blocks.bin"), "{e}");
-    let e = converged(broken, &work.path().join("broken"))
+    let e = common::converged(broken, &work.path().join("broken"))
         .err()
         .unwrap();
     assert!(e.contains("s3://tetwave/stores/broken/blocks.bin"), "{e}");

@@ -95,12 +95,7 @@ fn a_client_finishes_on_another_replica() {
         streams(&urls[1 - serving]) == 0,
         "the other replica still holds a stream"
     );
-    let leaves = |s: &Streamed| {
-        let mut ids = s.mesh.as_ref().unwrap().leaf_ids();
-        ids.sort_unstable();
-        ids
-    };
-    assert_eq!(leaves(&lossy), leaves(&calm));
+    assert_eq!(common::leaves(&lossy), common::leaves(&calm));
     let ratio = lossy.report.bytes_received as f64 / calm.report.bytes_received as f64;
     eprintln!(
         "bytes: undisturbed {}, replica lost mid-stream {} ({ratio:.3}x), {} reconnects",

@@ -89,3 +89,24 @@ pub fn serve(store: &Path, order: &str) -> BackgroundServer {
     };
     BackgroundServer::start(store, "127.0.0.1:0", config).expect("the store is served")
 }
+
+/// A stream session on `url` (a server, a bucket or an HTTP folder) at 2 px on 256², no images,
+/// until the view is complete; the error as text.
+pub fn converged(url: &str, out: &Path) -> Result<tetwave_client::stream::Streamed, String> {
+    let mut a = tetwave_client::stream::StreamArgs::new(url, out);
+    a.no_render = true;
+    a.cpu = true;
+    a.frames = 2000;
+    a.tol = "2".into();
+    a.size = (256, 256);
+    a.frame_ms = 5;
+    a.until_converged = true;
+    tetwave_client::stream::run_session(&a, Default::default()).map_err(|e| e.to_string())
+}
+
+/// The final mesh's leaf ids, sorted: what "the same final mesh" compares.
+pub fn leaves(s: &tetwave_client::stream::Streamed) -> Vec<u64> {
+    let mut ids = s.mesh.as_ref().expect("a final mesh").leaf_ids();
+    ids.sort_unstable();
+    ids
+}
