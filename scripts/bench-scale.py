@@ -246,7 +246,7 @@ def serverless(a, bindir, server, client, work, emit):
         url = f"s3://tetwave/{case}"
         out, wall, _, _ = run_measured([server, "copy", store, url], f"copy {case}", os.path.join(work, "copy"))
         emit({"run": "copy", "case": case, "copy_s": round(wall, 2)})
-        ndir = os.path.join(work, "nginx")
+        ndir = os.path.abspath(os.path.join(work, "nginx"))
         os.makedirs(ndir, exist_ok=True)
         import socket
         with socket.socket() as sk:
