@@ -660,7 +660,10 @@ mod tests {
     #[test]
     fn a_range_past_the_end_or_a_missing_object_is_an_error_naming_it() {
         let o = in_memory(b"0123456789");
-        let e = o.read_ranges("f", &[5..20]).unwrap_err().to_string();
+        let e = o
+            .read_ranges("f", std::slice::from_ref(&(5..20)))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("s3://b/p/f"), "{e}");
         let e = o.read("g").unwrap_err().to_string();
         assert!(e.contains("s3://b/p/g"), "{e}");
