@@ -181,7 +181,7 @@ struct Bucket {
     fetched: std::collections::HashSet<u64>,
     /// Rounds to the reader thread, and what came of them: a window never waits on a request.
     ask: std::sync::mpsc::Sender<Vec<u64>>,
-    got: std::sync::mpsc::Receiver<Result<Round, String>>,
+    got: std::sync::mpsc::Receiver<Result<Round, tetwave_store::StoreError>>,
     /// A round is under way.
     in_flight: bool,
 }
@@ -202,13 +202,10 @@ impl Bucket {
             .spawn(move || {
                 for blocks in asked {
                     let before = reader.bytes_read();
-                    let r = reader
-                        .read_blocks(&blocks)
-                        .map(|nodes| {
-                            let bytes = reader.bytes_read() - before;
-                            (blocks.into_iter().zip(nodes).collect(), bytes)
-                        })
-                        .map_err(|e| e.to_string());
+                    let r = reader.read_blocks(&blocks).map(|nodes| {
+                        let bytes = reader.bytes_read() - before;
+                        (blocks.into_iter().zip(nodes).collect(), bytes)
+                    });
                     if tell.send(r).is_err() {
                         break;
                     }
@@ -635,7 +632,7 @@ impl Data {
                 };
                 let round = match b.got.recv_timeout(wait) {
                     Ok(Ok(round)) => round,
-                    Ok(Err(e)) => return Err(NetError::Store(e)),
+                    Ok(Err(e)) => return Err(NetError::Store(e.to_string())),
                     Err(std::sync::mpsc::RecvTimeoutError::Timeout) => break,
                     Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                         return Err(NetError::Store("the store's reader thread stopped".into()))
