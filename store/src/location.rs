@@ -283,7 +283,7 @@ impl Objects {
         match e {
             object_store::Error::NotFound { .. } => StoreError::Io {
                 path,
-                source: std::io::ErrorKind::NotFound.into(),
+                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such object"),
             },
             object_store::Error::PermissionDenied { .. }
             | object_store::Error::Unauthenticated { .. } => StoreError::Object {
