@@ -134,6 +134,12 @@ enum Cmd {
         /// structure and base.bin's checksum are always checked).
         #[arg(long)]
         verify: bool,
+        /// Hold every decoded node in memory when the store's nodes take at most this many MiB;
+        /// above it, nodes are read by blocks on demand through a cache of the last 32 decoded
+        /// blocks (`/healthz` reports its hits). The per-node subtree bounds and view-order
+        /// geometry are held whatever this says (docs/object-storage.md, "Not yet").
+        #[arg(long, default_value_t = 512)]
+        cache_mb: u64,
     },
 }
 
@@ -300,6 +306,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
             preview_share,
             threads,
             verify,
+            cache_mb,
         } => {
             use tetwave_server::stream::{serve_on, ServeConfig, Shared};
             if !(1..=1 << 16).contains(&batch) {
@@ -361,6 +368,7 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     allow_origins: lower(allow_origins),
                 },
                 verify_checksums: verify,
+                cache_limit_bytes: cache_mb.saturating_mul(1 << 20),
                 view_criterion,
                 ..ServeConfig::default()
             };

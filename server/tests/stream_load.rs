@@ -362,3 +362,28 @@ fn adversarial_load_leaves_health_and_honest_clients_alone() {
         "the attack stops by itself"
     );
 }
+
+/// `serve --cache-mb 0`: no node is held decoded; nodes are read by blocks on demand, and
+/// `/healthz` says so.
+#[test]
+fn cache_mb_bounds_the_decoded_nodes_held() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (_d, dir) = make_store(4);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    for (mb, held) in [("0", false), ("512", true)] {
+        let (_server, addr) = spawn_server(&dir, &["--cache-mb", mb]);
+        let r = rt.block_on(get(addr, "/v1/nodes?from=0&to=50", &[]));
+        assert_eq!(r.status, 200);
+        let h = health(addr, &rt);
+        let c = &h["block_cache"];
+        assert_eq!(c["all_nodes_in_memory"], held, "--cache-mb {mb}: {h}");
+        assert_eq!(
+            c["reads"].as_u64(),
+            Some(u64::from(!held)),
+            "--cache-mb {mb}: {h}"
+        );
+    }
+}
