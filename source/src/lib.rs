@@ -319,7 +319,7 @@ impl Data {
             }
             Source::Bucket(loc) => {
                 let store = tetwave_store::PagedStore::open(loc)?;
-                let m = &store.manifest;
+                let m = store.manifest();
                 if m.counts.nodes > max_nodes {
                     return Err(SourceError::TooLarge {
                         nodes: m.counts.nodes,
@@ -327,7 +327,7 @@ impl Data {
                     });
                 }
                 let (range, name) = (m.display_value_range(), m.dataset.clone());
-                let (base, near) = (store.base.clone(), store.levelset_near.clone());
+                let (base, near) = (store.base().clone(), store.levelset_near.clone());
                 let opened = store.bytes_read();
                 let mut d = empty(Kind::Bucket(Box::new(Bucket::new(store))));
                 d.value_range = range;
@@ -336,7 +336,7 @@ impl Data {
                 d.bytes_applied = opened;
                 if d.select.fit_auto {
                     if let Kind::Bucket(b) = &d.kind {
-                        d.select.tf = TransferFunction::for_manifest(AUTO, &b.store.manifest)
+                        d.select.tf = TransferFunction::for_manifest(AUTO, b.store.manifest())
                             .map_err(|e| SourceError::Fit(e.to_string()))?;
                     }
                 }
@@ -411,7 +411,7 @@ impl Data {
     pub fn remote_manifest(&self) -> Option<&Manifest> {
         match &self.kind {
             Kind::Remote(r) => r.ingest.manifest(),
-            Kind::Bucket(b) => Some(&b.store.manifest),
+            Kind::Bucket(b) => Some(b.store.manifest()),
             _ => None,
         }
     }

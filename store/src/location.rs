@@ -604,13 +604,6 @@ impl Files {
 impl tetwave_protocol::store_format::StoreFiles for Files {
     type Error = StoreError;
     fn read_at(&self, file: &str, offset: u64, buf: &mut [u8]) -> Result<(), StoreError> {
-        if let Files::Dir(d) = self {
-            use std::io::{Read, Seek, SeekFrom};
-            let p = d.join(file);
-            let mut f = std::fs::File::open(&p).map_err(crate::io_err(&p))?;
-            f.seek(SeekFrom::Start(offset)).map_err(crate::io_err(&p))?;
-            return f.read_exact(buf).map_err(crate::io_err(&p));
-        }
         buf.copy_from_slice(&self.read_range(file, offset..offset + buf.len() as u64)?);
         Ok(())
     }

@@ -12,7 +12,6 @@ use std::sync::Mutex;
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::{
     FormatError, Manifest, StoreHead, BLOCK, BLOCK_SUMS_FILE, LEVELSET_BAND_FILE, MAX_BASE_BYTES,
-    STORE_FORMAT, STORE_VERSION,
 };
 use tetwave_protocol::{BaseMesh, DetailNode};
 
@@ -28,8 +27,6 @@ pub const INDEX_PAGE: u64 = 512;
 /// A store opened for reading by blocks ([`PagedStore::read_blocks`]).
 pub struct PagedStore {
     pub location: Location,
-    pub manifest: Manifest,
-    pub base: BaseMesh,
     /// The level set's near band, when the store has one (fetched at open with the base mesh).
     pub levelset_near: Option<NearLevelSet>,
     /// Manifest, base and coder (its `index` is empty: the pages below stand in).
@@ -49,23 +46,11 @@ impl PagedStore {
     pub fn open(location: &Location) -> Result<PagedStore, StoreError> {
         let files = Files::open(location)?;
         let mpath = files.name("manifest.json");
-        let text = files.read("manifest.json")?;
-        let manifest: Manifest =
-            serde_json::from_slice(&text).map_err(|e| StoreError::BadManifest {
-                path: mpath.clone(),
-                reason: e.to_string(),
-            })?;
+        let (manifest, manifest_bytes) = crate::read::read_manifest(&files)?;
         let format = |source: FormatError| StoreError::Format {
             path: mpath.clone(),
             source,
         };
-        // the version before anything else the manifest names
-        if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
-            return Err(format(FormatError::Version {
-                format: manifest.format.clone(),
-                version: manifest.version,
-            }));
-        }
         let listed = |name: &str| {
             manifest
                 .files
@@ -118,13 +103,7 @@ impl PagedStore {
             got.next().unwrap_or_default(),
             got.next().unwrap_or_default(),
         );
-        let crc = crc32fast::hash(&base_bytes);
-        if crc != base_sum.crc32 {
-            return Err(StoreError::Corrupt {
-                path: files.name("base.bin"),
-                reason: format!("checksum {crc:08x}, manifest says {:08x}", base_sum.crc32),
-            });
-        }
+        crate::read::check_crc(&files, "base.bin", &base_bytes, &manifest)?;
         let base = StoreHead::decode_base(&manifest, &base_bytes).map_err(format)?;
         let levelset_near =
             match got.next() {
@@ -137,11 +116,9 @@ impl PagedStore {
                 None => None,
             };
         let coder = tetwave_protocol::block::BlockCoder::new(&base, &manifest.encoding);
-        let fetched = want.iter().map(|w| w.1.end - w.1.start).sum::<u64>() + text.len() as u64;
+        let fetched = want.iter().map(|w| w.1.end - w.1.start).sum::<u64>() + manifest_bytes;
         let store = PagedStore {
             location: location.clone(),
-            manifest: manifest.clone(),
-            base: base.clone(),
             levelset_near,
             head: StoreHead {
                 manifest,
@@ -159,9 +136,19 @@ impl PagedStore {
         Ok(store)
     }
 
+    /// The store's manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.head.manifest
+    }
+
+    /// The store's base mesh.
+    pub fn base(&self) -> &BaseMesh {
+        &self.head.base
+    }
+
     /// Blocks of `blocks.bin` (`ceil(nodes / BLOCK)`); block `b` holds ids `b·BLOCK ..`.
     pub fn blocks(&self) -> u64 {
-        self.manifest.counts.nodes.div_ceil(BLOCK)
+        self.head.manifest.counts.nodes.div_ceil(BLOCK)
     }
 
     /// Bytes fetched so far (manifest, base, index pages, band, blocks).
@@ -189,7 +176,7 @@ impl PagedStore {
         })?;
         let nblocks = self.blocks();
         let last_page = (p + 1) * INDEX_PAGE >= nblocks;
-        let blocks_len = self.manifest.files.get("blocks.bin").map(|f| f.bytes);
+        let blocks_len = self.head.manifest.files.get("blocks.bin").map(|f| f.bytes);
         if last_page && entries.last().copied() != blocks_len {
             return Err(StoreError::Corrupt {
                 path,
@@ -234,7 +221,7 @@ impl PagedStore {
                 source: FormatError::RangeOutOfBounds {
                     from: b * BLOCK,
                     to: (b + 1) * BLOCK,
-                    nodes: self.manifest.counts.nodes,
+                    nodes: self.head.manifest.counts.nodes,
                 },
             });
         }

@@ -76,28 +76,7 @@ impl Store {
         let dir = &location.name("");
         let dir = dir.as_path();
         let mpath = files.name("manifest.json");
-        let text = String::from_utf8(files.read("manifest.json")?).map_err(|e| {
-            StoreError::BadManifest {
-                path: mpath.clone(),
-                reason: e.to_string(),
-            }
-        })?;
-        let manifest: Manifest =
-            serde_json::from_str(&text).map_err(|e| StoreError::BadManifest {
-                path: mpath.clone(),
-                reason: e.to_string(),
-            })?;
-        // the version first: a store of another version names other files, and the reader should
-        // learn that it needs `prepare` again, not that a file is foreign
-        if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
-            return Err(StoreError::Format {
-                path: mpath,
-                source: FormatError::Version {
-                    format: manifest.format,
-                    version: manifest.version,
-                },
-            });
-        }
+        let (manifest, _) = read_manifest(&files)?;
         for (name, sum) in &manifest.files {
             // only the store's own files: a name like `../x` or `/dev/zero` is never opened
             if !STORE_FILES.contains(&name.as_str())
@@ -132,19 +111,7 @@ impl Store {
         }
         let base_bytes = files.read("base.bin")?;
         // the base mesh is small and every render depends on it: its checksum is always checked
-        let Some(sum) = manifest.files.get("base.bin") else {
-            return Err(StoreError::Corrupt {
-                path: mpath,
-                reason: "no checksum for base.bin".into(),
-            });
-        };
-        let got = crc32fast::hash(&base_bytes);
-        if got != sum.crc32 {
-            return Err(StoreError::Corrupt {
-                path: bpath,
-                reason: format!("checksum {got:08x}, manifest says {:08x}", sum.crc32),
-            });
-        }
+        check_crc(&files, "base.bin", &base_bytes, &manifest)?;
         // the index is read whole: first its size (StoreHead::decode then ties the manifest's node
         // count to the base mesh)
         let ipath = files.name("block_index.bin");
@@ -487,4 +454,50 @@ fn read_preview(files: &Files, head: &StoreHead) -> Result<Option<Vec<DetailNode
         )));
     }
     Ok(Some(nodes))
+}
+
+/// A store's manifest, read and parsed, its format and version checked first (a store of another
+/// version names other files: its reader should learn that it needs `prepare` again, not that a
+/// file is foreign); and its length in bytes.
+pub(crate) fn read_manifest(files: &Files) -> Result<(Manifest, u64), StoreError> {
+    let mpath = files.name("manifest.json");
+    let text = files.read("manifest.json")?;
+    let manifest: Manifest =
+        serde_json::from_slice(&text).map_err(|e| StoreError::BadManifest {
+            path: mpath.clone(),
+            reason: e.to_string(),
+        })?;
+    if manifest.format != STORE_FORMAT || manifest.version != STORE_VERSION {
+        return Err(StoreError::Format {
+            path: mpath,
+            source: FormatError::Version {
+                format: manifest.format,
+                version: manifest.version,
+            },
+        });
+    }
+    Ok((manifest, text.len() as u64))
+}
+
+/// `bytes`, the whole of `file`, against the CRC-32 the manifest lists for it.
+pub(crate) fn check_crc(
+    files: &Files,
+    file: &str,
+    bytes: &[u8],
+    manifest: &Manifest,
+) -> Result<(), StoreError> {
+    let Some(sum) = manifest.files.get(file) else {
+        return Err(StoreError::Corrupt {
+            path: files.name("manifest.json"),
+            reason: format!("no checksum for {file}"),
+        });
+    };
+    let got = crc32fast::hash(bytes);
+    if got != sum.crc32 {
+        return Err(StoreError::Corrupt {
+            path: files.name(file),
+            reason: format!("checksum {got:08x}, manifest says {:08x}", sum.crc32),
+        });
+    }
+    Ok(())
 }
