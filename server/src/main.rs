@@ -130,15 +130,15 @@ enum Cmd {
         /// Worker threads (default: the number of cores).
         #[arg(long)]
         threads: Option<usize>,
-        /// Recompute every store file's CRC-32 before serving (reads the whole store; the
-        /// structure and base.bin's checksum are always checked).
+        /// Recompute every store file's CRC-32 before serving (reads the whole store; base.bin's
+        /// checksum is always checked, and every block's when it is read).
         #[arg(long)]
         verify: bool,
-        /// Hold every decoded node in memory when the store's nodes take at most this many MiB;
-        /// above it, nodes are read by blocks on demand through a cache of the last 32 decoded
-        /// blocks (`/healthz` reports its hits). The per-node subtree bounds and view-order
-        /// geometry are held whatever this says (docs/object-storage.md, "Not yet").
-        #[arg(long, default_value_t = 512)]
+        /// Most MiB of decoded blocks held (least recently used dropped first; `/healthz`
+        /// reports hits, reads and what is held). With it, a server holds this plus about
+        /// what its sessions have sent (docs/object-storage.md, "Memory"), whatever the store's
+        /// size. base.bin's checksum is checked at start, each block's when it is read.
+        #[arg(long, default_value_t = 256)]
         cache_mb: u64,
     },
 }

@@ -100,16 +100,12 @@ async fn manifest_base_and_node_ranges_match_the_store() {
     assert_eq!(get(addr2, "/v1/nodes?from=0&to=101", &[]).await.status, 400);
 }
 
-/// `/readyz` answers a balancer's probe; `/healthz` counts the block cache's hits and reads when
-/// the store is read by blocks (over the cache limit).
+/// `/readyz` answers a balancer's probe; `/healthz` counts the block cache's hits and reads, and
+/// what it holds within its limit.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn readiness_and_the_block_cache_are_reported() {
     let (_d, dir) = make_store(4);
-    let cfg = ServeConfig {
-        cache_limit_bytes: 0,
-        ..ServeConfig::default()
-    };
-    let (addr, _) = start(&dir, cfg).await;
+    let (addr, _) = start(&dir, ServeConfig::default()).await;
     let r = get(addr, "/readyz", &[]).await;
     assert_eq!((r.status, r.body.as_slice()), (200, &b"ready\n"[..]));
     for _ in 0..2 {
@@ -118,13 +114,18 @@ async fn readiness_and_the_block_cache_are_reported() {
     let r = get(addr, "/healthz", &[]).await;
     let h: serde_json::Value = serde_json::from_slice(&r.body).unwrap();
     let c = &h["block_cache"];
-    assert_eq!(c["all_nodes_in_memory"], false, "{h}");
     assert_eq!(
         (c["reads"].as_u64(), c["hits"].as_u64()),
         (Some(1), Some(1)),
         "{h}"
     );
     assert_eq!(c["hit_ratio"].as_f64(), Some(0.5), "{h}");
+    assert_eq!(c["held_blocks"].as_u64(), Some(1), "{h}");
+    let held = c["held_bytes"].as_u64().unwrap();
+    assert!(
+        held > 0 && held <= c["limit_bytes"].as_u64().unwrap(),
+        "{h}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -91,10 +91,15 @@ fn a_client_finishes_on_another_replica() {
         lossy.report.reconnects >= 1,
         "the stream ended before its replica was stopped: nothing was tested"
     );
-    assert!(
-        streams(&urls[1 - serving]) == 0,
-        "the other replica still holds a stream"
-    );
+    // the client has closed its stream; the replica notices within moments
+    let t0 = Instant::now();
+    while streams(&urls[1 - serving]) > 0 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "the other replica still holds a stream"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     assert_eq!(common::leaves(&lossy), common::leaves(&calm));
     let ratio = lossy.report.bytes_received as f64 / calm.report.bytes_received as f64;
     eprintln!(

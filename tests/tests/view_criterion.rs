@@ -44,7 +44,8 @@ fn rank_alike(tf: ViewTf, spec: &str) {
 
     let server = Shared::open(&dir, ServeConfig::default())
         .unwrap()
-        .view_priorities(&vp, tf);
+        .view_priorities(&vp, tf)
+        .unwrap();
 
     // the client: every node held and refined (complete mode), then each node's split priority
     // under the image criterion of its transfer function and a zero tolerance

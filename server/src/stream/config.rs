@@ -83,8 +83,7 @@ pub struct ServeConfig {
     pub idle_timeout: Duration,
     /// Seed of the random order.
     pub seed: u64,
-    /// Keep every node in memory when the store's nodes take at most this many bytes; above it,
-    /// batches are read from the store on demand.
+    /// Most bytes of decoded blocks held (least recently used dropped first).
     pub cache_limit_bytes: u64,
     /// Most nodes one `GET /v1/nodes` may ask for.
     pub max_range: u64,
@@ -93,7 +92,7 @@ pub struct ServeConfig {
     /// Host and Origin allowlists.
     pub origins: OriginPolicy,
     /// Recompute every store file's CRC-32 when the store opens (`serve --verify`; reads the whole
-    /// store). The structure and `base.bin`'s checksum are always checked.
+    /// store). `base.bin`'s checksum is always checked, and every block's when it is read.
     pub verify_checksums: bool,
     /// What view order weighs the screen-space error by.
     pub view_criterion: ViewCriterion,
@@ -148,7 +147,7 @@ impl Default for ServeConfig {
             preview_share: 1.0,
             idle_timeout: Duration::from_secs(120),
             seed: 0x7e7_3a7e,
-            cache_limit_bytes: 512 << 20,
+            cache_limit_bytes: 256 << 20,
             max_range: 1 << 16,
             limits: Limits::default(),
             origins: OriginPolicy::default(),

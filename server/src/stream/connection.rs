@@ -249,14 +249,20 @@ async fn stream_to(
 
     // 4. nodes (a new session's preview first)
     let sched_s = s.clone();
-    let (mut sched, mut preview) = tokio::task::spawn_blocking(move || {
+    let (sched, mut preview) = tokio::task::spawn_blocking(move || {
         let preview = PreviewPhase::new(&sched_s, order, &have, &previewed);
-        let mut sc = Schedule::new(&sched_s, order, tf);
-        sc.have(&have);
+        let sc = Schedule::new(&sched_s, order, tf).map(|mut sc| {
+            sc.have(&have);
+            sc
+        });
         (sc, preview)
     })
     .await
     .map_err(|e| ConnError::Socket(e.to_string()))?;
+    let mut sched = match sched {
+        Ok(sc) => sc,
+        Err(e) => return Ok(Closing::internal(e.to_string())),
+    };
     let mut next_seq = 0u64;
     let mut acked = 0u64; // batches acknowledged: seq < acked
     let mut nodes_sent = 0u64;
@@ -318,9 +324,9 @@ async fn stream_to(
             let step = move |mut sc: Schedule, s2: &Shared, seq: u64| {
                 let applied = apply(&mut sc, msgs);
                 let frame = (applied && send_now && sc.has_work()).then(|| {
-                    let mut ids = sc.next_batch(s2, batch);
-                    s2.fetch_block(&mut ids)
+                    sc.next_batch(s2, batch)
                         .map_err(|e| e.to_string())
+                        .and_then(|mut ids| s2.fetch_block(&mut ids).map_err(|e| e.to_string()))
                         .and_then(|block| {
                             let k = block.count as u64;
                             encode(&ServerMsg::Nodes { seq, block })

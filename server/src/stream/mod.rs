@@ -21,12 +21,13 @@
 //!
 //! **Backpressure.** At most [`ServeConfig::window`] batches may be un-acknowledged; beyond that the
 //! connection waits for an `Ack` (and each send waits for the socket). A connection holds its
-//! schedule (two bitsets over node ids, the queued `Want` ranges, and for view order one chunk of
-//! ids) and at most one encoded batch: never a queue of frames. A slow client slows only itself.
+//! schedule (the id ranges sent and cancelled, the queued `Want` ranges, and for view order the
+//! frontier of its walk: all growing with what it sent, not with the store) and at most one encoded
+//! batch: never a queue of frames. A slow client slows only itself.
 //!
 //! One concern per file: `config` (order, parameters), `error`, `state` (what connections share),
 //! `routes` (the axum application and HTTP handlers), `auth` (the token), `schedule` (what a
-//! connection sends next), `preview` (a new session's coarse preview) and `connection` (one
+//! connection sends next), `walk` (view order's walk of the hierarchy), `preview` (a new session's coarse preview) and `connection` (one
 //! WebSocket stream). Dependencies point one way:
 //! routes → connection → schedule → state → config; `render_service` knows nothing of this module.
 
@@ -41,6 +42,7 @@ mod preview;
 mod routes;
 mod schedule;
 mod state;
+mod walk;
 
 pub use admission::{open_file_limit, Peer};
 pub use background::BackgroundServer;

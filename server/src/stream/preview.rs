@@ -184,7 +184,12 @@ fn view_order(s: &Shared) -> Vec<TetId> {
         return Vec::new();
     };
     let n = p.nodes.len() as TetId;
-    let pri = s.view_priorities_of(&s.default_view(), ViewTf::Default, 0..n);
+    let pri = s
+        .priorities_of(&s.default_view(), s.criterion(ViewTf::Default), 0..n)
+        .unwrap_or_else(|e| {
+            tracing::warn!("the preview goes by increasing id: {e}");
+            vec![0.0; n as usize]
+        });
     let forest = s.forest();
     // a sibling group by its parent (the base tets: one group); a parent precedes its children,
     // so groups are below n + 1

@@ -145,12 +145,15 @@ async fn healthz(State(s): State<Arc<Shared>>) -> Response {
         s.block_hits.load(AtomicOrdering::Relaxed),
         s.block_reads.load(AtomicOrdering::Relaxed),
     );
+    let held = s.cache_held();
     let body = serde_json::json!({
         "block_cache": {
             "hits": hits,
             "reads": reads,
             "hit_ratio": if hits + reads > 0 { hits as f64 / (hits + reads) as f64 } else { 0.0 },
-            "all_nodes_in_memory": s.caches_every_node(),
+            "held_blocks": held.0,
+            "held_bytes": held.1,
+            "limit_bytes": s.config.cache_limit_bytes,
         },
         "status": "ok",
         "dataset": s.store.manifest.dataset,
