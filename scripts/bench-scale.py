@@ -213,16 +213,22 @@ def write_ct_grid(path, dims, dtype, slab=32):
 
 
 def view_server(bindir, store, log):
-    """`serve --order view` on loopback, once its view order is computed (the one-time cost of a
-    server's start, which it logs): returns the server and the seconds to /healthz and to that."""
+    """`serve --order view` on loopback, once it is ready for view order (`/readyz`: the vertex
+    values of the first levels, which view order ranks by, are built; a one-time cost of a
+    server's start): returns the server and the seconds to /healthz and to /readyz."""
+    import urllib.request
     t0 = time.time()
     srv = rd.Server(bindir, store, "view", log, extra=("--log", "tetwave_server=info"), ready_s=600)
     healthz = time.time() - t0
-    while "view-order geometry computed" not in open(log).read():
-        if time.time() - t0 > 600:
-            srv.close()
-            fail(f"serve {store}: view order not computed within 600 s; see {log}")
-        time.sleep(0.1)
+    while True:
+        try:
+            urllib.request.urlopen(f"http://127.0.0.1:{srv.port}/readyz", timeout=2).read()
+            break
+        except OSError:
+            if time.time() - t0 > 600:
+                srv.close()
+                fail(f"serve {store}: not ready within 600 s; see {log}")
+            time.sleep(0.05)
     return srv, {"healthz_s": round(healthz, 2), "view_order_ready_s": round(time.time() - t0, 2)}
 
 

@@ -10,9 +10,9 @@ use super::error::ServeError;
 use super::walk::Coarse;
 use crate::render_service::RenderService;
 use axum::body::Bytes;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, Weak};
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::node::resolve_bound;
 use tetwave_protocol::store_format::LEVELSET_BAND_FILE;
@@ -44,6 +44,10 @@ pub struct Shared {
     /// Decoded blocks, least recently used dropped first, within
     /// [`ServeConfig::cache_limit_bytes`].
     blocks: Mutex<BlockCache>,
+    /// Signalled when a block being read lands in the cache (or its read fails).
+    landed: Condvar,
+    /// Block numbers to read ahead ([`Self::prefetch`]), for the [`PREFETCHERS`] threads.
+    ahead: Mutex<Option<std::sync::mpsc::SyncSender<u64>>>,
     /// Blocks found in the cache, and read from the store (`/healthz`, `/metrics`).
     pub(super) block_hits: AtomicU64,
     pub(super) block_reads: AtomicU64,
@@ -90,6 +94,8 @@ struct BlockCache {
     uses: BTreeMap<u64, u64>,
     bytes: u64,
     clock: u64,
+    /// Blocks being read: a second reader waits for the first instead of asking again.
+    reading: HashSet<u64>,
 }
 
 impl BlockCache {
@@ -126,6 +132,10 @@ impl BlockCache {
         self.bytes += bytes;
     }
 }
+
+/// Threads reading blocks ahead of the sessions that will ask for them, and blocks queued for them.
+const PREFETCHERS: usize = 16;
+const PREFETCH_QUEUE: usize = 1024;
 
 /// A decoded node's memory besides its coefficients: the struct and its allocation's header.
 const NODE_BYTES: u64 = std::mem::size_of::<DetailNode>() as u64 + 16;
@@ -196,7 +206,7 @@ impl Shared {
         };
         let render = RenderService::new(&store.dir);
         let admission = Admission::new(config.limits.clone());
-        Ok(Arc::new(Shared {
+        let shared = Arc::new(Shared {
             store,
             config,
             forest,
@@ -206,6 +216,8 @@ impl Shared {
             base_frame,
             levelset_near,
             blocks: Mutex::new(BlockCache::default()),
+            landed: Condvar::new(),
+            ahead: Mutex::new(None),
             block_hits: AtomicU64::new(0),
             block_reads: AtomicU64::new(0),
             preview,
@@ -218,7 +230,9 @@ impl Shared {
             auth_failures: FailureLimiter::default(),
             budgets: PeerBudgets::default(),
             render_run: tokio::sync::Mutex::new(()),
-        }))
+        });
+        shared.start_prefetchers();
+        Ok(shared)
     }
 
     /// Number of detail nodes.
@@ -319,6 +333,10 @@ impl Shared {
     /// Nodes `ids` (sorted in place), decoding each block they touch once.
     pub(super) fn fetch(&self, ids: &mut [TetId]) -> Result<Vec<DetailNode>, StoreError> {
         ids.sort_unstable();
+        // every block after the first is asked for at once, and read while the first is
+        let mut blocks: Vec<u64> = ids.iter().map(|i| i / BLOCK).collect();
+        blocks.dedup();
+        self.prefetch_blocks(blocks.into_iter().skip(1));
         let mut out = Vec::with_capacity(ids.len());
         self.each_node(ids.iter().copied(), |n| out.push(n.clone()))?;
         Ok(out)
@@ -363,23 +381,98 @@ impl Shared {
         Ok(())
     }
 
-    /// The decoded nodes of store block `b`, from the cache or the store.
+    /// The decoded nodes of store block `b`, from the cache or the store (waiting for a read
+    /// of it already under way).
     fn block(&self, b: u64) -> Result<Arc<Vec<DetailNode>>, StoreError> {
-        let lock = || self.blocks.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(nodes) = lock().get(b) {
-            self.block_hits.fetch_add(1, AtomicOrdering::Relaxed);
-            return Ok(nodes);
+        let mut c = self.blocks.lock().unwrap_or_else(|e| e.into_inner());
+        loop {
+            if let Some(nodes) = c.get(b) {
+                self.block_hits.fetch_add(1, AtomicOrdering::Relaxed);
+                return Ok(nodes);
+            }
+            if !c.reading.contains(&b) {
+                break;
+            }
+            c = self.landed.wait(c).unwrap_or_else(|e| e.into_inner());
         }
-        // decoded outside the lock: two connections may decode the same block at once, which
-        // costs time but never a wrong answer
+        c.reading.insert(b);
+        drop(c);
+        self.read_block(b)
+    }
+
+    /// Reads and decodes block `b` (marked as being read) into the cache, outside the lock.
+    fn read_block(&self, b: u64) -> Result<Arc<Vec<DetailNode>>, StoreError> {
         self.block_reads.fetch_add(1, AtomicOrdering::Relaxed);
         let from = b * BLOCK;
-        let nodes = Arc::new(
-            self.store
-                .read_nodes(from, (from + BLOCK).min(self.nodes))?,
-        );
-        lock().put(b, nodes.clone(), self.config.cache_limit_bytes);
-        Ok(nodes)
+        let read = self
+            .store
+            .read_nodes(from, (from + BLOCK).min(self.nodes))
+            .map(Arc::new);
+        let mut c = self.blocks.lock().unwrap_or_else(|e| e.into_inner());
+        c.reading.remove(&b);
+        if let Ok(nodes) = &read {
+            c.put(b, nodes.clone(), self.config.cache_limit_bytes);
+        }
+        drop(c);
+        self.landed.notify_all();
+        read
+    }
+
+    /// Starts reading the blocks of nodes `from..to` that are neither held nor being read, on
+    /// the read-ahead threads (a store in object storage answers each request after a round
+    /// trip: reads that overlap cost one). Does nothing when the queue is full or the cache
+    /// holds nothing.
+    pub(super) fn prefetch(&self, from: TetId, to: TetId) {
+        let to = to.min(self.nodes);
+        if from < to {
+            self.prefetch_blocks(from / BLOCK..=(to - 1) / BLOCK);
+        }
+    }
+
+    /// [`Self::prefetch`] of whole blocks.
+    fn prefetch_blocks(&self, blocks: impl IntoIterator<Item = u64>) {
+        if self.config.cache_limit_bytes == 0 {
+            return;
+        }
+        let ahead = self.ahead.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(tx) = ahead.as_ref() else {
+            return;
+        };
+        let mut c = self.blocks.lock().unwrap_or_else(|e| e.into_inner());
+        for b in blocks {
+            if c.blocks.contains_key(&b) || c.reading.contains(&b) {
+                continue;
+            }
+            if tx.try_send(b).is_err() {
+                return;
+            }
+            c.reading.insert(b);
+        }
+    }
+
+    /// Starts the [`PREFETCHERS`] read-ahead threads (they end with the last `Arc`).
+    fn start_prefetchers(self: &Arc<Self>) {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<u64>(PREFETCH_QUEUE);
+        let rx = Arc::new(Mutex::new(rx));
+        for k in 0..PREFETCHERS {
+            let (rx, weak): (_, Weak<Shared>) = (rx.clone(), Arc::downgrade(self));
+            let spawned = std::thread::Builder::new()
+                .name(format!("read-ahead-{k}"))
+                .spawn(move || loop {
+                    let next = rx.lock().unwrap_or_else(|e| e.into_inner()).recv();
+                    let (Ok(b), Some(s)) = (next, weak.upgrade()) else {
+                        return;
+                    };
+                    if let Err(e) = s.read_block(b) {
+                        tracing::debug!("read-ahead of block {b}: {e}");
+                    }
+                });
+            if let Err(e) = spawned {
+                tracing::warn!("blocks are read without read-ahead: {e}");
+                return;
+            }
+        }
+        *self.ahead.lock().unwrap_or_else(|e| e.into_inner()) = Some(tx);
     }
 
     /// The decoded blocks held and their estimated bytes (`/healthz`).

@@ -35,6 +35,10 @@ use tetwave_store::{Store, StoreError};
 /// about 50 MB while they are decoded at start, a few MB kept.
 pub const COARSE_NODES: u64 = 1 << 21;
 
+/// Levels below a split node's children whose blocks are read ahead: a store in object storage
+/// answers after a round trip, and the walk reaches those blocks soon after.
+const READ_AHEAD_LEVELS: usize = 1;
+
 /// Detail magnitude (relative to the value range) from which a node's data weight is full.
 pub const DATA_DELTA: f32 = 0.01;
 
@@ -244,7 +248,17 @@ fn sphere(s: &Shared, t: &LatticeTet) -> (DVec3, f64) {
     (c.as_dvec3(), r as f64)
 }
 
-/// A frontier node: its priority (as ordered `f32` bits), id and prior.
+/// A priority as a frontier key: its `f32` bits (ordered as the non-negative floats) without
+/// the low 19 of the mantissa's 23, so 16 steps an octave. Within a step the walk goes by
+/// increasing id: nodes of about the same error leave together in store order, so a decoded
+/// block serves all of its nodes the client reads, not the few of one region at a time (a
+/// store in object storage pays a round trip a block).
+#[inline]
+fn bucket(priority: f32) -> u32 {
+    priority.to_bits() >> 19
+}
+
+/// A frontier node: its priority bucket ([`bucket`]), id and prior.
 struct Entry {
     key: u32,
     id: TetId,
@@ -273,7 +287,12 @@ impl Ord for Entry {
 pub(super) struct Walk {
     ranker: Ranker,
     frontier: BinaryHeap<Entry>,
+    /// Nodes taken from the frontier, in its order, not yet handed out.
+    ready: std::collections::VecDeque<TetId>,
 }
+
+/// Nodes a walk takes from its frontier at a time.
+const GROUP: usize = 64;
 
 impl Walk {
     /// A walk whose frontier is the base tets.
@@ -288,47 +307,75 @@ impl Walk {
         for (b, &smax) in bounds.iter().enumerate() {
             let prior = ranker.base_prior(base, b, smax);
             let t = LatticeTet::base_tet(lattice, b as u32);
-            let key = ranker.priority(sphere(s, &t), &prior, 0).to_bits();
+            let key = bucket(ranker.priority(sphere(s, &t), &prior, 0));
             frontier.push(Entry {
                 key,
                 id: b as TetId,
                 prior,
             });
         }
-        Ok(Walk { ranker, frontier })
+        Ok(Walk {
+            ranker,
+            frontier,
+            ready: Default::default(),
+        })
     }
 
     /// The best node of the frontier, its children added when the client will split it; `None`
-    /// when the walk is over.
+    /// when the walk is over. Nodes leave the frontier [`GROUP`] at a time: the blocks their
+    /// children lie in are asked for together (one round trip for the group from object
+    /// storage), and a child joins the frontier at most a group late.
     pub(super) fn next(&mut self, s: &Shared) -> Result<Option<TetId>, StoreError> {
-        let Some(Entry { id, prior, .. }) = self.frontier.pop() else {
-            return Ok(None);
-        };
+        if self.ready.is_empty() {
+            self.pop_group(s)?;
+        }
+        Ok(self.ready.pop_front())
+    }
+
+    fn pop_group(&mut self, s: &Shared) -> Result<(), StoreError> {
         let forest = self.ranker.forest;
-        let level = forest.level(id);
-        // the finest node level's children are leaves: nothing to read below them
-        if level + 1 < forest.levels {
-            let t = LatticeTet::from_id(&forest, id);
-            if self.ranker.splits(sphere(s, &t), &prior, level) {
-                let first = forest.child(id, 0);
-                let b = s.bounds(first, first + 8, prior.smax)?;
-                let priors = self
-                    .ranker
-                    .children(&t, level, &prior, std::array::from_fn(|i| b[i]));
-                for (i, c) in t.children().iter().enumerate() {
-                    let key = self
-                        .ranker
-                        .priority(sphere(s, c), &priors[i], level + 1)
-                        .to_bits();
-                    self.frontier.push(Entry {
-                        key,
-                        id: first + i as TetId,
-                        prior: priors[i],
-                    });
+        let mut split = Vec::new();
+        while self.ready.len() < GROUP {
+            let Some(Entry { id, prior, .. }) = self.frontier.pop() else {
+                break;
+            };
+            self.ready.push_back(id);
+            let level = forest.level(id);
+            // the finest node level's children are leaves: nothing to read below them
+            if level + 1 < forest.levels {
+                let t = LatticeTet::from_id(&forest, id);
+                if self.ranker.splits(sphere(s, &t), &prior, level) {
+                    let first = forest.child(id, 0);
+                    s.prefetch(first, first + 8);
+                    split.push((id, t, level, prior));
                 }
             }
         }
-        Ok(Some(id))
+        for (id, t, level, prior) in split {
+            let first = forest.child(id, 0);
+            let b = s.bounds(first, first + 8, prior.smax)?;
+            // the blocks the next levels below will want, read meanwhile
+            let (mut a, mut z) = (first, first + 8);
+            for _ in 0..READ_AHEAD_LEVELS {
+                (a, z) = (forest.child(a, 0), forest.child(z - 1, 7) + 1);
+                if a >= s.nodes() {
+                    break;
+                }
+                s.prefetch(a, z);
+            }
+            let priors = self
+                .ranker
+                .children(&t, level, &prior, std::array::from_fn(|i| b[i]));
+            for (i, c) in t.children().iter().enumerate() {
+                let key = bucket(self.ranker.priority(sphere(s, c), &priors[i], level + 1));
+                self.frontier.push(Entry {
+                    key,
+                    id: first + i as TetId,
+                    prior: priors[i],
+                });
+            }
+        }
+        Ok(())
     }
 }
 
