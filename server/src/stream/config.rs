@@ -96,6 +96,9 @@ pub struct ServeConfig {
     pub verify_checksums: bool,
     /// What view order weighs the screen-space error by.
     pub view_criterion: ViewCriterion,
+    /// Most nodes whose levels' vertex values view order synthesizes at start for exact image
+    /// weights (below them it ranks by an enclosure: `walk`'s module documentation).
+    pub coarse_nodes: u64,
 }
 
 /// What a server admits and for how long; `docs/security.md` lists each with its flag.
@@ -153,6 +156,7 @@ impl Default for ServeConfig {
             origins: OriginPolicy::default(),
             verify_checksums: false,
             view_criterion: ViewCriterion::Image,
+            coarse_nodes: super::walk::COARSE_NODES,
         }
     }
 }

@@ -340,6 +340,13 @@ async fn stream_to(
             let (sc, applied, frame) = if heavy || send_now && sched.has_work() {
                 let s2 = s.clone();
                 let seq = next_seq;
+                // as many batches at once as there are cores: more would only share them, and
+                // delay every other request (`/healthz` included) behind the batches' threads
+                let _turn = s
+                    .batch_slots
+                    .acquire()
+                    .await
+                    .map_err(|e| ConnError::Socket(e.to_string()))?;
                 tokio::task::spawn_blocking(move || step(sched, &s2, seq))
                     .await
                     .map_err(|e| ConnError::Socket(e.to_string()))?

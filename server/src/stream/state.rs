@@ -70,6 +70,8 @@ pub struct Shared {
     pub(super) auth_failures: FailureLimiter,
     /// Renders run one at a time (the queue in front is a concurrency limit on the route).
     pub(super) render_run: tokio::sync::Mutex<()>,
+    /// Batches being computed at once, at most one a core.
+    pub(super) batch_slots: tokio::sync::Semaphore,
 }
 
 /// A store's preview as connections send it.
@@ -230,6 +232,9 @@ impl Shared {
             auth_failures: FailureLimiter::default(),
             budgets: PeerBudgets::default(),
             render_run: tokio::sync::Mutex::new(()),
+            batch_slots: tokio::sync::Semaphore::new(
+                std::thread::available_parallelism().map_or(2, |n| n.get()),
+            ),
         });
         shared.start_prefetchers();
         Ok(shared)
@@ -271,7 +276,7 @@ impl Shared {
         self.coarse
             .get_or_init(|| {
                 let t0 = std::time::Instant::now();
-                let c = Coarse::build(&self.store).unwrap_or_else(|e| {
+                let c = Coarse::build(&self.store, self.config.coarse_nodes).unwrap_or_else(|e| {
                     tracing::warn!("view order ranks by the base mesh's values alone: {e}");
                     Coarse::base_only(&self.store)
                 });

@@ -59,11 +59,12 @@ pub(super) struct Coarse {
 }
 
 impl Coarse {
-    /// The deepest level whose nodes number at most [`COARSE_NODES`], synthesized.
-    pub(super) fn build(store: &Store) -> Result<Coarse, StoreError> {
+    /// The deepest level whose nodes number at most `limit` ([`COARSE_NODES`] by default),
+    /// synthesized.
+    pub(super) fn build(store: &Store, limit: u64) -> Result<Coarse, StoreError> {
         let forest = store.forest();
         let mut level = 0u8;
-        while level < forest.levels && forest.level_start(level + 1) <= COARSE_NODES {
+        while level < forest.levels && forest.level_start(level + 1) <= limit {
             level += 1;
         }
         let mut base = store.base.clone();
@@ -117,7 +118,7 @@ impl Coarse {
 pub(super) struct Prior {
     lo: f32,
     hi: f32,
-    curvature: f64,
+    curvature: f32,
     smax: f32,
 }
 
@@ -152,7 +153,7 @@ impl Ranker {
                     if level == 0 {
                         f64::INFINITY
                     } else {
-                        p.curvature
+                        p.curvature as f64
                     }
                 });
                 img.weight(p.lo, p.hi, bound, diam) as f32 as f64
@@ -208,7 +209,7 @@ impl Ranker {
                 Prior {
                     lo: vals.iter().copied().fold(f32::INFINITY, f32::min),
                     hi: vals.iter().copied().fold(f32::NEG_INFINITY, f32::max),
-                    curvature,
+                    curvature: curvature as f32,
                     smax: smax[i],
                 }
             })
@@ -223,7 +224,7 @@ impl Ranker {
             std::array::from_fn(|i| Prior {
                 lo: p.lo - widen,
                 hi: p.hi + widen,
-                curvature: p.smax as f64,
+                curvature: p.smax,
                 smax: smax[i],
             })
         }
@@ -235,7 +236,7 @@ impl Ranker {
         Prior {
             lo: vals.iter().copied().fold(f32::INFINITY, f32::min),
             hi: vals.iter().copied().fold(f32::NEG_INFINITY, f32::max),
-            curvature: f64::INFINITY,
+            curvature: f32::INFINITY,
             smax,
         }
     }
