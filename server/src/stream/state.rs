@@ -250,7 +250,7 @@ impl Shared {
         self.connections.load(AtomicOrdering::Relaxed)
     }
 
-    /// Builds what view order reads ([`Coarse`]) on a thread of its own, so that the first
+    /// Builds what view order reads (the coarse levels' vertex values) on a thread of its own, so that the first
     /// session in view order does not wait for it (a session that asks before it is done waits
     /// for the same computation, not a second one).
     pub fn warm_view_order(self: &Arc<Self>) {
