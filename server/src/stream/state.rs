@@ -144,7 +144,8 @@ const NODE_BYTES: u64 = std::mem::size_of::<DetailNode>() as u64 + 16;
 
 impl Shared {
     /// Opens the store and prepares what connections share: the manifest, base mesh, block
-    /// index and checksums (no block is decoded here; each is checked when it is first read).
+    /// index and checksums, and the first block (the others are decoded, and checked against
+    /// their checksums, when they are first read).
     pub fn open(dir: &std::path::Path, config: ServeConfig) -> Result<Arc<Shared>, ServeError> {
         let store = Store::open_with(
             dir,
@@ -237,6 +238,11 @@ impl Shared {
             ),
         });
         shared.start_prefetchers();
+        // the coarsest nodes, which every session reads first: a store whose first block does
+        // not decode (or fails its checksum) is refused here, not by its first client
+        if shared.nodes > 0 {
+            shared.block(0)?;
+        }
         Ok(shared)
     }
 

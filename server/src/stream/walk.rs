@@ -2,7 +2,9 @@
 //! split it, holding only the nodes it has reached (not arrays over every node).
 //!
 //! The walk is a best-first search from the base tets. A node in its frontier is one the client
-//! will read: the child of a tet it splits under the view (the base tets: always). Popping the
+//! will read: the child of a tet it splits under the view (the base tets: always) that it cannot
+//! settle with its parent's subtree bound (a child that would stay unsplit even with that bound
+//! is left unsplit without its node, as the client's selection does). Popping the
 //! best sends it; if the client will split it too (inside the frustum, weighted screen-space
 //! error over the tolerance, the criterion both sides share: [`tetwave_protocol::view`]), its 8
 //! children join the frontier. What the walk never reaches is sent last, by increasing id.
@@ -368,7 +370,18 @@ impl Walk {
                 .ranker
                 .children(&t, level, &prior, std::array::from_fn(|i| b[i]));
             for (i, c) in t.children().iter().enumerate() {
-                let key = bucket(self.ranker.priority(sphere(s, c), &priors[i], level + 1));
+                let sp = sphere(s, c);
+                // a child that would stay unsplit even with its parent's bound is settled by the
+                // client without its node (`Selector::stays_unsplit_without_node`): it is not
+                // read, and waits for the tail
+                let settled = Prior {
+                    smax: prior.smax,
+                    ..priors[i]
+                };
+                if !self.ranker.splits(sp, &settled, level + 1) {
+                    continue;
+                }
+                let key = bucket(self.ranker.priority(sp, &priors[i], level + 1));
                 self.frontier.push(Entry {
                     key,
                     id: first + i as TetId,
