@@ -197,6 +197,41 @@ def run(cmd, what):
     return r
 
 
+def garage_start(gdir):
+    """A 3-node garage cluster in `gdir` (scripts/garage-cluster), its endpoint and credentials
+    put into this process's environment (child processes inherit them)."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    subprocess.run([os.path.join(here, "garage-cluster"), "start", gdir], check=True)
+    for line in open(os.path.join(gdir, "env")):
+        k, v = line.strip().removeprefix("export ").split("=", 1)
+        os.environ[k] = v
+
+
+def garage_stop(gdir):
+    here = os.path.dirname(os.path.abspath(__file__))
+    subprocess.run([os.path.join(here, "garage-cluster"), "stop", gdir])
+
+
+def nginx_start(ndir, http_body):
+    """nginx on a free loopback port with `http_body` inside `http { … }` (it may use `{port}`):
+    returns the process and the port."""
+    import shutil
+    ndir = os.path.abspath(ndir)
+    os.makedirs(ndir, exist_ok=True)
+    port = free_port()
+    conf = os.path.join(ndir, "nginx.conf")
+    with open(conf, "w") as f:
+        f.write(f"daemon off; user root; worker_processes 1; pid {ndir}/nginx.pid; error_log {ndir}/error.log;\n"
+                f"events {{ worker_connections 1024; }}\n"
+                f"http {{ access_log off; client_body_temp_path {ndir}/b; proxy_temp_path {ndir}/p;\n"
+                f"fastcgi_temp_path {ndir}/f; uwsgi_temp_path {ndir}/u; scgi_temp_path {ndir}/s;\n"
+                + http_body.replace("{port}", str(port)) + " }\n")
+    proc = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-p", ndir, "-c", conf],
+                            stdout=subprocess.DEVNULL)
+    time.sleep(0.5)
+    return proc, port
+
+
 def free_port():
     s = socket.socket()
     s.bind(("127.0.0.1", 0))

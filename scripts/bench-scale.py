@@ -242,31 +242,14 @@ def serverless(a, bindir, server, client, work, emit):
         fail(f"--serverless {case}: no store at {store} (run its case first)")
     ref = os.path.join(work, case + "-all-leaves.png")
     gdir = os.path.join(work, "garage")
-    script = os.path.join(HERE, "garage-cluster")
-    subprocess.run([script, "start", gdir], check=True)
+    rd.garage_start(gdir)
     nginx = None
     try:
-        for line in open(os.path.join(gdir, "env")):
-            k, v = line.strip().removeprefix("export ").split("=", 1)
-            os.environ[k] = v
         url = f"s3://tetwave/{case}"
         out, wall, _, _ = run_measured([server, "copy", store, url], f"copy {case}", os.path.join(work, "copy"))
         emit({"run": "copy", "case": case, "copy_s": round(wall, 2)})
-        ndir = os.path.abspath(os.path.join(work, "nginx"))
-        os.makedirs(ndir, exist_ok=True)
-        import socket
-        with socket.socket() as sk:
-            sk.bind(("127.0.0.1", 0))
-            port = sk.getsockname()[1]
-        conf = os.path.join(ndir, "nginx.conf")
-        with open(conf, "w") as f:
-            f.write(f"daemon off; user root; worker_processes 1; pid {ndir}/nginx.pid; error_log {ndir}/error.log;\n"
-                    f"events {{}}\nhttp {{ access_log off; client_body_temp_path {ndir}/b; proxy_temp_path {ndir}/p;\n"
-                    f"fastcgi_temp_path {ndir}/f; uwsgi_temp_path {ndir}/u; scgi_temp_path {ndir}/s;\n"
-                    f"server {{ listen 127.0.0.1:{port}; root {os.path.abspath(work)}; location / {{ }} }} }}\n")
-        nginx = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-p", ndir, "-c", conf],
-                                 stdout=subprocess.DEVNULL)
-        time.sleep(0.5)
+        nginx, port = rd.nginx_start(os.path.join(work, "nginx"),
+                                     f"server {{ listen 127.0.0.1:{{port}}; root {os.path.abspath(work)}; location / {{ }} }}")
         srv, ready = view_server(bindir, store, os.path.join(work, case + "-serverless-serve.log"))
         push = None
         try:
@@ -304,7 +287,7 @@ def serverless(a, bindir, server, client, work, emit):
     finally:
         if nginx:
             nginx.kill()
-        subprocess.run([script, "stop", gdir])
+        rd.garage_stop(gdir)
 
 
 def main():

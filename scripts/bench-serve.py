@@ -31,7 +31,6 @@ import argparse
 import importlib.util
 import json
 import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -140,13 +139,9 @@ def main():
         if not os.path.exists(os.path.join(d, "manifest.json")):
             fail(f"{name}: no store at {d}")
     gdir = os.path.join(work, "garage")
-    script = os.path.join(HERE, "garage-cluster")
-    subprocess.run([script, "start", gdir], check=True)
+    rd.garage_start(gdir)
     nginx = None
     try:
-        for line in open(os.path.join(gdir, "env")):
-            k, v = line.strip().removeprefix("export ").split("=", 1)
-            os.environ[k] = v
         for name, d in stores + ([crowd] if crowd else []):
             t = time.time()
             subprocess.run([os.path.join(a.bin_dir, "tetwave-server"), "copy", d, f"s3://tetwave/{name}"],
@@ -180,24 +175,14 @@ def main():
             replicas = [serve(a.bin_dir, url, os.path.join(work, f"{name}-replica-{k}.log"),
                               extra=("--max-streams-per-peer", str(4 * a.clients)))
                         for k in range(2)]
-            ndir = os.path.join(work, "nginx")
-            os.makedirs(ndir, exist_ok=True)
-            port = rd.free_port()
             ups = " ".join(f"server 127.0.0.1:{r[1]};" for r in replicas)
-            conf = os.path.join(ndir, "nginx.conf")
-            with open(conf, "w") as f:
-                f.write(f"daemon off; user root; worker_processes 1; pid {ndir}/nginx.pid; error_log {ndir}/error.log;\n"
-                        f"events {{ worker_connections 1024; }}\n"
-                        f"http {{ access_log off; client_body_temp_path {ndir}/b; proxy_temp_path {ndir}/p;\n"
-                        f"fastcgi_temp_path {ndir}/f; uwsgi_temp_path {ndir}/u; scgi_temp_path {ndir}/s;\n"
-                        f"upstream replicas {{ {ups} }}\n"
-                        f"server {{ listen 127.0.0.1:{port}; location / {{ proxy_pass http://replicas; "
-                        f"proxy_http_version 1.1; proxy_set_header Upgrade $http_upgrade; "
-                        f"proxy_set_header Connection \"upgrade\"; proxy_set_header Host $host; "
-                        f"proxy_read_timeout 600s; }} }} }}\n")
-            nginx = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-p", ndir, "-c", conf],
-                                     stdout=subprocess.DEVNULL)
-            time.sleep(0.5)
+            nginx, port = rd.nginx_start(
+                os.path.join(work, "nginx"),
+                f"upstream replicas {{ {ups} }}\n"
+                f"server {{ listen 127.0.0.1:{{port}}; location / {{ proxy_pass http://replicas; "
+                f"proxy_http_version 1.1; proxy_set_header Upgrade $http_upgrade; "
+                f"proxy_set_header Connection \"upgrade\"; proxy_set_header Host $host; "
+                f"proxy_read_timeout 600s; }} }}")
             lat, errors, done = [], [0], threading.Event()
 
             def probe():
@@ -250,7 +235,7 @@ def main():
     finally:
         if nginx:
             nginx.kill()
-        subprocess.run([script, "stop", gdir])
+        rd.garage_stop(gdir)
     with open(os.path.join(a.out, "serve.md"), "w") as f:
         for r in rows:
             f.write("- " + ", ".join(f"{k}: {v}" for k, v in r.items()) + "\n")
