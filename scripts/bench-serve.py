@@ -99,7 +99,10 @@ def stream(bindir, where, a, out, nice=False):
     """One `tetwave stream … --until-converged`; returns its exit status and frames (parsed JSON
     lines). `nice`: at the lowest CPU priority."""
     cmd = (["nice", "-n", "19"] if nice else []) + [os.path.join(bindir, "tetwave"), "stream", where, "--headless", "--no-render", "--until-converged",
-           "--frames", "100000", "--tol", a.tol, "--size", a.size, "--criterion", "image", "--out", out]
+           "--frames", "100000", "--tol", a.tol, "--size", a.size, "--criterion", "image",
+           # a client holds only what it receives: the 1025³ store's 920 M nodes are over the
+           # default guard
+           "--max-nodes", str(1 << 32), "--out", out]
     with open(out + ".err", "w") as err:
         p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=err, text=True, timeout=a.timeout)
     frames = [json.loads(l) for l in p.stdout.splitlines() if l.startswith("{")]
@@ -152,7 +155,12 @@ def main():
             url = f"s3://tetwave/{name}"
             proc, port, healthz, ready = serve(a.bin_dir, url, os.path.join(work, f"{name}-serve.log"))
             try:
-                rc, frames = stream(a.bin_dir, f"http://127.0.0.1:{port}", a, os.path.join(work, f"{name}-stream"))
+                try:
+                    rc, frames = stream(a.bin_dir, f"http://127.0.0.1:{port}", a,
+                                        os.path.join(work, f"{name}-stream"))
+                except subprocess.TimeoutExpired:
+                    # killed: its frames are lost with it; the row says so
+                    rc, frames = 124, []
                 h, _ = get_json(f"http://127.0.0.1:{port}/healthz")
             finally:
                 stop(proc)
@@ -160,6 +168,9 @@ def main():
                    "ready_s": round(ready, 2), "client_rc": rc, "server_peak_rss_mib": round(h["peak_rss_kib"] / 1024),
                    "cache_limit_mib": h["block_cache"]["limit_bytes"] >> 20,
                    "block_reads": h["block_cache"]["reads"], "hit_ratio": round(h["block_cache"]["hit_ratio"], 3)}
+            if rc == 124:
+                row["converged"] = False
+                row["note"] = f"killed after {a.timeout:.0f} s (--timeout), not converged"
             if frames:
                 f = frames[-1]
                 row.update(first_image_s=round(frames[0]["ms_since_connect"] / 1e3, 3),
