@@ -286,7 +286,9 @@ def serverless(a, bindir, server, client, work, emit):
             srv.close()
     finally:
         if nginx:
-            nginx.kill()
+            # SIGTERM: the master stops its workers (a killed master leaves them running)
+            nginx.terminate()
+            nginx.wait(timeout=10)
         rd.garage_stop(gdir)
 
 

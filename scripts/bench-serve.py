@@ -245,7 +245,9 @@ def main():
                   "replica_peak_rss_mib": peaks})
     finally:
         if nginx:
-            nginx.kill()
+            # SIGTERM: the master stops its workers (a killed master leaves them running)
+            nginx.terminate()
+            nginx.wait(timeout=10)
         rd.garage_stop(gdir)
     with open(os.path.join(a.out, "serve.md"), "w") as f:
         for r in rows:
