@@ -165,3 +165,77 @@ fn the_enclosure_below_the_coarse_levels_never_ranks_a_node_lower() {
         }
     }
 }
+
+/// View order's walk holds every node a client converging on the view reads, and not the whole
+/// store: a client given only the walk's nodes (a view whose tolerance leaves part of the volume
+/// coarse, and part outside the frustum) has a final mesh for that view, equal to the one of a
+/// client given every node. Lossless and quantized stores, under both transfer functions.
+#[test]
+fn a_client_given_only_the_walk_s_nodes_converges_on_its_view() {
+    use tetwave_adaptive::select::Tolerance as ClientTol;
+    for bound in [None, Some("0.1%")] {
+        let (_d, dir) = common::harmonic_store_with(5, |o| {
+            o.max_error = bound.map(|b| ErrorBound::parse(b).unwrap())
+        });
+        let store = Store::open(&dir).unwrap();
+        let all = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
+        let (lo, hi) = store.base.bounds();
+        let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
+        let cam = Orbit {
+            target: centre,
+            distance: 1.3,
+            azimuth: 30.0,
+            elevation: 20.0,
+            fov: 40.0,
+        }
+        .camera(256, 256);
+        let tol = 2.0;
+        let vp = cam.view_params(tol);
+        for coarse_nodes in [
+            0,
+            tetwave_server::stream::ServeConfig::default().coarse_nodes,
+        ] {
+            let cfg = ServeConfig {
+                coarse_nodes,
+                ..ServeConfig::default()
+            };
+            let shared = Shared::open(&dir, cfg).unwrap();
+            for (tf, spec) in [(ViewTf::Default, "default"), (ViewTf::Auto, "auto")] {
+                let walk = shared.view_walk(&vp, tf).unwrap();
+                let mut params =
+                    SelectParams::new(ClientTol::Pixels(tol), store.manifest.value_range);
+                let f = TransferFunction::for_manifest(spec, &store.manifest).unwrap();
+                params.image = Some(f.image_criterion(
+                    store.manifest.value_range,
+                    &store.base,
+                    DEFAULT_IMAGE_EPS,
+                ));
+                let leaves_of = |nodes: &[tetwave_protocol::DetailNode]| {
+                    let mut s = Session::new(store.base.clone(), params.clone()).unwrap();
+                    s.insert(nodes).unwrap();
+                    s.converge(&cam, Mode::Interactive).unwrap();
+                    (s.view_complete(), s.mesh().leaf_count())
+                };
+                let mut ids = walk.clone();
+                ids.sort_unstable();
+                ids.dedup();
+                assert_eq!(ids.len(), walk.len(), "the walk hands out each node once");
+                let given: Vec<_> = ids.iter().map(|&i| all[i as usize].clone()).collect();
+                let (complete, leaves) = leaves_of(&given);
+                let (_, every) = leaves_of(&all);
+                let case = format!("{bound:?}, {coarse_nodes} coarse nodes, {spec}");
+                assert!(
+                    complete,
+                    "{case}: the walk's nodes leave the view unfinished"
+                );
+                assert_eq!(leaves, every, "{case}");
+                assert!(
+                    walk.len() < all.len() / 2,
+                    "{case}: the walk holds {} of {} nodes",
+                    walk.len(),
+                    all.len()
+                );
+            }
+        }
+    }
+}

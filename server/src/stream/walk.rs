@@ -394,6 +394,21 @@ impl Walk {
 }
 
 impl Shared {
+    /// The nodes a view-order session's walk hands out for `view` and a client drawing with `tf`,
+    /// in its order, until it ends (before the tail): what that client reads, for tests.
+    pub fn view_walk(
+        &self,
+        view: &ViewParams,
+        tf: super::ViewTf,
+    ) -> Result<Vec<TetId>, StoreError> {
+        let mut walk = Walk::new(self, Ranker::new(self, view, self.criterion(tf)))?;
+        let mut out = Vec::new();
+        while let Some(id) = walk.next(self)? {
+            out.push(id);
+        }
+        Ok(out)
+    }
+
     /// The view-order priority of each node `ids` for `view` and the image criterion `image`
     /// (`None`: data weights), each from its own path down the hierarchy: what a walk ranks it
     /// by when it reaches it (larger is sent first).
