@@ -24,23 +24,36 @@ fn server_view_order_under_auto_ranks_nodes_as_a_client_drawing_auto() {
     rank_alike(ViewTf::Auto, "auto");
 }
 
-/// The server's view order for a session asking `tf` against a client drawing `spec`.
-fn rank_alike(tf: ViewTf, spec: &str) {
-    let (_d, dir) = common::harmonic_store(3);
+/// A harmonic store of `levels` levels at `bound` (`None`: lossless), and an orbit camera at
+/// `distance` from its centre (close enough that part of the volume is outside the frustum),
+/// drawing `size` pixels.
+fn store_and_camera(
+    levels: u8,
+    bound: Option<&str>,
+    distance: f64,
+    size: (u32, u32),
+) -> (tempfile::TempDir, std::path::PathBuf, Store, Camera) {
+    let (d, dir) = common::harmonic_store_with(levels, |o| {
+        o.max_error = bound.map(|b| ErrorBound::parse(b).unwrap())
+    });
     let store = Store::open(&dir).unwrap();
-    let nodes = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
-    let value_range = store.manifest.value_range;
     let (lo, hi) = store.base.bounds();
-    let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
-    // close enough that part of the volume is outside the frustum
     let cam = Orbit {
-        target: centre,
-        distance: 1.2,
+        target: glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5),
+        distance,
         azimuth: 30.0,
         elevation: 20.0,
         fov: 40.0,
     }
-    .camera(320, 240);
+    .camera(size.0, size.1);
+    (d, dir, store, cam)
+}
+
+/// The server's view order for a session asking `tf` against a client drawing `spec`.
+fn rank_alike(tf: ViewTf, spec: &str) {
+    let (_d, dir, store, cam) = store_and_camera(3, None, 1.2, (320, 240));
+    let nodes = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
+    let value_range = store.manifest.value_range;
     let vp = cam.view_params(0.0);
 
     let server = Shared::open(&dir, ServeConfig::default())
@@ -122,21 +135,8 @@ fn rank_alike(tf: ViewTf, spec: &str) {
 #[test]
 fn the_enclosure_below_the_coarse_levels_never_ranks_a_node_lower() {
     for bound in [None, Some("1%")] {
-        let (_d, dir) = common::harmonic_store_with(5, |o| {
-            o.max_error = bound.map(|b| ErrorBound::parse(b).unwrap())
-        });
-        let store = Store::open(&dir).unwrap();
-        let (lo, hi) = store.base.bounds();
-        let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
-        let vp = Orbit {
-            target: centre,
-            distance: 1.5,
-            azimuth: 30.0,
-            elevation: 20.0,
-            fov: 40.0,
-        }
-        .camera(320, 240)
-        .view_params(2.0);
+        let (_d, dir, _, cam) = store_and_camera(5, bound, 1.5, (320, 240));
+        let vp = cam.view_params(2.0);
         let exact = Shared::open(&dir, ServeConfig::default()).unwrap();
         for coarse_nodes in [0, 60] {
             let cfg = ServeConfig {
@@ -174,21 +174,8 @@ fn the_enclosure_below_the_coarse_levels_never_ranks_a_node_lower() {
 fn a_client_given_only_the_walk_s_nodes_converges_on_its_view() {
     use tetwave_adaptive::select::Tolerance as ClientTol;
     for bound in [None, Some("0.1%")] {
-        let (_d, dir) = common::harmonic_store_with(5, |o| {
-            o.max_error = bound.map(|b| ErrorBound::parse(b).unwrap())
-        });
-        let store = Store::open(&dir).unwrap();
+        let (_d, dir, store, cam) = store_and_camera(5, bound, 1.3, (256, 256));
         let all = store.read_nodes(0, store.manifest.counts.nodes).unwrap();
-        let (lo, hi) = store.base.bounds();
-        let centre = glam::DVec3::from(lo).lerp(glam::DVec3::from(hi), 0.5);
-        let cam = Orbit {
-            target: centre,
-            distance: 1.3,
-            azimuth: 30.0,
-            elevation: 20.0,
-            fov: 40.0,
-        }
-        .camera(256, 256);
         let tol = 2.0;
         let vp = cam.view_params(tol);
         for coarse_nodes in [

@@ -364,13 +364,15 @@ impl Schedule {
                     *cursor
                 }
                 Plan::Random { order, cursor } => {
-                    while *cursor < self.n && self.done.contains(order.at(*cursor)) {
-                        *cursor += 1;
-                    }
-                    if *cursor >= self.n {
+                    let next = (*cursor..self.n)
+                        .map(|k| (k, order.at(k)))
+                        .find(|&(_, i)| !self.done.contains(i));
+                    let Some((k, i)) = next else {
+                        *cursor = self.n;
                         break;
-                    }
-                    order.at(*cursor)
+                    };
+                    *cursor = k;
+                    i
                 }
                 Plan::Magnitude { frontier } => {
                     let Some((key, std::cmp::Reverse(i))) = frontier.pop() else {
