@@ -48,6 +48,7 @@ pub mod locate;
 mod medit;
 mod mesh;
 mod msh;
+pub mod volume;
 mod vtk;
 
 pub use mesh::{CellCounts, FieldArray, ImportedMesh, ScalarArray, TetMesh};

@@ -1,0 +1,16 @@
+//! (being written)
+
+use super::{VolumeError, VolumeFormat, VolumeOptions, VolumeReader};
+use std::path::Path;
+
+pub(crate) fn open(
+    path: &Path,
+    _format: VolumeFormat,
+    _options: &VolumeOptions,
+) -> Result<Box<dyn VolumeReader>, VolumeError> {
+    Err(VolumeError::unsupported(
+        path,
+        "format",
+        "this format is not read yet",
+    ))
+}
