@@ -286,6 +286,14 @@ pub trait VolumeReader: Send {
     fn read_box(&mut self, lo: [usize; 3], hi: [usize; 3]) -> Result<Samples, VolumeError>;
 }
 
+/// Whether `path` is a URL (`s3://`, `http://`, `https://`) rather than a local path.
+pub fn is_url(path: &Path) -> bool {
+    let s = path.to_string_lossy();
+    ["s3://", "http://", "https://"]
+        .iter()
+        .any(|p| s.starts_with(p))
+}
+
 /// Recognizes a volume: the format of `path` (a file, or a folder of slices or a Zarr), from its
 /// content and, failing that, its extension. `None`: not a volume this crate reads.
 pub fn sniff(path: &Path) -> Option<VolumeFormat> {
@@ -473,6 +481,10 @@ impl Volume {
         format: Option<VolumeFormat>,
         options: &VolumeOptions,
     ) -> Result<Volume, VolumeError> {
+        if is_url(path) {
+            // only Zarr is read from a bucket or a web server (chunk by chunk)
+            return Self::from_reader(path, open_reader(path, VolumeFormat::Zarr, options)?);
+        }
         let format = match format.or_else(|| sniff(path)) {
             Some(f) => f,
             None if options.raw.is_some() => VolumeFormat::Raw,
