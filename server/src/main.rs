@@ -214,6 +214,27 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                     "max error    {:e} (bound {:e}), values in [{}, {}]",
                     s.max_abs_error, s.max_error_bound, s.value_range[0], s.value_range[1]
                 );
+                if let Some(v) = &s.volume {
+                    let [x, y, z] = v.dims;
+                    let unit = v.length_unit.as_deref().unwrap_or("");
+                    println!(
+                        "volume       {} {x}×{y}×{z} {}, spacing {:?} {unit}, origin {:?}{}{}",
+                        v.format,
+                        v.dtype,
+                        v.spacing,
+                        v.origin,
+                        v.frame
+                            .as_ref()
+                            .map(|f| format!(" ({f})"))
+                            .unwrap_or_default(),
+                        v.rescale
+                            .map(|(s, i)| format!(", values × {s} + {i}"))
+                            .unwrap_or_default()
+                    );
+                    for note in &v.notes {
+                        println!("             {note}");
+                    }
+                }
                 if let Some(r) = &s.import {
                     println!(
                         "import       {} cells read; scalar {:?} ({}): {} tets kept, {} re-oriented, {} dropped, {} cells split, {} ignored",

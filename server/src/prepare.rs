@@ -14,6 +14,9 @@ use crate::resample::{indexable, resample, BaseSpec, ResampleError, Source, MAX_
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use tetwave_import::volume::{
+    self, FileHeader, ScalarChoice, Volume, VolumeError, VolumeFormat, VolumeOptions,
+};
 use tetwave_import::{self as import, ImportError, MeshFormat};
 use tetwave_protocol::levelset::NearLevelSet;
 use tetwave_protocol::store_format::MAX_PREVIEW_NODES;
@@ -35,7 +38,7 @@ pub enum PrepareError {
     UnknownInput(String),
     #[error("unknown synthetic field {0:?} (known: harmonic, linear)")]
     UnknownSynthetic(String),
-    #[error("unknown --dtype {0:?} (u8, u16, i16, f32)")]
+    #[error("unknown --dtype {0:?} (u8, i8, u16, i16, u32, i32, f32, f64)")]
     UnknownDtype(String),
     #[error("{path}: {count} NaN/Inf samples (first at index {first}); pass --nan-as VALUE to replace them")]
     NonFiniteRaw {
@@ -45,6 +48,8 @@ pub enum PrepareError {
     },
     #[error(transparent)]
     Raw(#[from] RawError),
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
     #[error(transparent)]
     Lattice(#[from] LatticeError),
     #[error(transparent)]
@@ -95,15 +100,31 @@ pub enum PrepareError {
 /// How to read a raw grid (`prepare`, `verify --input`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct GridArgs {
-    /// Raw grid dimensions `X,Y,Z` (x fastest).
+    /// Raw grid dimensions `X,Y,Z` (x fastest). Volume files (NIfTI, NRRD, ...) state their own.
     #[arg(long, value_parser = parse_dims)]
     pub dims: Option<[usize; 3]>,
-    /// Raw sample type: u8, u16, i16 (CT Hounsfield units) or f32, little-endian.
+    /// Raw sample type: u8, i8, u16, i16 (CT Hounsfield units), u32, i32, f32 or f64,
+    /// little-endian.
     #[arg(long, default_value = "u8")]
     pub dtype: String,
     /// Raw grid spacing `sx,sy,sz`.
     #[arg(long, value_parser = parse_spacing, default_value = "1,1,1")]
     pub spacing: [f64; 3],
+    /// A volume file's format and header, when the grid is one (`dims`, `dtype` and `spacing`
+    /// are then its world frame's, [`ReadArgs::resolve_volume`]).
+    #[arg(skip)]
+    pub volume: Option<VolumeInput>,
+}
+
+/// A volume file read as a grid: what [`Volume::open`] needs again for each block, and what its
+/// header said.
+#[derive(Debug, Clone)]
+pub struct VolumeInput {
+    pub format: VolumeFormat,
+    pub options: VolumeOptions,
+    pub header: FileHeader,
+    /// World position of the grid's voxel `[0, 0, 0]` (the store's lattice starts at 0).
+    pub origin: [f64; 3],
 }
 
 impl Default for GridArgs {
@@ -112,6 +133,7 @@ impl Default for GridArgs {
             dims: None,
             dtype: "u8".into(),
             spacing: [1.0; 3],
+            volume: None,
         }
     }
 }
@@ -145,10 +167,26 @@ impl GridArgs {
         z: std::ops::Range<usize>,
     ) -> Result<RawGrid, PrepareError> {
         let dims = self.dims.ok_or(RawError::MissingDims)?;
-        let dtype = RawType::parse(&self.dtype)
-            .ok_or_else(|| PrepareError::UnknownDtype(self.dtype.clone()))?;
         let before = (z.start * dims[1] + y.start) * dims[0];
-        let mut grid = RawGrid::read_block(path, dims, dtype, self.spacing, y, z)?;
+        let mut grid = match &self.volume {
+            Some(v) => {
+                let mut vol = Volume::open(path, Some(v.format), &v.options)?;
+                if vol.dims != dims {
+                    return Err(PrepareError::Usage(format!(
+                        "{}: the volume's dims changed while it was read ({:?}, were {dims:?})",
+                        path.display(),
+                        vol.dims
+                    )));
+                }
+                let block = [dims[0], y.len(), z.len()];
+                RawGrid::from_samples(block, self.spacing, vol.read_block(y, z)?)
+            }
+            None => {
+                let dtype = RawType::parse(&self.dtype)
+                    .ok_or_else(|| PrepareError::UnknownDtype(self.dtype.clone()))?;
+                RawGrid::read_block(path, dims, dtype, self.spacing, y, z)?
+            }
+        };
         if let Some(first) = grid.first_non_finite() {
             match nan_as {
                 Some(v) => {
@@ -189,6 +227,72 @@ pub struct ReadArgs {
     /// Replace NaN/Inf input values by this value instead of refusing the input.
     #[arg(long, allow_negative_numbers = true)]
     pub nan_as: Option<f64>,
+    /// A 4D volume file: the time point to read (from 0).
+    #[arg(long)]
+    pub frame: Option<usize>,
+}
+
+impl ReadArgs {
+    /// When `input` is a volume file (NIfTI, NRRD, VTK image data, TIFF, DICOM, Zarr: found by
+    /// [`volume::sniff`], or any `s3://`/`http(s)://` location, read as Zarr), these arguments
+    /// with its header's world dims, type and spacing as the grid's; `None` for raw grids,
+    /// meshes and synthetic fields.
+    pub fn resolve_volume(&self, input: &str) -> Result<Option<ReadArgs>, PrepareError> {
+        let path = Path::new(input);
+        let raw = self.grid.dims.is_some()
+            || path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
+        if input.starts_with("synthetic:") || raw || self.format.is_some() {
+            return Ok(None);
+        }
+        let format = match volume::sniff(path) {
+            Some(VolumeFormat::Raw) => return Ok(None),
+            Some(f) => f,
+            None if volume::is_url(path) => VolumeFormat::Zarr,
+            None => return Ok(None),
+        };
+        if let Some(flag) = self.field.as_ref().map(|_| "--field") {
+            return Err(PrepareError::Usage(format!(
+                "{flag} applies to mesh files (.vtu, .vtk, .msh); {input} is a {} volume",
+                format.name()
+            )));
+        }
+        let options = VolumeOptions {
+            raw: None,
+            scalar: self.scalar.as_deref().map(ScalarChoice::parse),
+            frame: self.frame,
+        };
+        let vol = Volume::open(path, Some(format), &options)?;
+        let h = vol.header().clone();
+        tracing::info!(
+            format = format.name(),
+            dims = ?vol.dims,
+            dtype = %vol.dtype,
+            spacing = ?vol.spacing,
+            origin = ?vol.origin,
+            frame = h.frame.as_deref().unwrap_or("-"),
+            unit = h.length_unit.as_deref().unwrap_or("-"),
+            rescale = ?h.rescale,
+            "volume"
+        );
+        for note in &h.notes {
+            tracing::info!("{input}: {note}");
+        }
+        let mut r = self.clone();
+        r.grid = GridArgs {
+            dims: Some(vol.dims),
+            dtype: vol.dtype.name().to_string(),
+            spacing: vol.spacing,
+            volume: Some(VolumeInput {
+                format,
+                options,
+                header: h,
+                origin: vol.origin,
+            }),
+        };
+        Ok(Some(r))
+    }
 }
 
 /// What `tetwave-server prepare` is asked to do (its command-line arguments, which are also the
@@ -321,6 +425,47 @@ pub struct Summary {
     pub seconds: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub import: Option<CleanReport>,
+    /// A volume file's header, as read (world frame: axes ascending, x fastest).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub volume: Option<VolumeSummary>,
+}
+
+/// What `prepare` read of a volume file's header.
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeSummary {
+    pub format: &'static str,
+    /// Voxels along the world axes (the file's axes permuted as its orientation says).
+    pub dims: [usize; 3],
+    /// The type read (the file's; f32 when a rescale applies).
+    pub dtype: String,
+    pub spacing: [f64; 3],
+    /// World position of the lowest corner voxel (the store's lattice starts at 0 there).
+    pub origin: [f64; 3],
+    /// The world frame (`RAS`, `LPS`) when the file states one.
+    pub frame: Option<String>,
+    pub length_unit: Option<String>,
+    pub value_unit: Option<String>,
+    /// `(slope, intercept)` applied to the stored values.
+    pub rescale: Option<(f64, f64)>,
+    pub notes: Vec<String>,
+}
+
+impl VolumeSummary {
+    pub fn of(grid: &GridArgs) -> Option<Self> {
+        let v = grid.volume.as_ref()?;
+        Some(VolumeSummary {
+            format: v.format.name(),
+            dims: grid.dims?,
+            dtype: grid.dtype.clone(),
+            spacing: grid.spacing,
+            origin: v.origin,
+            frame: v.header.frame.clone(),
+            length_unit: v.header.length_unit.clone(),
+            value_unit: v.header.value_unit.clone(),
+            rescale: v.header.rescale,
+            notes: v.header.notes.clone(),
+        })
+    }
 }
 
 /// The input's domain, where it is smaller than the semi-regular mesh.
@@ -362,8 +507,13 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
     let grid = input.starts_with("synthetic:") || o.grid.dims.is_some() || ext == "raw";
+    if o.frame.is_some() && o.grid.volume.is_none() {
+        return Err(PrepareError::Usage(format!(
+            "--frame applies to 4D volume files (NIfTI, NRRD, Zarr, ...); {input} is not one"
+        )));
+    }
     let mesh_only = [
-        ("--scalar", o.scalar.is_some()),
+        ("--scalar", o.scalar.is_some() && o.grid.volume.is_none()),
         ("--field", o.field.is_some()),
         ("--format", o.format.is_some()),
     ];
@@ -601,6 +751,14 @@ fn voxel_base(
 
 /// Resamples, analyses and writes a store.
 pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
+    let resolved;
+    let o = match o.read.resolve_volume(&o.input)? {
+        Some(read) => {
+            resolved = PrepareOptions { read, ..o.clone() };
+            &resolved
+        }
+        None => o,
+    };
     if let Some(to) = remote::remote_out(o)? {
         return remote::prepare_to(o, &to);
     }
@@ -633,7 +791,10 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
     if let (Some(dims), BaseSpec::Auto, true) = (
         o.read.grid.dims,
         &o.base,
-        o.read.grid.dims.is_some_and(dims_match_file),
+        o.read
+            .grid
+            .dims
+            .is_some_and(|d| o.read.grid.volume.is_some() || dims_match_file(d)),
     ) {
         let l = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, indexable)?;
         let memory = o.memory.unwrap_or_else(default_memory);
@@ -772,7 +933,9 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         keep_reference: o.keep_reference,
     };
     let m = store::write(&o.out, &a.content(), meta)?;
-    Ok(Summary::of(&m, o, predictor, import, t0))
+    let mut summary = Summary::of(&m, o, predictor, import, t0);
+    summary.volume = VolumeSummary::of(&o.read.grid);
+    Ok(summary)
 }
 
 impl Summary {
@@ -820,6 +983,7 @@ impl Summary {
             empty_base_tets: m.counts.empty_base_tets,
             seconds: t0.elapsed().as_secs_f64(),
             import,
+            volume: None,
         }
     }
 }
@@ -1091,7 +1255,8 @@ pub fn verify_source(
     input: &str,
     read: &ReadArgs,
 ) -> Result<VerifyReport, PrepareError> {
-    let loaded = load_source(input, read)?;
+    let resolved = read.resolve_volume(input)?;
+    let loaded = load_source(input, resolved.as_ref().unwrap_or(read))?;
     if let Source::Raw(grid) = &loaded.source {
         return verify_input(dir, grid);
     }

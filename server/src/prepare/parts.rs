@@ -138,10 +138,15 @@ impl Plan {
         if n == 0 {
             return usage("--parts must be at least 1");
         }
-        let Some(dims) = o.read.grid.dims else {
+        // a volume file's header gives its dims (as `prepare` reads it, once per part)
+        let grid = match o.read.resolve_volume(&o.input)? {
+            Some(read) => read.grid,
+            None => o.read.grid.clone(),
+        };
+        let Some(dims) = grid.dims else {
             return usage(
-                "--parts prepares a raw grid (give --dims and --dtype); meshes and synthetic \
-                 fields are prepared in one process",
+                "--parts prepares a grid (a volume file, or a raw grid with --dims and --dtype); \
+                 meshes and synthetic fields are prepared in one process",
             );
         };
         if !matches!(o.base, BaseSpec::Auto) {
@@ -165,13 +170,17 @@ impl Plan {
                 ),
             };
         let path = PathBuf::from(&o.input);
-        let input_bytes = std::fs::metadata(&path)
-            .map_err(|source| crate::resample::raw::RawError::Io {
-                path: path.clone(),
-                source,
-            })?
-            .len();
-        let lattice = VoxelLattice::fit(dims, o.read.grid.spacing, o.levels, indexable)?;
+        let input_bytes = if tetwave_import::volume::is_url(&path) {
+            0
+        } else {
+            std::fs::metadata(&path)
+                .map_err(|source| crate::resample::raw::RawError::Io {
+                    path: path.clone(),
+                    source,
+                })?
+                .len()
+        };
+        let lattice = VoxelLattice::fit(dims, grid.spacing, o.levels, indexable)?;
         let [_, rows, layers] = lattice.cells;
         let n_ = n as usize;
         let rows_split = if n_ <= layers {
@@ -191,8 +200,8 @@ impl Plan {
         let fingerprint = Fingerprint {
             input_bytes,
             dims,
-            dtype: o.read.grid.dtype.clone(),
-            spacing: o.read.grid.spacing,
+            dtype: grid.dtype.clone(),
+            spacing: grid.spacing,
             levels: lattice.levels,
             cells: lattice.cells,
             max_error: o.max_error.map(|e| match e {
@@ -202,7 +211,7 @@ impl Plan {
             nan_as: o.read.nan_as,
         };
         Ok(Plan {
-            grid: o.read.grid.clone(),
+            grid,
             path,
             dims,
             lattice,
@@ -892,7 +901,9 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
     )?;
     let parts_dir = o.out.join("parts");
     std::fs::remove_dir_all(&parts_dir).map_err(|e| io_error(&parts_dir, e))?;
-    Ok(Summary::of(&m, o, Predictor::Parent, None, t0))
+    let mut summary = Summary::of(&m, o, Predictor::Parent, None, t0);
+    summary.volume = super::VolumeSummary::of(&plan.grid);
+    Ok(summary)
 }
 
 fn io_error(path: &Path, e: std::io::Error) -> PrepareError {

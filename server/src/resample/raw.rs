@@ -10,32 +10,9 @@
 
 use std::path::{Path, PathBuf};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RawType {
-    U8,
-    U16,
-    I16,
-    F32,
-}
-
-impl RawType {
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "u8" => Some(RawType::U8),
-            "u16" => Some(RawType::U16),
-            "i16" => Some(RawType::I16),
-            "f32" => Some(RawType::F32),
-            _ => None,
-        }
-    }
-    pub fn bytes(&self) -> usize {
-        match self {
-            RawType::U8 => 1,
-            RawType::U16 | RawType::I16 => 2,
-            RawType::F32 => 4,
-        }
-    }
-}
+/// A raw grid's sample type: one of the volume readers' ([`DType`]).
+pub use tetwave_import::volume::DType as RawType;
+use tetwave_import::volume::{Endian, Samples};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RawError {
@@ -44,7 +21,7 @@ pub enum RawError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("raw grid needs --dims X,Y,Z and --dtype u8|u16|i16|f32")]
+    #[error("raw grid needs --dims X,Y,Z and --dtype u8|i8|u16|i16|u32|i32|f32|f64")]
     MissingDims,
     #[error("voxel rows {y:?} of planes {z:?} asked of a grid of {dims:?} rows and planes")]
     BadBlock {
@@ -75,14 +52,7 @@ pub enum RawError {
 pub struct RawGrid {
     pub dims: [usize; 3],
     pub spacing: [f64; 3],
-    data: RawData,
-}
-
-enum RawData {
-    U8(Vec<u8>),
-    U16(Vec<u16>),
-    I16(Vec<i16>),
-    F32(Vec<f32>),
+    data: Samples,
 }
 
 impl RawGrid {
@@ -164,27 +134,7 @@ impl RawGrid {
         if bytes.len() as u64 != len {
             return Err(io(std::io::Error::from(std::io::ErrorKind::UnexpectedEof)));
         }
-        let data = match dtype {
-            RawType::U8 => RawData::U8(bytes),
-            RawType::U16 => RawData::U16(
-                bytes
-                    .chunks_exact(2)
-                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                    .collect(),
-            ),
-            RawType::I16 => RawData::I16(
-                bytes
-                    .chunks_exact(2)
-                    .map(|c| i16::from_le_bytes([c[0], c[1]]))
-                    .collect(),
-            ),
-            RawType::F32 => RawData::F32(
-                bytes
-                    .chunks_exact(4)
-                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                    .collect(),
-            ),
-        };
+        let data = Samples::decode(dtype, &bytes, Endian::Little);
         Ok(RawGrid {
             dims: [dims[0], y.len(), z.len()],
             spacing,
@@ -192,43 +142,31 @@ impl RawGrid {
         })
     }
 
-    /// `(min, max)` of the finite samples (`None` when there is none).
-    pub fn value_range(&self) -> Option<(f32, f32)> {
-        let fold = |it: &mut dyn Iterator<Item = f32>| {
-            it.filter(|x| x.is_finite())
-                .fold(None, |r: Option<(f32, f32)>, x| {
-                    Some(r.map_or((x, x), |(lo, hi)| (lo.min(x), hi.max(x))))
-                })
-        };
-        match &self.data {
-            RawData::U8(v) => fold(&mut v.iter().map(|&x| x as f32)),
-            RawData::U16(v) => fold(&mut v.iter().map(|&x| x as f32)),
-            RawData::I16(v) => fold(&mut v.iter().map(|&x| x as f32)),
-            RawData::F32(v) => fold(&mut v.iter().copied()),
+    /// A grid of `dims` voxels (x fastest) from their samples (as many as the dims hold).
+    pub fn from_samples(dims: [usize; 3], spacing: [f64; 3], data: Samples) -> Self {
+        debug_assert_eq!(data.len(), dims.iter().product::<usize>());
+        RawGrid {
+            dims,
+            spacing,
+            data,
         }
     }
 
-    /// Index of the first non-finite sample, if any (only f32 grids can have one).
+    /// `(min, max)` of the finite samples (`None` when there is none).
+    pub fn value_range(&self) -> Option<(f32, f32)> {
+        self.data
+            .value_range()
+            .map(|(lo, hi)| (lo as f32, hi as f32))
+    }
+
+    /// Index of the first non-finite sample, if any (only float grids can have one).
     pub fn first_non_finite(&self) -> Option<usize> {
-        match &self.data {
-            RawData::F32(v) => v.iter().position(|x| !x.is_finite()),
-            _ => None,
-        }
+        self.data.first_non_finite()
     }
 
     /// Replaces non-finite samples by `value`; returns how many.
     pub fn replace_non_finite(&mut self, value: f32) -> usize {
-        match &mut self.data {
-            RawData::F32(v) => {
-                let mut n = 0;
-                for x in v.iter_mut().filter(|x| !x.is_finite()) {
-                    *x = value;
-                    n += 1;
-                }
-                n
-            }
-            _ => 0,
-        }
+        self.data.replace_non_finite(value as f64)
     }
 
     pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
@@ -238,13 +176,7 @@ impl RawGrid {
 
     #[inline]
     fn at(&self, i: usize, j: usize, k: usize) -> f64 {
-        let idx = i + self.dims[0] * (j + self.dims[1] * k);
-        match &self.data {
-            RawData::U8(v) => v[idx] as f64,
-            RawData::U16(v) => v[idx] as f64,
-            RawData::I16(v) => v[idx] as f64,
-            RawData::F32(v) => v[idx] as f64,
-        }
+        self.data.get(i + self.dims[0] * (j + self.dims[1] * k))
     }
 
     /// The voxel at index `[i, j, k]`.

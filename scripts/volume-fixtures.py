@@ -1,0 +1,114 @@
+#!/usr/bin/env python3
+"""Volume files nobody here wrote, and what their own libraries read of them.
+
+Writes into OUT (argument 1) the volume files of tests/volumes (server/tests/volumes.rs reads
+them) and `cases.json`: for each file the prepare arguments it needs beyond the file (`--frame`,
+`--scalar`), and what the Python library that reads the format reads of it: world dims,
+spacing, value range, and every voxel, in the world frame tetwave uses (axes ascending, x
+fastest) as little-endian f64 (`<name>.f64`), so that `verify --input <name>.f64 --dims ...
+--dtype f64` checks the store voxel by voxel against the library's reading and not only against
+tetwave's own reader.
+
+The files: test data shipped in PyPI wheels (nibabel's NIfTI files, pydicom's DICOM files), and
+volumes written by tifffile, pynrrd, zarr-python and VTK's own writers from those files' voxels.
+"""
+
+import json
+import os
+import shutil
+import sys
+
+import numpy as np
+
+CASES = []
+
+
+def world_array(arr, axes):
+    """arr indexed [i, j, k] along the file's axes (i fastest in the file); axes[a] = (world
+    axis, flip) of file axis a. Returns the array indexed [x, y, z] along the world axes,
+    ascending."""
+    for a, (_, flip) in enumerate(axes):
+        if flip:
+            arr = np.flip(arr, axis=a)
+    order = [0, 0, 0]
+    for a, (w, _) in enumerate(axes):
+        order[w] = a
+    return np.transpose(arr, order)
+
+
+def add(out, name, path, world, spacing, args=(), origin=None, note=""):
+    """One case: `world` indexed [x, y, z] (float64 values as the library reads them)."""
+    world = np.asarray(world, dtype=np.float64)
+    assert world.ndim == 3, (name, world.shape)
+    if np.isnan(world).any():
+        # prepare refuses NaN samples unless told what to put there
+        world = np.where(np.isnan(world), 0.0, world)
+        args = list(args) + ["--nan-as", "0"]
+    raw = f"{name}.f64"
+    world.ravel(order="F").astype("<f8").tofile(os.path.join(out, raw))
+    CASES.append(
+        {
+            "name": name,
+            "path": os.path.relpath(path, out),
+            "args": list(args),
+            "dims": list(world.shape),
+            "spacing": [float(s) for s in spacing],
+            "origin": None if origin is None else [float(o) for o in origin],
+            "range": [float(world.min()), float(world.max())],
+            "expect": raw,
+            "note": note,
+        }
+    )
+
+
+def nifti(out):
+    import nibabel as nib
+
+    data = os.path.join(os.path.dirname(nib.__file__), "tests", "data")
+    for f in [
+        "anatomical.nii",  # big-endian i16, LAS
+        "standard.nii.gz",  # u8, sform only, gzip
+        "reoriented_anat_moved.nii",  # big-endian f32, RAS
+        "resampled_anat_moved.nii",  # big-endian f32, LAS
+    ]:
+        dst = os.path.join(out, f)
+        shutil.copyfile(os.path.join(data, f), dst)
+        img = nib.as_closest_canonical(nib.load(dst))
+        name = f.split(".")[0]
+        add(out, name, dst, img.get_fdata(dtype=np.float64), img.header.get_zooms()[:3],
+            origin=img.affine[:3, 3], note="nibabel")
+    # oblique: refused
+    for f in ["example4d.nii.gz", "example_nifti2.nii.gz"]:
+        dst = os.path.join(out, f)
+        shutil.copyfile(os.path.join(data, f), dst)
+        refuse(out, f.split(".")[0], dst, "oblique", ["--frame", "0"], "nibabel")
+    # 4D, NIfTI-2, gzip, scaled: anatomical's voxels as two frames, written by nibabel
+    src = nib.load(os.path.join(data, "anatomical.nii"))
+    a = np.asarray(src.dataobj).astype(np.int16)
+    four = np.stack([a, a // 2], axis=-1)
+    img = nib.Nifti2Image(four, src.affine)
+    img.header.set_slope_inter(0.5, -3.0)
+    dst = os.path.join(out, "anatomical4d.nii.gz")
+    nib.save(img, dst)
+    img = nib.as_closest_canonical(nib.load(dst))
+    add(out, "anatomical4d", dst, img.get_fdata(dtype=np.float64)[..., 1],
+        img.header.get_zooms()[:3], ["--frame", "1"], img.affine[:3, 3], "nibabel NIfTI-2")
+
+
+def refuse(out, name, path, error, args=(), note=""):
+    """A file tetwave refuses, with a message holding `error`."""
+    CASES.append({"name": name, "path": os.path.relpath(path, out), "args": list(args),
+                  "error": error, "note": note})
+
+
+def main():
+    out = sys.argv[1]
+    os.makedirs(out, exist_ok=True)
+    nifti(out)
+    with open(os.path.join(out, "cases.json"), "w") as f:
+        json.dump(CASES, f, indent=1)
+    print(f"{len(CASES)} volume files in {out}")
+
+
+if __name__ == "__main__":
+    main()
