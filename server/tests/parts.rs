@@ -27,6 +27,7 @@ fn options(raw: &Path, out: &Path, dims: [usize; 3], dtype: &str, levels: u8) ->
         dims: Some(dims),
         dtype: dtype.into(),
         spacing: [1.0, 1.0, 2.0],
+        volume: None,
     };
     o.levels = Some(levels);
     o

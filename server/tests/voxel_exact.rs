@@ -48,6 +48,7 @@ fn grid_args(dims: [usize; 3], dtype: &str, spacing: [f64; 3]) -> GridArgs {
         dims: Some(dims),
         dtype: dtype.into(),
         spacing,
+        volume: None,
     }
 }
 
