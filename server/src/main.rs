@@ -216,9 +216,13 @@ fn run(cmd: Cmd) -> Result<(), Box<dyn std::error::Error>> {
                 );
                 if let Some(v) = &s.volume {
                     let [x, y, z] = v.dims;
-                    let unit = v.length_unit.as_deref().unwrap_or("");
+                    let unit = v
+                        .length_unit
+                        .as_deref()
+                        .map(|u| format!(" {u}"))
+                        .unwrap_or_default();
                     println!(
-                        "volume       {} {x}×{y}×{z} {}, spacing {:?} {unit}, origin {:?}{}{}",
+                        "volume       {} {x}×{y}×{z} {}, spacing {:?}{unit}, origin {:?}{}{}",
                         v.format,
                         v.dtype,
                         v.spacing,

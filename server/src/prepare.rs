@@ -538,6 +538,7 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().to_string())
+        .map(|s| s.strip_suffix(".nii").map(str::to_string).unwrap_or(s))
         .unwrap_or_else(|| input.to_string());
     if o.grid.dims.is_some() || ext == "raw" {
         let grid = o.grid.read(&path, o.nan_as)?;

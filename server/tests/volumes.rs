@@ -198,6 +198,7 @@ fn check(library: &str) -> usize {
         );
         let rep: Value = serde_json::from_str(r.stdout.trim()).unwrap();
         assert_eq!(rep["input"]["points"].as_u64().unwrap(), points, "{name}");
+        by_parts_is_whole(dir.path(), name, input, &extra);
         // lossless: bit-exact wherever the library's f64 is the stored f32
         assert!(
             rep["input"]["max_abs_error"].as_f64().unwrap()
@@ -206,6 +207,41 @@ fn check(library: &str) -> usize {
         );
     }
     ran
+}
+
+/// Prepared by parts (`--parts 2`, each part reading its block of the file alone, as out of core),
+/// the store is the one-process store byte for byte.
+fn by_parts_is_whole(dir: &Path, name: &str, input: &str, extra: &[&str]) {
+    let one = dir.join(format!("{name}.one"));
+    let many = dir.join(format!("{name}.many"));
+    let (one, many) = (one.to_str().unwrap(), many.to_str().unwrap());
+    let go = |more: &[&str], out: &str| {
+        let mut args = vec!["prepare", input, "--levels", "2", "--out", out];
+        args.extend(extra);
+        args.extend(more);
+        let r = run(&args);
+        assert!(r.ok, "{name}: prepare {more:?} failed: {}", r.stderr);
+    };
+    go(&[], one);
+    go(&["--parts", "2", "--part", "0"], many);
+    go(&["--parts", "2", "--part", "1"], many);
+    go(&["--parts", "2", "--finish"], many);
+    let mut files: Vec<_> = std::fs::read_dir(one)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    files.sort();
+    assert!(!files.is_empty());
+    for f in files {
+        let (a, b) = (
+            std::fs::read(Path::new(one).join(&f)).unwrap(),
+            std::fs::read(Path::new(many).join(&f)),
+        );
+        assert!(
+            b.as_ref().is_ok_and(|b| *b == a),
+            "{name}: {f:?} differs between the one-process and the by-parts store"
+        );
+    }
 }
 
 #[test]
