@@ -45,6 +45,7 @@ work files in OUT/work/.
 import argparse
 import importlib.util
 import json
+import shutil
 import os
 import sys
 import threading
@@ -212,6 +213,51 @@ def write_ct_grid(path, dims, dtype, slab=32):
     os.replace(path + ".part", path)
 
 
+def write_ct_as(raw, dims, dtype, fmt, path, slab=64):
+    """The raw CT grid `raw` written again as a volume file of format `fmt`, slab by slab
+    (bounded memory): `tiff`, a BigTIFF stack of one page a plane (tifffile), or `zarr`, a Zarr
+    v3 array of 64³ chunks in 256×256×256 shards, zstd (zarr-python). Both are read back by
+    tetwave's readers with no --dims/--dtype."""
+    import numpy as np
+
+    nx, ny, nz = dims
+    t = np.uint8 if dtype == "u8" else np.dtype("<u2")
+    mm = np.memmap(raw, dtype=t, mode="r", shape=(nz, ny, nx))
+    if os.path.exists(path):
+        return
+    tmp = path + ".part"
+    if fmt == "tiff":
+        import tifffile
+
+        def pages():
+            for z in range(nz):
+                yield np.asarray(mm[z])
+
+        tifffile.imwrite(tmp, pages(), shape=(nz, ny, nx), dtype=t, bigtiff=True, photometric="minisblack")
+    elif fmt == "zarr":
+        import shutil
+        import zarr
+        from zarr.codecs import ZstdCodec
+
+        shutil.rmtree(tmp, ignore_errors=True)
+        arr = zarr.create_array(store=tmp, shape=(nz, ny, nx), chunks=(64, 64, 64), shards=(256, 256, 256),
+                                dtype=t, compressors=ZstdCodec(level=3), zarr_format=3)
+        step = 256
+        for z0 in range(0, nz, step):
+            arr[z0:z0 + step] = np.asarray(mm[z0:z0 + step])
+    else:
+        raise SystemExit(f"bench-scale: unknown --ct-formats {fmt!r} (raw, tiff, zarr)")
+    os.replace(tmp, path)
+
+
+def same_store(a, b):
+    """Whether two store directories hold the same files, byte for byte."""
+    import filecmp
+
+    fa, fb = sorted(os.listdir(a)), sorted(os.listdir(b))
+    return fa == fb and all(filecmp.cmp(os.path.join(a, f), os.path.join(b, f), shallow=False) for f in fa)
+
+
 def view_server(bindir, store, log):
     """`serve --order view` on loopback, once it is ready for view order (`/readyz`: the vertex
     values of the first levels, which view order ranks by, are built; a one-time cost of a
@@ -314,6 +360,9 @@ def main():
                     "and verified voxel by voxel: e.g. 1025-u8,1024x1024x1536-u16,2049-u16 (sizes XxYxZ or N)")
     ap.add_argument("--ct-bound", default="0.5%", help="--max-error of the --ct stores")
     ap.add_argument("--ct-only", action="store_true", help="run the --ct cases alone")
+    ap.add_argument("--ct-formats", default="raw", help="the --ct grids as these files: raw (with --dims "
+                    "and --dtype, and verify --input), tiff (a BigTIFF stack) and zarr (sharded Zarr v3), "
+                    "each prepared without --dims; every store is compared byte for byte with the first")
     ap.add_argument("--ct-project", default="", help="a CT-like grid too long to prepare here (e.g. 2049-u16): "
                     "prepare a sample of its parts (--parts N --part K, each its own process) and project the total")
     ap.add_argument("--ct-project-levels", default="7")
@@ -451,10 +500,27 @@ def main():
         print(f"bench-scale: {raw} ready ({time.time() - t:.0f} s)", file=sys.stderr)
         return dims, dtype, raw
 
-    for case in [c for c in a.ct.split(",") if c]:
+    for case, fmt in [(c, f) for c in a.ct.split(",") if c for f in a.ct_formats.split(",")]:
         dims, dtype, raw = ct_case(case)
-        store = os.path.join(work, f"ct-{case}")
+        store = os.path.join(work, f"ct-{case}" + ("" if fmt == "raw" else f"-{fmt}"))
         grid = ["--dims", ",".join(map(str, dims)), "--dtype", dtype]
+        first = os.path.join(work, f"ct-{case}" + ("" if a.ct_formats.split(",")[0] == "raw"
+                                                     else "-" + a.ct_formats.split(",")[0]))
+        if fmt != "raw":
+            path = os.path.join(work, f"ct-{case}.{'tif' if fmt == 'tiff' else 'zarr'}")
+            t = time.time()
+            write_ct_as(raw, dims, dtype, fmt, path)
+            print(f"bench-scale: {path} ready ({time.time() - t:.0f} s)", file=sys.stderr)
+            shutil.rmtree(store, ignore_errors=True)
+            out, wall, rss, _ = run_measured(
+                [server, "prepare", path, "--max-error", a.ct_bound, "--out", store, "--json"],
+                f"prepare {case} {fmt}", os.path.join(work, f"ct-{case}-{fmt}-prepare"))
+            summary = json.loads(out.strip().splitlines()[-1])
+            emit({"run": "prepare out of core", "case": f"ct-{case}", "format": fmt, "bound": a.ct_bound,
+                  "prepare_s": round(wall, 1), "prepare_rss_mib": round(rss), "levels": summary["levels"],
+                  "bytes": summary["bytes"], "volume": summary.get("volume"),
+                  "same_store_as": os.path.basename(first) if first != store and same_store(first, store) else None})
+            continue
         out, wall, rss, _ = run_measured(
             [server, "prepare", raw, *grid, "--max-error", a.ct_bound, "--out", store, "--json"],
             f"prepare {case}", os.path.join(work, f"ct-{case}-prepare"))
