@@ -90,6 +90,8 @@ struct Raw {
     quatern: [f64; 6],
     srow: [[f64; 4]; 3],
     single_file: bool,
+    /// Bytes of the header and its 4 extension bytes: 352 (NIfTI-1) or 544 (NIfTI-2).
+    header_bytes: u64,
 }
 
 fn parse(path: &Path, b: &[u8]) -> Result<(Raw, Endian), VolumeError> {
@@ -139,6 +141,7 @@ fn parse(path: &Path, b: &[u8]) -> Result<(Raw, Endian), VolumeError> {
                 quatern: std::array::from_fn(|k| f.f32(256 + 4 * k)),
                 srow: std::array::from_fn(|r| std::array::from_fn(|c| f.f32(280 + 16 * r + 4 * c))),
                 single_file,
+                header_bytes: 352,
             },
             endian,
         ))
@@ -164,6 +167,7 @@ fn parse(path: &Path, b: &[u8]) -> Result<(Raw, Endian), VolumeError> {
                 quatern: std::array::from_fn(|k| f.f64(352 + 8 * k)),
                 srow: std::array::from_fn(|r| std::array::from_fn(|c| f.f64(400 + 32 * r + 8 * c))),
                 single_file,
+                header_bytes: 544,
             },
             endian,
         ))
@@ -340,7 +344,12 @@ impl NiftiReader {
             }
         };
         // where the chosen frame and vector component start
-        let vox_offset = r.vox_offset;
+        // a single file's vox_offset 0 is read as "just after the header", as nibabel and
+        // niftilib do (files written by ANALYZE-era tools)
+        let vox_offset = match (r.vox_offset, r.single_file) {
+            (o, true) if o == 0.0 => r.header_bytes as f64,
+            (o, _) => o,
+        };
         if !(vox_offset.is_finite() && vox_offset >= 0.0) {
             return Err(bad(
                 "vox_offset",
@@ -348,7 +357,7 @@ impl NiftiReader {
             ));
         }
         let data_path = if r.single_file {
-            if (vox_offset as u64) < head_len(&r) {
+            if (vox_offset as u64) < r.header_bytes - 4 {
                 return Err(bad(
                     "vox_offset",
                     format!("{vox_offset}: a .nii's samples start after its header"),
@@ -477,15 +486,6 @@ impl NiftiReader {
             },
             which: if rgb > 1 { which } else { Some(0) },
         })
-    }
-}
-
-fn head_len(r: &Raw) -> u64 {
-    // NIfTI-2 when the dims do not fit an i16 is the common case; both are bounded by 540
-    if r.dim.iter().any(|&d| d > i16::MAX as i64) {
-        540
-    } else {
-        348
     }
 }
 
