@@ -101,10 +101,88 @@ def refuse(out, name, path, error, args=(), note=""):
                   "error": error, "note": note})
 
 
+def zarr_volumes(out):
+    """Zarr arrays and OME-Zarr images written by zarr-python 3 from anatomical.nii's voxels
+    (nibabel's canonical RAS array, int16, [x, y, z]); `add`'s expectation is what zarr-python
+    reads back."""
+    import nibabel as nib
+    import numcodecs
+    import zarr
+    from zarr.codecs import BloscCodec, GzipCodec, ZstdCodec
+
+    data = os.path.join(os.path.dirname(nib.__file__), "tests", "data")
+    img = nib.as_closest_canonical(nib.load(os.path.join(data, "anatomical.nii")))
+    world = np.asarray(img.dataobj).astype(np.int16)  # [x, y, z]
+    zyx = np.ascontiguousarray(world.transpose(2, 1, 0))  # C order: x fastest
+    ch = tuple(max(2, n // 3) for n in zyx.shape)
+
+    def fresh(name):
+        p = os.path.join(out, name)
+        shutil.rmtree(p, ignore_errors=True)
+        return p
+
+    # plain arrays: spacing 1, dims z, y, x
+    for name, kw in [
+        ("zarr2_blosc", dict(zarr_format=2, compressors=numcodecs.Blosc("lz4", 5, 1))),
+        ("zarr2_f_zlib", dict(zarr_format=2, order="F", compressors=numcodecs.Zlib(5))),
+        ("zarr2_be_gzip", dict(zarr_format=2, dtype=">i2", compressors=numcodecs.GZip(5))),
+        ("zarr3_zstd", dict(zarr_format=3)),
+        ("zarr3_blosc", dict(zarr_format=3, compressors=BloscCodec(cname="zstd", clevel=3,
+                                                                    shuffle="bitshuffle"))),
+        ("zarr3_sharded", dict(zarr_format=3, shards=tuple(2 * c for c in ch),
+                               compressors=GzipCodec(level=5))),
+    ]:
+        p = fresh(name + ".zarr")
+        kw.setdefault("dtype", zyx.dtype)
+        a = zarr.create_array(p, shape=zyx.shape, chunks=ch, **kw)
+        a[:] = zyx
+        back = zarr.open_array(p, mode="r")[:]
+        add(out, name, p, back.transpose(2, 1, 0), (1, 1, 1), origin=(0, 0, 0),
+            note="zarr-python")
+
+    # OME-Zarr 0.4 (v2 group) and 0.5 (v3 group): two levels of (c, z, y, x) with two
+    # channels (the voxels, and half of them); the dataset's scale and translation, then the
+    # multiscale's scale of 2
+    dx, dy, dz = (float(s) for s in img.header.get_zooms()[:3])
+    two = np.stack([zyx, zyx // 2])
+    axes = [{"name": "c", "type": "channel"}] + [
+        {"name": n, "type": "space", "unit": "millimeter"} for n in "zyx"]
+    datasets = [{"path": str(k), "coordinateTransformations": [
+        {"type": "scale", "scale": [1.0, dz * 2**k, dy * 2**k, dx * 2**k]},
+        {"type": "translation", "translation": [0.0, -5.0, 7.0, 3.0]}]} for k in range(2)]
+    ms = {"name": "anatomical", "axes": axes, "datasets": datasets,
+          "coordinateTransformations": [{"type": "scale", "scale": [1.0, 2.0, 2.0, 2.0]}]}
+    omero = {"channels": [{"label": "T1", "color": "FFFFFF"}, {"label": "half", "color": "FF0000"}]}
+    for fmt, version, choice in ((2, "0.4", "half"), (3, "0.5", "1")):
+        p = fresh(f"ome{version.replace('.', '')}.zarr")
+        g = zarr.open_group(p, mode="w", zarr_format=fmt)
+        if fmt == 2:
+            g.attrs.update({"multiscales": [dict(ms, version="0.4")], "omero": omero})
+        else:
+            g.attrs.update({"ome": {"version": "0.5", "multiscales": [ms], "omero": omero}})
+        for k in range(2):
+            level = two[:, :: 2**k, :: 2**k, :: 2**k]
+            a = g.create_array(str(k), shape=level.shape, chunks=(1,) + ch, dtype=level.dtype,
+                               **({"dimension_names": ["c", "z", "y", "x"]} if fmt == 3 else {}))
+            a[:] = level
+        back = zarr.open_group(p, mode="r")["0"][1]
+        add(out, f"ome{version.replace('.', '')}", p, back.transpose(2, 1, 0),
+            (2 * dx, 2 * dy, 2 * dz), ["--scalar", choice], origin=(6.0, 14.0, -10.0),
+            note=f"zarr-python, OME-Zarr {version}")
+    # refused: 64-bit integers; a 4D array without axes (which dim is time, which channels?)
+    p = fresh("zarr3_int64.zarr")
+    zarr.create_array(p, shape=zyx.shape, chunks=ch, dtype="int64")[:] = zyx
+    refuse(out, "zarr3_int64", p, "int64", note="zarr-python")
+    p = fresh("zarr3_4d.zarr")
+    zarr.create_array(p, shape=two.shape, chunks=(1,) + ch, dtype=two.dtype)[:] = two
+    refuse(out, "zarr3_4d", p, "OME-Zarr", note="zarr-python")
+
+
 def main():
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
     nifti(out)
+    zarr_volumes(out)
     with open(os.path.join(out, "cases.json"), "w") as f:
         json.dump(CASES, f, indent=1)
     print(f"{len(CASES)} volume files in {out}")

@@ -535,11 +535,7 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
             resolution: None,
         });
     }
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().to_string())
-        .map(|s| s.strip_suffix(".nii").map(str::to_string).unwrap_or(s))
-        .unwrap_or_else(|| input.to_string());
+    let stem = dataset_name(&path, input);
     if o.grid.dims.is_some() || ext == "raw" {
         let grid = o.grid.read(&path, o.nan_as)?;
         return Ok(Loaded {
@@ -594,6 +590,19 @@ fn load_source(input: &str, o: &ReadArgs) -> Result<Loaded, PrepareError> {
         });
     }
     Err(PrepareError::UnknownInput(input.to_string()))
+}
+
+/// A store's dataset name: the input file's name without its extensions (`brain.nii.gz`:
+/// `brain`), or `input` when it has none.
+pub(crate) fn dataset_name(path: &Path, input: &str) -> String {
+    path.file_name()
+        .map(|s| s.to_string_lossy().to_string())
+        .and_then(|s| {
+            let s = s.strip_suffix(".gz").unwrap_or(&s);
+            let s = s.rsplit_once('.').map_or(s, |(stem, _)| stem);
+            (!s.is_empty()).then(|| s.to_string())
+        })
+        .unwrap_or_else(|| input.to_string())
 }
 
 /// What `prepare` holds a vertex of the semi-regular mesh with: measured 31 bytes at 513³

@@ -248,3 +248,8 @@ fn by_parts_is_whole(dir: &Path, name: &str, input: &str, extra: &[&str]) {
 fn nifti_files_from_nibabel() {
     assert!(check("nibabel") >= 5, "nibabel's files ran");
 }
+
+#[test]
+fn zarr_arrays_and_ome_zarr_from_zarr_python() {
+    assert!(check("zarr-python") >= 10, "zarr-python's files ran");
+}

@@ -873,11 +873,7 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
         .pads(plan.dims)
         .then(|| NearLevelSet::of_box(lo, hi))
         .transpose()?;
-    let dataset = plan
-        .path
-        .file_stem()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_else(|| o.input.clone());
+    let dataset = super::dataset_name(&plan.path, &o.input);
     let meta = StoreMeta {
         dataset,
         source: o.input.clone(),
