@@ -231,4 +231,73 @@ fn stores_in_a_bucket_and_over_http() {
     assert!(e.contains("manifest.json"), "{e}");
     assert!(!e.contains(&secret), "a secret in an error: {e}");
     assert!(e.contains("access denied") || e.contains("403"), "{e}");
+
+    // Zarr volumes read chunk by chunk from the bucket and from nginx, with no copy on disk:
+    // each prepares into the store of its local folder, byte for byte
+    let vf = work.path().join("www/vf");
+    let python = repo().join(".venv/bin/python");
+    let out = Command::new(&python)
+        .arg(repo().join("scripts/volume-fixtures.py"))
+        .arg(&vf)
+        .output()
+        .unwrap_or_else(|e| panic!("{} ({e}): run scripts/setup", python.display()));
+    assert!(
+        out.status.success(),
+        "volume-fixtures.py: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (name, scalar) in [("zarr3_sharded", None), ("ome05", Some("1"))] {
+        let folder = vf.join(format!("{name}.zarr"));
+        let bucket = format!("s3://tetwave/volumes/{name}.zarr");
+        let to = Location::parse(&bucket).unwrap();
+        let mut files = vec![folder.clone()];
+        while let Some(d) = files.pop() {
+            for e in std::fs::read_dir(&d).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    files.push(p);
+                } else {
+                    let rel = p.strip_prefix(&folder).unwrap().to_str().unwrap().to_string();
+                    tetwave_store::upload_file(&p, &to, &rel).unwrap();
+                }
+            }
+        }
+        let http = format!("http://127.0.0.1:{}/vf/{name}.zarr", nginx.port);
+        let prepared = |input: &str, dir: &str| {
+            let mut o = PrepareOptions::new(input, &work.path().join(dir));
+            o.read.scalar = scalar.map(str::to_string);
+            o.max_error = Some(ErrorBound::parse("0.5%").unwrap());
+            prepare(&o).unwrap_or_else(|e| panic!("{input}: {e}"));
+            Store::open(&work.path().join(dir)).unwrap()
+        };
+        let here = prepared(folder.to_str().unwrap(), &format!("{name}-here"));
+        for (input, dir) in [(&bucket, "s3"), (&http, "http")] {
+            let there = prepared(input, &format!("{name}-{dir}"));
+            assert_eq!(
+                there.manifest.files, here.manifest.files,
+                "{input}: another store than the folder's"
+            );
+        }
+    }
+    // a missing array, and wrong credentials: one error naming the object, no secret in it
+    let e = prepare(&PrepareOptions::new(
+        "s3://tetwave/volumes/none.zarr",
+        &work.path().join("none"),
+    ))
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("s3://tetwave/volumes/none.zarr"), "{e}");
+    std::env::set_var("AWS_SECRET_ACCESS_KEY", "0".repeat(64));
+    let e = prepare(&PrepareOptions::new(
+        "s3://tetwave/volumes/zarr3_sharded.zarr",
+        &work.path().join("denied"),
+    ))
+    .err()
+    .unwrap()
+    .to_string();
+    std::env::set_var("AWS_SECRET_ACCESS_KEY", &secret);
+    assert!(e.contains("s3://tetwave/volumes/zarr3_sharded.zarr/"), "{e}");
+    assert!(!e.contains(&secret), "a secret in an error: {e}");
+    assert!(e.contains("access denied") || e.contains("403"), "{e}");
 }

@@ -113,6 +113,8 @@ pub(crate) fn read_box(
                     layout.dtype
                 ),
             )
+        } else if e.kind() == std::io::ErrorKind::InvalidData {
+            VolumeError::bad(path, "data", e.to_string())
         } else {
             VolumeError::Io {
                 path: path.to_path_buf(),
