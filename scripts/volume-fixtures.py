@@ -178,11 +178,116 @@ def zarr_volumes(out):
     refuse(out, "zarr3_4d", p, "OME-Zarr", note="zarr-python")
 
 
+def anatomical():
+    """nibabel's anatomical.nii (33×41×25 i16) as [x, y, z], canonical RAS, and its spacing."""
+    import nibabel as nib
+
+    data = os.path.join(os.path.dirname(nib.__file__), "tests", "data")
+    img = nib.as_closest_canonical(nib.load(os.path.join(data, "anatomical.nii")))
+    return np.asarray(img.dataobj).astype(np.int16), tuple(float(z) for z in img.header.get_zooms()[:3])
+
+
+def nrrd_volumes(out):
+    """NRRD files written by pynrrd from anatomical.nii's voxels: raw, gzip, ascii, detached
+    headers, big-endian, a vector axis (--scalar) and a time axis (--frame); LPS, axis-aligned."""
+    import nrrd
+
+    arr, spacing = anatomical()
+    origin = [10.0, -5.0, 2.5]
+    hdr = {"space": "left-posterior-superior", "space directions": np.diag(spacing).astype(float),
+           "space origin": np.array(origin), "kinds": ["domain"] * 3, "endian": "little"}
+    cases = []
+    for enc in ["raw", "gzip", "ascii"]:
+        p = f"{out}/vol_{enc}.nrrd"
+        nrrd.write(p, arr, dict(hdr, encoding=enc))
+        cases.append((f"nrrd_{enc}", p, []))
+    for enc in ["raw", "gzip"]:
+        p = f"{out}/vol_detached_{enc}.nhdr"
+        nrrd.write(p, arr, dict(hdr, encoding=enc), detached_header=True)
+        cases.append((f"nrrd_detached_{enc}", p, []))
+    p = f"{out}/vol_big.nrrd"
+    nrrd.write(p, arr, dict(hdr, encoding="raw", endian="big"))
+    cases.append(("nrrd_big", p, []))
+    for name, p, args in cases:
+        back, _ = nrrd.read(p)
+        add(out, name, p, back, spacing, args, origin, "pynrrd")
+    p = f"{out}/vec.nrrd"
+    nrrd.write(p, np.stack([arr, -arr, 2 * arr], 0),
+               {"kinds": ["vector", "domain", "domain", "domain"], "encoding": "raw", "space": "RAS",
+                "space directions": np.vstack([np.full(3, np.nan), np.diag(spacing)]),
+                "space origin": [0.0, 0.0, 0.0]})
+    back, _ = nrrd.read(p)
+    add(out, "nrrd_vector", p, back[1], spacing, ["--scalar", "1"], [0, 0, 0], "pynrrd")
+    p = f"{out}/time.nrrd"
+    nrrd.write(p, np.stack([arr, arr + 100], 3),
+               {"kinds": ["domain", "domain", "domain", "time"], "encoding": "gzip",
+                "spacings": [*spacing, np.nan]})
+    back, _ = nrrd.read(p)
+    add(out, "nrrd_time", p, back[..., 1], spacing, ["--frame", "1"], [0, 0, 0], "pynrrd")
+
+
+def vtk_volumes(out):
+    """VTK image data written by VTK's own writers from anatomical.nii's voxels: .vti in every
+    data mode (ascii, binary, appended raw and base64), uncompressed and zlib, and legacy
+    STRUCTURED_POINTS ascii and binary; a scalar array and a 3-component one (--scalar)."""
+    import vtk
+    from vtk.util import numpy_support as ns
+
+    arr, spacing = anatomical()
+    img = vtk.vtkImageData()
+    img.SetDimensions(*arr.shape)
+    img.SetSpacing(*spacing)
+    img.SetOrigin(1, 2, 3)
+    f = arr.ravel(order="F")
+    a = ns.numpy_to_vtk(f, deep=True)
+    a.SetName("density")
+    img.GetPointData().SetScalars(a)
+    v = ns.numpy_to_vtk(np.stack([f, -f, 2 * f], 1).astype(np.float32), deep=True)
+    v.SetName("vel")
+    img.GetPointData().AddArray(v)
+    files = []
+    for mode in ["Ascii", "Binary", "Appended"]:
+        for comp in ["None", "ZLib"]:
+            for enc in ([0, 1] if mode == "Appended" else [1]):
+                w = vtk.vtkXMLImageDataWriter()
+                w.SetInputData(img)
+                getattr(w, "SetDataModeTo" + mode)()
+                getattr(w, "SetCompressorTypeTo" + comp)()
+                w.SetEncodeAppendedData(enc)
+                w.SetBlockSize(1000)
+                p = f"{out}/img_{mode}_{comp}_{'b64' if enc else 'raw'}.vti"
+                w.SetFileName(p)
+                w.Write()
+                files.append(p)
+    for ft, name in [(1, "ascii"), (2, "binary")]:
+        w = vtk.vtkStructuredPointsWriter()
+        w.SetInputData(img)
+        w.SetFileType(ft)
+        p = f"{out}/img_{name}.vtk"
+        w.SetFileName(p)
+        w.Write()
+        files.append(p)
+    for p in files:
+        r = vtk.vtkXMLImageDataReader() if p.endswith(".vti") else vtk.vtkStructuredPointsReader()
+        r.SetFileName(p)
+        r.Update()
+        o = r.GetOutput()
+        dims = o.GetDimensions()
+        d = ns.vtk_to_numpy(o.GetPointData().GetArray("density")).reshape(dims, order="F")
+        vel = ns.vtk_to_numpy(o.GetPointData().GetArray("vel"))[:, 2].reshape(dims, order="F")
+        name = "vtk_" + os.path.basename(p).replace(".", "_")
+        add(out, name, p, d, o.GetSpacing(), ["--scalar", "density"], o.GetOrigin(), "vtk")
+        if p.endswith("Appended_ZLib_raw.vti") or p.endswith("binary.vtk"):
+            add(out, name + "_vel2", p, vel, o.GetSpacing(), ["--scalar", "vel:2"], o.GetOrigin(), "vtk")
+
+
 def main():
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
     nifti(out)
     zarr_volumes(out)
+    nrrd_volumes(out)
+    vtk_volumes(out)
     with open(os.path.join(out, "cases.json"), "w") as f:
         json.dump(CASES, f, indent=1)
     print(f"{len(CASES)} volume files in {out}")

@@ -253,3 +253,13 @@ fn nifti_files_from_nibabel() {
 fn zarr_arrays_and_ome_zarr_from_zarr_python() {
     assert!(check("zarr-python") >= 10, "zarr-python's files ran");
 }
+
+#[test]
+fn nrrd_files_from_pynrrd() {
+    assert!(check("pynrrd") >= 8, "pynrrd's files ran");
+}
+
+#[test]
+fn vtk_image_data_from_vtk() {
+    assert!(check("vtk") >= 10, "VTK's files ran");
+}
