@@ -346,9 +346,10 @@ impl NiftiReader {
         // where the chosen frame and vector component start
         // a single file's vox_offset 0 is read as "just after the header", as nibabel and
         // niftilib do (files written by ANALYZE-era tools)
-        let vox_offset = match (r.vox_offset, r.single_file) {
-            (o, true) if o == 0.0 => r.header_bytes as f64,
-            (o, _) => o,
+        let vox_offset = if r.single_file && r.vox_offset == 0.0 {
+            r.header_bytes as f64
+        } else {
+            r.vox_offset
         };
         if !(vox_offset.is_finite() && vox_offset >= 0.0) {
             return Err(bad(

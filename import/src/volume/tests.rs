@@ -187,8 +187,8 @@ fn nifti1(dims: [usize; 3], sform: Option<[[f32; 4]; 3]>, scl: (f32, f32), big: 
     };
     put32(&mut h, 0, 348);
     put16(&mut h, 40, 3);
-    for a in 0..3 {
-        put16(&mut h, 42 + 2 * a, dims[a] as i16);
+    for (a, &d) in dims.iter().enumerate() {
+        put16(&mut h, 42 + 2 * a, d as i16);
         putf(&mut h, 80 + 4 * a, 1.5);
     }
     put16(&mut h, 70, 4);
@@ -199,9 +199,9 @@ fn nifti1(dims: [usize; 3], sform: Option<[[f32; 4]; 3]>, scl: (f32, f32), big: 
     h[123] = 2; // mm
     if let Some(m) = sform {
         put16(&mut h, 254, 1);
-        for r in 0..3 {
-            for c in 0..4 {
-                putf(&mut h, 280 + 16 * r + 4 * c, m[r][c]);
+        for (r, row) in m.iter().enumerate() {
+            for (c, &x) in row.iter().enumerate() {
+                putf(&mut h, 280 + 16 * r + 4 * c, x);
             }
         }
     }
