@@ -281,6 +281,47 @@ def vtk_volumes(out):
             add(out, name + "_vel2", p, vel, o.GetSpacing(), ["--scalar", "vel:2"], o.GetOrigin(), "vtk")
 
 
+def tiff_volumes(out):
+    """TIFF stacks written by tifffile from anatomical.nii's voxels: ImageJ with spacing and unit,
+    plain, zlib, LZW, PackBits, zstd, predictor, tiled, BigTIFF, big-endian, and a folder of
+    slices (with a README among them)."""
+    import tifffile
+
+    arr, (sx, sy, sz) = anatomical()
+    zyx = np.ascontiguousarray(arr.transpose(2, 1, 0))
+    plain = dict(photometric="minisblack")
+    files = {
+        "imagej": dict(imagej=True, resolution=(1 / sx, 1 / sy),
+                       metadata={"spacing": sz, "unit": "um", "axes": "ZYX"}),
+        "plain": plain,
+        "zlib": dict(plain, compression="zlib"),
+        "lzw": dict(plain, compression="lzw"),
+        "packbits": dict(plain, compression="packbits"),
+        "zstd": dict(plain, compression="zstd"),
+        "predictor": dict(plain, compression="zlib", predictor=True),
+        "tiled": dict(plain, tile=(16, 16), compression="zlib"),
+        "bigtiff": dict(plain, bigtiff=True),
+        "bigendian": dict(plain, byteorder=">", rowsperstrip=3),
+    }
+    for name, kw in files.items():
+        p = os.path.join(out, f"tiff_{name}.tif")
+        tifffile.imwrite(p, zyx, **kw)
+        back = tifffile.imread(p)
+        spacing = (sx, sy, sz) if name == "imagej" else (1, 1, 1)
+        add(out, f"tiff_{name}", p, back.transpose(2, 1, 0), spacing, origin=(0, 0, 0),
+            note="tifffile")
+    d = os.path.join(out, "tiff_slices")
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, "README.txt"), "w") as f:
+        f.write("slices of anatomical.nii\n")
+    for k in range(zyx.shape[0]):
+        tifffile.imwrite(os.path.join(d, f"slice_{k}.tif"), zyx[k], **plain)
+    back = np.stack([tifffile.imread(os.path.join(d, f"slice_{k}.tif"))
+                     for k in range(zyx.shape[0])])
+    add(out, "tiff_slices", d, back.transpose(2, 1, 0), (1, 1, 1), origin=(0, 0, 0),
+        note="tifffile")
+
+
 def main():
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
@@ -288,6 +329,7 @@ def main():
     zarr_volumes(out)
     nrrd_volumes(out)
     vtk_volumes(out)
+    tiff_volumes(out)
     with open(os.path.join(out, "cases.json"), "w") as f:
         json.dump(CASES, f, indent=1)
     print(f"{len(CASES)} volume files in {out}")

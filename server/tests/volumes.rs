@@ -263,3 +263,8 @@ fn nrrd_files_from_pynrrd() {
 fn vtk_image_data_from_vtk() {
     assert!(check("vtk") >= 10, "VTK's files ran");
 }
+
+#[test]
+fn tiff_stacks_from_tifffile() {
+    assert!(check("tifffile") >= 11, "tifffile's files ran");
+}

@@ -301,12 +301,16 @@ pub fn sniff(path: &Path) -> Option<VolumeFormat> {
         if zarr::is_zarr_dir(path) {
             return Some(VolumeFormat::Zarr);
         }
-        // a folder of slices: the first regular file (in name order) decides
-        let first = slice_files(path).ok()?.into_iter().next()?;
-        return match sniff(&first)? {
-            f @ (VolumeFormat::Dicom | VolumeFormat::Tiff) => Some(f),
-            _ => None,
-        };
+        // a folder of slices: the first DICOM or TIFF file in name order decides (a README
+        // before the slices does not hide them); no more than 64 files are looked at
+        return slice_files(path)
+            .ok()?
+            .iter()
+            .take(64)
+            .find_map(|f| match sniff(f) {
+                Some(fm @ (VolumeFormat::Dicom | VolumeFormat::Tiff)) => Some(fm),
+                _ => None,
+            });
     }
     let mut head = [0u8; 1024];
     let n = std::fs::File::open(path)
@@ -575,6 +579,17 @@ impl Volume {
                 format!(
                     "the reader returned {} voxels for a box of {fdims:?}",
                     file.len()
+                ),
+            ));
+        }
+        if file.dtype() != h.dtype {
+            return Err(VolumeError::bad(
+                &self.path,
+                "voxels",
+                format!(
+                    "the reader returned {} samples for a header of {}",
+                    file.dtype(),
+                    h.dtype
                 ),
             ));
         }

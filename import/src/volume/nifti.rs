@@ -314,8 +314,10 @@ impl NiftiReader {
         } else {
             Vec::new()
         };
+        // a one-component file takes its component whatever the choice (`mag` included)
         let which = choose_component(options.scalar.as_ref(), components, &names)
-            .map_err(|m| VolumeError::usage(path, m))?;
+            .map_err(|m| VolumeError::usage(path, m))?
+            .or(if components <= 1 { Some(0) } else { None });
         if vectors > 1 && which.is_none() {
             return Err(VolumeError::unsupported(
                 path,
