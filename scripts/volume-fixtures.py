@@ -322,6 +322,145 @@ def tiff_volumes(out):
         note="tifffile")
 
 
+def dicom_volumes(out):
+    """DICOM written by pydicom from anatomical.nii's voxels on CT_small.dcm's data set (new
+    geometry, rescale 2·v − 1024): a series of extensionless slice files whose names and
+    InstanceNumbers run in orders unrelated to their positions, the same with the rows running
+    to the patient's right (ImageOrientationPatient [-1,0,0,0,1,0]), an RLE series, an enhanced
+    CT (one file, per-frame positions in reverse order); pydicom's own CT series and RT dose;
+    and what is refused. `add`'s expectation is what pydicom reads back."""
+    import copy
+
+    import pydicom
+    from pydicom.data import get_testdata_file
+    from pydicom.dataset import Dataset
+    from pydicom.sequence import Sequence
+    from pydicom.uid import ExplicitVRLittleEndian, RLELossless, generate_uid
+
+    arr, (sx, sy, sz) = anatomical()  # [x, y, z] i16
+    zyx = np.ascontiguousarray(arr.transpose(2, 1, 0))
+    nz, ny, nx = zyx.shape
+    base = pydicom.dcmread(get_testdata_file("CT_small.dcm"))  # its preamble is a TIFF header
+    slope, intercept = 2.0, -1024.0
+    series_uid = None
+
+    def image(ds):
+        ds.SeriesInstanceUID = series_uid
+        ds.SOPInstanceUID = generate_uid()
+        ds.file_meta.MediaStorageSOPInstanceUID = ds.SOPInstanceUID
+        ds.Rows, ds.Columns = ny, nx
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 1
+
+    def read_series(d):
+        """pydicom's reading: slices sorted along the normal, [x, y, z], rescaled."""
+        dss = [pydicom.dcmread(os.path.join(d, f)) for f in os.listdir(d)]
+        iop = np.array(dss[0].ImageOrientationPatient, float)
+        n = np.cross(iop[:3], iop[3:])
+        dss.sort(key=lambda ds: float(np.dot(np.array(ds.ImagePositionPatient, float), n)))
+        vol = np.stack([ds.pixel_array * float(ds.RescaleSlope) + float(ds.RescaleIntercept)
+                        for ds in dss])
+        return vol.transpose(2, 1, 0), np.array(dss[0].ImagePositionPatient, float)
+
+    origin = np.array([-10.0, 20.0, 30.0])
+    for name, iop, axes, rle in [
+        ("dicom_series", (1, 0, 0, 0, 1, 0), [(0, False), (1, False), (2, False)], False),
+        ("dicom_flipped", (-1, 0, 0, 0, 1, 0), [(0, True), (1, False), (2, True)], False),
+        ("dicom_rle", (1, 0, 0, 0, 1, 0), [(0, False), (1, False), (2, False)], True),
+    ]:
+        d = os.path.join(out, name)
+        os.makedirs(d, exist_ok=True)
+        series_uid = generate_uid()
+        n = np.cross(iop[:3], iop[3:])
+        order = np.random.default_rng(0).permutation(nz)
+        for k in range(nz):
+            ds = copy.deepcopy(base)
+            image(ds)
+            ds.PixelSpacing = [sy, sx]  # between rows (y), between columns (x)
+            ds.ImageOrientationPatient = list(iop)
+            ds.ImagePositionPatient = [float(v) for v in origin + k * sz * n]
+            ds.InstanceNumber = int(order[k]) + 1
+            ds.RescaleSlope, ds.RescaleIntercept = slope, intercept
+            ds.PixelData = zyx[k].astype("<i2").tobytes()
+            if rle:
+                ds.compress(RLELossless)
+            else:
+                ds.file_meta.TransferSyntaxUID = ExplicitVRLittleEndian
+            ds.save_as(os.path.join(d, f"IM{int(order[k]) * 7 % 1000:04d}"),
+                       enforce_file_format=True)
+        file_xyz, first = read_series(d)
+        world = world_array(file_xyz, axes)
+        # the world box's low corner: the first slice's position, less the flipped axes' extent
+        low = first.copy()
+        for a, (w, flip) in enumerate(axes):
+            if flip:
+                low[w] -= (world.shape[w] - 1) * (sx, sy, sz)[a]
+        add(out, name, d, world, (sx, sy, sz), origin=low, note="pydicom")
+
+    # enhanced CT: one file, frames in reverse z order, per-frame positions
+    series_uid = generate_uid()
+    ds = copy.deepcopy(base)
+    for kw in ["ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing",
+               "RescaleSlope", "RescaleIntercept", "SliceLocation"]:
+        if kw in ds:
+            delattr(ds, kw)
+    image(ds)
+    ds.SOPClassUID = "1.2.840.10008.5.1.4.1.1.2.1"  # Enhanced CT Image Storage
+    ds.file_meta.MediaStorageSOPClassUID = ds.SOPClassUID
+    ds.NumberOfFrames = nz
+    po, pm, pv = Dataset(), Dataset(), Dataset()
+    po.ImageOrientationPatient = [1, 0, 0, 0, 1, 0]
+    pm.PixelSpacing, pm.SliceThickness = [sy, sx], sz
+    pv.RescaleSlope, pv.RescaleIntercept, pv.RescaleType = slope, intercept, "HU"
+    shared = Dataset()
+    shared.PlaneOrientationSequence = Sequence([po])
+    shared.PixelMeasuresSequence = Sequence([pm])
+    shared.PixelValueTransformationSequence = Sequence([pv])
+    ds.SharedFunctionalGroupsSequence = Sequence([shared])
+    frames = []
+    for f in range(nz):
+        pp = Dataset()
+        pp.ImagePositionPatient = [1.0, 2.0, 3.0 + (nz - 1 - f) * sz]
+        fg = Dataset()
+        fg.PlanePositionSequence = Sequence([pp])
+        frames.append(fg)
+    ds.PerFrameFunctionalGroupsSequence = Sequence(frames)
+    ds.PixelData = np.ascontiguousarray(zyx[::-1]).astype("<i2").tobytes()
+    ds.file_meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    p = os.path.join(out, "dicom_enhanced.dcm")
+    ds.save_as(p, enforce_file_format=True)
+    back = pydicom.dcmread(p).pixel_array[::-1] * slope + intercept  # frames sorted by z
+    add(out, "dicom_enhanced", p, back.transpose(2, 1, 0), (sx, sy, sz), origin=(1, 2, 3),
+        note="pydicom enhanced CT")
+
+    # pydicom's own files
+    tests = os.path.dirname(get_testdata_file("CT_small.dcm"))
+    d = os.path.join(out, "dicom_ct5n")
+    shutil.copytree(os.path.join(tests, "dicomdirtests", "98892001", "CT5N"), d,
+                    dirs_exist_ok=True)
+    world, first = read_series(d)
+    ps = pydicom.dcmread(os.path.join(d, os.listdir(d)[0])).PixelSpacing
+    add(out, "dicom_ct5n", d, world, (float(ps[1]), float(ps[0]), 2.5), origin=first,
+        note="pydicom dicomdirtests CT5N")
+    p = os.path.join(out, "rtdose.dcm")
+    shutil.copyfile(os.path.join(tests, "rtdose.dcm"), p)
+    ds = pydicom.dcmread(p)
+    dose = ds.pixel_array * float(ds.DoseGridScaling)  # [frame, y, x]
+    add(out, "rtdose", p, dose.transpose(2, 1, 0), (10, 10, 5),
+        origin=[float(v) for v in ds.ImagePositionPatient], note="pydicom RT dose")
+    for name, src, error in [
+        ("dicom_gap", ("dicomdirtests", "77654033", "CT2"), "gaps"),
+        ("dicom_three_series", ("dicomdirtests", "98892003", "MR2"), "3 series"),
+        ("dicom_oblique", ("dicomdirtests", "98892003", "MR700"), "ImageOrientationPatient"),
+    ]:
+        d = os.path.join(out, name)
+        shutil.copytree(os.path.join(tests, *src), d, dirs_exist_ok=True)
+        refuse(out, name, d, error, note="pydicom dicomdirtests")
+    for f, error in [("CT_small.dcm", "one 2D slice"), ("JPEG2000.dcm", "JPEG 2000")]:
+        p = os.path.join(out, f)
+        shutil.copyfile(os.path.join(tests, f), p)
+        refuse(out, f.split(".")[0], p, error, note="pydicom")
+
+
 def main():
     out = sys.argv[1]
     os.makedirs(out, exist_ok=True)
@@ -330,6 +469,7 @@ def main():
     nrrd_volumes(out)
     vtk_volumes(out)
     tiff_volumes(out)
+    dicom_volumes(out)
     with open(os.path.join(out, "cases.json"), "w") as f:
         json.dump(CASES, f, indent=1)
     print(f"{len(CASES)} volume files in {out}")

@@ -235,7 +235,7 @@ fn stores_in_a_bucket_and_over_http() {
     // Zarr volumes read chunk by chunk from the bucket and from nginx, with no copy on disk:
     // each prepares into the store of its local folder, byte for byte
     let vf = work.path().join("www/vf");
-    let python = repo().join(".venv/bin/python");
+    let python = repo().join(".venv-volumes/bin/python");
     let out = Command::new(&python)
         .arg(repo().join("scripts/volume-fixtures.py"))
         .arg(&vf)
@@ -257,7 +257,12 @@ fn stores_in_a_bucket_and_over_http() {
                 if p.is_dir() {
                     files.push(p);
                 } else {
-                    let rel = p.strip_prefix(&folder).unwrap().to_str().unwrap().to_string();
+                    let rel = p
+                        .strip_prefix(&folder)
+                        .unwrap()
+                        .to_str()
+                        .unwrap()
+                        .to_string();
                     tetwave_store::upload_file(&p, &to, &rel).unwrap();
                 }
             }
@@ -297,7 +302,10 @@ fn stores_in_a_bucket_and_over_http() {
     .unwrap()
     .to_string();
     std::env::set_var("AWS_SECRET_ACCESS_KEY", &secret);
-    assert!(e.contains("s3://tetwave/volumes/zarr3_sharded.zarr/"), "{e}");
+    assert!(
+        e.contains("s3://tetwave/volumes/zarr3_sharded.zarr/"),
+        "{e}"
+    );
     assert!(!e.contains(&secret), "a secret in an error: {e}");
     assert!(e.contains("access denied") || e.contains("403"), "{e}");
 }

@@ -368,11 +368,12 @@ fn sniff_bytes(head: &[u8]) -> Option<VolumeFormat> {
     if starts(b"NRRD0") {
         return Some(VolumeFormat::Nrrd);
     }
-    if starts(b"II*\0") || starts(b"MM\0*") || starts(b"II+\0") || starts(b"MM\0+") {
-        return Some(VolumeFormat::Tiff);
-    }
+    // before TIFF: a DICOM preamble may hold a TIFF header (dual-format files, PS3.10 7.5)
     if head.len() >= 132 && &head[128..132] == b"DICM" {
         return Some(VolumeFormat::Dicom);
+    }
+    if starts(b"II*\0") || starts(b"MM\0*") || starts(b"II+\0") || starts(b"MM\0+") {
+        return Some(VolumeFormat::Tiff);
     }
     let text = String::from_utf8_lossy(head);
     if text.starts_with("# vtk DataFile") && text.contains("STRUCTURED_POINTS") {
