@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-/// A raw grid's sample type: one of the volume readers' ([`DType`]).
+/// A raw grid's sample type: one of the volume readers' ([`tetwave_import::volume::DType`]).
 pub use tetwave_import::volume::DType as RawType;
 use tetwave_import::volume::{Endian, Samples};
 
