@@ -6,6 +6,8 @@
 //! input is also fed to the block decoder directly as a block's coded bytes, and to the level-set
 //! band decoder (`/v1/levelset`), whose results re-code to themselves.
 
+pub mod volume;
+
 use std::sync::OnceLock;
 use tetwave_protocol::block::{BlockCoder, NodeBlock};
 use tetwave_protocol::levelset::NearLevelSet;
@@ -266,6 +268,7 @@ fn session_manifest() -> tetwave_protocol::store_format::Manifest {
             max_error_bound: 0.25,
         }),
         value_histogram: Some(vec![1; tetwave_protocol::store_format::HISTOGRAM_BINS]),
+        physical: None,
     }
 }
 
