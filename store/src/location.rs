@@ -190,8 +190,8 @@ fn runtime() -> &'static tokio::runtime::Runtime {
 
 /// Runs `f` on the object runtime and waits for it: callable from any thread, a tokio worker's
 /// included (the caller's thread blocks; a server calls from a blocking task). A request whose
-/// task panicked is an error, not a panic here.
-pub(crate) fn block_on<T, F>(f: F) -> Result<T, object_store::Error>
+/// task panicked is an error, not a panic here. Shared with the volume readers' Zarr storage.
+pub fn block_on<T, F>(f: F) -> Result<T, object_store::Error>
 where
     F: Future<Output = Result<T, object_store::Error>> + Send + 'static,
     T: Send + 'static,
@@ -209,7 +209,26 @@ where
 }
 
 /// Ranges of one object closer than this are fetched as one request.
-const COALESCE_GAP: u64 = 64 << 10;
+pub const COALESCE_GAP: u64 = 64 << 10;
+
+/// `ranges` of one object merged where they overlap or lie closer than [`COALESCE_GAP`]: the
+/// merged ranges in ascending order, and for each range given the index of the merged one
+/// holding it.
+pub fn coalesce(ranges: &[Range<u64>]) -> (Vec<Range<u64>>, Vec<usize>) {
+    let mut order: Vec<usize> = (0..ranges.len()).collect();
+    order.sort_by_key(|&i| ranges[i].start);
+    let mut merged: Vec<Range<u64>> = Vec::new();
+    let mut which = vec![0; ranges.len()];
+    for i in order {
+        let r = &ranges[i];
+        match merged.last_mut() {
+            Some(m) if r.start <= m.end.saturating_add(COALESCE_GAP) => m.end = m.end.max(r.end),
+            _ => merged.push(r.clone()),
+        }
+        which[i] = merged.len() - 1;
+    }
+    (merged, which)
+}
 
 /// A store's objects: `object_store` and the prefix its files are under.
 #[derive(Clone, Debug)]
@@ -336,20 +355,7 @@ impl Objects {
         file: &str,
         ranges: &[Range<u64>],
     ) -> Result<Vec<Vec<u8>>, StoreError> {
-        let mut order: Vec<usize> = (0..ranges.len()).collect();
-        order.sort_by_key(|&i| ranges[i].start);
-        let mut merged: Vec<Range<u64>> = Vec::new();
-        let mut which = vec![0; ranges.len()];
-        for i in order {
-            let r = &ranges[i];
-            match merged.last_mut() {
-                Some(m) if r.start <= m.end.saturating_add(COALESCE_GAP) => {
-                    m.end = m.end.max(r.end)
-                }
-                _ => merged.push(r.clone()),
-            }
-            which[i] = merged.len() - 1;
-        }
+        let (merged, which) = coalesce(ranges);
         let want: Vec<_> = merged.iter().map(|m| (file, m.clone())).collect();
         let got = self.read_many(&want)?;
         Ok(ranges

@@ -1881,13 +1881,7 @@ impl VolumeReader for DicomReader {
     }
 
     fn read_box(&mut self, lo: [usize; 3], hi: [usize; 3]) -> Result<Samples, VolumeError> {
-        let dims = self.header.dims;
-        if (0..3).any(|a| lo[a] >= hi[a] || hi[a] > dims[a]) {
-            return Err(VolumeError::usage(
-                &self.path,
-                format!("box {lo:?}..{hi:?} asked of a volume of {dims:?} voxels"),
-            ));
-        }
+        super::check_box(&self.path, lo, hi, self.header.dims)?;
         let n = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
         let mut out = Samples::with_capacity(self.header.dtype, 0);
         if let Samples::F32(v) = &mut out {

@@ -433,6 +433,23 @@ pub(crate) fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
     }
 }
 
+/// Whether `lo..hi` is a non-empty box within `dims` (what every [`VolumeReader::read_box`]
+/// accepts); the error names the file.
+pub(crate) fn check_box(
+    path: &Path,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    dims: [usize; 3],
+) -> Result<(), VolumeError> {
+    if (0..3).any(|a| lo[a] >= hi[a] || hi[a] > dims[a]) {
+        return Err(VolumeError::usage(
+            path,
+            format!("box {lo:?}..{hi:?} asked of a volume of {dims:?} voxels"),
+        ));
+    }
+    Ok(())
+}
+
 /// Opens the volume at `path` (`format`: what [`sniff`] found, or the user's override).
 pub fn open_reader(
     path: &Path,

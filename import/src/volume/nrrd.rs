@@ -1446,15 +1446,7 @@ impl VolumeReader for NrrdReader {
         &self.header
     }
     fn read_box(&mut self, lo: [usize; 3], hi: [usize; 3]) -> Result<Samples, VolumeError> {
-        if (0..3).any(|a| lo[a] >= hi[a] || hi[a] > self.layout.dims[a]) {
-            return Err(VolumeError::usage(
-                &self.path,
-                format!(
-                    "box {lo:?}..{hi:?} is not within the dims {:?}",
-                    self.layout.dims
-                ),
-            ));
-        }
+        super::check_box(&self.path, lo, hi, self.layout.dims)?;
         let s = read_box(
             &self.path,
             &mut ByteSource::Seek(&mut self.data),

@@ -1101,12 +1101,7 @@ impl VolumeReader for ZarrReader {
 
     fn read_box(&mut self, lo: [usize; 3], hi: [usize; 3]) -> Result<Samples, VolumeError> {
         let dims = self.header.dims;
-        if (0..3).any(|a| lo[a] >= hi[a] || hi[a] > dims[a]) {
-            return Err(VolumeError::usage(
-                &self.name,
-                format!("box {lo:?}..{hi:?} is not inside the volume's {dims:?} voxels"),
-            ));
-        }
+        super::check_box(&self.name, lo, hi, dims)?;
         match (self.which, self.channels) {
             (None, Some((_, n))) => {
                 // the Euclidean norm of every channel, one channel's box at a time
@@ -1134,53 +1129,15 @@ mod remote {
     use super::VolumeError;
     use object_store::path::Path as ObjectPath;
     use object_store::{GetOptions, GetRange, ObjectStore, ObjectStoreExt};
-    use std::future::Future;
     use std::path::{Path, PathBuf};
-    use std::sync::{Arc, Mutex, OnceLock};
+    use std::sync::{Arc, Mutex};
     use std::time::Duration;
-    use tetwave_store::location::{request_timeout, RETRY, SHORT_READ_RETRIES};
+    use tetwave_store::location::{block_on, coalesce, request_timeout, RETRY, SHORT_READ_RETRIES};
     use tetwave_store::Location;
     use zarrs::storage::byte_range::{ByteRange, ByteRangeIterator};
     use zarrs::storage::{
         Bytes, MaybeBytes, MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey,
     };
-
-    /// The runtime the requests run on (`object_store` is async, the readers are not): two
-    /// worker threads, started on first use.
-    fn runtime() -> &'static tokio::runtime::Runtime {
-        static RT: OnceLock<tokio::runtime::Runtime> = OnceLock::new();
-        RT.get_or_init(|| {
-            tokio::runtime::Builder::new_multi_thread()
-                .worker_threads(2)
-                .thread_name("tetwave-zarr")
-                .enable_all()
-                .build()
-                .expect("a tokio runtime for object storage")
-        })
-    }
-
-    /// Runs `f` on the request runtime and waits for it, from any thread (a tokio worker's
-    /// included: the caller blocks). A request whose task panicked is an error.
-    fn block_on<T, F>(f: F) -> Result<T, object_store::Error>
-    where
-        F: Future<Output = Result<T, object_store::Error>> + Send + 'static,
-        T: Send + 'static,
-    {
-        let (tx, rx) = std::sync::mpsc::sync_channel(1);
-        runtime().spawn(async move {
-            let _ = tx.send(f.await);
-        });
-        rx.recv().unwrap_or_else(|_| {
-            Err(object_store::Error::Generic {
-                store: "tetwave",
-                source: "the request failed inside object_store (its task panicked)".into(),
-            })
-        })
-    }
-
-    /// Ranges of one object closer than this are fetched as one request (a shard's inner
-    /// chunks, the rows of a box in an uncompressed chunk).
-    const COALESCE_GAP: u64 = 64 << 10;
 
     /// A Zarr hierarchy's objects, as `zarrs` storage (read-only, never listed).
     pub(crate) struct ObjectStorage {
@@ -1315,7 +1272,7 @@ mod remote {
         }
 
         /// The bytes of `ranges` of `key` (`None`: no such object): ranges closer than
-        /// [`COALESCE_GAP`] fetched as one request, the requests concurrently, and one that
+        /// [`COALESCE_GAP`](tetwave_store::location::COALESCE_GAP) fetched as one request, the requests concurrently, and one that
         /// comes short asked for again, up to [`SHORT_READ_RETRIES`] times.
         fn get_ranges(
             &self,
@@ -1354,35 +1311,20 @@ mod remote {
                     }
                 }
             }
-            bounded.sort_by_key(|b| b.1);
-            let mut merged: Option<Run> = None;
-            let flush = |m: Run, asks: &mut Vec<Ask>| {
-                let (start, end, members) = m;
+            let (merged, which) = coalesce(&bounded.iter().map(|b| b.1..b.2).collect::<Vec<_>>());
+            let mut members: Vec<Vec<(usize, u64, u64)>> = vec![Vec::new(); merged.len()];
+            for (b, k) in bounded.into_iter().zip(which) {
+                members[k].push(b);
+            }
+            for (m, members) in merged.into_iter().zip(members) {
                 asks.push(Ask {
-                    range: Some(GetRange::Bounded(start..end)),
-                    len: Some(end - start),
+                    range: Some(GetRange::Bounded(m.clone())),
+                    len: Some(m.end - m.start),
                     parts: members
                         .into_iter()
-                        .map(|(i, a, b)| (i, a - start, Some(b - a)))
+                        .map(|(i, a, b)| (i, a - m.start, Some(b - a)))
                         .collect(),
                 });
-            };
-            for b in bounded {
-                match merged.as_mut() {
-                    Some(m) if b.1 <= m.1.saturating_add(COALESCE_GAP) => {
-                        m.1 = m.1.max(b.2);
-                        m.2.push(b);
-                    }
-                    _ => {
-                        if let Some(m) = merged.take() {
-                            flush(m, &mut asks);
-                        }
-                        merged = Some((b.1, b.2, vec![b]));
-                    }
-                }
-            }
-            if let Some(m) = merged.take() {
-                flush(m, &mut asks);
             }
             let mut done = vec![false; asks.len()];
             for attempt in 0..=SHORT_READ_RETRIES {
@@ -1456,8 +1398,6 @@ mod remote {
 
     /// Neighbouring bounded ranges fetched as one: its start and end, and each range's index,
     /// start and end.
-    type Run = (u64, u64, Vec<(usize, u64, u64)>);
-
     /// One request of [`ObjectStorage::get_ranges`]: the range asked (`None`: the whole
     /// object), the length it must come with (`None`: what the response says), and the ranges
     /// it serves (their index, offset in the response and length, `None`: all of it).
