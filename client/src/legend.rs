@@ -1,8 +1,12 @@
 //! The colour legend under a rendered image (`tetwave render --legend`): the transfer function's
 //! colours across the value range it maps, the scalar's name and that range, in the Hack font
-//! egui ships (so no system font is needed). The strip is drawn on black below the image.
+//! egui ships (so no system font is needed). The strip is drawn on black below the image. Where
+//! the input states its world frame, the image's edges are labelled with the anatomical
+//! directions they face, as radiology viewers do.
 
 use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
+use tetwave_protocol::store_format::Physical;
+use tetwave_protocol::view::Camera;
 use tetwave_render::image_metrics::Rgba8Image;
 use tetwave_render::legend::colour_at;
 pub use tetwave_render::legend::legend_text;
@@ -72,4 +76,46 @@ pub fn draw_text(img: &mut Rgba8Image, x: u32, top: u32, text: &str) {
             });
         }
     }
+}
+
+/// The anatomical direction each edge of the image of `cam` faces, `[left, right, top, bottom]`
+/// (`R`, `LA`, ...: [`Physical::direction_label`] of the camera's right and up vectors and their
+/// opposites); `None` when `physical` states no known frame.
+pub fn edge_labels(physical: &Physical, cam: &Camera) -> Option<[String; 4]> {
+    let (r, u, _) = cam.basis();
+    let label = |v: glam::DVec3| physical.direction_label(v.to_array());
+    Some([label(-r)?, label(r)?, label(u)?, label(-u)?])
+}
+
+/// Draws `labels` (`[left, right, top, bottom]`) at the middle of each edge of `img`, inside it.
+pub fn draw_edge_labels(img: &mut Rgba8Image, labels: &[String; 4]) {
+    let (w, h) = (img.width, img.height);
+    let pad = 4;
+    let line = TEXT_PX.ceil() as u32;
+    let width = |s: &str| text_width(s).ceil() as u32;
+    let [left, right, top, bottom] = labels;
+    draw_text(img, pad, h.saturating_sub(line) / 2, left);
+    draw_text(
+        img,
+        w.saturating_sub(width(right) + pad),
+        h.saturating_sub(line) / 2,
+        right,
+    );
+    draw_text(img, w.saturating_sub(width(top)) / 2, pad, top);
+    draw_text(
+        img,
+        w.saturating_sub(width(bottom)) / 2,
+        h.saturating_sub(line + pad),
+        bottom,
+    );
+}
+
+/// Width of `text` in pixels as [`draw_text`] draws it.
+fn text_width(text: &str) -> f32 {
+    let font = FontRef::try_from_slice(epaint_default_fonts::HACK_REGULAR)
+        .expect("egui's Hack font parses");
+    let scaled = font.as_scaled(PxScale::from(TEXT_PX));
+    text.chars()
+        .map(|c| scaled.h_advance(scaled.glyph_id(c)))
+        .sum()
 }

@@ -1,7 +1,8 @@
-//! `tetwave render`: one image of a store's uniform level, or of the unstructured mesh a store is
-//! prepared from (`.vtu`, legacy `.vtk`, `.msh`, `.mesh`) as it is, on the GPU (projected
-//! tetrahedra) or with the CPU reference integrator, with its time and, on request, its PSNR
-//! against the reference.
+//! `tetwave render`: one image of a store's uniform level, of the unstructured mesh a store is
+//! prepared from (`.vtu`, legacy `.vtk`, `.msh`, `.mesh`) as it is, or of a volume file (NIfTI,
+//! NRRD, VTK image data, TIFF, DICOM, Zarr) as it is (each cell of voxels cut into 6 tets), on
+//! the GPU (projected tetrahedra) or with the CPU reference integrator, with its time and, on
+//! request, its PSNR against the reference.
 //!
 //! A store and the mesh file it was prepared from frame the same default view: the store's base
 //! mesh is the box around the mesh's points (`prepare`'s box5/box6), so both have the same bounds,
@@ -9,7 +10,11 @@
 //! min/max over its points, and `prepare` records that range in the store's manifest
 //! (`source_value_range`), which the store's image maps (stores without it map their samples'
 //! range, which lies within). A store with a level set (`levelset.f32`) is drawn clipped to it:
-//! tets that straddle the input's boundary draw only their inside part.
+//! tets that straddle the input's boundary draw only their inside part. A volume file's mesh has
+//! the coordinates a store prepared from it has (its lowest-corner voxel at 0), so both frame the
+//! same view too. With `--legend`, where the file or the store states its world frame (RAS,
+//! LPS), the image's edges carry the anatomical directions they face (`R`, `A`, `SL`, ...), and
+//! the legend names the values' unit.
 
 use serde::Serialize;
 use std::path::PathBuf;
@@ -18,33 +23,41 @@ use tetwave_gpu::order::{face_neighbors, is_convex};
 use tetwave_gpu::pt::{Accumulation, PtRenderer, VisibilityOrder};
 use tetwave_gpu::{GpuContext, RenderError};
 use tetwave_import::clean::ImportOptions;
+use tetwave_import::volume::{ScalarChoice, VolumeOptions};
 use tetwave_import::MeshFormat;
 use tetwave_protocol::view::Camera;
 use tetwave_render::image_metrics::{psnr, Rgba8Image};
 use tetwave_render::reference::render_reference;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TfError, TransferFunction, ValueHistogram, AUTO};
-use tetwave_source::load::{file_mesh, is_mesh_input, store_histogram, store_mesh, LoadError};
-use tetwave_store::{OpenOptions, Store, StoreError};
+use tetwave_source::load::{
+    file_mesh, is_mesh_input, is_volume_input, store_histogram, store_mesh, volume_mesh, LoadError,
+};
+use tetwave_store::{OpenOptions, Physical, Store, StoreError};
 
 /// What to render and how.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RenderArgs {
-    /// Store directory (written by `tetwave-server prepare`), or a mesh file (`.vtu`, `.vtk`,
-    /// `.msh`, `.mesh`) drawn as it is.
-    #[arg(value_name = "STORE|MESH")]
+    /// Store directory (written by `tetwave-server prepare`), a mesh file (`.vtu`, `.vtk`,
+    /// `.msh`, `.mesh`) drawn as it is, or a volume file or folder (NIfTI, NRRD, `.vti`, legacy
+    /// `.vtk` image, TIFF stack, DICOM series, Zarr) drawn as it is.
+    #[arg(value_name = "STORE|MESH|VOLUME")]
     pub store: PathBuf,
     /// Uniform level to draw (default: the store's finest; stores only).
     #[arg(long)]
     pub levels: Option<u8>,
     /// Mesh input: the scalar, `NAME`, `NAME:mag` or `NAME:K` among point and cell arrays (as
-    /// `prepare --scalar`; default: the first point array, else the first cell array).
+    /// `prepare --scalar`; default: the first point array, else the first cell array). Volume
+    /// input: the component of a multi-component volume, `NAME`, `K` or `mag`.
     #[arg(long)]
     pub scalar: Option<String>,
+    /// Volume input: the time point of a 4D volume.
+    #[arg(long)]
+    pub frame: Option<usize>,
     /// Mesh input: a geometric scalar instead of an array (`distance`: to the mesh's boundary).
     #[arg(long)]
     pub field: Option<String>,
-    /// Mesh input: replace NaN/Inf values of the scalar by this (refused otherwise).
+    /// Mesh or volume input: replace NaN/Inf values of the scalar by this (refused otherwise).
     #[arg(long, allow_hyphen_values = true)]
     pub nan_as: Option<f64>,
     /// Mesh input: the format (vtu, vtk, msh, mesh), whatever the content and extension say; also
@@ -110,7 +123,7 @@ pub enum RenderCliError {
 
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderReport {
-    /// `store` or `mesh`.
+    /// `store`, `mesh` or `volume`.
     pub input: String,
     pub tets: u64,
     /// The store's level drawn (0 for a mesh file).
@@ -138,6 +151,21 @@ pub struct RenderReport {
     /// The transfer function drawn with (for `auto`, the fitted one: save it as a `.json` file to
     /// draw another input with the same colours).
     pub tf: TransferFunction,
+    /// A volume file's format, voxels along the world axes, and world frame and units.
+    pub volume: Option<VolumeReport>,
+    /// With `--legend`: the anatomical direction each image edge faces (`[left, right, top,
+    /// bottom]`), where the input states its world frame.
+    pub orientation: Option<[String; 4]>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeReport {
+    pub format: String,
+    pub dims: [usize; 3],
+    pub origin: [f64; 3],
+    pub frame: Option<String>,
+    pub length_unit: Option<String>,
+    pub value_unit: Option<String>,
 }
 
 /// `--order mpvo` is exact only on convex meshes: says so (a tracing warning) when the drawn domain
@@ -159,10 +187,45 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     // checked before reading the input; `auto` is fitted below, once the data is read
     let mut tf = TransferFunction::load(&a.tf)?;
     let auto = a.tf == AUTO;
-    let is_mesh = is_mesh_input(&a.store, a.format);
+    let is_volume = a.format.is_none() && is_volume_input(&a.store);
+    let is_mesh = !is_volume && is_mesh_input(&a.store, a.format);
+    if !is_volume && a.frame.is_some() {
+        return Err(RenderCliError::Usage(
+            "--frame applies to 4D volume files".into(),
+        ));
+    }
     // the legend's name: a mesh's scalar, or a store's dataset
     let mut legend_name = String::new();
-    let (mesh, level, scalar) = if is_mesh {
+    // the input's world, where it states one
+    let mut physical: Option<Physical> = None;
+    let mut volume = None;
+    let (mesh, level, scalar) = if is_volume {
+        if a.levels.is_some() || a.field.is_some() {
+            return Err(RenderCliError::Usage(
+                "--levels applies to stores and --field to mesh files, not volume files".into(),
+            ));
+        }
+        let options = VolumeOptions {
+            raw: None,
+            scalar: a.scalar.as_deref().map(ScalarChoice::parse),
+            frame: a.frame,
+        };
+        let (mesh, drawn) = volume_mesh(&a.store, &options, a.nan_as)?;
+        if auto {
+            tf = tf.fitted(&ValueHistogram::of_mesh(&mesh));
+        }
+        legend_name = drawn.legend_name(&a.store);
+        volume = Some(VolumeReport {
+            format: drawn.format.into(),
+            dims: drawn.dims,
+            origin: drawn.physical.origin,
+            frame: drawn.physical.frame.clone(),
+            length_unit: drawn.physical.length_unit.clone(),
+            value_unit: drawn.physical.value_unit.clone(),
+        });
+        physical = Some(drawn.physical);
+        (mesh, 0, None)
+    } else if is_mesh {
         if a.levels.is_some() {
             return Err(RenderCliError::Usage(
                 "--levels applies to stores, not mesh files".into(),
@@ -195,7 +258,8 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         if auto {
             tf = tf.fitted(&store_histogram(&store, Some((&mesh, level)))?);
         }
-        legend_name = store.manifest.dataset.clone();
+        legend_name = store.manifest.legend_name();
+        physical = store.manifest.physical.clone();
         (mesh, level, None)
     };
     let (lo, hi) = mesh.bounds();
@@ -239,7 +303,15 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
     let psnr_db = refimg.as_ref().map(|(r, _)| psnr(&img, r).min(99.0));
     let range = [mesh.value_range.0, mesh.value_range.1];
     let name = scalar.as_deref().unwrap_or(&legend_name);
+    let orientation = physical
+        .as_ref()
+        .filter(|_| a.legend)
+        .and_then(|p| crate::legend::edge_labels(p, &cam));
     let png = if a.legend {
+        let mut img = img;
+        if let Some(labels) = &orientation {
+            crate::legend::draw_edge_labels(&mut img, labels);
+        }
         crate::legend::with_legend(&img, &tf, name, range)
     } else {
         img
@@ -249,7 +321,14 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         reason: e.to_string(),
     })?;
     Ok(RenderReport {
-        input: if is_mesh { "mesh" } else { "store" }.into(),
+        input: if is_volume {
+            "volume"
+        } else if is_mesh {
+            "mesh"
+        } else {
+            "store"
+        }
+        .into(),
         tets: mesh.tets.len() as u64,
         level,
         scalar,
@@ -266,5 +345,7 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
         cpu_ms: frame_times.map(|t| t.total_ms - t.gpu_ms - t.readback_ms),
         output: a.output.display().to_string(),
         tf,
+        volume,
+        orientation,
     })
 }

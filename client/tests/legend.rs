@@ -77,3 +77,62 @@ fn render_legend_draws_the_colours_the_name_and_the_range() {
     assert!(drawn != strip(&legend_text("harmonics", range)).as_slice());
     assert!(drawn != strip(&legend_text("harmonic", [range[0], range[1] + 0.5])).as_slice());
 }
+
+/// A volume file drawn as it is with `--legend`: reported as a volume with its world (LPS, mm,
+/// origin), its image's edges labelled with the anatomical directions the default view's edges
+/// face (screen right is mostly posterior, then right: `PR`; up is superior, then right: `SR`),
+/// the labels drawn near the edges' middles and nowhere else.
+#[test]
+fn render_labels_a_volume_files_edges_with_its_directions() {
+    let d = tempfile::tempdir().unwrap();
+    let path = d.path().join("ct.nrrd");
+    let (nx, ny, nz) = (6, 5, 4);
+    let mut bytes = format!(
+        "NRRD0004\ntype: short\ndimension: 3\nspace: left-posterior-superior\n\
+         sizes: {nx} {ny} {nz}\nspace directions: (1,0,0) (0,1,0) (0,0,1.5)\n\
+         space origin: (-3,-2,5)\nspace units: \"mm\" \"mm\" \"mm\"\nendian: little\n\
+         encoding: raw\n\n"
+    )
+    .into_bytes();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let v = (100 * i + 40 * j - 30 * k) as i16;
+                bytes.extend(v.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(&path, bytes).unwrap();
+    let (plain, with) = (d.path().join("plain.png"), d.path().join("legend.png"));
+    let r = render(&path, &plain, false);
+    assert_eq!(r["input"], "volume");
+    assert_eq!(r["tets"], 6 * 5 * 4 * 3);
+    assert!(r["orientation"].is_null(), "labels only with --legend");
+    let r = render(&path, &with, true);
+    assert_eq!(r["volume"]["format"], "NRRD");
+    assert_eq!(r["volume"]["dims"], serde_json::json!([6, 5, 4]));
+    assert_eq!(r["volume"]["frame"], "LPS");
+    assert_eq!(r["volume"]["length_unit"], "mm");
+    assert_eq!(r["volume"]["origin"], serde_json::json!([-3.0, -2.0, 5.0]));
+    assert_eq!(
+        r["orientation"],
+        serde_json::json!(["AL", "PR", "SR", "IL"])
+    );
+    let plain = Rgba8Image::load_png(&plain).unwrap();
+    let img = Rgba8Image::load_png(&with).unwrap();
+    let (w, h) = (240u32, 60u32);
+    let mut changed = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            if img.pixels[i] != plain.pixels[i] {
+                changed += 1;
+                // within a label's box: at the middle of an edge
+                let near_side = (x < 40 || x >= w - 40) && (y as i32 - 30).abs() <= 14;
+                let near_top_bottom = (x as i32 - 120).abs() <= 20 && (y < 22 || y >= h - 22);
+                assert!(near_side || near_top_bottom, "pixel {x},{y} changed");
+            }
+        }
+    }
+    assert!(changed > 20, "{changed} pixels of labels");
+}

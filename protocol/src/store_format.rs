@@ -175,6 +175,67 @@ pub struct Manifest {
     /// (`--tf auto`); `None` in stores written before it was recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub value_histogram: Option<Vec<u64>>,
+    /// Where the store's lattice lies in the file's world and in which units, for a store
+    /// prepared from a volume file that states them (NIfTI, NRRD, DICOM, ...); `None` otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub physical: Option<Physical>,
+}
+
+/// A volume file's world as a store keeps it: the store's coordinates are the file's world
+/// coordinates less `origin` (its lattice starts at 0 on the lowest-corner voxel), along the same
+/// axes and in the same length unit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Physical {
+    /// World position of the store's coordinate origin.
+    pub origin: [f64; 3],
+    /// The world frame when the file states one: `RAS` (NIfTI: +x right, +y anterior, +z
+    /// superior) or `LPS` (DICOM, NRRD: +x left, +y posterior, +z superior).
+    pub frame: Option<String>,
+    /// Unit of the coordinates (`mm`, `um`, ...).
+    pub length_unit: Option<String>,
+    /// Unit of the values (`HU`, ...).
+    pub value_unit: Option<String>,
+}
+
+impl Physical {
+    /// The anatomical letter of world direction `sign`·axis `axis` in [`Self::frame`] (`R`,
+    /// `L`, `A`, `P`, `S`, `I`), when the frame is a known one.
+    pub fn direction_letter(&self, axis: usize, positive: bool) -> Option<char> {
+        let plus = match self.frame.as_deref()? {
+            "RAS" => ['R', 'A', 'S'],
+            "LPS" => ['L', 'P', 'S'],
+            _ => return None,
+        };
+        let opposite = |c: char| match c {
+            'R' => 'L',
+            'L' => 'R',
+            'A' => 'P',
+            'P' => 'A',
+            'S' => 'I',
+            _ => 'S',
+        };
+        let c = *plus.get(axis)?;
+        Some(if positive { c } else { opposite(c) })
+    }
+
+    /// The label of a direction `d` (world axes) as radiology viewers write it: the letters of
+    /// its components larger than a third of its length, largest first (`R`, `RA`, `SLP`);
+    /// `None` without a known frame or for a zero vector.
+    pub fn direction_label(&self, d: [f64; 3]) -> Option<String> {
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if len.is_nan() || len <= 0.0 {
+            return None;
+        }
+        let mut axes = [0usize, 1, 2];
+        axes.sort_by(|&a, &b| d[b].abs().total_cmp(&d[a].abs()));
+        let mut label = String::new();
+        for a in axes {
+            if d[a].abs() > len / 3.0 {
+                label.push(self.direction_letter(a, d[a] > 0.0)?);
+            }
+        }
+        Some(label)
+    }
 }
 
 /// Bins of [`Manifest::value_histogram`].
@@ -261,6 +322,15 @@ impl Preview {
 pub const LEVELSET_BAND_FILE: &str = "levelset_near.bin";
 
 impl Manifest {
+    /// The name a legend gives the values: the dataset, and the values' unit when the store
+    /// has one (`ct (HU)`).
+    pub fn legend_name(&self) -> String {
+        match self.physical.as_ref().and_then(|p| p.value_unit.as_deref()) {
+            Some(u) if !u.is_empty() => format!("{} ({u})", self.dataset),
+            _ => self.dataset.clone(),
+        }
+    }
+
     /// Whether the store has a level set's near band for streaming clients to clip with.
     pub fn has_levelset_band(&self) -> bool {
         self.files.contains_key(LEVELSET_BAND_FILE)
@@ -527,4 +597,62 @@ pub fn decode_sums(bytes: &[u8]) -> Vec<u32> {
         .chunks_exact(4)
         .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(f: &str) -> Physical {
+        Physical {
+            origin: [0.0; 3],
+            frame: Some(f.into()),
+            length_unit: Some("mm".into()),
+            value_unit: None,
+        }
+    }
+
+    /// Directions read as radiology viewers label them: the letters of the components beyond a
+    /// third of the length, largest first; LPS and RAS name the x and y axes oppositely; an
+    /// unknown frame or a zero vector has no label.
+    #[test]
+    fn directions_are_labelled_in_the_frame() {
+        let (ras, lps) = (frame("RAS"), frame("LPS"));
+        assert_eq!(ras.direction_label([1.0, 0.0, 0.0]).as_deref(), Some("R"));
+        assert_eq!(lps.direction_label([1.0, 0.0, 0.0]).as_deref(), Some("L"));
+        assert_eq!(ras.direction_label([0.0, -2.0, 0.0]).as_deref(), Some("P"));
+        assert_eq!(lps.direction_label([0.0, -2.0, 0.0]).as_deref(), Some("A"));
+        assert_eq!(lps.direction_label([0.0, 0.0, -1.0]).as_deref(), Some("I"));
+        // the default view's screen right in LPS: mostly +y (posterior), then −x (right)
+        assert_eq!(
+            lps.direction_label([-0.574, 0.819, 0.0]).as_deref(),
+            Some("PR")
+        );
+        assert_eq!(
+            ras.direction_label([-0.346, -0.242, 0.906]).as_deref(),
+            Some("SL")
+        );
+        assert_eq!(
+            ras.direction_label([0.6, -0.6, 0.55]).as_deref(),
+            Some("RPS")
+        );
+        assert_eq!(ras.direction_label([0.0; 3]), None);
+        assert_eq!(frame("scanner-xyz").direction_label([1.0, 0.0, 0.0]), None);
+        let (positions, tets) = crate::shapes::box5([0.0; 3], [1.0; 3]);
+        let base = crate::BaseMesh {
+            levels: 1,
+            values: vec![0.0; positions.len()],
+            empty: vec![false; tets.len()],
+            predictor: Default::default(),
+            positions,
+            tets,
+        };
+        let mut m = crate::testing::manifest_for(&base);
+        assert_eq!(m.legend_name(), m.dataset);
+        m.physical = Some(Physical {
+            value_unit: Some("HU".into()),
+            ..ras
+        });
+        assert_eq!(m.legend_name(), format!("{} (HU)", m.dataset));
+    }
 }

@@ -60,6 +60,7 @@ pub fn manifest_for(base: &BaseMesh) -> crate::store_format::Manifest {
         files: Default::default(),
         preview: None,
         value_histogram: None,
+        physical: None,
     }
 }
 

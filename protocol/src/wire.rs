@@ -24,8 +24,9 @@ pub use start::SessionStart;
 /// preview if any), the base mesh as store format 8 writes it (a named box as its two corners),
 /// `Preview` batches, `Hello.previewed`. 10: `Hello.previewed` names the preview nodes held (a
 /// cut preview resumes where it stopped); the session starts with one `Start` frame, the manifest
-/// and the base mesh, a named box's corners once (`start`).
-pub const PROTOCOL_VERSION: u16 = 11;
+/// and the base mesh, a named box's corners once (`start`). 12: the manifest carries the
+/// volume file's world (`physical`: origin, frame, units).
+pub const PROTOCOL_VERSION: u16 = 12;
 /// Largest frame (length prefix excluded) either side sends or accepts.
 pub const MAX_FRAME_BYTES: usize = 64 << 20;
 /// Most id ranges one message may carry.
@@ -330,6 +331,7 @@ mod tests {
                 files: Default::default(),
                 preview: None,
                 value_histogram: None,
+                physical: None,
             };
             let (positions, tets) = crate::shapes::box5([0.0; 3], [1.0; 3]);
             let base = BaseMesh {

@@ -761,6 +761,7 @@ fn manifest(c: &Case, base: &BaseMesh) -> Manifest {
         files: Default::default(),
         preview: None,
         value_histogram: None,
+        physical: None,
     }
 }
 

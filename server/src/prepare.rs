@@ -127,6 +127,21 @@ pub struct VolumeInput {
     pub origin: [f64; 3],
 }
 
+impl VolumeInput {
+    /// What the store's manifest keeps of the file's world (`physical`): `None` when the file
+    /// states no frame and no unit (a raw grid's origin is its own lattice's).
+    pub fn physical(&self) -> Option<store::Physical> {
+        let h = &self.header;
+        let stated = h.frame.is_some() || h.length_unit.is_some() || h.value_unit.is_some();
+        (stated || self.origin != [0.0; 3]).then(|| store::Physical {
+            origin: self.origin,
+            frame: h.frame.clone(),
+            length_unit: h.length_unit.clone(),
+            value_unit: h.value_unit.clone(),
+        })
+    }
+}
+
 impl Default for GridArgs {
     fn default() -> Self {
         GridArgs {
@@ -941,6 +956,7 @@ pub fn prepare(o: &PrepareOptions) -> Result<Summary, PrepareError> {
         levelset_near,
         preview,
         keep_reference: o.keep_reference,
+        physical: o.read.grid.volume.as_ref().and_then(VolumeInput::physical),
     };
     let m = store::write(&o.out, &a.content(), meta)?;
     let mut summary = Summary::of(&m, o, predictor, import, t0);

@@ -543,7 +543,10 @@ pub fn page_html(m: &Manifest) -> String {
         })
         .collect();
     PAGE.replace("{{DATASET}}", &html_escape(dataset))
-        .replace("{{LEGEND}}", &html_escape(&legend_text(dataset, range)))
+        .replace(
+            "{{LEGEND}}",
+            &html_escape(&legend_text(&m.legend_name(), range)),
+        )
         .replace("{{GRADIENTS}}", &gradients.join(", "))
 }
 

@@ -79,7 +79,8 @@ pub enum Source {
     /// over HTTP(S) (`https://…`, or `http://HOST/PATH` with a path that is not a server's
     /// route); blocks fetched by range as the session's selection asks for them.
     Bucket(tetwave_store::Location),
-    /// A mesh file (`.vtu`, `.vtk`, `.msh`, `.mesh`), drawn as it is.
+    /// A mesh file (`.vtu`, `.vtk`, `.msh`, `.mesh`) or a volume file or folder (NIfTI, NRRD,
+    /// VTK image data, TIFF, DICOM, Zarr), drawn as it is.
     Mesh(PathBuf),
 }
 
@@ -92,7 +93,7 @@ impl Source {
             Source::Bucket(loc)
         } else if ServerUrl::is_server(s) {
             Source::Url(s.to_string())
-        } else if load::is_mesh_input(Path::new(s), None) {
+        } else if load::is_mesh_input(Path::new(s), None) || load::is_volume_input(Path::new(s)) {
             Source::Mesh(s.into())
         } else {
             Source::Store(s.into())
@@ -254,6 +255,9 @@ pub struct Data {
     /// What the legend names the scalar: a store's dataset (once its manifest is known), or a
     /// mesh file's scalar.
     pub name: String,
+    /// The volume file's world, where the store (its manifest) or the file states one: the
+    /// orientation axes are labelled with its anatomical directions.
+    pub physical: Option<tetwave_store::Physical>,
     select: Selection,
 }
 
@@ -281,6 +285,7 @@ impl Data {
             changed: true,
             levels: 0,
             name: String::new(),
+            physical: None,
             select: select.clone(),
         };
         match source {
@@ -308,7 +313,8 @@ impl Data {
                 let nodes = store.read_nodes(0, m.counts.nodes)?;
                 let mut d = empty(Kind::Local { nodes, next: 0 });
                 d.value_range = m.display_value_range();
-                d.name = m.dataset.clone();
+                d.name = m.legend_name();
+                d.physical = m.physical.clone();
                 d.start_session(store.base.clone(), tol)?;
                 if let (Some(s), Some((_, near))) =
                     (d.session.as_mut(), store.read_levelset_near()?)
@@ -326,12 +332,14 @@ impl Data {
                         max: max_nodes,
                     });
                 }
-                let (range, name) = (m.display_value_range(), m.dataset.clone());
+                let (range, name) = (m.display_value_range(), m.legend_name());
+                let physical = m.physical.clone();
                 let (base, near) = (store.base().clone(), store.levelset_near.clone());
                 let opened = store.bytes_read();
                 let mut d = empty(Kind::Bucket(Box::new(Bucket::new(store))));
                 d.value_range = range;
                 d.name = name;
+                d.physical = physical;
                 // the manifest, base mesh and first index page count as a stream's first frames do
                 d.bytes_applied = opened;
                 if d.select.fit_auto {
@@ -347,14 +355,10 @@ impl Data {
                 Ok(d)
             }
             Source::Mesh(path) => {
-                let options = tetwave_import::clean::ImportOptions {
-                    scalar: None,
-                    field: None,
-                    nan_as: None,
-                };
-                let (mesh, scalar) = load::file_mesh(path, None, &options)?;
+                let (mesh, name, physical) = load::drawn_file(path)?;
                 let mut d = empty(Kind::Mesh);
-                d.name = scalar;
+                d.name = name;
+                d.physical = physical;
                 d.value_range = [mesh.value_range.0, mesh.value_range.1];
                 let (lo, hi) = mesh.bounds();
                 d.frame = Some(Camera::framing(lo.to_array(), hi.to_array()));
@@ -598,7 +602,8 @@ impl Data {
                 Step::Manifest => {
                     if let Some(m) = r.ingest.manifest() {
                         self.value_range = m.display_value_range();
-                        self.name = m.dataset.clone();
+                        self.name = m.legend_name();
+                        self.physical = m.physical.clone();
                     }
                 }
                 Step::Started => self.session_started(),

@@ -3,10 +3,12 @@
 
 use std::path::{Path, PathBuf};
 use tetwave_import::clean::{clean_import, CleanError, ImportOptions};
+use tetwave_import::volume::{sniff, Volume, VolumeError, VolumeFormat, VolumeOptions};
 use tetwave_import::{format_of, read_mesh, ImportError, MeshFormat};
+use tetwave_protocol::shapes::kuhn_boxes;
 use tetwave_render::render_mesh::RenderMesh;
 use tetwave_render::transfer::{TransferFunction, ValueHistogram, AUTO};
-use tetwave_store::{Store, StoreError};
+use tetwave_store::{Physical, Store, StoreError};
 
 /// Why a store or mesh file could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -19,6 +21,12 @@ pub enum LoadError {
     Clean { path: PathBuf, source: CleanError },
     #[error("--levels {asked} exceeds the store's {levels} levels")]
     Level { asked: u8, levels: u8 },
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
+    /// A volume file that cannot be drawn as it is: too few voxels along an axis, a value that
+    /// is not finite, more tets than memory holds.
+    #[error("{path}: {message}")]
+    VolumeMesh { path: PathBuf, message: String },
 }
 
 /// The level-`level` mesh of a store (finest when `None`), clipped to the store's level set when
@@ -88,6 +96,137 @@ pub fn is_mesh_input(path: &Path, format: Option<MeshFormat>) -> bool {
     format.is_some() || (!path.is_dir() && (format_of(path).is_some() || path.is_file()))
 }
 
+/// Whether `path` is a volume file or folder the volume readers recognize (NIfTI, NRRD, VTK
+/// image data, TIFF, DICOM, Zarr): by content and extension, not a store directory.
+pub fn is_volume_input(path: &Path) -> bool {
+    !path.join("manifest.json").is_file() && !matches!(sniff(path), None | Some(VolumeFormat::Raw))
+}
+
+/// A file drawn as it is, with the name its legend gives the values: a volume file
+/// ([`volume_mesh`]; its name and the values' unit) or a mesh file ([`file_mesh`] with the default
+/// scalar; the scalar's name), and a volume's world. What the viewer opens a file with.
+pub fn drawn_file(path: &Path) -> Result<(RenderMesh, String, Option<Physical>), LoadError> {
+    if is_volume_input(path) {
+        let (mesh, drawn) = volume_mesh(path, &VolumeOptions::default(), None)?;
+        let name = drawn.legend_name(path);
+        return Ok((mesh, name, Some(drawn.physical)));
+    }
+    let (mesh, name) = file_mesh(path, None, &ImportOptions::default())?;
+    Ok((mesh, name, None))
+}
+
+/// What [`volume_mesh`] drew.
+#[derive(Debug, Clone)]
+pub struct VolumeDrawn {
+    /// The format's name (`NIfTI`, `DICOM`, ...).
+    pub format: &'static str,
+    /// Voxels along the world axes.
+    pub dims: [usize; 3],
+    /// The file's world: the mesh's coordinates are its world's less `origin`, as a store
+    /// prepared from the file has them, so that both frame the same view.
+    pub physical: Physical,
+}
+
+impl VolumeDrawn {
+    /// The legend's name of the values of the volume at `path`: the file's name up to its first
+    /// dot, and the values' unit where the file states one (`head (HU)`).
+    pub fn legend_name(&self, path: &Path) -> String {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let stem = name.split('.').next().unwrap_or_default();
+        match &self.physical.value_unit {
+            Some(u) if !u.is_empty() => format!("{stem} ({u})"),
+            _ => stem.to_string(),
+        }
+    }
+}
+
+/// A volume file as it is: a vertex at each voxel centre (world axes, spacing from the file, the
+/// lowest-corner voxel at 0) and each cell of 8 voxels cut into the 6 tets around its diagonal
+/// from the low corner to the high one (Kuhn's triangulation: every cell cut the same way, so
+/// the tets of neighbouring cells share their faces; [`kuhn_boxes`]), the value linear in each
+/// tet. The voxels
+/// are read plane by plane through the reader. Refused with one error when the mesh would take
+/// more than half the memory the system reports available.
+pub fn volume_mesh(
+    path: &Path,
+    options: &VolumeOptions,
+    nan_as: Option<f64>,
+) -> Result<(RenderMesh, VolumeDrawn), LoadError> {
+    let mut volume = Volume::open(path, None, options)?;
+    let header = volume.header().clone();
+    let [nx, ny, nz] = volume.dims;
+    let bad = |message: String| LoadError::VolumeMesh {
+        path: path.to_path_buf(),
+        message,
+    };
+    // (a volume with fewer than 2 voxels along an axis is refused when opened)
+    let points = (nx * ny * nz) as u64;
+    let cells = ((nx - 1) * (ny - 1) * (nz - 1)) as u64;
+    let bytes = points * (24 + 4) + 6 * cells * 16;
+    if let Some(avail) = available_memory() {
+        if bytes > avail / 2 || points > u32::MAX as u64 {
+            return Err(bad(format!(
+                "drawing {nx}×{ny}×{nz} voxels as they are needs {:.1} GB ({} tets), more than                  half the {:.1} GB available: prepare a store (`tetwave-server prepare`) and                  render a coarser level of it (`--levels`)",
+                bytes as f64 / 1e9,
+                6 * cells,
+                avail as f64 / 1e9
+            )));
+        }
+    }
+    let mut values = Vec::with_capacity(points as usize);
+    // planes in slabs of at most ~16 M voxels
+    let slab = (16usize << 20).div_ceil(nx * ny).clamp(1, nz);
+    let mut z = 0;
+    while z < nz {
+        let z1 = (z + slab).min(nz);
+        let block = volume.read_block(0..ny, z..z1)?;
+        for i in 0..block.len() {
+            let v = block.get(i);
+            let v = match (v.is_finite(), nan_as) {
+                (true, _) => v,
+                (false, Some(r)) => r,
+                (false, None) => {
+                    let k = values.len();
+                    return Err(bad(format!(
+                        "voxel ({}, {}, {}) is {v}: give --nan-as VALUE to draw it as VALUE",
+                        k % nx,
+                        k / nx % ny,
+                        k / (nx * ny)
+                    )));
+                }
+            };
+            values.push(v as f32);
+        }
+        z = z1;
+    }
+    let sp = volume.spacing;
+    let hi = [0, 1, 2].map(|a| (volume.dims[a] - 1) as f64 * sp[a]);
+    let (positions, tets) = kuhn_boxes([0.0; 3], hi, [nx - 1, ny - 1, nz - 1]);
+    let drawn = VolumeDrawn {
+        format: header.format.name(),
+        dims: volume.dims,
+        physical: Physical {
+            origin: volume.origin,
+            frame: header.frame.clone(),
+            length_unit: header.length_unit.clone(),
+            value_unit: header.value_unit.clone(),
+        },
+    };
+    Ok((RenderMesh::new(positions, tets, values), drawn))
+}
+
+/// The memory the system reports available (`MemAvailable` of `/proc/meminfo`), in bytes; `None`
+/// where it cannot be read.
+fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// A mesh file as it is: its points, its cleaned tets (re-oriented, zero-volume and duplicate ones
 /// dropped, other volume cells split into tets) and the chosen scalar, exactly as `prepare` reads
 /// it before resampling. Returns the scalar's name too.
@@ -129,14 +268,7 @@ pub fn fit_auto(
     }
     let hist = match source {
         crate::Source::Store(dir) => store_histogram(&Store::open(dir)?, None)?,
-        crate::Source::Mesh(path) => {
-            let options = ImportOptions {
-                scalar: None,
-                field: None,
-                nan_as: None,
-            };
-            ValueHistogram::of_mesh(&file_mesh(path, None, &options)?.0)
-        }
+        crate::Source::Mesh(path) => ValueHistogram::of_mesh(&drawn_file(path)?.0),
         crate::Source::Url(_) | crate::Source::Bucket(_) => return Ok(tf),
     };
     Ok(tf.fitted(&hist))
@@ -270,5 +402,101 @@ mod tests {
         assert!(motion_proxy(&mesh, 5).is_none());
         // a mesh no larger than the budget is its own coarse mesh
         assert!(motion_proxy(&mesh, mesh.tets.len()).is_none());
+    }
+
+    /// A folder of its own for a test's files.
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("tetwave-load-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// A 4×3×2 NRRD volume in LPS millimetres, i16 big-endian, x flipped by its space directions:
+    /// drawn as it is, each vertex holds its voxel's value at its place in the world frame, the
+    /// tets fill the box exactly, positively oriented, and the legend names the file.
+    #[test]
+    fn a_volume_file_is_drawn_as_its_voxels() {
+        let dir = scratch("nrrd");
+        let path = dir.join("head.nrrd");
+        let stored: Vec<i16> = (0..24).map(|v| v * 10 - 50).collect();
+        let mut bytes = b"NRRD0004\ntype: short\ndimension: 3\nspace: left-posterior-superior\n\
+            sizes: 4 3 2\nspace directions: (-0.5,0,0) (0,0.25,0) (0,0,2)\n\
+            space origin: (10,20,30)\nspace units: \"mm\" \"mm\" \"mm\"\nendian: big\n\
+            encoding: raw\n\n"
+            .to_vec();
+        bytes.extend(stored.iter().flat_map(|v| v.to_be_bytes()));
+        std::fs::write(&path, bytes).unwrap();
+        assert!(is_volume_input(&path));
+        assert!(!is_volume_input(&dir.join("missing.vtu")));
+        let (mesh, drawn) = volume_mesh(&path, &VolumeOptions::default(), None).unwrap();
+        assert_eq!(drawn.dims, [4, 3, 2]);
+        assert_eq!(drawn.physical.frame.as_deref(), Some("LPS"));
+        assert_eq!(drawn.physical.length_unit.as_deref(), Some("mm"));
+        // file x runs against world x: the world's lowest-corner voxel is the file's last along x
+        assert_eq!(drawn.physical.origin, [10.0 - 1.5, 20.0, 30.0]);
+        assert_eq!(drawn.legend_name(&path), "head");
+        assert_eq!(mesh.positions.len(), 24);
+        assert_eq!(mesh.tets.len(), 6 * 3 * 2);
+        for k in 0..2 {
+            for j in 0..3 {
+                for i in 0..4 {
+                    let v = i + 4 * (j + 3 * k);
+                    assert_eq!(
+                        mesh.positions[v],
+                        [i as f64 * 0.5, j as f64 * 0.25, k as f64 * 2.0]
+                    );
+                    let file = (3 - i) + 4 * (j + 3 * k);
+                    assert_eq!(mesh.values[v], stored[file] as f32, "voxel {i},{j},{k}");
+                }
+            }
+        }
+        let volume: f64 = mesh
+            .tets
+            .iter()
+            .map(|t| {
+                let p = t.map(|v| mesh.positions[v as usize]);
+                let d = |k: usize| [0, 1, 2].map(|a| p[k][a] - p[0][a]);
+                let (a, b, c) = (d(1), d(2), d(3));
+                let vol = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                    + a[2] * (b[0] * c[1] - b[1] * c[0]))
+                    / 6.0;
+                assert!(vol > 0.0, "a tet of volume {vol}");
+                vol
+            })
+            .sum();
+        assert!(
+            (volume - 1.5 * 0.5 * 2.0).abs() < 1e-12,
+            "tets fill {volume}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Non-finite voxels are refused with their place, or drawn as `--nan-as`; a volume one voxel
+    /// thin is refused; no panic.
+    #[test]
+    fn a_volume_that_cannot_be_drawn_says_why() {
+        let dir = scratch("bad");
+        let nan = dir.join("nan.nrrd");
+        let mut bytes =
+            b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nencoding: raw\nendian: little\n\n"
+                .to_vec();
+        let values = [0.0f32, 1.0, 2.0, f32::NAN, 4.0, 5.0, 6.0, 7.0];
+        bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
+        std::fs::write(&nan, bytes).unwrap();
+        let e = volume_mesh(&nan, &VolumeOptions::default(), None).unwrap_err();
+        assert!(e.to_string().contains("voxel (1, 1, 0) is NaN"), "{e}");
+        let (mesh, _) = volume_mesh(&nan, &VolumeOptions::default(), Some(-1.0)).unwrap();
+        assert_eq!(mesh.values[3], -1.0);
+        let thin = dir.join("thin.nrrd");
+        let mut bytes =
+            b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 3 3 1\nencoding: raw\n\n".to_vec();
+        bytes.extend([0u8; 9]);
+        std::fs::write(&thin, bytes).unwrap();
+        let e = volume_mesh(&thin, &VolumeOptions::default(), None).unwrap_err();
+        assert!(
+            e.to_string().contains("at least 2 voxels along every axis"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -27,8 +27,8 @@
 
 use std::path::{Path, PathBuf};
 pub use tetwave_protocol::store_format::{
-    Counts, Encoding, FileSum, FormatError, Manifest, Preview, StoreFiles, StoreHead, BLOCK,
-    BLOCK_SUMS_FILE, LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT,
+    Counts, Encoding, FileSum, FormatError, Manifest, Physical, Preview, StoreFiles, StoreHead,
+    BLOCK, BLOCK_SUMS_FILE, LEVELSET_BAND_FILE, MAX_BLOCK_BYTES, PREVIEW_FILE, STORE_FORMAT,
     STORE_VERSION,
 };
 

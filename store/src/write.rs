@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use tetwave_protocol::block::BlockCoder;
 use tetwave_protocol::levelset::{box_signed_distance, NearLevelSet};
 use tetwave_protocol::store_format::{
-    value_histogram, Counts, Encoding, FileSum, Manifest, Preview, LEVELSET_BAND_FILE, PREVIEW_FILE,
+    value_histogram, Counts, Encoding, FileSum, Manifest, Physical, Preview, LEVELSET_BAND_FILE,
+    PREVIEW_FILE,
 };
 use tetwave_protocol::wavelet::{LevelSteps, Quantizer};
 use tetwave_protocol::{BaseMesh, DetailNode};
@@ -259,6 +260,8 @@ pub struct StoreMeta {
     pub preview: Option<PreviewNodes>,
     /// Write the samples as `reference.f32` ([`REFERENCE_FILE`]).
     pub keep_reference: bool,
+    /// The volume file's world (the manifest's `physical`), when the input states one.
+    pub physical: Option<Physical>,
 }
 
 /// Writes a store directory (created if needed) and returns its manifest. The files are written
@@ -549,6 +552,7 @@ pub fn write_streamed(
         files,
         preview,
         value_histogram: Some(totals.histogram.clone()),
+        physical: meta.physical,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serializes");
     staged.commit(&text)?;
@@ -580,6 +584,12 @@ pub fn histogram_inside(
         .copied()
         .filter(|v| *v > 0.0)
         .fold(f64::INFINITY, f64::min);
+    // a vertex on the domain box's faces is inside: within a billionth of the box's extent, as
+    // its coordinates are computed from a part's sub-box or from the whole's and may differ in
+    // the last bits (other lattice vertices are a lattice step or more away)
+    let slack = domain_box.map_or(0.0, |[lo, hi]| {
+        1e-9 * (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max)
+    });
     let keys = base.vertex_keys();
     let mut weight = vec![0u32; reference.len()];
     for (entity, _) in keys.entities() {
@@ -587,7 +597,7 @@ pub fn histogram_inside(
             let inside = counted(tet, &w)
                 && levelset.is_none_or(|l| l[key as usize] >= 0.0)
                 && domain_box.is_none_or(|[lo, hi]| {
-                    box_signed_distance(lo, hi, base.position(tet, &w)) >= 0.0
+                    box_signed_distance(lo, hi, base.position(tet, &w)) >= -slack
                 });
             let units = (volumes[tet as usize] / smallest).round().clamp(1.0, 1e9);
             weight[key as usize] = if inside { units as u32 } else { 0 };

@@ -94,6 +94,7 @@ fn make_store_full(
         levelset,
         preview: preview_step.map(|step| preview_of(&nodes, levels, step)),
         keep_reference: true,
+        physical: None,
     };
     write(dir, &content, meta).unwrap();
     // as the store codes them: lossless subtree bounds rounded up to powers of two, none on the

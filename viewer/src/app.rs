@@ -1051,7 +1051,8 @@ impl ViewerApp {
     }
 
     /// The colour legend (the scalar's name and range, the transfer function's colours across
-    /// it) and the orientation axes of the current camera (x red, y green, z blue, as seen).
+    /// it) and the orientation axes of the current camera (x red, y green, z blue, as seen;
+    /// named by their anatomical directions where the data states its frame: [`axis_names`]).
     fn legend(&self, ui: &mut egui::Ui) {
         ui.separator();
         ui.monospace(self.legend_text());
@@ -1071,11 +1072,15 @@ impl ViewerApp {
         let (axes, _) = ui.allocate_exact_size(egui::vec2(64.0, 64.0), Sense::hover());
         let (r, u, _) = self.camera(1, 1).basis();
         let c = axes.center();
-        for (axis, color, name) in [
-            (glam::DVec3::X, Color32::from_rgb(230, 80, 80), "x"),
-            (glam::DVec3::Y, Color32::from_rgb(90, 200, 90), "y"),
-            (glam::DVec3::Z, Color32::from_rgb(100, 140, 255), "z"),
-        ] {
+        let names = axis_names(self.data.physical.as_ref());
+        for ((axis, color), name) in [
+            (glam::DVec3::X, Color32::from_rgb(230, 80, 80)),
+            (glam::DVec3::Y, Color32::from_rgb(90, 200, 90)),
+            (glam::DVec3::Z, Color32::from_rgb(100, 140, 255)),
+        ]
+        .into_iter()
+        .zip(names)
+        {
             let d = egui::vec2(axis.dot(r) as f32, -(axis.dot(u) as f32)) * 22.0;
             ui.painter()
                 .line_segment([c, c + d], egui::Stroke::new(2.0, color));
@@ -1475,5 +1480,39 @@ impl eframe::App for ViewerApp {
     fn on_exit(&mut self) {
         self.data.close();
         self.publish();
+    }
+}
+
+/// The names of the orientation axes' x, y and z: the anatomical direction each positive axis
+/// points to where the data's world frame is known (`+x R`, `+y A`, `+z S` in RAS), else `x`,
+/// `y`, `z`.
+pub fn axis_names(physical: Option<&tetwave_protocol::store_format::Physical>) -> [String; 3] {
+    [0, 1, 2].map(|a| {
+        let plain = ["x", "y", "z"][a];
+        match physical.and_then(|p| p.direction_letter(a, true)) {
+            Some(c) => format!("{plain} {c}"),
+            None => plain.to_string(),
+        }
+    })
+}
+
+#[cfg(test)]
+mod axis_name_tests {
+    use super::axis_names;
+    use tetwave_protocol::store_format::Physical;
+
+    /// The axes are named by the directions their positive ends point to in the data's frame.
+    #[test]
+    fn axes_are_named_in_the_datas_frame() {
+        let world = |frame: Option<&str>| Physical {
+            origin: [0.0; 3],
+            frame: frame.map(String::from),
+            length_unit: None,
+            value_unit: None,
+        };
+        assert_eq!(axis_names(None), ["x", "y", "z"]);
+        assert_eq!(axis_names(Some(&world(None))), ["x", "y", "z"]);
+        assert_eq!(axis_names(Some(&world(Some("RAS")))), ["x R", "y A", "z S"]);
+        assert_eq!(axis_names(Some(&world(Some("LPS")))), ["x L", "y P", "z S"]);
     }
 }

@@ -9,8 +9,8 @@
 use crate::base::Points;
 use crate::hierarchy::{Forest, MAX_LEVELS};
 use crate::store_format::{
-    Counts, Encoding, FileSum, Manifest, Preview, HISTOGRAM_BINS, LEVELSET_BAND_FILE, STORE_FORMAT,
-    STORE_VERSION,
+    Counts, Encoding, FileSum, Manifest, Physical, Preview, HISTOGRAM_BINS, LEVELSET_BAND_FILE,
+    STORE_FORMAT, STORE_VERSION,
 };
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -43,6 +43,7 @@ struct Wire {
     levelset_band: Option<FileSum>,
     preview: Option<Preview>,
     value_histogram: Option<Vec<u64>>,
+    physical: Option<Physical>,
 }
 
 pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
@@ -70,6 +71,7 @@ pub fn serialize<S: Serializer>(m: &Manifest, s: S) -> Result<S::Ok, S::Error> {
         levelset_band: m.files.get(LEVELSET_BAND_FILE).cloned(),
         preview: m.preview.clone(),
         value_histogram: m.value_histogram.clone(),
+        physical: m.physical.clone(),
     }
     .serialize(s)
 }
@@ -147,6 +149,7 @@ pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Box<Manifest>, D::
             .collect(),
         preview: w.preview,
         value_histogram: w.value_histogram,
+        physical: w.physical,
     }))
 }
 
@@ -202,6 +205,12 @@ mod tests {
                 max_error_bound: 0.1,
             }),
             value_histogram: Some((0..HISTOGRAM_BINS as u64).map(|k| k * k).collect()),
+            physical: Some(Physical {
+                origin: [-90.0, 126.0, -72.0],
+                frame: Some("RAS".into()),
+                length_unit: Some("mm".into()),
+                value_unit: None,
+            }),
         }
     }
 

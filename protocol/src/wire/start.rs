@@ -138,6 +138,7 @@ mod tests {
             files: Default::default(),
             preview: None,
             value_histogram: None,
+            physical: None,
         }
     }
 

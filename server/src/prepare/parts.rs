@@ -884,6 +884,11 @@ pub fn finish(o: &PrepareOptions, n: u32) -> Result<Summary, PrepareError> {
         levelset_near,
         preview: None,
         keep_reference: false,
+        physical: plan
+            .grid
+            .volume
+            .as_ref()
+            .and_then(super::VolumeInput::physical),
     };
     let quantizer = quantizer.map(|q| (q, LevelSteps::UNIFORM));
     let m = store::write_streamed(
