@@ -234,10 +234,12 @@ mod tests {
         want.source.clear();
         want.files.retain(|n, _| n == LEVELSET_BAND_FILE);
         assert_eq!(back.unwrap(), want);
-        // without a preview and a histogram: under half the whole manifest's bincode
+        // without a preview, a histogram and a volume's world: under half the whole
+        // manifest's bincode
         let mut m = store_manifest();
         m.preview = None;
         m.value_histogram = None;
+        m.physical = None;
         let (_, len) = round_trip(&m);
         let whole = bincode::serde::encode_to_vec(&m, bincode::config::standard())
             .unwrap()
