@@ -251,11 +251,19 @@ def write_ct_as(raw, dims, dtype, fmt, path, slab=64):
 
 
 def same_store(a, b):
-    """Whether two store directories hold the same files, byte for byte."""
+    """Whether two store directories hold the same files, byte for byte, but for the manifest's
+    `source` (the input's path, which differs between a .tif and a .zarr of the same grid)."""
     import filecmp
 
+    def manifest(d):
+        with open(os.path.join(d, "manifest.json")) as f:
+            m = json.load(f)
+        m.pop("source", None)
+        return m
+
     fa, fb = sorted(os.listdir(a)), sorted(os.listdir(b))
-    return fa == fb and all(filecmp.cmp(os.path.join(a, f), os.path.join(b, f), shallow=False) for f in fa)
+    return fa == fb and manifest(a) == manifest(b) and all(
+        filecmp.cmp(os.path.join(a, f), os.path.join(b, f), shallow=False) for f in fa if f != "manifest.json")
 
 
 def view_server(bindir, store, log):
