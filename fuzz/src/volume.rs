@@ -209,8 +209,8 @@ fn nrrd_seeds() -> Vec<Vec<u8>> {
             &gzip(&voxels[..12]),
         ),
         raw(
-            "NRRD0004\ntype: uint16\ndimension: 3\nsizes: 2 2 1\nencoding: hex\n\n",
-            b"0001 0203 0405 0607\n",
+            "NRRD0004\ntype: uint16\ndimension: 3\nsizes: 2 2 2\nendian: little\nencoding: hex\n\n",
+            b"0001 0203 0405 0607\n0809 0a0b 0c0d 0e0f\n",
         ),
     ]
 }
@@ -263,9 +263,6 @@ fn legacy_seeds() -> Vec<Vec<u8>> {
           0 1 2 3 4 5 6 7 8 9 10 11\n"
             .to_vec(),
         binary,
-        b"# vtk DataFile Version 3.0\nvectors\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 1 1\n\
-          SPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 2\nVECTORS v float\n1 2 3 4 5 6\n"
-            .to_vec(),
     ]
 }
 
