@@ -162,10 +162,9 @@ pub struct RenderReport {
 pub struct VolumeReport {
     pub format: String,
     pub dims: [usize; 3],
-    pub origin: [f64; 3],
-    pub frame: Option<String>,
-    pub length_unit: Option<String>,
-    pub value_unit: Option<String>,
+    /// The file's world: `origin`, `frame`, `length_unit`, `value_unit`.
+    #[serde(flatten)]
+    pub physical: Physical,
 }
 
 /// `--order mpvo` is exact only on convex meshes: says so (a tracing warning) when the drawn domain
@@ -215,15 +214,12 @@ pub fn run(a: &RenderArgs) -> Result<RenderReport, RenderCliError> {
             tf = tf.fitted(&ValueHistogram::of_mesh(&mesh));
         }
         legend_name = drawn.legend_name(&a.store);
+        physical = Some(drawn.physical.clone());
         volume = Some(VolumeReport {
             format: drawn.format.into(),
             dims: drawn.dims,
-            origin: drawn.physical.origin,
-            frame: drawn.physical.frame.clone(),
-            length_unit: drawn.physical.length_unit.clone(),
-            value_unit: drawn.physical.value_unit.clone(),
+            physical: drawn.physical,
         });
-        physical = Some(drawn.physical);
         (mesh, 0, None)
     } else if is_mesh {
         if a.levels.is_some() {
